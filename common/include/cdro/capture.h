@@ -1,0 +1,109 @@
+/*
+ * capture.h: the capture-file format. A capture is what the host received (and sent) on the
+ * serial link, byte for byte, with the host's clock: replaying it reproduces a run exactly.
+ *
+ * File = header, then records, back to back. All integers little-endian.
+ *
+ * Header (23 + n bytes):
+ *   0   8  magic "CDROCAP" followed by 0x00
+ *   8   u16 format version (CDRO_CAPTURE_FORMAT_VERSION)
+ *   10  u16 header size in bytes, CRC included (23 + n; readers skip bytes they do not know)
+ *   12  i64 creation time, us since the Unix epoch (UTC)
+ *   20  u8  n, length of the source description
+ *   21  n   source, UTF-8, not terminated (e.g. "serial:/dev/ttyACM0@115200")
+ *   21+n u16 CRC-16/CCITT-FALSE of bytes [0, 21+n)
+ *
+ * Record (14 + n bytes):
+ *   0   u8  marker 0xC5
+ *   1   u8  flags: CDRO_CAPTURE_FLAG_*; other bits reserved, written 0, ignored on read
+ *   2   u16 n, number of data bytes (<= CDRO_CAPTURE_MAX_DATA)
+ *   4   i64 host time, us since the Unix epoch, when the chunk's delimiter was received
+ *           (or the frame was sent)
+ *   12  n   data: one chunk exactly as on the wire, i.e. the COBS bytes between two 0x00
+ *           delimiters, without the delimiter; valid frames and rejected garbage alike
+ *   12+n u16 CRC-16/CCITT-FALSE of bytes [0, 12+n)
+ *
+ * Each record is self-delimiting (length) and checked (CRC), and is written with a single
+ * write(): a file cut short by power loss or kill -9 loses at most its last record, which
+ * readers report as truncated. A corrupt record is skipped by scanning for the next marker
+ * whose record checks out.
+ */
+#ifndef CDRO_CAPTURE_H
+#define CDRO_CAPTURE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "cdro/frames.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define CDRO_CAPTURE_MAGIC "CDROCAP"  /* 7 characters + the terminating 0x00 = 8 bytes */
+#define CDRO_CAPTURE_MAGIC_SIZE 8U
+#define CDRO_CAPTURE_FORMAT_VERSION 1U
+#define CDRO_CAPTURE_HEADER_FIXED 23U /* header bytes without the source */
+#define CDRO_CAPTURE_MAX_SOURCE 255U
+#define CDRO_CAPTURE_RECORD_MARKER 0xC5U
+#define CDRO_CAPTURE_RECORD_OVERHEAD 14U
+#define CDRO_CAPTURE_MAX_DATA 4096U   /* bytes; longer garbage runs are cut and flagged */
+
+#define CDRO_CAPTURE_FLAG_TO_DEVICE 0x01U /* sent by the host; otherwise received */
+#define CDRO_CAPTURE_FLAG_TRUNCATED 0x02U /* the chunk was longer than the data kept */
+
+typedef struct cdro_capture_header {
+    uint16_t format_version;
+    int64_t created_unix_us;   /* us since the Unix epoch */
+    uint8_t source_len;        /* bytes in source */
+    char source[CDRO_CAPTURE_MAX_SOURCE]; /* not terminated */
+} cdro_capture_header_t;
+
+typedef struct cdro_capture_record {
+    uint8_t flags;             /* CDRO_CAPTURE_FLAG_* */
+    int64_t host_time_us;      /* us since the Unix epoch */
+    uint16_t data_len;         /* bytes */
+    const uint8_t *data;       /* encode: read from here; decode: points into the input */
+} cdro_capture_record_t;
+
+/* Encodes the header into out. Returns its size, or 0 if out_cap is too small. */
+size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap);
+
+/*
+ * Decodes a header from the start of a file. Returns CDRO_OK and sets *consumed;
+ * CDRO_PENDING if len is too short to hold it; CDRO_ERR_TYPE for a wrong magic (not a
+ * capture); CDRO_ERR_VERSION for a newer format version; CDRO_ERR_LENGTH for an inconsistent
+ * size; CDRO_ERR_CRC for a corrupt header.
+ */
+cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_capture_header_t *out,
+                                         size_t *consumed);
+
+/* Encodes one record into out. Returns its size, or 0 if out_cap is too small or data_len too large. */
+size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *out, size_t out_cap);
+
+/*
+ * Decodes the record at in[0]. Returns CDRO_OK and sets *consumed (out->data points into in);
+ * CDRO_PENDING if the bytes end inside the record (at the end of a file: the file was cut
+ * short and this is its truncated last record); CDRO_ERR_TYPE if in[0] is not the marker; CDRO_ERR_LENGTH if the length field is impossible; CDRO_ERR_CRC if corrupt. After an
+ * error other than CDRO_PENDING, a reader skips one byte and tries again (resynchronisation).
+ */
+cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out,
+                                         size_t *consumed);
+
+/*
+ * The reading policy, shared by every reader: finds the next good record in in[0, len),
+ * skipping corrupt bytes. Returns CDRO_OK with *out, *skipped (bytes before the record, to be
+ * counted as corrupt) and *consumed (the record's size). Returns CDRO_PENDING when no complete
+ * good record remains: then in[0, len) is either the start of an incomplete record (more bytes
+ * may come, or at the end of a file it is a truncated last record) or corrupt bytes.
+ * A record whose length field claims more bytes than remain is only taken for a truncated
+ * tail if no good record follows it.
+ */
+cdro_result_t cdro_capture_next_record(const uint8_t *in, size_t len, cdro_capture_record_t *out,
+                                       size_t *skipped, size_t *consumed);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* CDRO_CAPTURE_H */

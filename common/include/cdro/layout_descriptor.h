@@ -1,0 +1,29 @@
+/*
+ * layout_descriptor.h: the canonical text of the layout tables, from which the layout hashes
+ * are computed (CRC-16/CCITT-FALSE of the ASCII text). The Python generator builds the same
+ * text from the same .def files; tests/golden/layout_history.json pins one hash per version.
+ *
+ * Text: for every record in table order, "NAME ID{KIND field;KIND array[MAX];...}" with ID
+ * and MAX spelled as their expanded tokens (e.g. "RANGE 0x02{U32 device_time_ms;...}").
+ * Host-side only: the firmware sends the committed CDRO_LAYOUT_HASH constant, not this text.
+ */
+#ifndef CDRO_LAYOUT_DESCRIPTOR_H
+#define CDRO_LAYOUT_DESCRIPTOR_H
+
+#include "cdro/frame_layout.def"
+#include "cdro/sog_layout.def"
+
+#define CDRO_STRINGIFY_(x) #x
+#define CDRO_STRINGIFY(x) CDRO_STRINGIFY_(x)
+
+#define CDRO_X_DESC_FIELD(KIND, field, doc) #KIND " " #field ";"
+#define CDRO_X_DESC_ARRAY(KIND, field, max, doc) #KIND " " #field "[" CDRO_STRINGIFY(max) "];"
+#define CDRO_X_DESC_RECORD(NAME, name, id, doc) \
+    #NAME " " #id "{" CDRO_FIELDS_##NAME(CDRO_X_DESC_FIELD, CDRO_X_DESC_ARRAY) "}"
+#define CDRO_X_DESC_EMPTY(NAME, name, id, doc) #NAME " " #id "{}"
+
+#define CDRO_FRAME_LAYOUT_DESCRIPTOR \
+    CDRO_FRAME_LIST(CDRO_X_DESC_RECORD) CDRO_EMPTY_FRAME_LIST(CDRO_X_DESC_EMPTY)
+#define CDRO_SOG_LAYOUT_DESCRIPTOR CDRO_SOG_RECORD_LIST(CDRO_X_DESC_RECORD)
+
+#endif /* CDRO_LAYOUT_DESCRIPTOR_H */

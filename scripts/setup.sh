@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Installs what is missing, and only that: Debian packages (apt-get, as root or via sudo) and the
+# Python tools into ./.venv. Idempotent; quick when everything is already there.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+SUDO=""
+if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
+
+# Everything the build, the tests, the demo and the service need, from Debian 12.
+DEB_PACKAGES=(
+  build-essential cmake ninja-build pkg-config git
+  python3 python3-venv python3-pip
+  libeigen3-dev libgtest-dev libgmock-dev
+  libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
+  mosquitto libmosquitto-dev
+  clang libclang-rt-14-dev
+  gcc-avr avr-libc arduino-core-avr binutils-avr
+  simavr libsimavr-dev libelf-dev
+  chromium chromium-driver
+)
+
+missing=()
+for p in "${DEB_PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing Debian packages: ${missing[*]}"
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get update -q
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${missing[@]}"
+fi
+
+# Python tools in a virtual environment, reinstalled only when tools/pyproject.toml changes.
+PY=/usr/bin/python3
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv"
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.cdro-tools-installed
+want=$(sha256sum tools/pyproject.toml | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "setup: installing the Python tools into .venv"
+  .venv/bin/python -m pip install -q --upgrade pip
+  .venv/bin/python -m pip install -q -e "tools[dev]"
+  echo "$want" > "$stamp"
+fi

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Installs what is missing, builds everything and runs every test, stopping at the first failure:
+#   1. native build (warnings as errors) and its CTest suites
+#   2. the same suites built with AddressSanitizer + UndefinedBehaviorSanitizer
+#   3. AVR cross build with avr-gcc (common/ and the firmware image, with its size budget)
+#   4. libFuzzer on the frame decoder: a short run with a fixed seed and a fixed number of inputs
+#   5. pytest: the Python tools and the end-to-end tests against the native build
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+
+JOBS=$(nproc)
+step() { printf '\n=== %s\n' "$*"; }
+
+step "1/5 native build + tests"
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo > /dev/null
+cmake --build build -j "$JOBS"
+ctest --test-dir build --output-on-failure -j "$JOBS"
+
+step "2/5 ASan + UBSan build + tests"
+cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCDRO_SANITIZE=ON > /dev/null
+cmake --build build-asan -j "$JOBS"
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  ctest --test-dir build-asan --output-on-failure -j "$JOBS" -LE no-sanitize
+
+step "3/5 AVR cross build (ATmega328P)"
+cmake -S . -B build-avr -G Ninja --toolchain cmake/avr-gcc.cmake -DCMAKE_BUILD_TYPE=MinSizeRel > /dev/null
+cmake --build build-avr -j "$JOBS"
+
+step "4/5 libFuzzer: frame decoder"
+cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCDRO_FUZZ=ON -DCDRO_BUILD_TESTS=OFF \
+  -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ > /dev/null
+cmake --build build-fuzz -j "$JOBS" --target cdro-fuzz-decoder
+rm -rf build-fuzz/corpus && mkdir -p build-fuzz/corpus
+build-fuzz/bin/cdro-fuzz-decoder -seed=1 -runs=300000 -max_len=512 build-fuzz/corpus tests/fuzz/seeds
+
+step "5/5 pytest"
+CDRO_BUILD_DIR="$PWD/build" .venv/bin/python -m pytest -q tests
+
+printf '\nAll tests passed.\n'

@@ -1,0 +1,23 @@
+"""Shared pytest fixtures: where the golden vectors and the native build live."""
+import os
+import pathlib
+
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> pathlib.Path:
+    return REPO
+
+
+@pytest.fixture(scope="session")
+def golden_dir() -> pathlib.Path:
+    return REPO / "tests" / "golden"
+
+
+@pytest.fixture(scope="session")
+def build_dir() -> pathlib.Path:
+    """The native CMake build (scripts/test.sh sets CDRO_BUILD_DIR; default ./build)."""
+    return pathlib.Path(os.environ.get("CDRO_BUILD_DIR", REPO / "build"))
