@@ -32,7 +32,13 @@ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCDRO_FUZZ=
   -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ > /dev/null
 cmake --build build-fuzz -j "$JOBS" --target cdro-fuzz-decoder
 rm -rf build-fuzz/corpus && mkdir -p build-fuzz/corpus
-build-fuzz/bin/cdro-fuzz-decoder -seed=1 -runs=300000 -max_len=512 build-fuzz/corpus tests/fuzz/seeds
+if ! build-fuzz/bin/cdro-fuzz-decoder -seed=1 -runs=300000 -max_len=512 -artifact_prefix=build-fuzz/ \
+     build-fuzz/corpus tests/fuzz/seeds > build-fuzz/fuzz.log 2>&1; then
+  tail -n 60 build-fuzz/fuzz.log
+  echo "fuzzer found a failure; the input is in build-fuzz/ (crash-*), the log in build-fuzz/fuzz.log" >&2
+  exit 1
+fi
+grep -E "^Done [0-9]+ runs" build-fuzz/fuzz.log
 
 step "5/5 pytest"
 CDRO_BUILD_DIR="$PWD/build" .venv/bin/python -m pytest -q tests

@@ -7,7 +7,8 @@ uint16_t cdro_crc16_update(uint16_t crc, const uint8_t *data, size_t len)
         uint8_t bit;
         crc = (uint16_t)(crc ^ (uint16_t)((uint16_t)data[i] << 8));
         for (bit = 0; bit < 8U; ++bit) {
-            crc = (crc & 0x8000U) ? (uint16_t)((uint16_t)(crc << 1) ^ 0x1021U) : (uint16_t)(crc << 1);
+            const uint16_t shifted = (uint16_t)(crc << 1);
+            crc = (crc & 0x8000U) ? (uint16_t)(shifted ^ 0x1021U) : shifted;
         }
     }
     return crc;

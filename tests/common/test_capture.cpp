@@ -1,0 +1,119 @@
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "cdro/capture.h"
+#include "golden.hpp"
+
+namespace {
+
+struct Parsed {
+    std::vector<cdro_capture_record_t> records;
+    size_t corrupt_bytes = 0;
+    size_t tail_bytes = 0;
+};
+
+Parsed parse(const std::vector<uint8_t> &file, cdro_capture_header_t &header)
+{
+    size_t offset = 0;
+    EXPECT_EQ(cdro_capture_header_decode(file.data(), file.size(), &header, &offset), CDRO_OK);
+    Parsed parsed;
+    while (offset < file.size()) {
+        cdro_capture_record_t record;
+        size_t skipped = 0;
+        size_t consumed = 0;
+        if (cdro_capture_next_record(file.data() + offset, file.size() - offset, &record, &skipped, &consumed) != CDRO_OK) {
+            parsed.tail_bytes = file.size() - offset;
+            break;
+        }
+        parsed.corrupt_bytes += skipped;
+        parsed.records.push_back(record);
+        offset += skipped + consumed;
+    }
+    return parsed;
+}
+
+TEST(Capture, GoldenFileEncodesToTheGoldenBytes)
+{
+    const auto &v = golden::vectors()["capture"];
+    cdro_capture_header_t header{};
+    header.created_unix_us = v["header"]["created_unix_us"].get<int64_t>();
+    const std::string source = v["header"]["source"];
+    header.source_len = static_cast<uint8_t>(source.size());
+    source.copy(header.source, source.size());
+    std::vector<uint8_t> file(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE);
+    file.resize(cdro_capture_header_encode(&header, file.data(), file.size()));
+    for (const auto &r : v["records"]) {
+        const auto data = golden::fromHex(r["data"]);
+        cdro_capture_record_t record{r["flags"].get<uint8_t>(), r["host_time_us"].get<int64_t>(),
+                                     static_cast<uint16_t>(data.size()), data.data()};
+        std::vector<uint8_t> bytes(CDRO_CAPTURE_RECORD_OVERHEAD + data.size());
+        ASSERT_EQ(cdro_capture_record_encode(&record, bytes.data(), bytes.size()), bytes.size());
+        file.insert(file.end(), bytes.begin(), bytes.end());
+    }
+    EXPECT_EQ(golden::toHex(file), v["bytes"].get<std::string>());
+}
+
+TEST(Capture, GoldenBytesDecodeToTheGoldenRecords)
+{
+    const auto &v = golden::vectors()["capture"];
+    cdro_capture_header_t header;
+    const auto file = golden::fromHex(v["bytes"]);  // records point into it
+    const Parsed parsed = parse(file, header);
+    EXPECT_EQ(header.created_unix_us, v["header"]["created_unix_us"].get<int64_t>());
+    EXPECT_EQ(std::string(header.source, header.source_len), v["header"]["source"].get<std::string>());
+    ASSERT_EQ(parsed.records.size(), v["records"].size());
+    for (size_t i = 0; i < parsed.records.size(); ++i) {
+        EXPECT_EQ(parsed.records[i].host_time_us, v["records"][i]["host_time_us"].get<int64_t>());
+        EXPECT_EQ(parsed.records[i].flags, v["records"][i]["flags"].get<uint8_t>());
+        EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len), v["records"][i]["data"].get<std::string>());
+    }
+    EXPECT_EQ(parsed.corrupt_bytes, 0U);
+    EXPECT_EQ(parsed.tail_bytes, 0U);
+}
+
+TEST(Capture, AFileCutShortLosesOnlyItsLastRecord)
+{
+    const auto &v = golden::vectors()["capture"]["cut_short"];
+    cdro_capture_header_t header;
+    const Parsed parsed = parse(golden::fromHex(v["bytes"]), header);
+    EXPECT_EQ(parsed.records.size(), v["records"].get<size_t>());
+    EXPECT_EQ(parsed.tail_bytes, v["truncated_tail_bytes"].get<size_t>());
+}
+
+TEST(Capture, ACorruptRecordIsSkippedAndTheRestIsRead)
+{
+    const auto &v = golden::vectors()["capture"]["corrupt_middle"];
+    cdro_capture_header_t header;
+    const Parsed parsed = parse(golden::fromHex(v["bytes"]), header);
+    EXPECT_EQ(parsed.records.size(), v["records"].get<size_t>());
+    EXPECT_EQ(parsed.corrupt_bytes, v["corrupt_bytes"].get<size_t>());
+}
+
+TEST(Capture, HeaderRejectsOtherFilesAndNewerVersions)
+{
+    const auto good = golden::fromHex(golden::vectors()["capture"]["bytes"]);
+    cdro_capture_header_t header;
+    size_t consumed = 0;
+    auto not_capture = good;
+    not_capture[0] = 'X';
+    EXPECT_EQ(cdro_capture_header_decode(not_capture.data(), not_capture.size(), &header, &consumed), CDRO_ERR_TYPE);
+    auto newer = good;
+    newer[8] = 2;
+    EXPECT_EQ(cdro_capture_header_decode(newer.data(), newer.size(), &header, &consumed), CDRO_ERR_VERSION);
+    auto corrupt = good;
+    corrupt[13] ^= 0x01;
+    EXPECT_EQ(cdro_capture_header_decode(corrupt.data(), corrupt.size(), &header, &consumed), CDRO_ERR_CRC);
+    EXPECT_EQ(cdro_capture_header_decode(good.data(), 10, &header, &consumed), CDRO_PENDING);
+}
+
+TEST(Capture, RecordRefusesDataAboveTheMaximum)
+{
+    std::vector<uint8_t> data(CDRO_CAPTURE_MAX_DATA + 1);
+    cdro_capture_record_t record{0, 0, static_cast<uint16_t>(data.size()), data.data()};
+    std::vector<uint8_t> out(data.size() + CDRO_CAPTURE_RECORD_OVERHEAD);
+    EXPECT_EQ(cdro_capture_record_encode(&record, out.data(), out.size()), 0U);
+}
+
+}  // namespace

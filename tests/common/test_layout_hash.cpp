@@ -1,0 +1,41 @@
+#include <cstring>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "cdro/crc.h"
+#include "cdro/layout_descriptor.h"
+#include "golden.hpp"
+
+namespace {
+
+uint16_t hashOf(const char *text) { return cdro_crc16(reinterpret_cast<const uint8_t *>(text), std::strlen(text)); }
+
+// Changing frame_layout.def without recording the new hash fails here; recording a new hash
+// under an old protocol version fails the history test below.
+TEST(LayoutHash, FrameLayoutHashMatchesTheTable)
+{
+    EXPECT_EQ(hashOf(CDRO_FRAME_LAYOUT_DESCRIPTOR), CDRO_LAYOUT_HASH)
+        << "frame_layout.def changed: set CDRO_LAYOUT_HASH to 0x" << std::hex << hashOf(CDRO_FRAME_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_PROTOCOL_VERSION and add the pair to tests/golden/layout_history.json";
+}
+
+TEST(LayoutHash, SogLayoutHashMatchesTheTable)
+{
+    EXPECT_EQ(hashOf(CDRO_SOG_LAYOUT_DESCRIPTOR), CDRO_SOG_LAYOUT_HASH)
+        << "sog_layout.def changed: set CDRO_SOG_LAYOUT_HASH to 0x" << std::hex << hashOf(CDRO_SOG_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_SOG_LAYOUT_VERSION and add the pair to tests/golden/layout_history.json";
+}
+
+TEST(LayoutHash, EachVersionHasExactlyOneLayout)
+{
+    const auto history = nlohmann::json::parse(golden::readFile(std::string(CDRO_GOLDEN_DIR) + "/layout_history.json"));
+    const std::string frame_version = std::to_string(CDRO_PROTOCOL_VERSION);
+    const std::string sog_version = std::to_string(CDRO_SOG_LAYOUT_VERSION);
+    ASSERT_TRUE(history["frames"].contains(frame_version)) << "record protocol version " << frame_version;
+    ASSERT_TRUE(history["sog"].contains(sog_version)) << "record SoG layout version " << sog_version;
+    EXPECT_EQ(std::stoul(history["frames"][frame_version].get<std::string>(), nullptr, 16), CDRO_LAYOUT_HASH);
+    EXPECT_EQ(std::stoul(history["sog"][sog_version].get<std::string>(), nullptr, 16), CDRO_SOG_LAYOUT_HASH);
+}
+
+}  // namespace

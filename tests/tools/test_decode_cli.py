@@ -1,0 +1,48 @@
+"""cdro-decode, run as a user would run it."""
+import json
+import subprocess
+import sys
+
+from cdro_tools import codec
+
+
+def run(*args, stdin=None):
+    return subprocess.run([sys.executable, "-m", "cdro_tools.decode", *args], input=stdin, capture_output=True)
+
+
+def test_decodes_a_capture_to_json_lines(tmp_path, golden_dir):
+    vectors = json.loads((golden_dir / "vectors.json").read_text())
+    path = tmp_path / "run.cdrocap"
+    with codec.CaptureWriter(path, "test", created_unix_us=0) as writer:
+        writer.write(codec.CaptureRecord(10, bytes.fromhex(vectors["frames"][1]["bytes"])[:-1]))
+        writer.write(codec.CaptureRecord(20, b"\x13\x37"))
+        writer.write(codec.CaptureRecord(30, bytes.fromhex(vectors["frames"][11]["bytes"])[:-1], codec.capture_file.FLAG_TO_DEVICE))
+    result = run(str(path))
+    assert result.returncode == 0, result.stderr
+    lines = [json.loads(line) for line in result.stdout.decode().splitlines()]
+    assert [(l["direction"], l["result"], l.get("type")) for l in lines] == [
+        ("rx", "ok", "RANGE"), ("rx", "cobs", None), ("tx", "ok", "SET_SCHEDULE")]
+    assert lines[0]["fields"] == vectors["frames"][1]["fields"]
+    counters = json.loads(result.stderr.decode().splitlines()[-1])
+    assert counters["received"]["frames_ok"] == 1 and counters["received"]["cobs_errors"] == 1
+
+
+def test_raw_stdin_summary(golden_dir):
+    vectors = json.loads((golden_dir / "vectors.json").read_text())
+    result = run("--raw", "-", "--summary", stdin=bytes.fromhex(vectors["stream"]["bytes"]))
+    assert result.returncode == 0
+    assert result.stdout == b""
+    assert json.loads(result.stderr.decode().splitlines()[-1])["received"] == vectors["stream"]["counters"]
+
+
+def test_rejects_a_file_that_is_not_a_capture(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("hello")
+    result = run(str(path))
+    assert result.returncode == 2
+    assert b"not a CDRO capture file" in result.stderr
+
+
+def test_help_has_an_example():
+    result = run("--help")
+    assert result.returncode == 0 and b"example" in result.stdout

@@ -1,0 +1,1 @@
+"""CDRO-SLAM tools."""

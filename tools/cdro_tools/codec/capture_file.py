@@ -1,0 +1,171 @@
+"""Capture files, the Python twin of common/include/cdro/capture.h (layout documented there
+and in docs/protocol.md): a checked header, then self-delimiting checked records, one per
+chunk received (or frame sent). A file cut short loses at most its last record."""
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import struct
+import time
+
+from .checksums import crc16
+
+MAGIC = b"CDROCAP\x00"
+FORMAT_VERSION = 1
+HEADER_FIXED = 23
+MAX_SOURCE = 255
+RECORD_MARKER = 0xC5
+RECORD_OVERHEAD = 14
+MAX_DATA = 4096
+FLAG_TO_DEVICE = 0x01
+FLAG_TRUNCATED = 0x02
+
+
+class CaptureError(ValueError):
+    """Not a capture file, an unsupported version, or a corrupt header."""
+
+
+@dataclasses.dataclass
+class CaptureHeader:
+    created_unix_us: int           # us since the Unix epoch
+    source: str                    # e.g. "serial:/dev/ttyACM0@115200"
+    format_version: int = FORMAT_VERSION
+
+
+@dataclasses.dataclass
+class CaptureRecord:
+    host_time_us: int              # us since the Unix epoch
+    data: bytes                    # one chunk as on the wire, without the 0x00 delimiter
+    flags: int = 0
+
+    @property
+    def to_device(self) -> bool:
+        return bool(self.flags & FLAG_TO_DEVICE)
+
+    @property
+    def truncated(self) -> bool:
+        return bool(self.flags & FLAG_TRUNCATED)
+
+
+def encode_header(header: CaptureHeader) -> bytes:
+    source = header.source.encode("utf-8")
+    if len(source) > MAX_SOURCE:
+        raise ValueError(f"source description is {len(source)} bytes, at most {MAX_SOURCE}")
+    body = MAGIC + struct.pack("<HHqB", FORMAT_VERSION, HEADER_FIXED + len(source), header.created_unix_us,
+                               len(source)) + source
+    return body + struct.pack("<H", crc16(body))
+
+
+def decode_header(data: bytes) -> tuple[CaptureHeader, int]:
+    """Returns the header and its size in bytes."""
+    if len(data) < len(MAGIC) or data[:len(MAGIC)] != MAGIC:
+        raise CaptureError("not a CDRO capture file (bad magic)")
+    if len(data) < HEADER_FIXED:
+        raise CaptureError("file ends inside the header")
+    version, size, created, source_len = struct.unpack_from("<HHqB", data, 8)
+    if version == 0 or version > FORMAT_VERSION:
+        raise CaptureError(f"capture format version {version}; this build reads up to {FORMAT_VERSION}")
+    if size < HEADER_FIXED + source_len:
+        raise CaptureError(f"inconsistent header size {size}")
+    if len(data) < size:
+        raise CaptureError("file ends inside the header")
+    (received,) = struct.unpack_from("<H", data, size - 2)
+    if crc16(data[:size - 2]) != received:
+        raise CaptureError("corrupt header (CRC mismatch)")
+    source = data[21:21 + source_len].decode("utf-8", errors="replace")
+    return CaptureHeader(created, source, version), size
+
+
+def encode_record(record: CaptureRecord) -> bytes:
+    if len(record.data) > MAX_DATA:
+        raise ValueError(f"record data is {len(record.data)} bytes, at most {MAX_DATA}")
+    body = struct.pack("<BBHq", RECORD_MARKER, record.flags, len(record.data), record.host_time_us) + record.data
+    return body + struct.pack("<H", crc16(body))
+
+
+def _decode_record_at(data: bytes, offset: int) -> tuple[CaptureRecord, int] | None:
+    """The record at data[offset] if it is complete and checks out, else None."""
+    if len(data) - offset < RECORD_OVERHEAD or data[offset] != RECORD_MARKER:
+        return None
+    flags, length, host_time = struct.unpack_from("<BHq", data, offset + 1)
+    size = RECORD_OVERHEAD + length
+    if length > MAX_DATA or offset + size > len(data):
+        return None
+    (received,) = struct.unpack_from("<H", data, offset + size - 2)
+    if crc16(data[offset:offset + size - 2]) != received:
+        return None
+    return CaptureRecord(host_time, bytes(data[offset + 12:offset + size - 2]), flags), size
+
+
+@dataclasses.dataclass
+class CaptureContents:
+    header: CaptureHeader
+    records: list[CaptureRecord]
+    corrupt_bytes: int = 0         # bytes skipped between good records
+    truncated_tail_bytes: int = 0  # bytes after the last good record (a cut-short last record)
+
+
+def parse_capture(data: bytes) -> CaptureContents:
+    """The reading policy of cdro_capture_next_record: skip corrupt bytes to the next good record."""
+    header, offset = decode_header(data)
+    contents = CaptureContents(header, [])
+    while offset < len(data):
+        start = offset
+        found = None
+        while offset < len(data):
+            found = _decode_record_at(data, offset)
+            if found:
+                break
+            offset = data.find(bytes([RECORD_MARKER]), offset + 1)
+            if offset < 0:
+                offset = len(data)
+        if not found:
+            contents.truncated_tail_bytes = len(data) - start
+            break
+        contents.corrupt_bytes += offset - start
+        record, size = found
+        contents.records.append(record)
+        offset += size
+    return contents
+
+
+def read_capture(path: str | os.PathLike) -> CaptureContents:
+    return parse_capture(pathlib.Path(path).read_bytes())
+
+
+class CaptureWriter:
+    """Appends records with one os.write() each, so a kill -9 loses at most the last record."""
+
+    def __init__(self, path: str | os.PathLike, source: str, created_unix_us: int | None = None):
+        self.path = pathlib.Path(path)
+        self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        created = created_unix_us if created_unix_us is not None else time.time_ns() // 1000
+        self.bytes_written = 0
+        self.records_written = 0
+        self._write(encode_header(CaptureHeader(created, source)))
+
+    def _write(self, blob: bytes) -> None:
+        view = memoryview(blob)
+        while view:
+            written = os.write(self._fd, view)
+            view = view[written:]
+        self.bytes_written += len(blob)
+
+    def write(self, record: CaptureRecord) -> None:
+        """Writes one record; data longer than MAX_DATA is cut and flagged truncated."""
+        if len(record.data) > MAX_DATA:
+            record = CaptureRecord(record.host_time_us, record.data[:MAX_DATA], record.flags | FLAG_TRUNCATED)
+        self._write(encode_record(record))
+        self.records_written += 1
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> "CaptureWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
