@@ -238,10 +238,12 @@ def main(argv: list[str] | None = None) -> int:
     report = _report(sim, mode, duration_s, ended_by)
     if sim.device is not None:
         c = sim.device.counters
-        seconds = max(sim.device.now_us / 1e6, 1e-9)
+        uptime_s = max((sim.device.now_us - sim.device.boot_us) / 1e6, 1e-9)
         ok = c["ranges_ok_direct"] + c["ranges_ok_remote"]
-        log(f"{seconds:.1f} s simulated: {ok} ranges ({ok / seconds:.1f}/s), "
-            f"{c['ranges_failed_direct'] + c['ranges_failed_remote']} failed attempts, {c['frames_sent']} frames sent")
+        since = " since the last boot" if sim.device.boots > 1 else ""
+        log(f"{sim.device.now_us / 1e6:.1f} s simulated; {ok} ranges ({ok / uptime_s:.1f}/s), "
+            f"{c['ranges_failed_direct'] + c['ranges_failed_remote']} failed attempts, {c['frames_sent']} frames sent"
+            f"{since}")
     if scenario.faults or args.fault_report:
         _print_summary(report)
     if args.fault_report:

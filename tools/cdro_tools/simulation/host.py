@@ -19,15 +19,17 @@ from ..codec import DecodeEvent, Frame, Result, StreamDecoder, encode_frame
 
 
 class HostLink:
-    def __init__(self, path: str, baud: int = 115200, appear_timeout_s: float = 10.0):
+    def __init__(self, path: str, baud: int = 115200, appear_timeout_s: float = 10.0,
+                 give_up: Callable[[], bool] = lambda: False):
         deadline = time.monotonic() + appear_timeout_s
         while not os.path.exists(path):
-            if time.monotonic() > deadline:
+            if time.monotonic() > deadline or give_up():
                 raise TimeoutError(f"{path} did not appear within {appear_timeout_s} s")
             time.sleep(0.01)
         self.port = serial.Serial(path, baud, timeout=0.05)
         self.decoder = StreamDecoder()
         self.events: list[DecodeEvent] = []
+        self.received = bytearray()          # every byte read, as read
         self.sequence = 0
         self._seen = 0
 
@@ -47,7 +49,11 @@ class HostLink:
 
     def poll(self) -> int:
         """Reads what is there; returns the number of new events."""
-        data = self.port.read(4096)
+        # read only what is there (or wait for one byte): pyserial's read(n) collects until n bytes
+        # or the timeout, and loses what it collected when the port hangs up meanwhile
+        waiting = self.port.in_waiting
+        data = self.port.read(waiting) if waiting else self.port.read(1)
+        self.received += data
         before = len(self.events)
         self.events.extend(self.decoder.feed(data))
         return len(self.events) - before

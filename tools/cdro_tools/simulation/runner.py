@@ -22,7 +22,7 @@ from .uwb import UwbModel
 from .world import World
 
 HOST_REACTION_US = 50_000      # the simulated host answers a HELLO after 50 ms
-READER_GRACE_S = 0.05          # after a reader opens the link, before the first byte (its flush)
+READER_GRACE_S = 0.1           # after a reader opens the link, before the first byte (pyserial flushes on open)
 
 
 def streams(seed: int) -> dict[str, random.Random]:
@@ -368,11 +368,11 @@ class LiveRunner:
                     transport.stats.host_bytes += len(data)
                     device.receive(data)
             transport.pump(self.sim_now_us() if self.speed is not None else None)
-            ended = device.now_us >= self.end_us and not self.hold
+            t_next = sim.next_event_us()
+            ended = not self.hold and (device.now_us >= self.end_us or t_next > self.end_us)
             if ended and (not transport.queue or not transport.up):
                 self.ended_by = "end of scenario"
                 return
-            t_next = sim.next_event_us()
             if not ended:
                 was_paced = self.paced()
                 runnable = self.sim_now_us() >= t_next if was_paced else not transport.queue
