@@ -30,7 +30,7 @@ import sys
 
 from .simulation.link import LinkError
 from .simulation.network import random_network
-from .simulation.runner import LiveRunner, Simulation, print_to_stderr, run_offline
+from .simulation.runner import LiveRunner, Simulation, print_to_stderr, run_offline, streams
 from .simulation.scenario import ScenarioError, builtin_names, load_scenario, parse_fault_option
 from .simulation.world import World
 
@@ -207,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cdro-sim: {error}", file=sys.stderr)
         return 2
 
-    from .simulation.runner import streams
+    if scenario.faults and not (args.pty or args.capture):
+        log(f"{len(scenario.faults)} fault(s) ignored: faults act on the link (--pty or --capture), not on CSV files")
     written = _truth_files(args, world, scenario, streams(seed)["odometry"])
     try:
         if args.pty:

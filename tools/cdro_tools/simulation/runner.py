@@ -331,6 +331,7 @@ class LiveRunner:
 
     def run(self) -> None:
         slave = self.link.create()
+        print(f"{self.link.link_path} {slave}", flush=True)         # for scripts: the link is ready
         self.log(f"device at {self.link.link_path} -> {slave}; it powers on when a reader opens it")
         try:
             self._wait_first_reader()
