@@ -187,3 +187,22 @@ def test_that_a_scenario_with_a_wrong_key_names_the_key(tmp_path):
 
 def test_that_help_has_an_example():
     assert "example" in sim("--help").stdout
+
+
+def test_that_a_vanish_with_reboot_boots_the_device_again_when_it_returns(tmp_path):
+    capture, report = tmp_path / "run.cdrocap", tmp_path / "faults.json"
+    sim("--scenario", "demo", "--duration", 12, "--capture", capture, "--fault-report", report,
+        "--fault", "vanish@5,duration_s=1.5,reboot=true")
+    hellos = []
+    decoder = codec.StreamDecoder()
+    for record in codec.read_capture(capture).records:
+        if not record.to_device:
+            for event in decoder.feed(record.data + b"\x00"):
+                if event.frame is not None and event.frame.type == "HELLO":
+                    hellos.append((record.host_time_us, event.frame["reset_cause"], event.frame.sequence))
+    epoch_us = int(load_scenario("demo").epoch_unix_s * 1e6)
+    assert [(cause, seq) for _, cause, seq in hellos] == [(1, 0), (2, 0)]        # power on, then external
+    # back at 6.5 s (at the end of the operation under way), HELLO 300 ms after the boot
+    assert 6_800_000 <= hellos[1][0] - epoch_us <= 6_800_000 + 110_000
+    counts = json.loads(report.read_text())["counts"]["vanish"]
+    assert counts == {"injected": 1, "seconds": 1.5, "reboots": 1}

@@ -242,3 +242,24 @@ def test_that_a_path_that_is_not_a_symlink_is_refused(tmp_path):
                             capture_output=True, text=True, timeout=GUARD_S)
     assert result.returncode == 2 and "not a symlink" in result.stderr
     assert (tmp_path / "dev").read_text() == "precious"
+
+
+def test_that_the_live_transmit_buffer_refuses_a_frame_that_does_not_fit():
+    # Fixture: a terminal that takes nothing (nobody reads), a 100-byte buffer
+    from cdro_tools.simulation.runner import LiveTransport
+
+    class FullLink:
+        def write(self, data):
+            return 0
+
+    transport = LiveTransport(FullLink(), 100, None, lambda message: None)
+    transport.state = "up"
+    frame = codec.encode_frame(codec.Frame("PING", 0, {"nonce": 1}))       # 14 bytes on the wire
+
+    # Test
+    accepted = [transport.offer(i, frame, None) for i in range(10)]
+    transport.pump(None)
+
+    # Assert: 7 frames fit in 100 bytes, whole; the rest is refused, nothing is written
+    assert accepted == [True] * 7 + [False] * 3
+    assert transport.queued_bytes == 7 * len(frame) and transport.stats.bytes_delivered == 0
