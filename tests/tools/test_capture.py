@@ -152,3 +152,15 @@ def test_that_help_has_an_example_and_bad_arguments_fail():
     assert "example" in run("--help").stdout
     assert run("--port", "x", "--out", "y", "--duration", "0").returncode == 2
     assert run("--out", "y").returncode == 2
+
+
+def test_that_an_unwritable_output_is_a_clear_error(tmp_path):
+    link = PtyLink(tmp_path / "dev")
+    link.create()
+    try:
+        result = subprocess.run([sys.executable, "-m", "cdro_tools.capture", "--port", str(tmp_path / "dev"), "--out",
+                                 str(tmp_path / "no" / "such" / "dir.cdrocap")], capture_output=True, text=True,
+                                timeout=GUARD_S)
+    finally:
+        link.close()
+    assert result.returncode == 1 and "cannot write" in result.stderr

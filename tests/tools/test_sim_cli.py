@@ -171,6 +171,8 @@ faults:
     (["--random-network", "10"], "needs --degree"),
     (["--scenario", "demo", "--ranges-csv", "x.csv", "--fault", "earthquake@3"], "is not one of"),
     (["--scenario", "demo", "--ranges-csv", "x.csv", "--speed", "fast"], "neither a number nor max"),
+    (["--scenario", "demo", "--ranges-csv", "no/such/dir/x.csv"], "no such directory"),
+    (["--scenario", "demo", "--pty", "no/such/dir/dev"], "is not a directory"),
 ])
 def test_that_bad_input_exits_non_zero_with_a_clear_message(tmp_path, args, message):
     result = sim(*args, check=False)

@@ -34,6 +34,10 @@ STATUS_PERIOD_LOG_S = 5.0
 RATE_WINDOW_S = 2.0
 
 
+class OutputError(OSError):
+    """The capture file cannot be written."""
+
+
 def _err(message: str) -> None:
     print(f"cdro-capture: {message}", file=sys.stderr, flush=True)
 
@@ -91,14 +95,17 @@ class Capture:
             try:
                 self.port = self._open()
                 break
-            except (serial.SerialException, OSError) as error:
+            except (serial.SerialException, OSError):
                 if not args.wait:
                     raise
                 if self.stop():
                     return "signal"
                 time.sleep(delay)
                 delay = min(BACKOFF_MAX_S, delay * 2)
-        self.writer = CaptureWriter(args.out, f"serial:{args.port}@{args.baud}")
+        try:
+            self.writer = CaptureWriter(args.out, f"serial:{args.port}@{args.baud}")
+        except OSError as error:
+            raise OutputError(f"cannot write {args.out}: {error}") from None
         self.chunker = Chunker(self.writer)
         self.started = time.monotonic()
         while True:
@@ -119,7 +126,10 @@ class Capture:
                     return "signal" if self.stop() else "duration"
                 continue
             if data:
-                self.chunker.feed(time.time_ns() // 1000, data)
+                try:
+                    self.chunker.feed(time.time_ns() // 1000, data)
+                except OSError as error:
+                    raise OutputError(f"cannot write {args.out}: {error}") from None
                 list(self.decoder.feed(data))
                 self.bytes_total += len(data)
             self._status()
@@ -200,11 +210,18 @@ def main(argv: list[str] | None = None) -> int:
     capture = Capture(args, lambda: bool(stopping))
     try:
         ended_by = capture.run()
+    except OutputError as error:
+        kept = capture.writer.records_written if capture.writer else 0
+        try:
+            capture.close()
+        except OSError:
+            pass
+        _err(f"{error}; {kept} records were written before")
+        return 1
     except (serial.SerialException, OSError) as error:
-        summary = capture.close()
-        _err(f"cannot capture {args.port}: {error}" + ("" if capture.writer else " (nothing written; --wait waits "
-                                                         "for the port)"))
-        return 2 if capture.writer is None else 1
+        capture.close()
+        _err(f"cannot capture {args.port}: {error} (nothing written; --wait waits for the port)")
+        return 2
     summary = capture.close()
     _err(f"stopped ({ended_by}): {summary['records']} records, {summary['bytes']} bytes in {summary['seconds']} s; "
          f"frames ok {summary['frames_ok']}, rejected {summary['rejected'] or 'none'}; port vanished "

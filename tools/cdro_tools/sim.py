@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pathlib
 import signal
 import sys
 
@@ -150,6 +151,14 @@ def _print_summary(report: dict) -> None:
         f"boot(s), counters {report['device']['counters']}")
 
 
+def _check_outputs(paths) -> None:
+    """Output files go into existing directories, and are not directories themselves."""
+    for path in filter(None, paths):
+        p = pathlib.Path(path)
+        if p.is_dir() or not p.parent.is_dir():
+            raise ScenarioError(f"{path}: cannot write there ({'a directory' if p.is_dir() else 'no such directory'})")
+
+
 def _run_random(args) -> int:
     if args.pty or args.capture:
         raise ScenarioError("--random-network writes CSV files only (no device: no --pty, no --capture)")
@@ -157,6 +166,7 @@ def _run_random(args) -> int:
         raise ScenarioError("--random-network needs --degree")
     if not (args.ranges_csv or args.truth_csv or args.heights_csv):
         raise ScenarioError("nothing to do: give --ranges-csv and/or --truth-csv, --heights-csv")
+    _check_outputs([args.ranges_csv, args.truth_csv, args.heights_csv])
     seed = 1 if args.seed is None else args.seed
     net = random_network(args.random_network, args.degree, seed, args.noise_m, args.sweeps,
                          tuple(args.height_range_m) if args.height_range_m else None, args.nlos_fraction)
@@ -201,12 +211,21 @@ def main(argv: list[str] | None = None) -> int:
                            args.odometry_csv, args.robot_truth_csv, args.motion_csv]
         if not args.pty and not any(offline_outputs):
             parser.error("nothing to do: give --pty LINK_PATH, --capture FILE or CSV outputs (see --help)")
+        _check_outputs([*offline_outputs, args.fault_report])
         log(f"scenario {scenario.name}, seed {seed}, {duration_s:g} s, {len(scenario.nodes)} nodes, "
             f"{len(scenario.faults)} fault(s)")
     except ScenarioError as error:
         print(f"cdro-sim: {error}", file=sys.stderr)
         return 2
 
+    try:
+        return _run_scenario(args, scenario, world, seed, duration_s)
+    except OSError as error:
+        print(f"cdro-sim: {error}", file=sys.stderr)
+        return 1
+
+
+def _run_scenario(args, scenario, world, seed: int, duration_s: float) -> int:
     if scenario.faults and not (args.pty or args.capture):
         log(f"{len(scenario.faults)} fault(s) ignored: faults act on the link (--pty or --capture), not on CSV files")
     written = _truth_files(args, world, scenario, streams(seed)["odometry"])
@@ -231,9 +250,6 @@ def main(argv: list[str] | None = None) -> int:
     except LinkError as error:
         print(f"cdro-sim: {error}", file=sys.stderr)
         return 2
-    except OSError as error:
-        print(f"cdro-sim: {error}", file=sys.stderr)
-        return 1
     if args.ranges_csv:
         written.append(_ranges_csv(args.ranges_csv, sim.ranges))
     report = _report(sim, mode, duration_s, ended_by)
