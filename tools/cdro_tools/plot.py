@@ -1,0 +1,391 @@
+"""cdro-plot: a map and an RMSE-over-time plot (PNG) from the service's estimates.
+
+Estimates: the JSON Lines of cdro-hostd (docs/outputs.md: `node` and `robot` lines over time),
+or the offline nodes CSV (id,x,y,var_x,cov_xy,var_y,converged), optionally with a robot
+trajectory CSV (t,x,y,heading_rad,var_x,cov_xy,var_y). Truth from cdro-sim (or a dataset):
+nodes id,x,y,z (start positions), tracks t,id,x,y of everything that moves, ranges
+t,from,to,range_m (to draw links).
+
+Estimates live in the engine's own frame. They are aligned to the truth with a rigid fit
+(rotation and translation, reflection allowed, no scale) over the nodes, at the end for the
+map and at every time step for the RMSE curve. The map shows the truth (hollow circles),
+the aligned estimates with their 2-sigma ellipses, the links that were ranged, the tracks of
+moving nodes (truth dashed, estimates solid), and the robot's path. The numbers (aligned
+RMSE, per-node errors) are printed as one JSON object on stdout.
+
+examples:
+  cdro-plot estimates.jsonl --truth truth.csv --tracks tracks.csv --ranges ranges.csv --map map.png --rmse rmse.png
+  cdro-plot nodes.csv --trajectory trajectory.csv --truth truth.csv --tracks tracks.csv --map map.png
+"""
+from __future__ import annotations
+
+import argparse
+import bisect
+import collections
+import csv
+import dataclasses
+import json
+import math
+import sys
+
+import numpy as np
+
+
+class InputError(ValueError):
+    """An input file that cannot be used at all."""
+
+
+def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R (2x2, orthogonal: rotation or reflection) and t minimising sum |R s_i + t - g_i|^2."""
+    if len(source) == 0:
+        return np.eye(2), np.zeros(2)
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    if len(source) == 1:
+        return np.eye(2), target_mean - source_mean
+    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
+    rotation = vt.T @ u.T
+    return rotation, target_mean - rotation @ source_mean
+
+
+@dataclasses.dataclass
+class Estimate:
+    t_s: float
+    x_m: float
+    y_m: float
+    cov_m2: np.ndarray              # 2x2
+    converged: bool = False
+    moving: bool = False
+
+
+@dataclasses.dataclass
+class Estimates:
+    nodes: dict[int, list[Estimate]] = dataclasses.field(default_factory=lambda: collections.defaultdict(list))
+    robot: dict[int, list[Estimate]] = dataclasses.field(default_factory=lambda: collections.defaultdict(list))
+    dropped: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    timed: bool = False             # JSON Lines: estimates over time
+
+
+def _cov(var_x, cov_xy, var_y) -> np.ndarray:
+    return np.array([[float(var_x), float(cov_xy)], [float(cov_xy), float(var_y)]])
+
+
+def _finite(*values) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+
+
+def read_json_lines(path: str) -> Estimates:
+    out = Estimates(timed=True)
+    with open(path) as f:
+        for line in f:
+            if not line.strip():
+                continue
+            try:
+                obj = json.loads(line)
+            except json.JSONDecodeError:
+                out.dropped["not JSON"] += 1
+                continue
+            if not isinstance(obj, dict):
+                out.dropped["not an object"] += 1
+                continue
+            kind = obj.get("type")
+            if kind not in ("node", "robot"):
+                if kind != "health":
+                    out.dropped[f"type {kind!r}"] += 1
+                continue
+            keys = ["t_s", "id", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2"]
+            if any(k not in obj for k in keys):
+                out.dropped[f"{kind} line without {', '.join(k for k in keys if k not in obj)}"] += 1
+                continue
+            values = [obj[k] for k in keys]
+            if not _finite(*values) or obj["id"] != int(obj["id"]):
+                out.dropped[f"{kind} line with a non-numeric value"] += 1
+                continue
+            if kind == "node" and obj.get("placed") is False:
+                out.dropped["node not placed yet"] += 1
+                continue
+            estimate = Estimate(float(obj["t_s"]), float(obj["x_m"]), float(obj["y_m"]),
+                                _cov(obj["var_x_m2"], obj["cov_xy_m2"], obj["var_y_m2"]),
+                                bool(obj.get("converged", False)), bool(obj.get("moving", False)))
+            (out.nodes if kind == "node" else out.robot)[int(obj["id"])].append(estimate)
+    for series in (*out.nodes.values(), *out.robot.values()):
+        series.sort(key=lambda e: e.t_s)
+    return out
+
+
+def _csv_rows(path: str, required: list[str], dropped: collections.Counter | None = None) -> list[dict]:
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in required if c not in (reader.fieldnames or [])]
+        if missing:
+            raise InputError(f"{path}: missing column(s) {', '.join(missing)} (header: {reader.fieldnames})")
+        rows = []
+        for number, row in enumerate(reader, start=2):
+            try:
+                rows.append({c: float(row[c]) for c in required})
+            except (TypeError, ValueError):
+                if dropped is None:
+                    raise InputError(f"{path}:{number}: not a number in {row}") from None
+                dropped[f"{path}: row with a non-numeric value"] += 1
+        return rows
+
+
+def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
+    out = Estimates(timed=False)
+    for row in _csv_rows(path, ["id", "x", "y", "var_x", "cov_xy", "var_y", "converged"], out.dropped):
+        out.nodes[int(row["id"])].append(Estimate(0.0, row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"]),
+                                                  bool(row["converged"])))
+    if trajectory:
+        for row in _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped):
+            out.robot[robot_id if robot_id is not None else 0].append(
+                Estimate(row["t"], row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"])))
+    return out
+
+
+def read_estimates(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
+    with open(path) as f:
+        head = f.read(4096).lstrip()
+    if head.startswith("{"):
+        if trajectory:
+            raise InputError("--trajectory goes with a nodes CSV; JSON Lines carry the robot's own lines")
+        return read_json_lines(path)
+    return read_nodes_csv(path, trajectory, robot_id)
+
+
+class Truth:
+    def __init__(self, truth_csv: str | None, tracks_csv: str | None):
+        self.start: dict[int, tuple[float, float]] = {}
+        self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        if truth_csv:
+            for row in _csv_rows(truth_csv, ["id", "x", "y"]):
+                self.start[int(row["id"])] = (row["x"], row["y"])
+        if tracks_csv:
+            raw = collections.defaultdict(list)
+            for row in _csv_rows(tracks_csv, ["t", "id", "x", "y"]):
+                raw[int(row["id"])].append((row["t"], row["x"], row["y"]))
+            for node_id, rows in raw.items():
+                rows.sort()
+                array = np.array(rows)
+                self.tracks[node_id] = (array[:, 0], array[:, 1:])
+
+    def has(self, node_id: int) -> bool:
+        return node_id in self.start or node_id in self.tracks
+
+    def at(self, node_id: int, t_s: float) -> np.ndarray:
+        if node_id in self.tracks:
+            times, xy = self.tracks[node_id]
+            return np.array([np.interp(t_s, times, xy[:, 0]), np.interp(t_s, times, xy[:, 1])])
+        return np.array(self.start[node_id])
+
+
+def latest(series: list[Estimate], times: list[float], t_s: float) -> Estimate | None:
+    """The last estimate at or before t_s (times: the series' t_s, sorted)."""
+    index = bisect.bisect_right(times, t_s)
+    return series[index - 1] if index else None
+
+
+def aligned_errors(estimates: dict[int, Estimate], truth: Truth, t_s: float, offset_s: float):
+    """(R, t, {id: error_m}) for the nodes with both an estimate and a truth, at t_s."""
+    ids = sorted(i for i in estimates if truth.has(i))
+    source = np.array([[estimates[i].x_m, estimates[i].y_m] for i in ids]).reshape(-1, 2)
+    target = np.array([truth.at(i, t_s + offset_s) for i in ids]).reshape(-1, 2)
+    rotation, translation = rigid_fit(source, target)
+    errors = {i: float(np.linalg.norm(rotation @ s + translation - g)) for i, s, g in zip(ids, source, target)}
+    return rotation, translation, errors
+
+
+def rmse(errors: dict[int, float]) -> float:
+    return math.sqrt(sum(e * e for e in errors.values()) / len(errors)) if errors else float("nan")
+
+
+def rmse_series(est: Estimates, truth: Truth, step_s: float, offset_s: float, min_nodes: int = 3):
+    """[(t_s, node rmse_m, robot error_m or nan)] at every step_s of the estimates' time span."""
+    times = sorted({e.t_s for series in est.nodes.values() for e in series})
+    if not times:
+        return []
+    out = []
+    end = times[-1]
+    steps = int(math.floor((end - times[0]) / step_s + 1e-9))
+    robot_series = next(iter(est.robot.values()), None)
+    robot_times = [e.t_s for e in robot_series] if robot_series else []
+    robot_id = next(iter(est.robot), None)
+    node_times = {i: [e.t_s for e in series] for i, series in est.nodes.items()}
+    for k in range(steps + 1):
+        t = times[0] + k * step_s
+        current = {i: e for i, series in est.nodes.items() if (e := latest(series, node_times[i], t)) is not None}
+        if sum(1 for i in current if truth.has(i)) >= min_nodes:
+            rotation, translation, errors = aligned_errors(current, truth, t, offset_s)
+            robot_error = float("nan")
+            if robot_series and truth.has(robot_id):
+                r = latest(robot_series, robot_times, t)
+                if r is not None:
+                    robot_error = float(np.linalg.norm(rotation @ [r.x_m, r.y_m] + translation
+                                                       - truth.at(robot_id, t + offset_s)))
+            out.append((round(t, 6), rmse(errors), robot_error))
+    return out
+
+
+def _ellipse(ax, centre, cov, **style):
+    from matplotlib.patches import Ellipse
+    values, vectors = np.linalg.eigh((cov + cov.T) / 2.0)
+    values = np.clip(values, 0.0, None)
+    angle = math.degrees(math.atan2(vectors[1, 1], vectors[0, 1]))
+    width, height = 2 * 2 * math.sqrt(values[1]), 2 * 2 * math.sqrt(values[0])   # 2 sigma
+    ax.add_patch(Ellipse(centre, width, height, angle=angle, fill=False, **style))
+
+
+def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]], rotation, translation,
+             offset_s: float, title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def aligned(e: Estimate) -> np.ndarray:
+        return rotation @ [e.x_m, e.y_m] + translation
+
+    fig, ax = plt.subplots(figsize=(8, 7), dpi=100)
+    final = {i: series[-1] for i, series in est.nodes.items() if series}
+    positions = {i: aligned(e) for i, e in final.items()}
+    for a, b in sorted(links):
+        if a in positions and b in positions:
+            ax.plot(*zip(positions[a], positions[b]), color="0.85", linewidth=0.8, zorder=1)
+    for node_id, (times, xy) in truth.tracks.items():
+        ax.plot(xy[:, 0], xy[:, 1], "--", color="tab:green", linewidth=1.2, zorder=2,
+                label="true track" if node_id == next(iter(truth.tracks)) else None)
+    # estimated tracks of moving nodes, from converged or moving estimates (not the start-up)
+    tracked = [i for i, s in est.nodes.items() if (i in truth.tracks or any(e.moving for e in s))
+               and any(e.converged or e.moving for e in s)]
+    for node_id in tracked:
+        xy = np.array([aligned(e) for e in est.nodes[node_id] if e.converged or e.moving])
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:orange", linewidth=1.0, zorder=3,
+                label="estimated track" if node_id == tracked[0] else None)
+    for robot_id, series in est.robot.items():
+        xy = np.array([aligned(e) for e in series])
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:purple", linewidth=1.2, zorder=3, label="robot estimate")
+    ids_truth = sorted(truth.start)
+    if ids_truth:
+        final_t = max((e.t_s for e in final.values()), default=0.0)
+        txy = np.array([truth.at(i, final_t + offset_s) for i in ids_truth])
+        ax.scatter(txy[:, 0], txy[:, 1], s=90, facecolors="none", edgecolors="black", zorder=4, label="truth")
+    for node_id, e in final.items():
+        p = positions[node_id]
+        _ellipse(ax, p, rotation @ e.cov_m2 @ rotation.T, edgecolor="tab:blue", linewidth=0.8, zorder=5)
+        ax.scatter([p[0]], [p[1]], s=20, color="tab:blue", zorder=6, label="estimate (2-sigma)" if node_id == min(final) else None)
+        ax.annotate(f"0x{node_id:04X}", p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title)
+    ax.grid(True, linewidth=0.3)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_rmse(path: str, series, title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(8, 4), dpi=100)
+    t = [s[0] for s in series]
+    ax.plot(t, [s[1] for s in series], label="nodes, aligned RMSE")
+    if any(not math.isnan(s[2]) for s in series):
+        ax.plot(t, [s[2] for s in series], label="robot position error")
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("error (m)")
+    ax.set_title(title)
+    ax.grid(True, linewidth=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def read_links(path: str) -> set[tuple[int, int]]:
+    links = set()
+    for row in _csv_rows(path, ["from", "to"]):
+        a, b = int(row["from"]), int(row["to"])
+        links.add((min(a, b), max(a, b)))
+    return links
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="cdro-plot", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("estimates", help="cdro-hostd JSON Lines, or a nodes CSV")
+    parser.add_argument("--trajectory", help="robot trajectory CSV (with a nodes CSV)")
+    parser.add_argument("--robot-id", type=lambda s: int(s, 0), help="the robot's node id (for a trajectory CSV)")
+    parser.add_argument("--truth", help="truth nodes CSV id,x,y,z")
+    parser.add_argument("--tracks", help="truth tracks CSV t,id,x,y")
+    parser.add_argument("--ranges", help="ranges CSV t,from,to,range_m (draws the links)")
+    parser.add_argument("--map", required=True, metavar="PNG", help="map output")
+    parser.add_argument("--rmse", metavar="PNG", help="RMSE-over-time output (needs timed estimates and truth)")
+    parser.add_argument("--step-s", type=float, default=0.5, help="RMSE curve step, s (default 0.5)")
+    parser.add_argument("--time-offset-s", type=float, default=0.0,
+                        help="truth time = estimate time + this (the service's t_s starts when it started)")
+    parser.add_argument("--title", default="", help="plot title")
+    args = parser.parse_args(argv)
+    if not args.step_s > 0:
+        parser.error("--step-s must be above 0")
+
+    def fail(message: str) -> int:
+        print(f"cdro-plot: {message}", file=sys.stderr)
+        return 2
+
+    try:
+        est = read_estimates(args.estimates, args.trajectory, args.robot_id)
+        truth = Truth(args.truth, args.tracks)
+        links = read_links(args.ranges) if args.ranges else set()
+    except (OSError, InputError, UnicodeDecodeError) as error:
+        return fail(str(error))
+    for reason, count in sorted(est.dropped.items()):
+        print(f"cdro-plot: dropped {count} line(s): {reason}", file=sys.stderr)
+    if not est.nodes:
+        return fail(f"{args.estimates}: no node estimates")
+    if args.rmse and not (est.timed or est.robot):
+        return fail("--rmse needs estimates over time: JSON Lines, or a trajectory CSV")
+    if args.rmse and not (truth.start or truth.tracks):
+        return fail("--rmse needs --truth (and --tracks for moving nodes)")
+
+    final = {i: s[-1] for i, s in est.nodes.items() if s}
+    final_t = max(e.t_s for e in final.values())
+    matched = sum(1 for i in final if truth.has(i))
+    result: dict = {"nodes": len(final), "nodes_with_truth": matched}
+    if matched:
+        rotation, translation, errors = aligned_errors(final, truth, final_t, args.time_offset_s)
+        result.update(rmse_m=round(rmse(errors), 6),
+                      per_node_error_m={f"0x{i:04X}": round(e, 6) for i, e in sorted(errors.items())},
+                      reflected=bool(np.linalg.det(rotation) < 0))
+        for robot_id, series in est.robot.items():
+            if truth.has(robot_id):
+                robot_errors = [float(np.linalg.norm(rotation @ [e.x_m, e.y_m] + translation
+                                                     - truth.at(robot_id, e.t_s + args.time_offset_s))) for e in series]
+                result["robot_rmse_m"] = round(math.sqrt(sum(e * e for e in robot_errors) / len(robot_errors)), 6)
+    else:
+        rotation, translation = np.eye(2), np.zeros(2)
+        print("cdro-plot: no truth for these nodes: the map shows the estimates in the engine's frame", file=sys.stderr)
+    title = args.title or args.estimates
+    try:
+        plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title)
+        if args.rmse:
+            if est.timed:
+                series = rmse_series(est, truth, args.step_s, args.time_offset_s)
+            else:   # a nodes CSV: the final alignment, the robot's error over its trajectory
+                robot_id, robot = next(iter(est.robot.items()))
+                series = [(e.t_s, result.get("rmse_m", float("nan")),
+                           float(np.linalg.norm(rotation @ [e.x_m, e.y_m] + translation
+                                                - truth.at(robot_id, e.t_s + args.time_offset_s)))
+                           if truth.has(robot_id) else float("nan")) for e in robot]
+            if not series:
+                return fail("--rmse: no time with at least 3 nodes that have both an estimate and a truth")
+            plot_rmse(args.rmse, series, title)
+            result["rmse_over_time"] = {"points": len(series), "first_m": round(series[0][1], 6),
+                                        "last_m": round(series[-1][1], 6)}
+    except OSError as error:
+        return fail(str(error))
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

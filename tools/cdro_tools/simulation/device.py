@@ -1,0 +1,432 @@
+"""The simulated device: the firmware's side of the link, per docs/protocol.md "Device
+behaviour", in simulated time.
+
+The device is a state machine driven from outside, like the firmware's main loop:
+next_due_us() says when it next wants to act, idle_to() lets simulated time pass, run_one()
+performs one step (a STATUS, a boot step, one accelerometer poll, or one ranging slot with its
+retries) and advances the clock by the step's duration, and receive() takes host bytes, which
+are handled between steps, as the firmware handles them between Pozyx operations. Frames go to
+a sink at the time they are complete; the sink may refuse a frame (transmit buffer full).
+
+Where the contract is silent, this simulator chooses as documented in docs/tools.md
+("Device model: choices where the contract is silent").
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import random
+from fractions import Fraction
+from typing import Callable, Protocol
+
+from ..codec import CONSTANTS as C
+from ..codec import LAYOUT_HASH, PROTOCOL_VERSION, Frame, Result, StreamDecoder, encode_frame
+from ..codec.frames import TYPE_IDS
+from .scenario import Scenario, Schedule
+from .uwb import POZYX_RANGING_FAILED, POZYX_RANGING_TIMEOUT, UwbModel, link_key
+from .world import ONE_G_MG, World
+
+MOVING_ABOVE_MG = 80          # deviation that makes a still node moving
+STILL_BELOW_MG = 40           # deviation a moving node must stay under ...
+STILL_SAMPLES = 16            # ... for this many consecutive samples
+WINDOW_SAMPLES = 8            # the deviation is the largest |norm - 1 g| over this many samples
+MOTION_PERIODIC_US = 5_000_000
+FAILURE_STREAK = 5            # consecutive failed attempts of one pair before ERROR RANGING
+RX_BUFFER_BYTES = 64          # the Uno's serial receive buffer, which holds host bytes during discovery
+HOST_TYPES = {name for name, type_id in TYPE_IDS.items() if type_id >= 0x40}
+
+
+class Sink(Protocol):
+    def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool:
+        """Takes the bytes at time_us; False when the transmit buffer cannot take them whole."""
+
+
+@dataclasses.dataclass
+class MotionState:
+    next_poll_us: int
+    window_mg: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=WINDOW_SAMPLES))
+    moving: bool = False
+    below_count: int = 0
+    last_motion_us: int | None = None   # last MOTION frame for this node
+    fail_streak: int = 0
+
+
+def status_counter_names() -> list[str]:
+    return ["ranges_ok_direct", "ranges_ok_remote", "ranges_failed_direct", "ranges_failed_remote", "retries",
+            "bus_errors", "timeouts", "frames_sent", "frames_dropped", "commands_rejected"]
+
+
+class SimDevice:
+    def __init__(self, scenario: Scenario, world: World, uwb: UwbModel, accel_rng: random.Random, sink: Sink,
+                 on_frame: Callable[[int, Frame], None] | None = None):
+        self.scenario = scenario
+        self.world = world
+        self.uwb = uwb
+        self.accel_rng = accel_rng
+        self.sink = sink
+        self.on_frame = on_frame
+        self.own_id = scenario.own_id
+        self.spec = scenario.device
+        self.now_us = 0
+        self.boots = 0
+        self.host_bytes_lost_booting = 0   # host bytes before HELLO, or beyond the receive buffer
+        self._power_on(0, C["CDRO_RESET_POWER_ON"])
+
+    # ---- boot ------------------------------------------------------------------------------
+
+    def _power_on(self, t_us: int, reset_cause: int) -> None:
+        self.now_us = max(self.now_us, t_us)
+        self.boot_us = self.now_us
+        self.boots += 1
+        self.reset_cause = reset_cause
+        self.sequence = 0
+        self.counters = dict.fromkeys(status_counter_names(), 0)
+        self.longest_step_us = 0
+        self.running = False
+        self.nodes: list[int] = []
+        self.schedule = Schedule()
+        self.decoder = StreamDecoder()
+        self.motion: dict[int, MotionState] = {}
+        self.round: list[tuple[int, int]] = []
+        self.round_position = 0
+        self.fail_streak: dict[tuple[int, int], int] = {}
+        self.next_slot_us = 0
+        self.dropped_unreported = 0
+        self.next_status_us: int | None = None
+        self.last_status_us = 0
+        self.rx_backlog = bytearray()
+        hello_us = self.boot_us + int(self.spec.boot_ms * 1000)
+        self.boot_steps: list[tuple[int, str]] = [(hello_us, "hello")]
+        if self.spec.pozyx_present and self.spec.discovery:
+            self.boot_steps.append((hello_us + int(self.spec.discovery_ms * 1000), "discovery"))
+
+    def reset(self, reset_cause: int) -> None:
+        """A firmware reset now: sequence and device time restart, HELLO again, stopped."""
+        self._power_on(self.now_us, reset_cause)
+
+    @property
+    def booting(self) -> bool:
+        """Before HELLO: the firmware is not running, host bytes are lost."""
+        return bool(self.boot_steps) and self.boot_steps[0][1] == "hello"
+
+    @property
+    def discovering(self) -> bool:
+        """Between HELLO and the discovery's NODE_LIST: host bytes wait in the receive buffer."""
+        return bool(self.boot_steps) and self.boot_steps[0][1] == "discovery"
+
+    def device_ms(self) -> int:
+        return ((self.now_us - self.boot_us) // 1000) & 0xFFFFFFFF
+
+    def capabilities(self) -> int:
+        if not self.spec.pozyx_present:
+            return 0
+        caps = C["CDRO_CAP_DIRECT_RANGING"] | C["CDRO_CAP_REMOTE_RANGING"]
+        if self.world.nodes[self.own_id].accelerometer:
+            caps |= C["CDRO_CAP_LOCAL_ACCEL"]
+        if any(n.accelerometer for n in self.scenario.nodes if n.id != self.own_id):
+            caps |= C["CDRO_CAP_REMOTE_ACCEL"]
+        if self.spec.discovery:
+            caps |= C["CDRO_CAP_DISCOVERY"]
+        return caps
+
+    def _hello(self) -> None:
+        self._send("HELLO", {
+            "device_time_ms": self.device_ms(), "firmware_version": self.spec.firmware_version,
+            "protocol_version": PROTOCOL_VERSION, "layout_hash": LAYOUT_HASH, "node_id": self.own_id,
+            "capabilities": self.capabilities(), "pozyx_firmware": self.spec.pozyx_firmware if self.spec.pozyx_present else 0,
+            "max_nodes": self.spec.max_nodes, "reset_cause": self.reset_cause})
+
+    def _boot_step(self, step: str) -> None:
+        if step == "hello":
+            self._offer(b"\x00", None)
+            self._hello()
+            if not self.spec.pozyx_present:
+                self._error(C["CDRO_DEVICE_ERROR_POZYX_ABSENT"], 0, 0)
+            self.next_status_us = self.now_us + self.schedule.status_period_ms * 1000
+            self.last_status_us = self.now_us
+        else:
+            t_s = self.now_us / 1e6
+            found = sorted(n.id for n in self.scenario.nodes
+                           if n.id != self.own_id and self.uwb.reachable(self.own_id, n.id, t_s))
+            if found:
+                self._set_nodes(found[:self.spec.max_nodes])
+                self._send("NODE_LIST", {"source": C["CDRO_NODE_SOURCE_DISCOVERY"], "node_ids": self.nodes})
+            backlog, self.rx_backlog = bytes(self.rx_backlog), bytearray()
+            self.receive(backlog)
+
+    # ---- sending ---------------------------------------------------------------------------
+
+    def _offer(self, data: bytes, frame: Frame | None) -> bool:
+        return self.sink.offer(self.now_us, data, frame)
+
+    def _send(self, frame_type: str, fields: dict) -> bool:
+        frame = Frame(frame_type, self.sequence, fields)
+        self.sequence = (self.sequence + 1) & 0xFFFF
+        if not self._offer(encode_frame(frame), frame):
+            self.counters["frames_dropped"] += 1
+            self.dropped_unreported += 1
+            return False
+        self.counters["frames_sent"] += 1
+        if self.on_frame:
+            self.on_frame(self.now_us, frame)
+        if self.dropped_unreported and frame_type != "ERROR":
+            count, self.dropped_unreported = self.dropped_unreported, 0
+            if not self._error(C["CDRO_DEVICE_ERROR_TX_OVERFLOW"], min(count, 0xFFFF), 0):
+                self.dropped_unreported += count
+        return True
+
+    def _error(self, code: int, detail: int, node_id: int) -> bool:
+        return self._send("ERROR", {"device_time_ms": self.device_ms(), "code": code, "detail": detail,
+                                    "node_id": node_id})
+
+    def send_absurd(self, kind: str, unknown_id: int) -> None:
+        """A RANGE frame with a valid CRC and absurd content (fault injection)."""
+        own, other = self.own_id, (self.nodes[0] if self.nodes else self.scenario.remote_ids[0])
+        fields = {"device_time_ms": self.device_ms(), "from_id": own, "to_id": other, "distance_mm": 4000,
+                  "rss_dbm": -80, "flags": 0}
+        if kind == "distance":
+            fields["distance_mm"] = 167772160
+        elif kind == "self_range":
+            fields["to_id"] = own
+        elif kind == "unknown_node":
+            fields["to_id"] = unknown_id
+        else:
+            raise ValueError(kind)
+        on_frame, self.on_frame = self.on_frame, None     # not a range the network measured
+        try:
+            self._send("RANGE", fields)
+        finally:
+            self.on_frame = on_frame
+
+    # ---- the main loop, one step at a time ---------------------------------------------------
+
+    def _accel_nodes(self) -> list[int]:
+        if not self.spec.pozyx_present:
+            return []
+        ids = [self.own_id, *self.nodes]
+        return [i for i in ids if self.world.has(i) and self.world.nodes[i].accelerometer]
+
+    def next_due_us(self) -> int:
+        if self.boot_steps:
+            return self.boot_steps[0][0]
+        due = [self.next_status_us]
+        if self.running:
+            due.append(self.next_slot_us)
+            if self.schedule.motion_poll_ms and self.motion:
+                due.append(min(m.next_poll_us for m in self.motion.values()))
+        return min(due)
+
+    def idle_to(self, t_us: int) -> None:
+        if t_us > self.now_us:
+            self.now_us = t_us
+
+    def run_one(self) -> None:
+        """One step of the main loop: the most urgent thing that is due (call idle_to first)."""
+        start_us = self.now_us
+        if self.boot_steps and self.boot_steps[0][0] <= self.now_us:
+            self._boot_step(self.boot_steps.pop(0)[1])
+        elif self.next_status_us is not None and self.next_status_us <= self.now_us:
+            self._status()
+        elif (self.running and self.schedule.motion_poll_ms and self.motion
+              and min(m.next_poll_us for m in self.motion.values()) <= self.now_us):
+            self._poll_one()
+        elif self.running and self.next_slot_us <= self.now_us:
+            self._slot()
+        else:
+            raise RuntimeError(f"run_one at {self.now_us} us with nothing due (next {self.next_due_us()} us)")
+        self.longest_step_us = max(self.longest_step_us, self.now_us - start_us)
+
+    def _status(self) -> None:
+        fields = {"uptime_ms": self.device_ms(), **self.counters, "longest_loop_us": self.longest_step_us,
+                  "free_ram_bytes": self.spec.free_ram_bytes, "running": int(self.running),
+                  "node_count": len(self.nodes)}
+        self._send("STATUS", fields)
+        self.longest_step_us = 0
+        self.last_status_us = self.now_us
+        period_us = self.schedule.status_period_ms * 1000
+        while self.next_status_us <= self.now_us:
+            self.next_status_us += period_us
+
+    # ---- motion -----------------------------------------------------------------------------
+
+    def _reset_motion(self) -> None:
+        """Keeps the state of nodes still listed, staggers the polls of new ones over one period."""
+        ids = self._accel_nodes()
+        period_us = self.schedule.motion_poll_ms * 1000
+        old = self.motion
+        self.motion = {}
+        for index, node_id in enumerate(ids):
+            state = old.get(node_id)
+            if state is None:
+                state = MotionState(next_poll_us=self.now_us + index * period_us // max(1, len(ids)))
+            self.motion[node_id] = state
+
+    def flagged_moving(self, node_id: int) -> bool:
+        state = self.motion.get(node_id)
+        return bool(state and state.moving)
+
+    def _poll_one(self) -> None:
+        node_id, state = min(self.motion.items(), key=lambda item: item[1].next_poll_us)  # first in list order on ties
+        local = node_id == self.own_id
+        self.now_us += self.uwb.operation_us("local_accel" if local else "remote_accel")
+        period_us = self.schedule.motion_poll_ms * 1000
+        while state.next_poll_us <= self.now_us:
+            state.next_poll_us += period_us
+        t_s = self.now_us / 1e6
+        if not local:
+            code = (POZYX_RANGING_TIMEOUT if not self.uwb.reachable(self.own_id, node_id, t_s)
+                    else POZYX_RANGING_FAILED if self.uwb.dropout() else 0)
+            if code:
+                state.fail_streak += 1
+                if state.fail_streak == 1:            # once per streak of failed reads
+                    self._error(C["CDRO_DEVICE_ERROR_ACCEL"], code, node_id)
+                return
+        state.fail_streak = 0
+        norm_mg = self.world.accel_norm_mg(node_id, t_s, self.accel_rng)
+        state.window_mg.append(abs(norm_mg - ONE_G_MG))
+        deviation_mg = int(round(max(state.window_mg)))
+        changed = False
+        if not state.moving and deviation_mg > MOVING_ABOVE_MG:
+            state.moving, state.below_count, changed = True, 0, True
+        elif state.moving:
+            state.below_count = state.below_count + 1 if deviation_mg < STILL_BELOW_MG else 0
+            if state.below_count >= STILL_SAMPLES:
+                state.moving, changed = False, True
+        if state.last_motion_us is None:
+            state.last_motion_us = self.now_us    # periodic frames count from the first sample
+        if changed or self.now_us - state.last_motion_us >= MOTION_PERIODIC_US:
+            reason = C["CDRO_MOTION_REASON_CHANGE"] if changed else C["CDRO_MOTION_REASON_PERIODIC"]
+            self._send("MOTION", {"device_time_ms": self.device_ms(), "node_id": node_id, "moving": int(state.moving),
+                                  "accel_norm_mg": norm_mg, "deviation_mg": min(deviation_mg, 0xFFFF), "reason": reason})
+            state.last_motion_us = self.now_us
+
+    # ---- ranging ----------------------------------------------------------------------------
+
+    def pairs(self) -> list[tuple[int, int]]:
+        pairs = [(self.own_id, r) for r in self.nodes]
+        if self.schedule.mode == C["CDRO_SCHEDULE_ALL_PAIRS"]:
+            pairs += [(a, b) for i, a in enumerate(self.nodes) for b in self.nodes[i + 1:]]
+        return pairs
+
+    def build_round(self) -> list[tuple[int, int]]:
+        """Every pair once; pairs with an end flagged moving moving_boost times, spread evenly:
+        visit k of pair i sits at position (i + k n / b) mod n of the n-pair round."""
+        pairs = self.pairs()
+        n = len(pairs)
+        visits = []
+        for i, pair in enumerate(pairs):
+            boost = self.schedule.moving_boost if (self.flagged_moving(pair[0]) or self.flagged_moving(pair[1])) else 1
+            for k in range(boost):
+                visits.append(((Fraction(i) + Fraction(k * n, boost)) % n, i, k, pair))
+        visits.sort(key=lambda v: v[:3])
+        return [v[3] for v in visits]
+
+    def _slot(self) -> None:
+        if self.round_position >= len(self.round):
+            self.round = self.build_round()
+            self.round_position = 0
+        a, b = self.round[self.round_position]
+        self.round_position += 1
+        slot_start_us = self.now_us
+        remote = a != self.own_id
+        kind = "remote" if remote else "direct"
+        key = link_key(a, b)
+        for attempt in range(self.schedule.max_retries + 1):
+            if attempt:
+                self.counters["retries"] += 1
+            outcome = self.uwb.measure(a, b, self.now_us / 1e6, remote)
+            self.now_us += outcome.duration_us
+            if outcome.ok:
+                self.counters[f"ranges_ok_{kind}"] += 1
+                self.fail_streak[key] = 0
+                flags = (C["CDRO_RANGE_FLAG_REMOTE"] if remote else 0) | (C["CDRO_RANGE_FLAG_RETRY"] if attempt else 0)
+                if self.flagged_moving(a) or self.flagged_moving(b):
+                    flags |= C["CDRO_RANGE_FLAG_MOVING"]
+                self._send("RANGE", {"device_time_ms": self.device_ms(), "from_id": a, "to_id": b,
+                                     "distance_mm": outcome.distance_mm, "rss_dbm": outcome.rss_dbm, "flags": flags})
+                break
+            self.counters[f"ranges_failed_{kind}"] += 1
+            if remote and outcome.error_code == POZYX_RANGING_TIMEOUT:
+                self.counters["timeouts"] += 1      # the firmware's wait for the result message expired
+            self.fail_streak[key] = self.fail_streak.get(key, 0) + 1
+            if self.fail_streak[key] == FAILURE_STREAK:
+                self._error(C["CDRO_DEVICE_ERROR_RANGING"], outcome.error_code, b)
+        period_us = self.schedule.slot_period_ms * 1000
+        self.next_slot_us = slot_start_us + period_us if period_us else self.now_us
+
+    # ---- commands ---------------------------------------------------------------------------
+
+    def _set_nodes(self, ids: list[int]) -> None:
+        self.nodes = list(ids)
+        self.round, self.round_position = [], 0
+        self._reset_motion()
+
+    def receive(self, data: bytes) -> None:
+        """Host bytes, handled now (between steps)."""
+        if self.booting:
+            self.host_bytes_lost_booting += len(data)
+            return
+        if self.discovering:
+            room = RX_BUFFER_BYTES - len(self.rx_backlog)
+            self.rx_backlog += data[:room]
+            self.host_bytes_lost_booting += max(0, len(data) - room)
+            return
+        for event in self.decoder.feed(data):
+            self._command(event)
+
+    def _nack(self, frame: Frame, reason: str) -> None:
+        self.counters["commands_rejected"] += 1
+        self._send("NACK", {"nacked_type": frame.type_id, "nacked_sequence": frame.sequence,
+                            "reason": C[f"CDRO_NACK_{reason}"]})
+
+    def _ack(self, frame: Frame, value: int = 0) -> None:
+        self._send("ACK", {"acked_type": frame.type_id, "acked_sequence": frame.sequence, "value": value})
+
+    def _command(self, event) -> None:
+        frame = event.frame
+        if frame is None or event.result in (Result.COBS, Result.SHORT, Result.CRC, Result.TOO_LONG):
+            self.counters["commands_rejected"] += 1      # cannot be trusted to say what it was
+            return
+        if event.result == Result.VERSION:
+            return self._nack(frame, "MALFORMED")
+        if frame.type not in HOST_TYPES:
+            return self._nack(frame, "UNKNOWN_TYPE")
+        if event.result == Result.LENGTH:
+            return self._nack(frame, "MALFORMED")
+        if event.result == Result.VALUE:
+            return self._nack(frame, "BAD_VALUE")
+        f = frame.fields
+        if frame.type == "SET_NODES":
+            if len(f["node_ids"]) > self.spec.max_nodes:
+                return self._nack(frame, "TOO_MANY_NODES")
+            if self.own_id in f["node_ids"]:
+                return self._nack(frame, "BAD_VALUE")
+            self._ack(frame)
+            self._set_nodes(f["node_ids"])
+            self._send("NODE_LIST", {"source": C["CDRO_NODE_SOURCE_HOST"], "node_ids": self.nodes})
+        elif frame.type == "SET_SCHEDULE":
+            self._ack(frame)
+            old_mode, old_poll = self.schedule.mode, self.schedule.motion_poll_ms
+            self.schedule = Schedule(**f)
+            if self.schedule.mode != old_mode:
+                self.round, self.round_position = [], 0
+            if self.schedule.motion_poll_ms != old_poll:
+                self.motion = {}
+                self._reset_motion()
+            self.next_status_us = max(self.now_us, self.last_status_us + self.schedule.status_period_ms * 1000)
+        elif frame.type == "START":
+            if not self.nodes or not self.spec.pozyx_present:
+                return self._nack(frame, "WRONG_STATE")
+            self._ack(frame)
+            if not self.running:
+                self.running = True
+                self.next_slot_us = self.now_us
+                self.motion = {}
+                self._reset_motion()
+        elif frame.type == "STOP":
+            self._ack(frame)
+            self.running = False
+        elif frame.type == "PING":
+            self._ack(frame, f["nonce"])
+        elif frame.type == "HELLO_REQUEST":
+            self._hello()

@@ -1,0 +1,488 @@
+"""Scenario files: YAML, checked strictly (unknown keys, wrong types and impossible values are
+errors naming the key), with every default in one place. docs/tools.md documents each key.
+
+Built-in scenarios ship in cdro_tools/scenarios/*.yaml and are named without the extension.
+"""
+from __future__ import annotations
+
+import dataclasses
+import importlib.resources
+import math
+import pathlib
+from typing import Any
+
+import yaml
+
+from ..codec import CONSTANTS as C
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be used; the message names the file and the key."""
+
+
+# ---- the scenario, as dataclasses with the documented defaults -------------------------------
+
+@dataclasses.dataclass
+class Node:
+    id: int
+    x_m: float
+    y_m: float
+    z_m: float = 0.0
+    accelerometer: bool = False            # tags have one, anchors do not
+    moving_amplitude_mg: float | None = None  # overrides accelerometer.moving_amplitude_mg
+
+
+@dataclasses.dataclass
+class MotionSegment:
+    node: int
+    start_s: float
+    waypoints: list[tuple[float, float]]   # metres; the node starts from where it is
+    speed_mps: float | None = None         # either a speed ...
+    end_s: float | None = None             # ... or an end time (then the speed follows)
+
+
+@dataclasses.dataclass
+class Odometry:
+    rate_hz: float = 10.0
+    distance_noise_frac: float = 0.02      # std of the relative error of each step's distance
+    heading_noise_rad: float = 0.002       # std of each moving step's heading change error (rad)
+    heading_drift_rad_s: float = 0.0       # constant heading drift (rad/s), also when standing still
+
+
+@dataclasses.dataclass
+class Robot:
+    id: int
+    start_s: float = 0.0                   # drives from here on; before, it stands at its node position
+    waypoints: list[tuple[float, float]] | None = None
+    speed_mps: float = 0.5
+    turn_rate_rad_s: float = 0.5           # turns in place at waypoints
+    heading_rad: float | None = None       # initial heading; default: towards the first waypoint
+    poses: list[tuple[float, float, float]] | None = None  # alternative: (t_s, x_m, y_m), linear
+    odometry: Odometry = dataclasses.field(default_factory=Odometry)
+    moving_amplitude_mg: float = 120.0     # vibration of a driving robot, mg
+
+
+@dataclasses.dataclass
+class Schedule:
+    """The SET_SCHEDULE fields the simulated host sends (CSV and capture modes)."""
+
+    mode: int = C["CDRO_SCHEDULE_ALL_PAIRS"]
+    slot_period_ms: int = 0
+    motion_poll_ms: int = 200
+    moving_boost: int = 2
+    status_period_ms: int = 1000
+    max_retries: int = 1
+
+    def fields(self) -> dict[str, int]:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass
+class NlosLink:
+    a: int
+    b: int
+    bias_m: float
+
+
+@dataclasses.dataclass
+class Nlos:
+    links: list[NlosLink] = dataclasses.field(default_factory=list)
+    random_links: int = 0                  # this many further links get a persistent bias ...
+    random_bias_m: tuple[float, float] = (0.3, 1.5)  # ... drawn uniformly from this range
+    outlier_probability: float = 0.0       # per range: reads long by an exponential amount
+    outlier_mean_m: float = 0.5            # mean of that exponential tail
+    rss_loss_db: float = 6.0               # RSS lower on biased links
+
+
+DEFAULT_DURATIONS_MS = {
+    "direct": (15.0, 25.0),        # own node to a remote node, success
+    "remote": (40.0, 70.0),        # remote to remote, success
+    "direct_fail": (25.0, 35.0),   # until the Pozyx reports the failure
+    "remote_fail": (95.0, 110.0),  # the firmware's 100 ms wait for the result message
+    "local_accel": (1.0, 2.0),     # I2C read of the own node's accelerometer
+    "remote_accel": (15.0, 25.0),  # remote register read over UWB
+}
+
+
+@dataclasses.dataclass
+class Uwb:
+    noise_std_m: float = 0.1                                # Pozyx nominal accuracy
+    noise_variance_m2: tuple[float, float] | None = None    # per-link variance drawn uniformly (overrides)
+    scale: float = 1.0                                      # measured = scale x true (+ errors)
+    max_range_m: float = 100.0                              # beyond: the range fails (timeout)
+    dropout_probability: float = 0.0                        # per attempt: fails (Pozyx 0x11)
+    nlos: Nlos = dataclasses.field(default_factory=Nlos)
+    durations_ms: dict[str, tuple[float, float]] = dataclasses.field(
+        default_factory=lambda: dict(DEFAULT_DURATIONS_MS))
+
+
+@dataclasses.dataclass
+class Accelerometer:
+    noise_mg: float = 8.0                  # std of the norm's noise
+    moving_amplitude_mg: float = 250.0     # swing of the norm while carried (walking)
+    moving_frequency_hz: float = 1.8       # step frequency
+
+
+@dataclasses.dataclass
+class Device:
+    firmware_version: int = 0x0100         # major << 8 | minor
+    pozyx_firmware: int = 0x12             # Pozyx FIRMWARE_VER, major << 4 | minor
+    max_nodes: int = C["CDRO_MAX_NODES"]
+    discovery: bool = True                 # NODE_LIST (DISCOVERY) at boot: nodes in range
+    pozyx_present: bool = True            # False: ERROR POZYX_ABSENT at boot, START NACKed
+    boot_ms: float = 300.0                 # power-up to HELLO (Pozyx start-up wait and self-test)
+    discovery_ms: float = 200.0            # HELLO to NODE_LIST
+    free_ram_bytes: int = 612              # reported in STATUS
+    tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
+
+
+@dataclasses.dataclass
+class Fault:
+    at_s: float
+    kind: str
+    params: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+FAULT_KINDS = {
+    # kind: {parameter: default}
+    "garbage": {"bytes": 16},
+    "bit_flip": {"frames": 1},
+    "cut_frame": {"frames": 1},
+    "absurd": {"frames": 6},
+    "vanish": {"duration_s": 3.0, "reboot": False},
+    "reset": {"cause": "watchdog"},
+}
+
+RESET_CAUSES = {"power_on": C["CDRO_RESET_POWER_ON"], "external": C["CDRO_RESET_EXTERNAL"],
+                "brown_out": C["CDRO_RESET_BROWN_OUT"], "watchdog": C["CDRO_RESET_WATCHDOG"]}
+
+
+@dataclasses.dataclass
+class Scenario:
+    name: str
+    own_id: int
+    nodes: list[Node]
+    duration_s: float = 60.0
+    seed: int = 1
+    description: str = ""
+    motion: list[MotionSegment] = dataclasses.field(default_factory=list)
+    robot: Robot | None = None
+    schedule: Schedule = dataclasses.field(default_factory=Schedule)
+    uwb: Uwb = dataclasses.field(default_factory=Uwb)
+    accelerometer: Accelerometer = dataclasses.field(default_factory=Accelerometer)
+    device: Device = dataclasses.field(default_factory=Device)
+    faults: list[Fault] = dataclasses.field(default_factory=list)
+    epoch_unix_s: float = 1_700_000_000.0  # host clock at the start, for capture files
+
+    def node(self, node_id: int) -> Node:
+        for node in self.nodes:
+            if node.id == node_id:
+                return node
+        raise KeyError(node_id)
+
+    @property
+    def remote_ids(self) -> list[int]:
+        return [n.id for n in self.nodes if n.id != self.own_id]
+
+
+# ---- parsing ----------------------------------------------------------------------------------
+
+class _Reader:
+    """Walks a YAML mapping with the path of each key, for error messages."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, path: str, message: str) -> ScenarioError:
+        return ScenarioError(f"{self.source}: {path}: {message}")
+
+    def mapping(self, value: Any, path: str, allowed: set[str], required: set[str] = frozenset()) -> dict:
+        if value is None:
+            value = {}
+        if not isinstance(value, dict):
+            raise self.fail(path, f"expected a mapping, got {type(value).__name__}")
+        unknown = sorted(str(k) for k in value if k not in allowed)
+        if unknown:
+            raise self.fail(path, f"unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+        missing = sorted(required - set(value))
+        if missing:
+            raise self.fail(path, f"missing key(s) {', '.join(missing)}")
+        return value
+
+    def number(self, value: Any, path: str, low: float | None = None, high: float | None = None,
+               low_open: bool = False) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.fail(path, f"expected a number, got {value!r}")
+        if low is not None and (value < low or (low_open and value == low)):
+            raise self.fail(path, f"{value} is below {'or at ' if low_open else ''}the minimum {low}")
+        if high is not None and value > high:
+            raise self.fail(path, f"{value} is above the maximum {high}")
+        return float(value)
+
+    def integer(self, value: Any, path: str, low: int | None = None, high: int | None = None) -> int:
+        if isinstance(value, str):
+            try:
+                value = int(value, 0)
+            except ValueError:
+                raise self.fail(path, f"expected an integer, got {value!r}") from None
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(path, f"expected an integer, got {value!r}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise self.fail(path, f"{value} is outside {low}..{high}")
+        return value
+
+    def node_id(self, value: Any, path: str) -> int:
+        return self.integer(value, path, 1, 0xFFFF)
+
+    def boolean(self, value: Any, path: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.fail(path, f"expected true or false, got {value!r}")
+        return value
+
+    def pair(self, value: Any, path: str, low: float | None = None) -> tuple[float, float]:
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise self.fail(path, f"expected [low, high], got {value!r}")
+        lo, hi = (self.number(v, f"{path}[{i}]", low) for i, v in enumerate(value))
+        if hi < lo:
+            raise self.fail(path, f"high {hi} is below low {lo}")
+        return lo, hi
+
+    def points(self, value: Any, path: str, size: int) -> list[tuple[float, ...]]:
+        if not isinstance(value, list) or not value:
+            raise self.fail(path, "expected a non-empty list of points")
+        out = []
+        for i, point in enumerate(value):
+            if not isinstance(point, (list, tuple)) or len(point) != size:
+                raise self.fail(f"{path}[{i}]", f"expected {size} numbers, got {point!r}")
+            out.append(tuple(self.number(v, f"{path}[{i}][{k}]") for k, v in enumerate(point)))
+        return out
+
+
+def _fields(cls) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls)}
+
+
+def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Scenario:
+    r = _Reader(source)
+    top = r.mapping(data, "(top)", {"name", "description", "duration_s", "seed", "own_id", "nodes", "motion",
+                                    "robot", "schedule", "uwb", "accelerometer", "device", "faults",
+                                    "epoch_unix_s"}, {"own_id", "nodes"})
+    nodes: list[Node] = []
+    if not isinstance(top["nodes"], list) or not top["nodes"]:
+        raise r.fail("nodes", "expected a non-empty list of nodes")
+    for i, raw in enumerate(top["nodes"]):
+        path = f"nodes[{i}]"
+        m = r.mapping(raw, path, {"id", "x", "y", "z", "accelerometer", "moving_amplitude_mg"}, {"id", "x", "y"})
+        nodes.append(Node(
+            id=r.node_id(m["id"], f"{path}.id"), x_m=r.number(m["x"], f"{path}.x"), y_m=r.number(m["y"], f"{path}.y"),
+            z_m=r.number(m.get("z", 0.0), f"{path}.z"),
+            accelerometer=r.boolean(m.get("accelerometer", False), f"{path}.accelerometer"),
+            moving_amplitude_mg=(None if m.get("moving_amplitude_mg") is None
+                                 else r.number(m["moving_amplitude_mg"], f"{path}.moving_amplitude_mg", 0))))
+    ids = [n.id for n in nodes]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise r.fail("nodes", "duplicate id(s) " + ", ".join(f"0x{i:04X}" for i in duplicates))
+    own_id = r.node_id(top["own_id"], "own_id")
+    if own_id not in ids:
+        raise r.fail("own_id", f"0x{own_id:04X} is not among the nodes")
+
+    def known(node_id: int, path: str) -> int:
+        if node_id not in ids:
+            raise r.fail(path, f"0x{node_id:04X} is not among the nodes")
+        return node_id
+
+    scenario = Scenario(name=str(top.get("name", default_name)), own_id=own_id, nodes=nodes,
+                        duration_s=r.number(top.get("duration_s", 60.0), "duration_s", 0, low_open=True),
+                        seed=r.integer(top.get("seed", 1), "seed", 0, 2**63 - 1),
+                        description=str(top.get("description", "")).strip(),
+                        epoch_unix_s=r.number(top.get("epoch_unix_s", 1_700_000_000.0), "epoch_unix_s", 0, 4e9))
+    if len(nodes) - 1 > C["CDRO_MAX_NODES"]:
+        raise r.fail("nodes", f"{len(nodes) - 1} remote nodes; a device schedules at most {C['CDRO_MAX_NODES']}")
+
+    for i, raw in enumerate(top.get("motion") or []):
+        path = f"motion[{i}]"
+        m = r.mapping(raw, path, {"node", "start_s", "waypoints", "speed_mps", "end_s"}, {"node", "start_s", "waypoints"})
+        segment = MotionSegment(node=known(r.node_id(m["node"], f"{path}.node"), f"{path}.node"),
+                                start_s=r.number(m["start_s"], f"{path}.start_s", 0),
+                                waypoints=r.points(m["waypoints"], f"{path}.waypoints", 2))
+        if ("speed_mps" in m) == ("end_s" in m):
+            raise r.fail(path, "give exactly one of speed_mps and end_s")
+        if "speed_mps" in m:
+            segment.speed_mps = r.number(m["speed_mps"], f"{path}.speed_mps", 0, low_open=True)
+        else:
+            segment.end_s = r.number(m["end_s"], f"{path}.end_s", segment.start_s, low_open=True)
+        scenario.motion.append(segment)
+
+    if top.get("robot") is not None:
+        path = "robot"
+        m = r.mapping(top["robot"], path, _fields(Robot), {"id"})
+        robot = Robot(id=known(r.node_id(m["id"], "robot.id"), "robot.id"),
+                      start_s=r.number(m.get("start_s", 0.0), "robot.start_s", 0),
+                      speed_mps=r.number(m.get("speed_mps", 0.5), "robot.speed_mps", 0, low_open=True),
+                      turn_rate_rad_s=r.number(m.get("turn_rate_rad_s", 0.5), "robot.turn_rate_rad_s", 0,
+                                               low_open=True),
+                      moving_amplitude_mg=r.number(m.get("moving_amplitude_mg", 120.0),
+                                                   "robot.moving_amplitude_mg", 0))
+        if ("waypoints" in m) == ("poses" in m):
+            raise r.fail(path, "give exactly one of waypoints and poses")
+        if "waypoints" in m:
+            robot.waypoints = r.points(m["waypoints"], "robot.waypoints", 2)
+        else:
+            robot.poses = r.points(m["poses"], "robot.poses", 3)
+            times = [p[0] for p in robot.poses]
+            if any(b <= a for a, b in zip(times, times[1:])):
+                raise r.fail("robot.poses", "times must increase")
+        if m.get("heading_rad") is not None:
+            robot.heading_rad = r.number(m["heading_rad"], "robot.heading_rad")
+        o = r.mapping(m.get("odometry"), "robot.odometry", _fields(Odometry))
+        robot.odometry = Odometry(
+            rate_hz=r.number(o.get("rate_hz", 10.0), "robot.odometry.rate_hz", 0, low_open=True),
+            distance_noise_frac=r.number(o.get("distance_noise_frac", 0.02), "robot.odometry.distance_noise_frac", 0),
+            heading_noise_rad=r.number(o.get("heading_noise_rad", 0.002), "robot.odometry.heading_noise_rad", 0),
+            heading_drift_rad_s=r.number(o.get("heading_drift_rad_s", 0.0), "robot.odometry.heading_drift_rad_s"))
+        if any(s.node == robot.id for s in scenario.motion):
+            raise r.fail("motion", f"the robot 0x{robot.id:04X} moves by its path, not by motion segments")
+        scenario.robot = robot
+
+    s = r.mapping(top.get("schedule"), "schedule", _fields(Schedule))
+    modes = {"direct_only": C["CDRO_SCHEDULE_DIRECT_ONLY"], "all_pairs": C["CDRO_SCHEDULE_ALL_PAIRS"]}
+    mode = s.get("mode", "all_pairs")
+    if mode not in modes:
+        raise r.fail("schedule.mode", f"{mode!r} is not one of {', '.join(modes)}")
+    scenario.schedule = Schedule(
+        mode=modes[mode],
+        slot_period_ms=r.integer(s.get("slot_period_ms", 0), "schedule.slot_period_ms", 0, 60000),
+        motion_poll_ms=r.integer(s.get("motion_poll_ms", 200), "schedule.motion_poll_ms", 0, 60000),
+        moving_boost=r.integer(s.get("moving_boost", 2), "schedule.moving_boost", 1, 8),
+        status_period_ms=r.integer(s.get("status_period_ms", 1000), "schedule.status_period_ms", 100, 60000),
+        max_retries=r.integer(s.get("max_retries", 1), "schedule.max_retries", 0, 10))
+
+    u = r.mapping(top.get("uwb"), "uwb", _fields(Uwb))
+    uwb = Uwb(noise_std_m=r.number(u.get("noise_std_m", 0.1), "uwb.noise_std_m", 0),
+              scale=r.number(u.get("scale", 1.0), "uwb.scale", 0, low_open=True),
+              max_range_m=r.number(u.get("max_range_m", 100.0), "uwb.max_range_m", 0, low_open=True),
+              dropout_probability=r.number(u.get("dropout_probability", 0.0), "uwb.dropout_probability", 0, 1))
+    if u.get("noise_variance_m2") is not None:
+        uwb.noise_variance_m2 = r.pair(u["noise_variance_m2"], "uwb.noise_variance_m2", 0)
+    n = r.mapping(u.get("nlos"), "uwb.nlos", _fields(Nlos))
+    uwb.nlos = Nlos(random_links=r.integer(n.get("random_links", 0), "uwb.nlos.random_links", 0),
+                    random_bias_m=r.pair(n.get("random_bias_m", [0.3, 1.5]), "uwb.nlos.random_bias_m", 0),
+                    outlier_probability=r.number(n.get("outlier_probability", 0.0), "uwb.nlos.outlier_probability", 0, 1),
+                    outlier_mean_m=r.number(n.get("outlier_mean_m", 0.5), "uwb.nlos.outlier_mean_m", 0, low_open=True),
+                    rss_loss_db=r.number(n.get("rss_loss_db", 6.0), "uwb.nlos.rss_loss_db", 0))
+    for i, link in enumerate(n.get("links") or []):
+        path = f"uwb.nlos.links[{i}]"
+        if not isinstance(link, (list, tuple)) or len(link) != 3:
+            raise r.fail(path, f"expected [id_a, id_b, bias_m], got {link!r}")
+        a = known(r.node_id(link[0], f"{path}[0]"), f"{path}[0]")
+        b = known(r.node_id(link[1], f"{path}[1]"), f"{path}[1]")
+        if a == b:
+            raise r.fail(path, "a link needs two different nodes")
+        uwb.nlos.links.append(NlosLink(a, b, r.number(link[2], f"{path}[2]", 0)))
+    pairs = len(nodes) * (len(nodes) - 1) // 2
+    if uwb.nlos.random_links + len(uwb.nlos.links) > pairs:
+        raise r.fail("uwb.nlos.random_links", f"more NLOS links than the {pairs} node pairs")
+    d = r.mapping(u.get("durations_ms"), "uwb.durations_ms", set(DEFAULT_DURATIONS_MS))
+    for key, value in d.items():
+        uwb.durations_ms[key] = r.pair(value, f"uwb.durations_ms.{key}", 0)
+    scenario.uwb = uwb
+
+    a = r.mapping(top.get("accelerometer"), "accelerometer", _fields(Accelerometer))
+    scenario.accelerometer = Accelerometer(
+        noise_mg=r.number(a.get("noise_mg", 8.0), "accelerometer.noise_mg", 0),
+        moving_amplitude_mg=r.number(a.get("moving_amplitude_mg", 250.0), "accelerometer.moving_amplitude_mg", 0),
+        moving_frequency_hz=r.number(a.get("moving_frequency_hz", 1.8), "accelerometer.moving_frequency_hz", 0,
+                                     low_open=True))
+
+    dv = r.mapping(top.get("device"), "device", _fields(Device))
+    scenario.device = Device(
+        firmware_version=r.integer(dv.get("firmware_version", 0x0100), "device.firmware_version", 0, 0xFFFF),
+        pozyx_firmware=r.integer(dv.get("pozyx_firmware", 0x12), "device.pozyx_firmware", 0, 0xFF),
+        max_nodes=r.integer(dv.get("max_nodes", C["CDRO_MAX_NODES"]), "device.max_nodes", 1, C["CDRO_MAX_NODES"]),
+        discovery=r.boolean(dv.get("discovery", True), "device.discovery"),
+        pozyx_present=r.boolean(dv.get("pozyx_present", True), "device.pozyx_present"),
+        boot_ms=r.number(dv.get("boot_ms", 300.0), "device.boot_ms", 0, 10000),
+        discovery_ms=r.number(dv.get("discovery_ms", 200.0), "device.discovery_ms", 0, 10000),
+        free_ram_bytes=r.integer(dv.get("free_ram_bytes", 612), "device.free_ram_bytes", 0, 0xFFFF),
+        tx_buffer_bytes=r.integer(dv.get("tx_buffer_bytes", 4096), "device.tx_buffer_bytes", 128, 1 << 24))
+
+    faults = top.get("faults") or []
+    if not isinstance(faults, list):
+        raise r.fail("faults", "expected a list")
+    for i, raw in enumerate(faults):
+        scenario.faults.append(parse_fault_mapping(raw, f"faults[{i}]", r))
+    scenario.faults.sort(key=lambda f: f.at_s)
+    return scenario
+
+
+def parse_fault_mapping(raw: Any, path: str, r: _Reader) -> Fault:
+    if not isinstance(raw, dict) or "kind" not in raw:
+        raise r.fail(path, "expected a mapping with kind and at_s")
+    kind = raw["kind"]
+    if kind not in FAULT_KINDS:
+        raise r.fail(f"{path}.kind", f"{kind!r} is not one of {', '.join(FAULT_KINDS)}")
+    m = r.mapping(raw, path, {"kind", "at_s", *FAULT_KINDS[kind]}, {"at_s"})
+    params = dict(FAULT_KINDS[kind])
+    for key in FAULT_KINDS[kind]:
+        if key not in m:
+            continue
+        if key in ("bytes", "frames"):
+            params[key] = r.integer(m[key], f"{path}.{key}", 1, 4096)
+        elif key == "duration_s":
+            params[key] = r.number(m[key], f"{path}.{key}", 0, 3600, low_open=True)
+        elif key == "reboot":
+            params[key] = r.boolean(m[key], f"{path}.{key}")
+        elif key == "cause":
+            if m[key] not in RESET_CAUSES:
+                raise r.fail(f"{path}.cause", f"{m[key]!r} is not one of {', '.join(RESET_CAUSES)}")
+            params[key] = m[key]
+    return Fault(at_s=r.number(m["at_s"], f"{path}.at_s", 0), kind=kind, params=params)
+
+
+def parse_fault_option(text: str) -> Fault:
+    """--fault KIND@T[,key=value...], e.g. vanish@20,duration_s=3 or garbage@5,bytes=40."""
+    r = _Reader("--fault")
+    head, _, rest = text.partition(",")
+    kind, at, at_s = head.partition("@")
+    if not at:
+        raise ScenarioError(f"--fault {text!r}: expected KIND@SECONDS[,key=value...]")
+    raw: dict[str, Any] = {"kind": kind.strip()}
+    try:
+        raw["at_s"] = float(at_s)
+    except ValueError:
+        raise ScenarioError(f"--fault {text!r}: {at_s!r} is not a time in seconds") from None
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise ScenarioError(f"--fault {text!r}: {item!r} is not key=value")
+        raw[key.strip()] = yaml.safe_load(value)
+    return parse_fault_mapping(raw, text, r)
+
+
+# ---- built-in scenarios -----------------------------------------------------------------------
+
+def builtin_names() -> list[str]:
+    folder = importlib.resources.files("cdro_tools") / "scenarios"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def load_scenario(name_or_path: str) -> Scenario:
+    """A built-in scenario by name (paper-fig3, demo, ...) or a YAML file."""
+    path = pathlib.Path(name_or_path)
+    if name_or_path in builtin_names():
+        text = (importlib.resources.files("cdro_tools") / "scenarios" / f"{name_or_path}.yaml").read_text()
+        source = f"built-in scenario {name_or_path}"
+        default_name = name_or_path
+    elif path.is_file():
+        text = path.read_text()
+        source = str(path)
+        default_name = path.stem
+    else:
+        raise ScenarioError(f"{name_or_path}: neither a built-in scenario ({', '.join(builtin_names())}) "
+                            f"nor a file")
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ScenarioError(f"{source}: not valid YAML: {error}") from None
+    return parse_scenario(data, source, default_name)

@@ -1,0 +1,104 @@
+"""The UWB error model: what a Pozyx two-way range reports for two nodes at a given time, how
+long the operation takes, and when it fails.
+
+    measured_m = scale x true_3d_m + link_bias_m + N(0, link_std_m^2) [+ Exp(outlier_mean_m)]
+
+- link_std_m: uwb.noise_std_m, or per link sqrt(U(noise_variance_m2)) drawn once per link;
+- link_bias_m: persistent NLOS bias (>= 0) of listed links and of random_links chosen ones;
+- the exponential term is added with probability outlier_probability (NLOS reads long);
+- a range fails (Pozyx error 0x11) with dropout_probability, and (0x12, timeout) when the
+  nodes are farther apart than max_range_m or a node does not exist;
+- negative results are clamped to 0 (the Pozyx reports an unsigned distance).
+RSS follows a log-distance model: -67 dBm - 20 log10(d / 1 m), rss_loss_db lower on biased
+links, N(0, 1.5 dB) noise, clamped to [-110, -40] dBm.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import random
+
+from .scenario import Scenario
+from .world import World
+
+POZYX_RANGING_FAILED = 0x11
+POZYX_RANGING_TIMEOUT = 0x12
+RSS_AT_1M_DBM = -67.0
+RSS_NOISE_DB = 1.5
+
+
+@dataclasses.dataclass
+class RangeOutcome:
+    ok: bool
+    duration_us: int
+    distance_mm: int = 0
+    rss_dbm: int = 0
+    error_code: int = 0        # Pozyx ERRORCODE when not ok
+
+
+def link_key(a: int, b: int) -> tuple[int, int]:
+    return (a, b) if a < b else (b, a)
+
+
+class UwbModel:
+    def __init__(self, scenario: Scenario, world: World, link_rng: random.Random, range_rng: random.Random,
+                 duration_rng: random.Random):
+        self.model = scenario.uwb
+        self.world = world
+        self._range_rng = range_rng
+        self._duration_rng = duration_rng
+        ids = sorted(n.id for n in scenario.nodes)
+        pairs = list(itertools.combinations(ids, 2))
+        self.link_std_m: dict[tuple[int, int], float] = {}
+        for pair in pairs:  # drawn for every pair, in id order, whether used or not
+            if self.model.noise_variance_m2 is not None:
+                self.link_std_m[pair] = math.sqrt(link_rng.uniform(*self.model.noise_variance_m2))
+            else:
+                self.link_std_m[pair] = self.model.noise_std_m
+        self.link_bias_m: dict[tuple[int, int], float] = {}
+        for link in self.model.nlos.links:
+            self.link_bias_m[link_key(link.a, link.b)] = link.bias_m
+        candidates = [p for p in pairs if p not in self.link_bias_m]
+        for pair in link_rng.sample(candidates, self.model.nlos.random_links):
+            self.link_bias_m[pair] = link_rng.uniform(*self.model.nlos.random_bias_m)
+
+    def _duration_us(self, kind: str) -> int:
+        low, high = self.model.durations_ms[kind]
+        return int(round(self._duration_rng.uniform(low, high) * 1000.0))
+
+    def operation_us(self, kind: str) -> int:
+        """Duration of a non-ranging operation (local_accel, remote_accel)."""
+        return self._duration_us(kind)
+
+    def reachable(self, a: int, b: int, t_s: float) -> bool:
+        return (self.world.has(a) and self.world.has(b)
+                and self.world.distance_m(a, b, t_s) <= self.model.max_range_m)
+
+    def dropout(self) -> bool:
+        return self._range_rng.random() < self.model.dropout_probability
+
+    def measure(self, a: int, b: int, t_s: float, remote: bool) -> RangeOutcome:
+        """One two-way ranging attempt between a and b starting at t_s."""
+        rng = self._range_rng
+        # the same draws for every attempt, so that one attempt's fate does not shift the rest
+        u_drop, u_outlier, noise, tail, rss_noise = rng.random(), rng.random(), rng.gauss(0.0, 1.0), \
+            rng.expovariate(1.0), rng.gauss(0.0, RSS_NOISE_DB)
+        if not self.reachable(a, b, t_s):
+            return RangeOutcome(False, self._duration_us("remote_fail" if remote else "direct_fail"),
+                                error_code=POZYX_RANGING_TIMEOUT)
+        if u_drop < self.model.dropout_probability:
+            return RangeOutcome(False, self._duration_us("remote_fail" if remote else "direct_fail"),
+                                error_code=POZYX_RANGING_FAILED)
+        key = link_key(a, b)
+        true_m = self.world.distance_m(a, b, t_s)
+        bias_m = self.link_bias_m.get(key, 0.0)
+        measured_m = self.model.scale * true_m + bias_m + self.link_std_m[key] * noise
+        if u_outlier < self.model.nlos.outlier_probability:
+            measured_m += self.model.nlos.outlier_mean_m * tail
+        distance_mm = int(min(0xFFFFFFFF, max(0, round(measured_m * 1000.0))))
+        rss = RSS_AT_1M_DBM - 20.0 * math.log10(max(true_m, 0.1)) + rss_noise
+        if bias_m > 0.0:
+            rss -= self.model.nlos.rss_loss_db
+        rss_dbm = int(min(-40, max(-110, round(rss))))
+        return RangeOutcome(True, self._duration_us("remote" if remote else "direct"), distance_mm, rss_dbm)
