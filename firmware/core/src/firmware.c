@@ -174,7 +174,7 @@ static uint32_t moving_mask(const cdro_fw_t *fw)
     uint8_t i;
     for (i = 0; i <= fw->node_count; ++i) {
         if (fw->nodes[i].motion.moving) {
-            mask |= 1UL << i;
+            mask |= (uint32_t)1 << i;
         }
     }
     return mask;
@@ -606,7 +606,7 @@ static void poll_attempt(cdro_fw_t *fw)
     node->flags = (uint8_t)(node->flags & (uint8_t)~CDRO_FW_NODE_ACCEL_FAILING);
     {
         const uint8_t changed = cdro_motion_detector_update(&node->motion, &accel);
-        const uint32_t bit = 1UL << index;
+        const uint32_t bit = (uint32_t)1 << index;
         if (changed) {
             send_motion(fw, node, CDRO_MOTION_REASON_CHANGE);
         } else if ((node->flags & CDRO_FW_NODE_HAS_SAMPLE) == 0U || (fw->periodic_motion_mask & bit) != 0U) {

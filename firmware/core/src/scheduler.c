@@ -82,7 +82,7 @@ uint8_t cdro_backoff_failed(uint8_t backoff)
     if (failed < 15U) {
         ++failed;
     }
-    skip = failed >= 4U ? (uint8_t)CDRO_FW_BACKOFF_MAX_ROUNDS : (uint8_t)((1U << (failed - 1U)) - 1U);
+    skip = (uint8_t)(failed >= 4U ? CDRO_FW_BACKOFF_MAX_ROUNDS : (1U << (failed - 1U)) - 1U);
     if (skip > CDRO_FW_BACKOFF_MAX_ROUNDS) {
         skip = CDRO_FW_BACKOFF_MAX_ROUNDS;
     }
