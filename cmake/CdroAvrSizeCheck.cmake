@@ -1,7 +1,7 @@
 # cmake -DELF=... -DSIZE_TOOL=avr-size -DNM_TOOL=avr-nm -DBOARD=uno -DMCU=atmega328p
-#       -DFLASH_BUDGET=24576 -DRAM_BUDGET=1228 -DSTAMP=... -P CdroAvrSizeCheck.cmake
+#       -DFLASH_BUDGET=24576 -DRAM_BUDGET=1228 -P CdroAvrSizeCheck.cmake
 # Prints the image's flash and static RAM use and fails when either exceeds its budget, or when
-# the image links the heap allocator (the firmware has no heap). Writes STAMP only on success.
+# the image links the heap allocator (the firmware has no heap).
 execute_process(COMMAND ${SIZE_TOOL} -A ${ELF} OUTPUT_VARIABLE sections RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "${SIZE_TOOL} -A ${ELF} failed")
@@ -37,7 +37,5 @@ if(ram GREATER RAM_BUDGET)
   string(APPEND failed " static RAM ${ram} > ${RAM_BUDGET} bytes;")
 endif()
 if(failed)
-  file(REMOVE ${STAMP})
   message(FATAL_ERROR "${name} is over its budget:${failed}")
 endif()
-file(WRITE ${STAMP} "flash ${flash}\nram ${ram}\n")
