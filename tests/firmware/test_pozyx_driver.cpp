@@ -372,3 +372,51 @@ TEST_F(Driver, RandomFaultSoakNeverBreaksTheProtocolOrTheTimeBounds)
 }
 
 } // namespace
+
+namespace {
+
+// I2C traffic of each operation on the success path, without polls: the figures of
+// docs/firmware.md's loop-time budget. A change here means the budget must be re-derived.
+TEST_F(Driver, TransactionsPerOperation)
+{
+    sim->config.imu_flag = 0;
+    struct Row {
+        const char *name;
+        uint32_t transactions, bytes_out, bytes_in, polls;
+    };
+    std::vector<Row> rows;
+    auto measure = [&](const char *name, auto &&op) {
+        const uint32_t t0 = sim->stats.transactions;
+        const uint32_t w0 = sim->stats.bytes_written;
+        const uint32_t r0 = sim->stats.bytes_read;
+        const uint32_t d0 = bus.delays;
+        ASSERT_EQ(op(), CDRO_POZYX_OK) << name;
+        rows.push_back({name, sim->stats.transactions - t0, sim->stats.bytes_written - w0,
+                        sim->stats.bytes_read - r0, bus.delays - d0});
+    };
+    cdro_pozyx_info_t info;
+    cdro_accel_t accel;
+    cdro_pozyx_range_result_t range;
+    uint16_t ids[20];
+    uint8_t found = 0;
+    uint8_t listed = 0;
+    measure("identify", [&] { return cdro_pozyx_identify(&dev, &info); });
+    measure("local accel", [&] { return cdro_pozyx_read_accel(&dev, &accel); });
+    measure("local range", [&] { return cdro_pozyx_range(&dev, kAnchorA, &range); });
+    measure("remote accel", [&] { return cdro_pozyx_remote_read_accel(&dev, kTag, &accel); });
+    measure("remote range", [&] { return cdro_pozyx_range_remote(&dev, kAnchorA, kAnchorB, &range); });
+    measure("discovery (3 ids)", [&] { return cdro_pozyx_discover(&dev, ids, 20, &found, &listed); });
+    for (const Row &r : rows) {
+        std::printf("%-18s %2u transactions (polls excluded), %3u bytes out, %3u bytes in, %3u polls\n", r.name,
+                    r.transactions - r.polls, r.bytes_out - 1U * r.polls, r.bytes_in - 1U * r.polls, r.polls);
+    }
+    // Fixed (non-poll) transactions: each register read or function call is one transaction
+    // (write phase, repeated start, read phase). A poll is one INT_STATUS read.
+    EXPECT_EQ(rows[0].transactions, 2U);                  // status block, NETWORK_ID
+    EXPECT_EQ(rows[1].transactions, 1U);
+    EXPECT_EQ(rows[2].transactions - rows[2].polls, 4U);  // clear, DO_RANGING, wait (1st read), GETRANGEINFO
+    EXPECT_EQ(rows[3].transactions - rows[3].polls, 6U);  // TX_DATA, clear, TX_SEND, wait, RX header, RX_DATA
+    EXPECT_EQ(rows[4].transactions - rows[4].polls, 14U);
+}
+
+} // namespace
