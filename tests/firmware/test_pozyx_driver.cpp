@@ -407,7 +407,7 @@ TEST_F(Driver, TransactionsPerOperation)
     measure("remote range", [&] { return cdro_pozyx_range_remote(&dev, kAnchorA, kAnchorB, &range); });
     measure("discovery (3 ids)", [&] { return cdro_pozyx_discover(&dev, ids, 20, &found, &listed); });
     for (const Row &r : rows) {
-        std::printf("%-18s %2u transactions (polls excluded), %3u bytes out, %3u bytes in, %3u polls\n", r.name,
+        std::printf("%-18s %2u fixed transactions, %3u bytes out, %3u bytes in, + %3u further polls\n", r.name,
                     r.transactions - r.polls, r.bytes_out - 1U * r.polls, r.bytes_in - 1U * r.polls, r.polls);
     }
     // Fixed (non-poll) transactions: each register read or function call is one transaction

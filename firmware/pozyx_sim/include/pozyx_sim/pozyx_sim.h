@@ -29,7 +29,7 @@
  * What it is not. It does not model I2C timing: the code driving it (a test adapter, or the
  * simavr TWI peripheral of the firmware-in-the-loop harness) advances time itself. It has no
  * dependency on the firmware core or on GoogleTest, and it never allocates: the caller owns
- * pozyx_sim_t (about 40 KB; allocate it statically or on the heap of the native program).
+ * pozyx_sim_t (about 24 KB; allocate it statically or on the heap of the native program).
  *
  * Typical use:
  *     pozyx_sim_config_t config;
