@@ -2,7 +2,7 @@
 # Installs what is missing, builds everything and runs every test, stopping at the first failure:
 #   1. native build (warnings as errors) and its CTest suites
 #   2. the same suites built with AddressSanitizer + UndefinedBehaviorSanitizer
-#   3. AVR cross build with avr-gcc (common/ and the firmware image, with its size budget)
+#   3. AVR cross builds with avr-gcc: the Uno image (with its flash/RAM budget) and the Mega image
 #   4. libFuzzer on the frame decoder: a short run with a fixed seed and a fixed number of inputs
 #   5. pytest: the Python tools and the end-to-end tests against the native build
 set -euo pipefail
@@ -23,9 +23,12 @@ cmake --build build-asan -j "$JOBS"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir build-asan --output-on-failure -j "$JOBS" -LE no-sanitize
 
-step "3/5 AVR cross build (ATmega328P)"
+step "3/5 AVR cross builds: Uno (ATmega328P, budget enforced) and Mega 2560"
 cmake -S . -B build-avr -G Ninja --toolchain cmake/avr-gcc.cmake -DCMAKE_BUILD_TYPE=MinSizeRel > /dev/null
 cmake --build build-avr -j "$JOBS"
+cmake -S . -B build-avr-mega -G Ninja --toolchain cmake/avr-gcc.cmake -DCMAKE_BUILD_TYPE=MinSizeRel \
+  -DCDRO_AVR_BOARD=mega > /dev/null
+cmake --build build-avr-mega -j "$JOBS"
 
 step "4/5 libFuzzer: frame decoder"
 cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCDRO_FUZZ=ON -DCDRO_BUILD_TESTS=OFF \
