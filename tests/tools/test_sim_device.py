@@ -4,12 +4,14 @@ checks it end to end)."""
 import collections
 import json
 import random
+import struct
 
 import pytest
 
 from cdro_tools import codec
 from cdro_tools.codec import CONSTANTS as C
 from cdro_tools.simulation.device import SimDevice
+from cdro_tools.simulation.scheduler import Scheduler
 from cdro_tools.simulation.scenario import parse_scenario
 from cdro_tools.simulation.uwb import UwbModel
 from cdro_tools.simulation.world import World
@@ -142,12 +144,13 @@ def test_that_ping_echoes_the_nonce_and_hello_request_gets_hello_without_ack():
 
 
 def test_that_golden_rejections_get_the_documented_answers(golden_dir):
-    # Fixture: the decoder's golden rejections, sent as host commands
+    # Fixture: the decoder's golden rejections, sent as host commands, one status period apart
     vectors = json.loads((golden_dir / "vectors.json").read_text())["decode_errors"]
     expected = {"cobs": None, "short": None, "crc": None, "too_long": None, "version": "MALFORMED",
                 "type": "UNKNOWN_TYPE", "length": "MALFORMED"}
     device, sink = booted()
     for vector in vectors:
+        advance(device, device.now_us + 1_000_000)
         sink.clear()
         rejected_before = device.counters["commands_rejected"]
 
@@ -163,11 +166,62 @@ def test_that_golden_rejections_get_the_documented_answers(golden_dir):
             reason = expected[result]
         answers = sink.frames()
         if reason is None:
-            assert answers == [], vector["name"]
+            # not answered; reported by ERROR COMMAND, detail = the cdro_result_t as 16-bit two's complement
+            detail = int(codec.Result[result.upper()]) & 0xFFFF
+            assert [(a.type, a["code"], a["detail"], a["node_id"]) for a in answers] == \
+                [("ERROR", C["CDRO_DEVICE_ERROR_COMMAND"], detail, 0)], vector["name"]
         else:
             assert [(a.type, a["reason"], a["nacked_type"], a["nacked_sequence"]) for a in answers] == \
                 [("NACK", C[f"CDRO_NACK_{reason}"], vector["type"], vector["sequence"])], vector["name"]
         assert device.counters["commands_rejected"] == rejected_before + 1, vector["name"]
+
+
+def raw_chunk(type_id, payload=b"", sequence=7, version=codec.PROTOCOL_VERSION, length=None, crc_xor=0):
+    """A chunk with whatever header the test wants (and a good CRC unless crc_xor), with its delimiter."""
+    raw = struct.pack("<BBHB", version, type_id, sequence, len(payload) if length is None else length) + payload
+    return codec.cobs_encode(raw + struct.pack("<H", codec.crc16(raw) ^ crc_xor)) + b"\x00"
+
+
+@pytest.mark.parametrize("name, chunk, reason", [
+    ("host type, other version", raw_chunk(0x43, version=2), "MALFORMED"),
+    ("device-to-host type, payload not its layout", raw_chunk(0x04, b"\x01\x02\x03"), "MALFORMED"),
+    ("unknown type, length field disagrees", raw_chunk(0x7E, b"\x01", length=3), "MALFORMED"),
+    ("unknown type", raw_chunk(0x7E, b"\x01"), "UNKNOWN_TYPE"),
+    ("device-to-host type, well formed", raw_chunk(0x06, struct.pack("<BHI", 0x45, 1, 0)), "UNKNOWN_TYPE"),
+    ("device-to-host type, a value out of range", raw_chunk(0x07, struct.pack("<BHB", 0x45, 1, 99)), "UNKNOWN_TYPE"),
+    ("host type, a value out of range", raw_chunk(0x42, struct.pack("<HBHBHB", 0, 1, 200, 9, 1000, 1)), "BAD_VALUE"),
+])
+def test_that_nacks_follow_the_documented_order(name, chunk, reason):
+    device, sink = booted()
+    sink.clear()
+    device.receive(chunk)
+    assert [(f.type, f["nacked_type"], f["nacked_sequence"], f["reason"]) for f in sink.frames()] == \
+        [("NACK", codec.cobs_decode(chunk[:-1])[1], 7, C[f"CDRO_NACK_{reason}"])], name
+    assert device.counters["commands_rejected"] == 1
+
+
+def test_that_undecodable_chunks_are_reported_by_error_command_at_most_once_per_status_period():
+    # Fixture
+    device, sink = booted()
+    bad_crc = raw_chunk(0x45, struct.pack("<I", 5), crc_xor=0x0100)
+    bad_cobs = b"\x09\x01\x02\x00"
+    sink.clear()
+
+    # Test: a bad CRC, then a bad COBS chunk 0.2 s later, then nothing for 2.5 s
+    first_us = device.now_us
+    device.receive(bad_crc)
+    advance(device, first_us + 200_000)
+    device.receive(bad_cobs)
+    advance(device, first_us + 2_500_000)
+
+    # Assert: the first reported at once; the second held back until a status period has
+    # passed (reported at the next step), with the detail of the latest rejection; no answers
+    reports = [(t, f["detail"], f["node_id"]) for t, _, f in sink.items
+               if f is not None and f.type == "ERROR" and f["code"] == C["CDRO_DEVICE_ERROR_COMMAND"]]
+    assert [(d, n) for _, d, n in reports] == [(0xFFFC, 0), (0xFFFE, 0)]
+    assert reports[0][0] == first_us and first_us + 1_000_000 <= reports[1][0] <= first_us + 1_400_000
+    assert not sink.frames("NACK") and not sink.frames("ACK")
+    assert device.counters["commands_rejected"] == 2
 
 
 def test_that_a_device_to_host_type_is_nacked_unknown_type():
@@ -231,22 +285,94 @@ def test_that_a_slot_period_spaces_the_slots():
     assert all(b - a >= 30 for a, b in zip(times, times[1:]))
 
 
-def test_that_the_moving_boost_spreads_extra_visits_without_starving_any_pair():
-    # Fixture: B flagged moving
-    device, _ = booted()
-    device.schedule.moving_boost = 3
-    device.motion[B] = type(device.motion[OWN])(next_poll_us=0, moving=True)
+def scheduler(nodes=(A, B, D), boost=2, mode=C["CDRO_SCHEDULE_ALL_PAIRS"]):
+    sched = Scheduler()
+    sched.configure(mode, boost)
+    sched.set_nodes(OWN, list(nodes))
+    return sched
+
+
+def test_that_a_round_is_boost_passes_and_a_pair_with_a_moving_end_is_visited_in_every_pass():
+    # Fixture: pairs 0 (O,A) 1 (O,B) 2 (O,D) 3 (A,B) 4 (A,D) 5 (B,D); B flagged moving, boost 3
+    sched = scheduler(boost=3)
+    moving = {B}.__contains__
+
+    # Test: two rounds
+    visits = [sched.next(moving) for _ in range(24)]
+
+    # Assert: in pass k, position p when an end moves or p mod 3 = k
+    one_round = [0, 1, 3, 5] + [1, 3, 4, 5] + [1, 2, 3, 5]
+    assert visits == one_round * 2
+    assert sched.pairs()[1] == (OWN, B) and sched.pairs()[3] == (A, B) and sched.pairs()[5] == (B, D)
+
+
+def test_that_without_moving_nodes_every_pair_is_visited_once_per_round_in_the_pass_of_its_position():
+    sched = scheduler(boost=4)
+    assert [sched.next(lambda node: False) for _ in range(12)] == [0, 4, 1, 5, 2, 3] * 2
+
+
+def test_that_a_pair_whose_slots_fail_backs_off_0_1_3_4_4_rounds_and_a_success_resets_it():
+    # Fixture: direct pairs 0 (O,A), 1 (O,B); pair 1 fails every slot
+    sched = scheduler(nodes=(A, B), boost=1, mode=C["CDRO_SCHEDULE_DIRECT_ONLY"])
+    rounds_of_pair_1 = []
+    round_ = 0
+
+    # Test: 30 rounds (pair 0 is visited once in each)
+    while round_ < 30:
+        p = sched.next(lambda node: False)
+        if p == 0:
+            round_ += 1
+        else:
+            rounds_of_pair_1.append(round_)
+        sched.slot_done(p, ok=p == 0)
+
+    # Assert: sits out 0, 1, 3, 4, 4, ... further rounds after its 1st, 2nd, 3rd, 4th, 5th failed slot
+    assert rounds_of_pair_1 == [1, 2, 4, 8, 13, 18, 23, 28]
+    sched.slot_done(1, ok=True)
+    assert sched.states[1].failed_slots == 0 and sched.states[1].sitting_out == 0
+
+
+def test_that_a_failed_pair_with_a_moving_end_sits_out_the_rest_of_its_round():
+    # Fixture: boost 3, B moving: pair 1 (O,B) is due in every pass
+    sched = scheduler(boost=3)
+    moving = {B}.__contains__
+    assert [sched.next(moving) for _ in range(2)] == [0, 1]
+
+    # Test: its first slot fails
+    sched.slot_done(1, ok=False)
+    rest = [sched.next(moving) for _ in range(2 + 3 + 3)]
+
+    # Assert: not in passes 1 and 2 of this round, back in the next round (n = 1: no further rounds)
+    assert rest == [3, 5] + [3, 4, 5] + [2, 3, 5]
+    assert sched.next(moving) == 0 and sched.next(moving) == 1
+
+
+def test_that_the_device_backs_off_a_dead_link_and_keeps_ranging_the_others():
+    # Fixture: E is 150 m away: direct ranges to it time out
+    E = 0x6005
+    sc = scenario(nodes=[{"id": OWN, "x": 0, "y": 0}, {"id": A, "x": 5, "y": 0}, {"id": E, "x": 150, "y": 0}],
+                  device={"discovery": False}, schedule={"mode": "direct_only", "motion_poll_ms": 0, "max_retries": 1})
+    device, sink = booted(sc)
+    command(device, "SET_NODES", {"node_ids": [A, E]})
+    command(device, "SET_SCHEDULE", sc.schedule.fields())
+    measured = []
+    measure = device.uwb.measure
+    device.uwb.measure = lambda a, b, t_s, remote: (measured.append(b), measure(a, b, t_s, remote))[1]
+    command(device, "START")
 
     # Test
-    round_ = device.build_round()
+    advance(device, 4_000_000)
 
-    # Assert
-    counts = collections.Counter(round_)
-    assert {p: c for p, c in counts.items() if B in p} == {(OWN, B): 3, (A, B): 3, (B, D): 3}
-    assert all(c == 1 for p, c in counts.items() if B not in p)
-    positions = [i for i, p in enumerate(round_) if p == (OWN, B)]
-    gaps = [b - a for a, b in zip(positions, positions[1:])]
-    assert min(gaps) >= 2                   # spread through the round, not back to back
+    # Assert: slots to E (2 attempts each) in rounds 0, 1, 3, 7, 12, ... of the rounds that range A
+    rounds, round_ = [], -1
+    for index, node in enumerate(measured):
+        if node == A:
+            round_ += 1
+        elif index == 0 or measured[index - 1] != E:
+            rounds.append(round_)
+    assert len(measured) > 40 and rounds[:5] == [0, 1, 3, 7, 12]
+    assert device.counters["ranges_failed_direct"] == 2 * len(rounds)
+    assert device.counters["ranges_ok_direct"] == measured.count(A)
 
 
 def test_that_failed_ranges_are_retried_and_a_streak_of_five_reports_one_error():
@@ -294,7 +420,7 @@ def test_that_an_unknown_node_fails_ranging_with_a_timeout():
         [(C["CDRO_DEVICE_ERROR_RANGING"], 0x12, 0x7777)]
 
 
-def test_that_motion_follows_the_80_40_mg_hysteresis_and_is_reported_on_change_and_every_5_s():
+def test_that_motion_follows_the_80_40_mg_hysteresis_and_is_reported_on_change():
     # Fixture: D is carried from 10 s to 14 s
     sc = scenario(motion=[{"node": D, "start_s": 10, "end_s": 14, "waypoints": [[4, 5]]}], duration_s=40)
     device, sink = booted(sc)
@@ -309,16 +435,167 @@ def test_that_motion_follows_the_80_40_mg_hysteresis_and_is_reported_on_change_a
     changes = [(t, moving) for t, moving, reason in motion if reason == C["CDRO_MOTION_REASON_CHANGE"]]
     assert [m for _, m in changes] == [1, 0]
     assert 10.0 <= changes[0][0] < 10.5                    # within a poll or two
-    # still again after the 8-sample window has cleared and 16 samples stayed under 40 mg
-    assert 14.0 + (8 + 16 - 2) * 0.2 <= changes[1][0] < 14.0 + (8 + 16 + 2) * 0.2
-    periodic = [t for t, _, reason in motion if reason == C["CDRO_MOTION_REASON_PERIODIC"]]
-    assert len(periodic) >= 4
-    assert all(4.9 <= b - a <= 5.3 for a, b in zip(periodic, periodic[1:]) if b - a < 6)
+    # still again after the 8-sample window has cleared and 16 samples stayed at or below 40 mg
+    assert 14.0 + (8 + 16 - 3) * 0.2 <= changes[1][0] < 14.0 + (8 + 16 + 2) * 0.2
     # ranges with D carry the moving flag only while D is flagged
     flagged = [f["device_time_ms"] / 1000 for f in sink.frames("RANGE") if f["flags"] & C["CDRO_RANGE_FLAG_MOVING"]]
     assert flagged and all(changes[0][0] <= t <= changes[1][0] + 0.2 for t in flagged)
-    # the own node and the anchors are never flagged; anchors are not polled
+    # the own node and the tags report; anchors are asked their kind once, then left alone
     assert {f["node_id"] for f in sink.frames("MOTION")} == {OWN, D}
+    assert all(not state.tag and state.kind_known for node, state in device.motion.items() if node in (A, B))
+
+
+def test_that_periodic_motion_follows_one_device_wide_5_s_timer_started_at_start():
+    # Fixture: D is carried from 10 s to 14 s (its changes must not shift its periodic reports)
+    sc = scenario(motion=[{"node": D, "start_s": 10, "end_s": 14, "waypoints": [[4, 5]]}], duration_s=40)
+    device, sink = booted(sc)
+    command(device, "SET_SCHEDULE", sc.schedule.fields())
+    start_s = device.now_us / 1e6
+    command(device, "START")
+
+    # Test
+    advance(device, 32_000_000)
+
+    # Assert: PERIODIC frames come in bursts, one report per accelerometer node: the first
+    # samples after START, then the next sample of every node once the timer has run 5 s
+    frames = [(t / 1e6, f["node_id"], f["reason"]) for t, _, f in sink.items if f is not None and f.type == "MOTION"]
+    periodic = [(t, node) for t, node, reason in frames if reason == C["CDRO_MOTION_REASON_PERIODIC"]]
+    bursts = []
+    for t, node in periodic:
+        if not bursts or t - bursts[-1][0][0] > 1.0:
+            bursts.append([])
+        bursts[-1].append((t, node))
+    starts = [burst[0][0] for burst in bursts]
+    assert start_s <= starts[0] < start_s + 0.3
+    assert len(bursts) == 7 and all(4.95 <= b - a <= 5.3 for a, b in zip(starts, starts[1:])), starts
+    changes = [t for t, node, reason in frames if node == D and reason == C["CDRO_MOTION_REASON_CHANGE"]]
+    for burst in bursts:
+        nodes = [node for _, node in burst]
+        assert nodes.count(OWN) == 1 and nodes.count(D) <= 1 and burst[-1][0] - burst[0][0] < 0.3
+        if D not in nodes:                  # D's sample in that burst was a change, reported as such
+            assert any(abs(t - burst[0][0]) < 0.3 for t in changes), burst
+
+
+def test_that_the_reported_norm_is_capped_at_16_g():
+    device, sink = booted(scenario(device={"discovery": False}))
+    device.world.accel_norm_mg = lambda node_id, t_s, rng: 20000
+    command(device, "SET_NODES", {"node_ids": [A]})
+    command(device, "START")
+    advance(device, 1_500_000)
+    first = sink.frames("MOTION")[0]
+    assert (first["node_id"], first["accel_norm_mg"], first["deviation_mg"], first["moving"]) == (OWN, 16000, 19000, 1)
+    assert first["reason"] == C["CDRO_MOTION_REASON_CHANGE"]
+
+
+def test_that_a_moving_node_becomes_still_after_16_samples_at_or_below_40_mg():
+    # Fixture: the own node reads 1100 mg once, then exactly 1040 mg
+    samples = []
+    device, sink = booted(scenario(device={"discovery": False}))
+    device.world.accel_norm_mg = lambda node_id, t_s, rng: (samples.append(t_s), 1100 if len(samples) == 1 else 1040)[1]
+    command(device, "SET_NODES", {"node_ids": [A]})
+    command(device, "START")
+
+    # Test
+    advance(device, 8_000_000)
+
+    # Assert: moving at the 1st sample; the window holds 100 mg for 8 samples, then 16 at 40 mg
+    changes = [(f["moving"], f["deviation_mg"]) for f in sink.frames("MOTION")
+               if f["reason"] == C["CDRO_MOTION_REASON_CHANGE"]]
+    assert changes == [(1, 100), (0, 40)]
+    still_ms = [f["device_time_ms"] for f in sink.frames("MOTION") if f["moving"] == 0][0]
+    assert int(samples[8 + 16 - 1] * 1000) - device.boot_us // 1000 == still_ms
+
+
+def test_that_a_node_that_does_not_answer_gets_one_error_accel_and_its_polls_back_off():
+    # Fixture: 0x7777 is not in the network; A is an anchor
+    device, sink = booted(scenario(device={"discovery": False}))
+    reads = collections.Counter()
+    remote_read = device._remote_read
+    device._remote_read = lambda node_id: (reads.update([node_id]), remote_read(node_id))[1]
+    command(device, "SET_NODES", {"node_ids": [A, 0x7777]})
+    command(device, "SET_SCHEDULE", {"slot_period_ms": 0, "mode": 0, "motion_poll_ms": 200, "moving_boost": 2,
+                                     "status_period_ms": 1000, "max_retries": 0})
+    command(device, "START")
+
+    # Test: 5 s, 25 poll periods
+    advance(device, device.now_us + 5_000_000)
+
+    # Assert: polls of 0x7777 in periods 0, 1, 3, 7, 12, 17, 22; A asked once (an anchor)
+    errors = [(e["code"], e["detail"], e["node_id"]) for e in sink.frames("ERROR") if e["code"] == C["CDRO_DEVICE_ERROR_ACCEL"]]
+    assert errors == [(C["CDRO_DEVICE_ERROR_ACCEL"], 0x12, 0x7777)]
+    assert reads == {A: 1, 0x7777: 7}
+
+
+def test_that_remote_timeouts_are_counted_and_reported_at_most_once_per_status_period():
+    # Fixture: A and E are 120 m apart, both 60 m from the own node: (A, E) ranged by A times out
+    E = 0x6005
+    sc = scenario(nodes=[{"id": OWN, "x": 0, "y": 0}, {"id": A, "x": -60, "y": 0}, {"id": E, "x": 60, "y": 0}],
+                  device={"discovery": False}, schedule={"motion_poll_ms": 0, "max_retries": 1})
+    device, sink = booted(sc)
+    command(device, "SET_NODES", {"node_ids": [A, E]})
+    command(device, "SET_SCHEDULE", sc.schedule.fields())
+    command(device, "START")
+
+    # Test
+    advance(device, 12_000_000)
+
+    # Assert: ERROR TIMEOUT (detail DO_RANGING 0xB5) at least a status period apart; STATUS
+    # counts every timeout; ERROR RANGING for the pair has no Pozyx code (detail 0)
+    errors = sink.frames("ERROR")
+    timeouts = [e["device_time_ms"] for e in errors if e["code"] == C["CDRO_DEVICE_ERROR_TIMEOUT"]]
+    assert all(e["detail"] == 0xB5 and e["node_id"] == 0 for e in errors if e["code"] == C["CDRO_DEVICE_ERROR_TIMEOUT"])
+    assert len(timeouts) >= 5 and all(b - a >= 1000 for a, b in zip(timeouts, timeouts[1:]))
+    assert device.counters["timeouts"] > len(timeouts)
+    assert sink.frames("STATUS")[-1]["timeouts"] > len(timeouts)
+    ranging = [(e["detail"], e["node_id"]) for e in errors if e["code"] == C["CDRO_DEVICE_ERROR_RANGING"]]
+    assert ranging == [(0, E)]
+
+
+def test_that_set_schedule_keeps_the_status_timer_and_motion_state_unless_they_change():
+    # Fixture: D carried from 2 s to 6 s, flagged moving at 4 s
+    sc = scenario(motion=[{"node": D, "start_s": 2, "end_s": 6, "waypoints": [[4, 5]]}])
+    device, sink = booted(sc)
+    command(device, "SET_SCHEDULE", sc.schedule.fields())
+    command(device, "START")
+    advance(device, 4_000_000)
+    assert device.flagged_moving(D)
+    due_us = device.next_status_us
+
+    # Test 1: another poll period and boost, the same status period
+    command(device, "SET_SCHEDULE", {**sc.schedule.fields(), "motion_poll_ms": 100, "moving_boost": 3})
+
+    # Assert 1: the status timer and the motion state are kept
+    assert device.next_status_us == due_us and device.flagged_moving(D)
+
+    # Test 2: another status period
+    command(device, "SET_SCHEDULE", {**sc.schedule.fields(), "status_period_ms": 500})
+
+    # Assert 2: the next STATUS one new period from now
+    assert device.next_status_us == device.now_us + 500_000
+
+
+def test_that_set_nodes_restarts_the_listed_nodes_still_and_clears_the_pair_streaks():
+    # Fixture: D carried from 2 s to 6 s, flagged moving at 4 s; a streak on (O, A)
+    sc = scenario(motion=[{"node": D, "start_s": 2, "end_s": 6, "waypoints": [[4, 5]]}])
+    device, sink = booted(sc)
+    command(device, "SET_SCHEDULE", sc.schedule.fields())
+    command(device, "START")
+    advance(device, 4_000_000)
+    assert device.flagged_moving(D)
+    device.scheduler.states[0].failed_attempts = 4
+    sink.clear()
+
+    # Test
+    command(device, "SET_NODES", {"node_ids": [A, B, D]})
+    advance(device, 4_500_000)
+
+    # Assert: D starts still again, its first sample reported PERIODIC (or a change); the
+    # own node keeps its state (no first-sample report); streaks cleared
+    assert all(state.failed_attempts == 0 for state in device.scheduler.states[1:])
+    first_d = [f for f in sink.frames("MOTION") if f["node_id"] == D][0]
+    assert (first_d["moving"], first_d["reason"]) in ((0, C["CDRO_MOTION_REASON_PERIODIC"]),
+                                                      (1, C["CDRO_MOTION_REASON_CHANGE"]))
+    assert not [f for f in sink.frames("MOTION") if f["node_id"] == OWN]
 
 
 def test_that_status_comes_every_period_running_or_not():
@@ -353,6 +630,7 @@ def test_that_a_full_transmit_buffer_drops_frames_and_reports_them_once():
     device, sink = booted()
     command(device, "START")
     advance(device, 2_000_000)
+    last_sequence = sink.frames()[-1].sequence
 
     # Test: the serial buffer takes nothing for 1 s
     sink.refuse = True
@@ -368,6 +646,7 @@ def test_that_a_full_transmit_buffer_drops_frames_and_reports_them_once():
     assert [e["detail"] for e in errors] == [dropped]
     sequences = [f.sequence for f in sink.frames()]
     assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))
+    assert sequences[0] == last_sequence + dropped + 1      # the drops show as a gap
 
 
 def test_that_a_reset_restarts_sequence_and_time_and_waits_stopped():
@@ -400,6 +679,10 @@ def test_that_a_missing_pozyx_reports_an_error_and_refuses_start():
     device, sink = booted(scenario(device={"pozyx_present": False}))
     command(device, "SET_NODES", {"node_ids": [A]})
     command(device, "START")
-    assert sink.frames("HELLO")[0]["capabilities"] == 0
-    assert sink.frames("ERROR")[0]["code"] == C["CDRO_DEVICE_ERROR_POZYX_ABSENT"]
+    hello, error = sink.frames()[:2]
+    assert hello.type == "HELLO" and (hello["node_id"], hello["pozyx_firmware"], hello["capabilities"]) == (0xFFFF, 0, 0)
+    assert error.type == "ERROR" and (error["code"], error["node_id"]) == (C["CDRO_DEVICE_ERROR_POZYX_ABSENT"], 0)
     assert sink.frames()[-1].type == "NACK" and sink.frames()[-1]["reason"] == C["CDRO_NACK_WRONG_STATE"]
+    # the own node is 0xFFFF: a list naming it is refused
+    command(device, "SET_NODES", {"node_ids": [A, 0xFFFF]})
+    assert sink.frames()[-1].type == "NACK" and sink.frames()[-1]["reason"] == C["CDRO_NACK_BAD_VALUE"]

@@ -15,6 +15,7 @@ import random
 from .scenario import Scenario, ScenarioError
 
 ONE_G_MG = 1000.0           # norm of the acceleration at rest, mg
+SENSOR_MAX_NORM_MG = 27713  # 16 g on each of three axes (MOTION frames cap the norm at 16 g)
 TRACK_STEP_S = 0.1          # sampling of the tracks CSV, s
 
 
@@ -214,7 +215,7 @@ class World:
             else:
                 amplitude = model.moving_amplitude_mg
             norm += amplitude * math.sin(2.0 * math.pi * model.moving_frequency_hz * t_s + self._phase[node_id])
-        return int(min(16000, max(0, round(norm))))
+        return int(min(SENSOR_MAX_NORM_MG, max(0, round(norm))))
 
     # -- truth files --
 
