@@ -325,6 +325,30 @@ TEST_F(Commands, UndecodableChunksAreCountedAndReportedNotAnswered)
     EXPECT_EQ(statuses.back().as.status.commands_rejected, 4U);
 }
 
+// The report is driven by a pending flag, not by comparing a wrapping 8-bit count: exactly
+// 256 bad chunks between two reports (which a wrapping count would alias to "none") are
+// reported too.
+TEST_F(Commands, ExactlyTwoHundredFiftySixBadChunksBetweenReportsAreStillReported)
+{
+    const size_t from = bench.serial.frames.size();
+    const uint32_t rejected_before = bench.fw.counters.commands_rejected;
+    bench.serial.hostSendBytes({0x01, 0x00}); // decodes to nothing: too short
+    bench.runForMs(50);
+    ASSERT_EQ(bench.serial.count(CDRO_FRAME_ERROR, from), 1U);
+    for (int batch = 0; batch < 16; ++batch) { // 256 more, well inside one status period
+        for (int i = 0; i < 16; ++i) {
+            bench.serial.hostSendBytes({0x01, 0x00});
+        }
+        bench.runForMs(20);
+    }
+    bench.runForMs(2000);
+    const auto errors = bench.serial.ofType(CDRO_FRAME_ERROR, from);
+    ASSERT_EQ(errors.size(), 2U);
+    EXPECT_EQ(errors[1].as.error.code, CDRO_DEVICE_ERROR_COMMAND);
+    EXPECT_EQ(static_cast<int16_t>(errors[1].as.error.detail), CDRO_ERR_SHORT);
+    EXPECT_EQ(bench.fw.counters.commands_rejected - rejected_before, 257U);
+}
+
 TEST(CommandsAtBoot, AbsentPozyxSaysSoAndRefusesStart)
 {
     Bench bench(fwtest::testSeed(52), kNodes);

@@ -332,18 +332,26 @@ def test_that_a_pair_whose_slots_fail_backs_off_0_1_3_4_4_rounds_and_a_success_r
     assert sched.states[1].failed_slots == 0 and sched.states[1].sitting_out == 0
 
 
-def test_that_a_failed_pair_with_a_moving_end_sits_out_the_rest_of_its_round():
+def test_that_a_pair_with_a_moving_end_stays_in_after_one_failed_slot_and_sits_out_after_two():
     # Fixture: boost 3, B moving: pair 1 (O,B) is due in every pass
     sched = scheduler(boost=3)
     moving = {B}.__contains__
     assert [sched.next(moving) for _ in range(2)] == [0, 1]
 
-    # Test: its first slot fails
+    # Test: its first slot fails (n = 1: no further rounds, so it does not sit out)
     sched.slot_done(1, ok=False)
-    rest = [sched.next(moving) for _ in range(2 + 3 + 3)]
+    rest_of_round = [sched.next(moving) for _ in range(2 + 4 + 4)]
 
-    # Assert: not in passes 1 and 2 of this round, back in the next round (n = 1: no further rounds)
-    assert rest == [3, 5] + [3, 4, 5] + [2, 3, 5]
+    # Assert: still visited in passes 1 and 2 of this round
+    assert rest_of_round == [3, 5] + [1, 3, 4, 5] + [1, 2, 3, 5]
+
+    # Test: its next slot (pass 1 of the next round) fails too (n = 2: one further round)
+    assert [sched.next(moving) for _ in range(5)] == [0, 1, 3, 5, 1]
+    sched.slot_done(1, ok=False)
+    after = [sched.next(moving) for _ in range(3 + 3 + 3 + 3 + 3)]
+
+    # Assert: it sits out the rest of this round and the whole next round, then comes back
+    assert after == [3, 4, 5] + [2, 3, 5] + [0, 3, 5] + [3, 4, 5] + [2, 3, 5]
     assert sched.next(moving) == 0 and sched.next(moving) == 1
 
 
@@ -487,7 +495,26 @@ def test_that_the_reported_norm_is_capped_at_16_g():
     assert first["reason"] == C["CDRO_MOTION_REASON_CHANGE"]
 
 
-def test_that_a_moving_node_becomes_still_after_16_samples_at_or_below_40_mg():
+def test_that_a_moving_node_becomes_still_after_16_samples_below_40_mg():
+    # Fixture: the own node reads 1100 mg once, then exactly 1039 mg
+    samples = []
+    device, sink = booted(scenario(device={"discovery": False}))
+    device.world.accel_norm_mg = lambda node_id, t_s, rng: (samples.append(t_s), 1100 if len(samples) == 1 else 1039)[1]
+    command(device, "SET_NODES", {"node_ids": [A]})
+    command(device, "START")
+
+    # Test
+    advance(device, 8_000_000)
+
+    # Assert: moving at the 1st sample; the window holds 100 mg for 8 samples, then 16 at 39 mg
+    changes = [(f["moving"], f["deviation_mg"]) for f in sink.frames("MOTION")
+               if f["reason"] == C["CDRO_MOTION_REASON_CHANGE"]]
+    assert changes == [(1, 100), (0, 39)]
+    still_ms = [f["device_time_ms"] for f in sink.frames("MOTION") if f["moving"] == 0][0]
+    assert int(samples[8 + 16 - 1] * 1000) - device.boot_us // 1000 == still_ms
+
+
+def test_that_a_moving_node_at_exactly_40_mg_stays_moving():
     # Fixture: the own node reads 1100 mg once, then exactly 1040 mg
     samples = []
     device, sink = booted(scenario(device={"discovery": False}))
@@ -498,12 +525,9 @@ def test_that_a_moving_node_becomes_still_after_16_samples_at_or_below_40_mg():
     # Test
     advance(device, 8_000_000)
 
-    # Assert: moving at the 1st sample; the window holds 100 mg for 8 samples, then 16 at 40 mg
-    changes = [(f["moving"], f["deviation_mg"]) for f in sink.frames("MOTION")
-               if f["reason"] == C["CDRO_MOTION_REASON_CHANGE"]]
-    assert changes == [(1, 100), (0, 40)]
-    still_ms = [f["device_time_ms"] for f in sink.frames("MOTION") if f["moving"] == 0][0]
-    assert int(samples[8 + 16 - 1] * 1000) - device.boot_us // 1000 == still_ms
+    # Assert: 40 mg is not below 40 mg, so it never becomes still
+    changes = [f["moving"] for f in sink.frames("MOTION") if f["reason"] == C["CDRO_MOTION_REASON_CHANGE"]]
+    assert changes == [1]
 
 
 def test_that_a_node_that_does_not_answer_gets_one_error_accel_and_its_polls_back_off():
@@ -686,3 +710,25 @@ def test_that_a_missing_pozyx_reports_an_error_and_refuses_start():
     # the own node is 0xFFFF: a list naming it is refused
     command(device, "SET_NODES", {"node_ids": [A, 0xFFFF]})
     assert sink.frames()[-1].type == "NACK" and sink.frames()[-1]["reason"] == C["CDRO_NACK_BAD_VALUE"]
+
+
+def test_that_motion_state_is_kept_across_stop_and_start_and_the_first_sample_is_periodic():
+    # Fixture: the own node shakes (1100 mg) all the time, so it is moving
+    device, sink = booted(scenario(device={"discovery": False}))
+    device.world.accel_norm_mg = lambda node_id, t_s, rng: 1100
+    command(device, "SET_NODES", {"node_ids": [A]})
+    command(device, "START")
+    advance(device, 3_000_000)
+    assert device.flagged_moving(device.own_id)
+
+    # Test: stop, then start again
+    command(device, "STOP")
+    advance(device, 4_000_000)
+    before = len(sink.frames("MOTION"))
+    command(device, "START")
+    advance(device, 5_000_000)
+
+    # Assert: the first MOTION after START is PERIODIC and still says moving (no reset to still)
+    after = sink.frames("MOTION")[before:]
+    assert after and after[0]["reason"] == C["CDRO_MOTION_REASON_PERIODIC"] and after[0]["moving"] == 1
+    assert all(f["reason"] != C["CDRO_MOTION_REASON_CHANGE"] for f in after)

@@ -306,7 +306,8 @@ static void command_set_schedule(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t
     if (fw->motion_poll_ms == 0U) {
         fw->poll_cursor = NO_POLL_ROUND;
     }
-    /* The next slot starts slot_period_ms after the last one started, with the new period. */
+    /* The slot already due keeps its start time (set with the old period when the last slot
+     * started); the new slot_period_ms applies from the slot after it. */
     send_ack(fw, in->type, in->sequence, 0);
 }
 
@@ -386,7 +387,7 @@ static void handle_chunk(cdro_fw_t *fw, const cdro_frame_t *in, cdro_result_t re
     default:
         /* Not trustworthy enough to answer: counted, and reported by ERROR COMMAND (rate-limited). */
         ++fw->counters.commands_rejected;
-        fw->command_errors = (uint8_t)(fw->command_errors + 1U);
+        fw->command_error_pending = 1U;
         fw->last_command_error = (uint8_t)(-(int)result);
         break;
     }
@@ -416,18 +417,18 @@ static void report_errors(cdro_fw_t *fw, uint32_t now_ms)
         fw->link.dropped_unreported = 0;
         send_error(fw, CDRO_DEVICE_ERROR_TX_OVERFLOW, dropped, 0);
     }
-    if ((uint8_t)fw->pozyx.bus_errors != fw->bus_errors_reported && reached(now_ms, fw->next_bus_report_ms)) {
-        fw->bus_errors_reported = (uint8_t)fw->pozyx.bus_errors;
+    if ((uint16_t)fw->pozyx.bus_errors != fw->bus_errors_reported && reached(now_ms, fw->next_bus_report_ms)) {
+        fw->bus_errors_reported = (uint16_t)fw->pozyx.bus_errors;
         fw->next_bus_report_ms = now_ms + fw->status_period_ms;
         send_error(fw, CDRO_DEVICE_ERROR_BUS, fw->pozyx.bus_target, 0);
     }
-    if ((uint8_t)fw->pozyx.timeouts != fw->timeouts_reported && reached(now_ms, fw->next_timeout_report_ms)) {
-        fw->timeouts_reported = (uint8_t)fw->pozyx.timeouts;
+    if ((uint16_t)fw->pozyx.timeouts != fw->timeouts_reported && reached(now_ms, fw->next_timeout_report_ms)) {
+        fw->timeouts_reported = (uint16_t)fw->pozyx.timeouts;
         fw->next_timeout_report_ms = now_ms + fw->status_period_ms;
         send_error(fw, CDRO_DEVICE_ERROR_TIMEOUT, fw->pozyx.timeout_target, 0);
     }
-    if (fw->command_errors != fw->command_errors_reported && reached(now_ms, fw->next_command_report_ms)) {
-        fw->command_errors_reported = fw->command_errors;
+    if (fw->command_error_pending && reached(now_ms, fw->next_command_report_ms)) {
+        fw->command_error_pending = 0U;
         fw->next_command_report_ms = now_ms + fw->status_period_ms;
         /* detail: the cdro_result_t as a 16-bit two's complement (e.g. 0xFFFC = CRC). */
         send_error(fw, CDRO_DEVICE_ERROR_COMMAND, (uint16_t)(0U - (uint16_t)fw->last_command_error), 0);

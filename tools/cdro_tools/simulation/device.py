@@ -27,7 +27,7 @@ from .uwb import POZYX_RANGING_FAILED, POZYX_RANGING_TIMEOUT, UwbModel
 from .world import ONE_G_MG, World
 
 MOVING_ABOVE_MG = 80          # deviation that makes a still node moving
-STILL_AT_MOST_MG = 40         # deviation a moving node must stay at or below ...
+STILL_BELOW_MG = 40           # deviation a moving node must stay below ...
 STILL_SAMPLES = 16            # ... for this many consecutive samples
 WINDOW_SAMPLES = 8            # the deviation is the largest |norm - 1 g| over this many samples
 MOTION_PERIODIC_US = 5_000_000  # the device-wide PERIODIC MOTION timer
@@ -340,7 +340,7 @@ class SimDevice:
         norm_mg = self.world.accel_norm_mg(node_id, self.now_us / 1e6, self.accel_rng)
         state.window_mg.append(abs(norm_mg - ONE_G_MG))
         deviation_mg = int(round(max(state.window_mg)))
-        state.still_count = min(state.still_count + 1, STILL_SAMPLES) if deviation_mg <= STILL_AT_MOST_MG else 0
+        state.still_count = min(state.still_count + 1, STILL_SAMPLES) if deviation_mg < STILL_BELOW_MG else 0
         changed = False
         if not state.moving and deviation_mg > MOVING_ABOVE_MG:
             state.moving = changed = True
@@ -463,7 +463,8 @@ class SimDevice:
                 self.running = True
                 self.next_slot_us = self.now_us
                 self.next_periodic_us = self.now_us + MOTION_PERIODIC_US
-                self._restart_motion()                    # all nodes start still
+                for state in self.motion.values():        # motion state is kept across STOP/START;
+                    state.periodic_due = True             # each node's first sample is reported
         elif frame.type == "STOP":
             self._ack(frame)
             self.running = False

@@ -5,8 +5,8 @@ the pair list, rounds of `moving_boost` passes, failure streaks and backoff.
   i < j, in lexicographic order.
 - A round is `moving_boost` passes over the pair list; in pass k the pair at position p is
   visited if one of its ends is flagged moving, or if p mod boost = k.
-- A pair whose slot failed n times in a row sits out the rest of that round and
-  min(2^(n-1) - 1, 4) further rounds; a success resets n (and the attempt streak).
+- A pair whose slot failed n times in a row sits out min(2^(n-1) - 1, 4) further rounds and,
+  when that is not 0, the rest of that round; a success resets n (and the attempt streak).
 - The attempt streak of a pair (failed attempts in a row, retries included) reports ERROR
   RANGING once, at its 5th attempt.
 """
@@ -109,5 +109,7 @@ class Scheduler:
             state.failed_slots = state.failed_attempts = state.sitting_out = 0
         else:
             state.failed_slots += 1
-            # the rest of this round (the next round start counts it off), then the further rounds
-            state.sitting_out = 1 + backoff_rounds(state.failed_slots)
+            # the further rounds and, if any, the rest of this round (the next round start
+            # counts it off); after one failed slot (0 further rounds) the pair stays in
+            further = backoff_rounds(state.failed_slots)
+            state.sitting_out = further + 1 if further else 0

@@ -107,10 +107,11 @@ typedef struct cdro_fw {
     uint32_t next_status_ms;     /* device time of the next STATUS */
     uint32_t periodic_motion_mask;     /* bit i: node i's next sample is reported PERIODIC */
     uint32_t next_periodic_motion_ms;  /* device time the mask is next set for every node */
-    uint8_t bus_errors_reported;       /* low byte of pozyx.bus_errors when last reported */
-    uint8_t timeouts_reported;         /* low byte of pozyx.timeouts when last reported */
-    uint8_t command_errors_reported;   /* low byte of command_errors when last reported */
-    uint8_t command_errors;            /* undecodable host chunks (COBS, CRC, short, too long), wrapping */
+    /* Low 16 bits of pozyx.bus_errors / pozyx.timeouts when last reported. 16 bits cannot
+     * alias: with the 10 ms bus timeout at most 6000 occur in the longest status period. */
+    uint16_t bus_errors_reported;
+    uint16_t timeouts_reported;
+    uint8_t command_error_pending;     /* an undecodable host chunk came since the last ERROR COMMAND */
     uint32_t next_bus_report_ms;       /* device time from which the next ERROR BUS may go */
     uint32_t next_timeout_report_ms;   /* ... ERROR TIMEOUT */
     uint32_t next_command_report_ms;   /* ... ERROR COMMAND */
