@@ -240,6 +240,8 @@ void MqttPublisher::publishHealth(const Health &health, double t_s)
     publish(topic("health"), JsonLinesWriter::line(healthJson(health, t_s)), true);
 }
 
+bool MqttPublisher::flushed() const { return connected_ && mosq_ != nullptr && !mosquitto_want_write(mosq_); }
+
 void MqttPublisher::shutdown()
 {
     if (mosq_ == nullptr) {

@@ -5,6 +5,8 @@
 #include <cstring>
 
 #include <fcntl.h>
+#include <stdlib.h>
+#include <sys/stat.h>
 #include <poll.h>
 #include <termios.h>
 #include <unistd.h>
@@ -50,7 +52,10 @@ public:
             port_->SetVTime(0);
         } catch (const std::exception &e) {
             if (error != nullptr) {
-                *error = e.what();
+                // LibSerial's messages can be vague ("Bad file descriptor" for a missing
+                // device); say what the path looks like instead when it is not there.
+                struct stat st {};
+                *error = ::stat(path.c_str(), &st) != 0 ? std::string(std::strerror(errno)) : std::string(e.what());
             }
             close();
             return -1;
@@ -82,12 +87,34 @@ public:
         if (!port_) {
             return;
         }
-        try {
-            if (port_->IsOpen()) {
-                port_->Close(); // restores the old termios; may fail on a vanished device
+        if (port_->IsOpen()) {
+            // LibSerial's Close() first restores the terminal settings it found. On a device
+            // that vanished that fails (EIO), Close() throws and keeps the descriptor, and the
+            // noexcept destructor would then throw again and terminate the process. So when
+            // the device is gone, its descriptor number is pointed at a fresh pseudo-terminal
+            // master (dup2) for Close() to restore and close harmlessly.
+            const int fd = port_->GetFileDescriptor();
+            termios current{};
+            if (tcgetattr(fd, &current) != 0 || tcsetattr(fd, TCSANOW, &current) != 0) {
+                const int stand_in = ::posix_openpt(O_RDWR | O_NOCTTY | O_CLOEXEC);
+                if (stand_in < 0 || ::dup2(stand_in, fd) < 0) {
+                    // Cannot make Close() safe: give the port object up (a small, bounded leak
+                    // per failure) rather than risk terminate().
+                    if (stand_in >= 0) {
+                        ::close(stand_in);
+                    }
+                    ::close(fd);
+                    (void)port_.release();
+                    return;
+                }
+                ::close(stand_in);
             }
-        } catch (const std::exception &) {
-            // The device is gone; the descriptor is released by the destructor below.
+            try {
+                port_->Close();
+            } catch (const std::exception &) {
+                (void)port_.release(); // as above: never let the destructor throw
+                return;
+            }
         }
         port_.reset();
     }

@@ -41,6 +41,8 @@ public:
     void start();      // throws ConfigError for a bad URL; connecting itself never throws
     void shutdown();   // "offline", clean disconnect (bounded wait), release
     bool connected() const { return connected_; }
+    // Connected and nothing queued for the socket (tests, and a clean shutdown).
+    bool flushed() const;
 
     // After an update at event time event_us: the nodes (and robot) that changed, at most
     // rate_hz per node.
