@@ -13,12 +13,6 @@
 
 namespace cdro::service {
 
-namespace {
-// A node line without its time, to decide whether the estimate changed.
-std::string nodeKey(const NodeEstimate &n) { return nodeJson(n, 0.0).dump(); }
-std::string robotKey(const RobotPose &r) { return robotJson(r, 0.0).dump(); }
-} // namespace
-
 JsonLinesWriter::JsonLinesWriter(const OutputConfig &config, ServiceCounters &counters)
     : config_(config), counters_(counters)
 {
@@ -64,11 +58,11 @@ void JsonLinesWriter::writeAll(const MapState &map)
 {
     for (const NodeEstimate &node : map.nodes) {
         append(line(nodeJson(node, map.t_s)));
-        last_node_[node.id] = nodeKey(node);
+        last_node_[node.id] = node;
     }
     if (map.robot) {
         append(line(robotJson(*map.robot, map.t_s)));
-        last_robot_ = robotKey(*map.robot);
+        last_robot_ = map.robot;
     }
 }
 
@@ -90,20 +84,16 @@ void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
         return;
     }
     for (const NodeEstimate &node : map.nodes) {
-        std::string key = nodeKey(node);
         auto it = last_node_.find(node.id);
-        if (it != last_node_.end() && it->second == key) {
+        if (it != last_node_.end() && sameEstimate(it->second, node)) {
             continue;
         }
         append(line(nodeJson(node, map.t_s)));
-        last_node_[node.id] = std::move(key);
+        last_node_[node.id] = node;
     }
-    if (map.robot) {
-        std::string key = robotKey(*map.robot);
-        if (key != last_robot_) {
-            append(line(robotJson(*map.robot, map.t_s)));
-            last_robot_ = std::move(key);
-        }
+    if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
+        append(line(robotJson(*map.robot, map.t_s)));
+        last_robot_ = map.robot;
     }
 }
 

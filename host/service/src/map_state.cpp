@@ -1,5 +1,7 @@
 #include "cdro/service/map_state.hpp"
 
+#include <cstring>
+
 #include <nlohmann/json.hpp>
 
 namespace cdro::service {
@@ -14,6 +16,24 @@ const char *linkStateName(LinkState state)
     case LinkState::Replay: return "replay";
     }
     return "disconnected";
+}
+
+namespace {
+bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+} // namespace
+
+bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
+{
+    return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.var_x_m2, b.var_x_m2) &&
+           sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.converged == b.converged &&
+           a.moving == b.moving && a.placed == b.placed;
+}
+
+bool sameEstimate(const RobotPose &a, const RobotPose &b)
+{
+    return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) &&
+           sameBits(a.heading_rad, b.heading_rad) && sameBits(a.var_x_m2, b.var_x_m2) &&
+           sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2);
 }
 
 nlohmann::ordered_json nodeJson(const NodeEstimate &n, double t_s)

@@ -210,9 +210,8 @@ void MqttPublisher::onUpdate(const MapState &map, int64_t event_us)
     }
     const int64_t period_us = config_.rate_hz > 0.0 ? static_cast<int64_t>(std::llround(1e6 / config_.rate_hz)) : 0;
     for (const NodeEstimate &node : map.nodes) {
-        std::string key = nodeJson(node, 0.0).dump();
         auto last = last_node_.find(node.id);
-        if (last != last_node_.end() && last->second == key) {
+        if (last != last_node_.end() && sameEstimate(last->second, node)) {
             continue;
         }
         auto due = next_due_us_.find(node.id);
@@ -220,15 +219,12 @@ void MqttPublisher::onUpdate(const MapState &map, int64_t event_us)
             continue;
         }
         next_due_us_[node.id] = event_us + period_us;
-        last_node_[node.id] = std::move(key);
+        last_node_[node.id] = node;
         publish(topic("nodes/" + std::to_string(node.id)), JsonLinesWriter::line(nodeJson(node, map.t_s)), true);
     }
-    if (map.robot) {
-        std::string key = robotJson(*map.robot, 0.0).dump();
-        if (key != last_robot_) {
-            last_robot_ = std::move(key);
-            publish(topic("robot"), JsonLinesWriter::line(robotJson(*map.robot, map.t_s)), true);
-        }
+    if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
+        last_robot_ = map.robot;
+        publish(topic("robot"), JsonLinesWriter::line(robotJson(*map.robot, map.t_s)), true);
     }
 }
 

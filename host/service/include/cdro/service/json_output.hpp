@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 
 #include "cdro/service/config.hpp"
@@ -56,8 +57,8 @@ private:
     bool owns_fd_ = false;
     bool error_logged_ = false;
     std::string pending_;
-    std::map<uint16_t, std::string> last_node_;  // id -> last line written, without t_s
-    std::string last_robot_;
+    std::map<uint16_t, NodeEstimate> last_node_;  // id -> the estimate last written
+    std::optional<RobotPose> last_robot_;
     int64_t period_us_ = 0;
     int64_t next_due_us_ = INT64_MIN;
     bool dirty_ = false;

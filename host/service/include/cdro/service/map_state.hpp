@@ -99,6 +99,10 @@ public:
     virtual std::optional<NodeComponents> components(uint16_t id) const = 0;
 };
 
+// Bit-for-bit equality of estimates (the outputs write a node again only when it changed).
+bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b);
+bool sameEstimate(const RobotPose &a, const RobotPose &b);
+
 // The JSON objects of docs/outputs.md (keys in its order). t_s is passed in.
 nlohmann::ordered_json nodeJson(const NodeEstimate &node, double t_s);
 nlohmann::ordered_json robotJson(const RobotPose &robot, double t_s);

@@ -21,6 +21,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 
 #include "cdro/service/config.hpp"
@@ -79,9 +80,9 @@ private:
     EventLoop::TimerId retry_timer_ = 0;
     EventLoop::TimerId misc_timer_ = 0;
     std::map<std::string, std::string> retained_;       // topic -> latest payload
-    std::map<uint16_t, std::string> last_node_;         // id -> last payload key (no t_s)
+    std::map<uint16_t, NodeEstimate> last_node_;        // id -> the estimate last published
     std::map<uint16_t, int64_t> next_due_us_;           // id -> event time of the next publish
-    std::string last_robot_;
+    std::optional<RobotPose> last_robot_;
 };
 
 } // namespace cdro::service
