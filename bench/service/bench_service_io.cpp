@@ -288,9 +288,9 @@ int main(int argc, char **argv)
     watcher.join();
 
     const ServiceCounters &c = service.counters();
-    std::printf("frames delivered      %llu (sent %llu), rejected chunks %llu\n",
-                static_cast<unsigned long long>(consumer.ranges()), static_cast<unsigned long long>(frames),
-                static_cast<unsigned long long>(c.chunks_rejected));
+    std::printf("frames delivered      %llu, rejected chunks %llu, frames lost %llu\n",
+                static_cast<unsigned long long>(consumer.ranges()), static_cast<unsigned long long>(c.chunks_rejected),
+                static_cast<unsigned long long>(c.frames_lost));
     std::printf("throughput            %.0f frames/s over %.2f s (goal > 20000)\n",
                 static_cast<double>(consumer.ranges()) / std::max(1e-9, consumer.seconds()), consumer.seconds());
     std::printf("arrival -> output     p50 %lld us, p99 %lld us, p99.9 %lld us (goal p99 < 2000 us; %llu samples)\n",

@@ -260,6 +260,8 @@ void Broker::start()
         ::dup2(devnull, STDOUT_FILENO);
         ::dup2(devnull, STDERR_FILENO);
         ::execlp("mosquitto", "mosquitto", "-c", config.c_str(), static_cast<char *>(nullptr));
+        // Debian installs it in /usr/sbin, which a non-root PATH may not hold.
+        ::execl("/usr/sbin/mosquitto", "mosquitto", "-c", config.c_str(), static_cast<char *>(nullptr));
         ::_exit(127);
     }
     // Ready when it accepts a connection (a deadlock guard, not a speed assumption).

@@ -194,6 +194,9 @@ def test_device_vanishes_and_returns(harness_bin, tmp_path):
     assert len(harness.api("/api/map")["nodes"]) == 4
     wait_until(lambda: harness.health()["counters"]["link_open_failures"] >= 2, "retries while unplugged")
     device = FakeDevice(tmp_path / "ttyPOZYX")  # plugged in again (a new PTY at the same path)
+    # Boot once the port is open again: the boot HELLO (sequence 0) is how a host learns that
+    # the device restarted (one sent before the open would be flushed by it).
+    harness.wait_health(lambda h: h["counters"]["link_connects"] == 2, "port reopened")
     device.boot()
     harness.wait_connected(handshakes=2)
     send_ranges(device, 50)
