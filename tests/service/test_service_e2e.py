@@ -147,6 +147,10 @@ def test_garbage_bit_flips_cut_frames_and_absurd_values(harness_bin, tmp_path):
     # The capture replays through the same decoder to the same verdicts.
     capture = read_capture(harness.capture)
     assert capture.corrupt_bytes == 0
+    # Each drop is logged with what and why.
+    log = harness.log()
+    assert "intake: dropped RANGE seq" in log and "a field is out of its documented range" in log
+    assert "(corrupted in transit)" in log
     device.vanish()
 
 
@@ -243,8 +247,12 @@ def test_kill_9_then_replay_the_capture(harness_bin, tmp_path):
     device, harness = start_running(harness_bin, tmp_path, name="live")
     send_ranges(device, 400)
     harness.wait_health(lambda h: h["counters"]["frames_delivered"] >= 200, "some ranges delivered")
+    harness.wait_health(lambda h: h["counters"]["checkpoints_written"] >= 1, "a periodic checkpoint")
     harness.stop(signal.SIGKILL)
     device.vanish()
+    # The periodic checkpoint survives the kill whole (it is written to a temporary, then renamed;
+    # a kill during a write may leave the temporary, never a half checkpoint).
+    assert decode_sog(harness.checkpoint.read_bytes()).header["ranges_processed"] > 0
     live = [l for l in harness.received_lines() if l["kind"] == "range"]
     capture = read_capture(harness.capture)
     assert capture.corrupt_bytes == 0
