@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include <fcntl.h>
+#include <poll.h>
 #include <unistd.h>
 
 #include <nlohmann/json.hpp>
@@ -126,8 +127,12 @@ void JsonLinesWriter::flush()
         if (n < 0 && errno == EINTR) {
             continue;
         }
-        if (n < 0 && errno == EAGAIN) {
-            continue; // a non-blocking stdout that is full: wait for it rather than lose lines
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+            // A non-blocking stdout that is full: wait for it (as a blocking write would)
+            // rather than lose lines or spin.
+            pollfd p{fd_, POLLOUT, 0};
+            ::poll(&p, 1, 1000);
+            continue;
         }
         if (n <= 0) {
             ++counters_.jsonl_write_errors;
