@@ -157,14 +157,14 @@ void FrameIntake::endChunk(int64_t host_unix_us)
     }
 }
 
-void FrameIntake::logDrop(const std::string &key, const std::string &message)
+template <typename Message> void FrameIntake::logDrop(const char *key, Message message)
 {
     uint64_t suppressed = 0;
     if (drop_log_.allow(key, clock_.monotonicUs(), &suppressed)) {
         if (suppressed > 0) {
-            log()->warn("intake: dropped {} ({} more like it not logged)", message, suppressed);
+            log()->warn("intake: dropped {} ({} more like it not logged)", message(), suppressed);
         } else {
-            log()->warn("intake: dropped {}", message);
+            log()->warn("intake: dropped {}", message());
         }
     }
 }
@@ -192,25 +192,25 @@ void FrameIntake::onRejected(cdro_result_t result, const cdro_frame_t &partial, 
     const std::string reason = cdro_result_name(result);
     switch (result) {
     case CDRO_ERR_VALUE:
-        logDrop("value", describeFrame(partial) + " (a field is out of its documented range)");
+        logDrop("value", [&] { return describeFrame(partial) + " (a field is out of its documented range)"; });
         break;
     case CDRO_ERR_VERSION:
         markIncompatible("the device sends protocol version " + std::to_string(partial.version) +
                          " frames; this host speaks protocol version " + std::to_string(CDRO_PROTOCOL_VERSION) +
                          " (layout hash " + hex16(CDRO_LAYOUT_HASH) + ")");
-        logDrop("version", "a " + std::to_string(chunk_len) + "-byte chunk of protocol version " +
+        logDrop("version", [&] { return "a " + std::to_string(chunk_len) + "-byte chunk of protocol version " +
                                std::to_string(partial.version) + " (this host speaks " +
-                               std::to_string(CDRO_PROTOCOL_VERSION) + ")");
+                               std::to_string(CDRO_PROTOCOL_VERSION) + ")"; });
         break;
     case CDRO_ERR_TYPE:
-        logDrop("type", "a frame of unknown type " + hex16(partial.type) + ", seq " + std::to_string(partial.sequence));
+        logDrop("type", [&] { return "a frame of unknown type " + hex16(partial.type) + ", seq " + std::to_string(partial.sequence); });
         break;
     case CDRO_ERR_LENGTH:
-        logDrop("length", describeFrame(partial) + ": length does not match its layout");
+        logDrop("length", [&] { return describeFrame(partial) + ": length does not match its layout"; });
         break;
     default:
-        logDrop(reason, "a " + std::to_string(chunk_len) + "-byte chunk: " + reason +
-                            (result == CDRO_ERR_CRC ? " (corrupted in transit)" : ""));
+        logDrop(reason.c_str(), [&] { return "a " + std::to_string(chunk_len) + "-byte chunk: " + reason +
+                            (result == CDRO_ERR_CRC ? " (corrupted in transit)" : ""); });
         break;
     }
 }
@@ -262,7 +262,7 @@ bool FrameIntake::checkSequenceAndReset(const cdro_frame_t &f, int64_t host_unix
     } else if (have_sequence_) {
         if (step == 0) {
             ++counters_.duplicate_frames;
-            logDrop("duplicate", describeFrame(f) + ": duplicate sequence number");
+            logDrop("duplicate", [&] { return describeFrame(f) + ": duplicate sequence number"; });
             return false;
         }
         if (step > 1) {
@@ -308,7 +308,7 @@ bool FrameIntake::checkNodes(const cdro_frame_t &f)
     }
     if (!ok) {
         ++counters_.frames_rejected_unknown_node;
-        logDrop("unknown_node", describeFrame(f) + ": unknown node id (nodes.unknown: reject)");
+        logDrop("unknown_node", [&] { return describeFrame(f) + ": unknown node id (nodes.unknown: reject)"; });
     }
     return ok;
 }
@@ -352,7 +352,7 @@ void FrameIntake::onAccepted(const cdro_frame_t &f, int64_t host_unix_us)
 {
     if (f.type >= 0x40U) {
         ++counters_.unexpected_frames;
-        logDrop("unexpected", describeFrame(f) + ": a host-to-device frame type from the device");
+        logDrop("unexpected", [&] { return describeFrame(f) + ": a host-to-device frame type from the device"; });
         return;
     }
     if (!checkSequenceAndReset(f, host_unix_us)) {
@@ -375,7 +375,7 @@ void FrameIntake::onAccepted(const cdro_frame_t &f, int64_t host_unix_us)
     if (incompatible_) {
         if (f.type != CDRO_FRAME_HELLO) {
             ++counters_.frames_dropped_incompatible;
-            logDrop("incompatible", describeFrame(f) + ": the device is incompatible");
+            logDrop("incompatible", [&] { return describeFrame(f) + ": the device is incompatible"; });
         }
         return;
     }

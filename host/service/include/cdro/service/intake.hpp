@@ -78,7 +78,9 @@ private:
     bool nodeKnown(uint16_t id);
     void checkHello(const cdro_hello_t &hello);
     void markIncompatible(const std::string &message);
-    void logDrop(const std::string &key, const std::string &message);
+    // Logs a dropped frame unless the rate limit holds it back; message() is only built when
+    // it is logged, so that a flood of garbage costs no formatting.
+    template <typename Message> void logDrop(const char *key, Message message);
 
     ServiceCounters &counters_;
     const Clock &clock_;
