@@ -1,0 +1,119 @@
+// intake.hpp: bytes in, validated frames out. Every byte goes through cdro_decoder_push (with
+// resynchronisation); every chunk that ends is appended to the capture; every rejection is
+// counted by reason and logged (rate-limited) with what was dropped and why; accepted frames
+// then pass the sequence checks (duplicates, gaps, resets) and the node-id policy before the
+// FrameConsumer sees them.
+//
+// Everything here is driven by the bytes and the event time passed in, never by a clock, so
+// that a live run and the replay of its capture give the consumer identical calls. The only
+// other input is noteSentFrame(): the frames the host sent (from the session live, from the
+// to-device records on replay), so that a HELLO answering a HELLO_REQUEST is not taken for
+// a reset.
+//
+// Threading: loop thread only.
+#pragma once
+
+#include <cstdint>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "cdro/frames.h"
+#include "cdro/service/clock.hpp"
+#include "cdro/service/config.hpp"
+#include "cdro/service/consumer.hpp"
+#include "cdro/service/counters.hpp"
+#include "cdro/service/log.hpp"
+
+namespace cdro::service {
+
+class CaptureWriter;
+
+// The session's view of the stream (it drives the handshake from these).
+class IntakeObserver {
+public:
+    virtual ~IntakeObserver() = default;
+    // Every accepted device frame, including ACK, NACK and HELLO.
+    virtual void onDeviceFrame(const cdro_frame_t &frame, int64_t host_unix_us) = 0;
+    virtual void onDeviceReset(DeviceResetReason reason, int64_t host_unix_us) = 0;
+    // The device speaks another protocol version or layout; message names both.
+    virtual void onIncompatible(const std::string &message) = 0;
+};
+
+class FrameIntake {
+public:
+    // clock: only for rate-limiting log lines (never for anything a consumer sees).
+    FrameIntake(const NodesConfig &nodes, double drop_log_per_s, ServiceCounters &counters, const Clock &clock);
+
+    void setConsumer(FrameConsumer *consumer) { consumer_ = consumer; }
+    void setObserver(IntakeObserver *observer) { observer_ = observer; }
+    void setCapture(CaptureWriter *capture) { capture_ = capture; }
+
+    // Received bytes, all with the same event time.
+    void push(const uint8_t *bytes, size_t len, int64_t host_unix_us);
+    // The byte source ended (device vanished): a partial chunk is ended as if a delimiter had
+    // come, so it is captured and counted like any cut frame, and replays the same way.
+    void endOfStream(int64_t host_unix_us);
+    // A frame the host sent to the device (its type), in stream order.
+    void noteSentFrame(uint8_t type);
+
+    bool incompatible() const { return incompatible_; }
+    const std::string &incompatibleMessage() const { return incompatible_message_; }
+    const std::set<uint16_t> &knownNodes() const { return known_nodes_; }
+    uint16_t deviceNodeId() const { return device_node_id_; }
+    uint16_t deviceFirmware() const { return device_firmware_; }
+    int64_t lastEventUnixUs() const { return last_event_unix_us_; }
+    Rates rates(int64_t now_unix_us) const;
+
+    // Frames delivered to the consumer since the last call (the service publishes outputs
+    // after each one; see Service).
+    uint64_t deliveredCount() const { return counters_.frames_delivered; }
+
+private:
+    void endChunk(int64_t host_unix_us);
+    void onRejected(cdro_result_t result, const cdro_frame_t &partial, size_t chunk_len, int64_t host_unix_us);
+    void onAccepted(const cdro_frame_t &frame, int64_t host_unix_us);
+    bool checkSequenceAndReset(const cdro_frame_t &frame, int64_t host_unix_us);
+    bool checkNodes(const cdro_frame_t &frame);
+    bool nodeKnown(uint16_t id);
+    void checkHello(const cdro_hello_t &hello);
+    void markIncompatible(const std::string &message);
+    // Logs a dropped frame unless the rate limit holds it back; message() is only built when
+    // it is logged, so that a flood of garbage costs no formatting.
+    template <typename Message> void logDrop(const char *key, Message message);
+
+    ServiceCounters &counters_;
+    const Clock &clock_;
+    FrameConsumer *consumer_ = nullptr;
+    IntakeObserver *observer_ = nullptr;
+    CaptureWriter *capture_ = nullptr;
+    UnknownNodePolicy policy_;
+    RateLimiter drop_log_;
+
+    cdro_decoder_t decoder_{};
+    std::vector<uint8_t> chunk_;   // the current chunk for the capture (up to its max data)
+    size_t chunk_len_ = 0;         // its full length in bytes
+
+    bool have_sequence_ = false;
+    uint16_t last_sequence_ = 0;
+    bool have_device_time_ = false;
+    uint32_t last_device_time_ms_ = 0;
+    bool hello_requested_ = false;
+    uint64_t accepted_frames_ = 0;
+    bool incompatible_ = false;
+    std::string incompatible_message_;
+    std::set<uint16_t> known_nodes_;
+    uint16_t device_node_id_ = 0;
+    uint16_t device_firmware_ = 0;
+    int64_t last_event_unix_us_ = 0;
+
+    RateMeter frame_rate_;
+    RateMeter range_rate_;
+    RateMeter reject_rate_;
+    RateMeter byte_rate_;
+};
+
+// "RANGE seq 12: 0x6069 -> 0x6A11 4235 mm" and the like, for logs.
+std::string describeFrame(const cdro_frame_t &frame);
+
+} // namespace cdro::service

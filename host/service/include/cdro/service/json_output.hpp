@@ -1,0 +1,67 @@
+// json_output.hpp: the JSON Lines stream of docs/outputs.md, to stdout or a file.
+//
+// Policy (all decided on event time, so that a replay writes the same node and robot lines,
+// byte for byte, whatever its speed):
+//   rate_hz == 0  after every update, a line for each node (and the robot) whose estimate
+//                 differs from the line last written for it;
+//   rate_hz > 0   every 1/rate_hz s of event time in which something was updated, a line for
+//                 every node (and the robot).
+// Health lines are written by the service's health timer (writeHealth); they describe the
+// process (link state, counters) and are not part of the replay guarantee.
+//
+// Lines are collected in memory and written with one write() per flush(); the service
+// flushes after each batch of input and on exit. A failed write (e.g. a closed pipe) is
+// logged once and counted in jsonl_write_errors; the service keeps running.
+//
+// Threading: loop thread only.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+
+#include "cdro/service/config.hpp"
+#include "cdro/service/map_state.hpp"
+
+namespace cdro::service {
+
+class JsonLinesWriter {
+public:
+    JsonLinesWriter(const OutputConfig &config, ServiceCounters &counters);
+    ~JsonLinesWriter();
+    JsonLinesWriter(const JsonLinesWriter &) = delete;
+    JsonLinesWriter &operator=(const JsonLinesWriter &) = delete;
+
+    void open();                 // "-" = stdout, "" = disabled; throws ConfigError if unwritable
+    bool enabled() const { return fd_ >= 0; }
+
+    // After an update at event time event_us (map.t_s is already set).
+    void onUpdate(const MapState &map, int64_t event_us);
+    // At the end of a run: with rate_hz > 0, the estimates updated since the last period.
+    void finish(const MapState &map);
+    void writeHealth(const Health &health, double t_s);
+    void flush();
+    void close();
+
+    // The serialised line (no newline) exactly as written; exposed for MQTT and tests.
+    static std::string line(const nlohmann::ordered_json &object);
+
+private:
+    void append(const std::string &text);
+    void writeAll(const MapState &map);
+
+    OutputConfig config_;
+    ServiceCounters &counters_;
+    int fd_ = -1;
+    bool owns_fd_ = false;
+    bool error_logged_ = false;
+    std::string pending_;
+    std::map<uint16_t, NodeEstimate> last_node_;  // id -> the estimate last written
+    std::optional<RobotPose> last_robot_;
+    int64_t period_us_ = 0;
+    int64_t next_due_us_ = INT64_MIN;
+    bool dirty_ = false;
+};
+
+} // namespace cdro::service

@@ -1,0 +1,46 @@
+// log.hpp: the service's spdlog logger and a rate limiter for messages that bad input could
+// otherwise repeat thousands of times per second (dropped frames).
+//
+// Logs go to stderr or a file, never to stdout, which may carry the JSON Lines stream.
+// The logger is thread-safe (spdlog _mt sinks); RateLimiter is not (one per owner thread).
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+
+#include <spdlog/spdlog.h>
+
+#include "cdro/service/config.hpp"
+
+namespace cdro::service {
+
+// Installs the "cdro" logger from the logging: section (level, file). Throws ConfigError if
+// the file cannot be opened. Safe to call again (replaces the logger).
+void setupLogging(const LoggingConfig &config);
+
+// The "cdro" logger (a stderr logger at info until setupLogging is called).
+std::shared_ptr<spdlog::logger> log();
+
+// At most `per_s` messages per key per second of the given clock; the first message after a
+// quiet spell says how many were suppressed.
+class RateLimiter {
+public:
+    explicit RateLimiter(double per_s) : per_s_(per_s) {}
+    // True if a message for key may be logged now; *suppressed is set to the number held back
+    // since the last one that was allowed.
+    bool allow(const std::string &key, int64_t now_monotonic_us, uint64_t *suppressed);
+
+private:
+    struct Bucket {
+        double tokens = 0.0;
+        int64_t last_us = 0;
+        uint64_t suppressed = 0;
+        bool started = false;
+    };
+    double per_s_;
+    std::map<std::string, Bucket> buckets_;
+};
+
+} // namespace cdro::service

@@ -1,0 +1,115 @@
+// map_state.hpp: what the outputs publish (JSON Lines, MQTT, live map), as a plain value, and
+// the MapSource interface through which the engine adapter (part B) provides it.
+//
+// Ownership and threads: the event loop thread asks the MapSource for the map (fill) and for
+// a node's SoG components (components), so the engine is only ever touched on that thread.
+// The outputs receive MapState by value; the HTTP threads see only copies published under a
+// mutex (http_server.hpp).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json_fwd.hpp>
+
+#include "cdro/service/counters.hpp"
+
+namespace cdro::service {
+
+// Link states as they appear in JSON (`link`): docs/outputs.md lists connected, handshaking,
+// disconnected and replay; incompatible is added for a device of another protocol build.
+enum class LinkState { Disconnected, Handshaking, Connected, Incompatible, Replay };
+const char *linkStateName(LinkState state);
+
+struct NodeEstimate {
+    uint16_t id = 0;          // Pozyx network id
+    double x_m = 0.0;         // m
+    double y_m = 0.0;         // m
+    double var_x_m2 = 0.0;    // m^2
+    double cov_xy_m2 = 0.0;   // m^2
+    double var_y_m2 = 0.0;    // m^2
+    bool converged = false;
+    bool moving = false;
+    bool placed = false;      // has an estimate at all; x/y are meaningless otherwise
+};
+
+struct RobotPose {
+    uint16_t id = 0;          // the node carried by the robot
+    double x_m = 0.0;         // m
+    double y_m = 0.0;         // m
+    double heading_rad = 0.0; // rad, counter-clockwise from +x
+    double var_x_m2 = 0.0;    // m^2
+    double cov_xy_m2 = 0.0;   // m^2
+    double var_y_m2 = 0.0;    // m^2
+};
+
+// A pair of nodes that ranged to each other, with the last range.
+struct LinkEstimate {
+    uint16_t a = 0;            // smaller id
+    uint16_t b = 0;            // larger id
+    double last_range_m = 0.0; // m, as measured (3D)
+    uint32_t range_count = 0;  // ranges seen on this link
+};
+
+// One Gaussian of a node's sum of Gaussians (the ring SoG_ij centred on node i).
+struct SogComponent {
+    uint16_t center_id = 0;   // node i whose ring this component belongs to
+    double x_m = 0.0;         // m, mean
+    double y_m = 0.0;         // m
+    double var_x_m2 = 0.0;    // m^2
+    double cov_xy_m2 = 0.0;   // m^2
+    double var_y_m2 = 0.0;    // m^2
+    double weight = 0.0;      // normalised within its SoG, [0, 1]
+};
+
+struct NodeComponents {
+    uint16_t id = 0;                       // the node j these SoGs describe
+    std::vector<SogComponent> components;
+};
+
+struct Health {
+    LinkState link = LinkState::Disconnected;
+    std::string device;           // e.g. "serial:/dev/ttyACM0@115200" or "replay:run.cdrocap"
+    std::string detail;           // last notable event, e.g. the incompatibility message
+    uint16_t device_node_id = 0;  // from HELLO, 0 = not known yet
+    uint16_t device_firmware = 0; // HELLO firmware_version, major << 8 | minor
+    ServiceCounters counters;
+    Rates rates;
+};
+
+struct MapState {
+    double t_s = 0.0;             // s, event time since the run started
+    std::vector<NodeEstimate> nodes;   // sorted by id
+    std::optional<RobotPose> robot;
+    std::vector<LinkEstimate> links;   // sorted by (a, b)
+    Health health;
+};
+
+// Implemented by the engine adapter (part B) and by the test harness.
+class MapSource {
+public:
+    virtual ~MapSource() = default;
+    // Bumped whenever an estimate changed; the outputs publish only when it moved.
+    virtual uint64_t revision() const = 0;
+    // Fills nodes, robot and links (not t_s or health, which the service sets).
+    virtual void fill(MapState &map) const = 0;
+    // The SoG components describing node id, or nullopt if the node is unknown.
+    virtual std::optional<NodeComponents> components(uint16_t id) const = 0;
+};
+
+// Bit-for-bit equality of estimates (the outputs write a node again only when it changed).
+bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b);
+bool sameEstimate(const RobotPose &a, const RobotPose &b);
+
+// The JSON objects of docs/outputs.md (keys in its order). t_s is passed in.
+nlohmann::ordered_json nodeJson(const NodeEstimate &node, double t_s);
+nlohmann::ordered_json robotJson(const RobotPose &robot, double t_s);
+nlohmann::ordered_json healthJson(const Health &health, double t_s);
+nlohmann::ordered_json linkJson(const LinkEstimate &link);
+// The whole map for the JSON API: {"t_s", "nodes": [...], "robot": {...}|null, "links": [...], "health": {...}}
+nlohmann::ordered_json mapJson(const MapState &map);
+nlohmann::ordered_json componentsJson(const NodeComponents &components);
+
+} // namespace cdro::service

@@ -1,0 +1,88 @@
+// mqtt_publisher.hpp: publishes the estimates and the service's health to an MQTT broker
+// through libmosquitto, the way RTLS systems hand positions to other machines.
+//
+// Topics (prefix = mqtt.topic_prefix), payloads are the JSON objects of docs/outputs.md:
+//   <prefix>/nodes/<id>  a node line, retained          (<id> in decimal)
+//   <prefix>/robot       the robot line, retained
+//   <prefix>/health      the health line, retained
+//   <prefix>/status      "online" (retained) once connected; "offline" (retained) on a clean
+//                        shutdown, and as the broker's last will if the service dies
+//
+// libmosquitto runs without its own thread: its socket sits in the service's poll loop
+// (loop_read when readable, loop_write when it wants to write, loop_misc every second), so
+// its callbacks run on the loop thread and no lock is needed. Only the broker host name
+// resolution in connect may block: use an IP address (mqtt://127.0.0.1:1883) to avoid it.
+// When the broker is lost, the publisher keeps the latest retained payload of every topic,
+// retries with backoff, and publishes them all again when the broker is back. Publishing while
+// disconnected counts mqtt_dropped and never blocks the loop.
+//
+// Threading: loop thread only.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <optional>
+#include <string>
+
+#include "cdro/service/config.hpp"
+#include "cdro/service/event_loop.hpp"
+#include "cdro/service/map_state.hpp"
+
+struct mosquitto;
+
+namespace cdro::service {
+
+class MqttPublisher {
+public:
+    MqttPublisher(EventLoop &loop, const MqttConfig &config, ServiceCounters &counters);
+    ~MqttPublisher();
+    MqttPublisher(const MqttPublisher &) = delete;
+    MqttPublisher &operator=(const MqttPublisher &) = delete;
+
+    void start();      // throws ConfigError for a bad URL; connecting itself never throws
+    void shutdown();   // "offline", clean disconnect (bounded wait), release
+    bool connected() const { return connected_; }
+    // Connected and nothing queued for the socket (tests, and a clean shutdown).
+    bool flushed() const;
+
+    // After an update at event time event_us: the nodes (and robot) that changed, at most
+    // rate_hz per node.
+    void onUpdate(const MapState &map, int64_t event_us);
+    void publishHealth(const Health &health, double t_s);
+
+    std::string topic(const std::string &suffix) const { return config_.topic_prefix + "/" + suffix; }
+
+private:
+    void connect();
+    void scheduleReconnect();
+    void onSocketEvents(short revents);
+    void updateInterest();
+    void onConnected(int rc);
+    void onLost(const std::string &reason);
+    void publish(const std::string &topic, const std::string &payload, bool retain);
+    void tick();
+
+    static void connectCallback(struct mosquitto *, void *self, int rc);
+    static void disconnectCallback(struct mosquitto *, void *self, int rc);
+
+    EventLoop &loop_;
+    MqttConfig config_;
+    ServiceCounters &counters_;
+    struct mosquitto *mosq_ = nullptr;
+    std::string host_;
+    uint16_t port_ = 1883;
+    int fd_ = -1;
+    bool connected_ = false;
+    bool first_connect_ = true;
+    bool outage_logged_ = false;
+    bool stopping_ = false;
+    int64_t backoff_us_ = 0;
+    EventLoop::TimerId retry_timer_ = 0;
+    EventLoop::TimerId misc_timer_ = 0;
+    std::map<std::string, std::string> retained_;       // topic -> latest payload
+    std::map<uint16_t, NodeEstimate> last_node_;        // id -> the estimate last published
+    std::map<uint16_t, int64_t> next_due_us_;           // id -> event time of the next publish
+    std::optional<RobotPose> last_robot_;
+};
+
+} // namespace cdro::service

@@ -1,0 +1,136 @@
+// service.hpp: cdro_service put together. One object owns the event loop, the serial link (or
+// the replay source), the intake, the device session, the capture, the JSON Lines writer, the
+// MQTT publisher, the live map and the checkpoints; the estimator plugs in through ServiceHooks.
+//
+// cdro-hostd's main (part B) does, in this order:
+//     ServiceConfig config = ...;                      // config.hpp / config_cli.hpp
+//     setupLogging(config.logging);
+//     EngineAdapter adapter(...);                      // FrameConsumer + MapSource + CheckpointProvider
+//     Service service(config, run_options, {&adapter, &adapter, &adapter});
+//     service.start();                                 // throws on a startup problem: exit non-zero
+//     std::cerr << "live map: " << service.liveMapUrl() << "\n";
+//     return service.run();                            // 0 after SIGTERM/SIGINT or the replay's end
+//
+// Data flow on the loop thread, per frame: link bytes (or a replay record) -> FrameIntake ->
+// capture record -> hooks.consumer (the engine) -> if hooks.map->revision() moved: JSON Lines
+// and MQTT get the new estimates (event time decides the rate, so replays write the same
+// lines). Timers publish health (output.health_period_s), push the live map
+// (http.update_period_s) and write checkpoints (checkpoint.period_s).
+//
+// On SIGTERM/SIGINT (through the self-pipe), the replay's end or requestStop(): the input
+// stops, the last estimates and a health line are written, a final checkpoint is written,
+// outputs are flushed, the capture is closed (fsync), MQTT says "offline", the HTTP server
+// stops, and run() returns 0.
+//
+// Threading: construct, start() and run() on one thread, which becomes the loop thread; the
+// hooks are called only on it. requestStop() is the one call allowed from anywhere.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "cdro/service/capture.hpp"
+#include "cdro/service/checkpoint.hpp"
+#include "cdro/service/clock.hpp"
+#include "cdro/service/config.hpp"
+#include "cdro/service/config_cli.hpp"
+#include "cdro/service/consumer.hpp"
+#include "cdro/service/event_loop.hpp"
+#include "cdro/service/http_server.hpp"
+#include "cdro/service/intake.hpp"
+#include "cdro/service/json_output.hpp"
+#include "cdro/service/map_state.hpp"
+#include "cdro/service/mqtt_publisher.hpp"
+#include "cdro/service/replay.hpp"
+#include "cdro/service/serial_link.hpp"
+#include "cdro/service/session.hpp"
+
+namespace cdro::service {
+
+struct ServiceHooks {
+    FrameConsumer *consumer = nullptr;        // required: the estimator's input
+    MapSource *map = nullptr;                 // optional: without it, outputs carry health only
+    CheckpointProvider *checkpoint = nullptr; // optional: without it, no checkpoints, no --resume
+};
+
+class Service final : private SerialLink::Listener, private CommandSink, private SessionListener {
+public:
+    // clock: SystemClock in production; must outlive the service.
+    Service(const ServiceConfig &config, const RunOptions &run, ServiceHooks hooks, const Clock &clock);
+    ~Service() override;
+    Service(const Service &) = delete;
+    Service &operator=(const Service &) = delete;
+
+    // Opens everything (capture, outputs, HTTP, MQTT, the port or the replay file, --resume).
+    // Throws ConfigError, CaptureError or CheckpointError with a message for the user.
+    void start();
+    int run();             // until stopped; returns the exit code (0)
+    void requestStop();    // thread-safe
+
+    bool replaying() const { return replay_ != nullptr; }
+    LinkState linkState() const;
+    const ServiceCounters &counters() const { return counters_; }
+    std::string liveMapUrl() const;  // "" when http.port is 0
+    int httpPort() const;
+    int64_t runStartUnixUs() const { return run_start_unix_us_; }
+    EventLoop &loop() { return loop_; }
+
+    // The current map with health (loop thread).
+    MapState currentMap() const;
+    // Writes a checkpoint now (loop thread); false if there is no provider or it failed.
+    bool writeCheckpointNow();
+
+private:
+    // SerialLink::Listener
+    void onLinkUp() override;
+    void onLinkBytes(const uint8_t *bytes, size_t len, int64_t received_unix_us) override;
+    void onLinkDown(const std::string &reason) override;
+    // CommandSink
+    bool sendCommand(cdro_frame_t &frame) override;
+    // SessionListener
+    void onSessionState(LinkState state, const std::string &detail) override;
+    void onReopenRequested(const std::string &reason) override;
+
+    class ConsumerTap;
+    void afterFrame(int64_t event_unix_us);
+    void afterBatch();
+    void rearmSession();
+    Health health(int64_t now_event_unix_us) const;
+    int64_t nowEventUnixUs() const;
+    double tSeconds(int64_t event_unix_us) const;
+    void healthTick();
+    void httpTick();
+    void checkpointTick();
+    void shutdown(const std::string &why);
+
+    ServiceConfig config_;
+    RunOptions run_;
+    ServiceHooks hooks_;
+    const Clock &clock_;
+    ServiceCounters counters_;
+    EventLoop loop_;
+    std::unique_ptr<ConsumerTap> tap_;
+    FrameIntake intake_;
+    std::unique_ptr<CaptureWriter> capture_;
+    std::unique_ptr<SerialLink> link_;
+    std::unique_ptr<DeviceSession> session_;
+    std::unique_ptr<ReplaySource> replay_;
+    JsonLinesWriter jsonl_;
+    MqttPublisher mqtt_;
+    MapSnapshotStore store_;
+    std::unique_ptr<HttpServer> http_;
+
+    int64_t run_start_unix_us_ = 0;
+    uint16_t host_sequence_ = 0;
+    uint64_t last_map_revision_ = 0;
+    bool map_dirty_ = false;
+    std::string last_published_map_;
+    EventLoop::TimerId session_timer_ = 0;
+    int64_t session_timer_deadline_us_ = INT64_MAX;
+    bool checkpoint_warned_ = false;
+    bool shut_down_ = false;
+    bool started_ = false;
+};
+
+} // namespace cdro::service

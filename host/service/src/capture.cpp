@@ -1,0 +1,265 @@
+#include "cdro/service/capture.hpp"
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "cdro/service/log.hpp"
+
+namespace cdro::service {
+
+namespace {
+
+// One write() for the whole buffer; loops only if the kernel took part of it (not expected for
+// regular files, but then the rest must still go out in order).
+bool writeAll(int fd, const uint8_t *bytes, size_t len, std::string *error)
+{
+    while (len > 0) {
+        const ssize_t n = ::write(fd, bytes, len);
+        if (n < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            *error = std::strerror(errno);
+            return false;
+        }
+        bytes += n;
+        len -= static_cast<size_t>(n);
+    }
+    return true;
+}
+
+bool fileExists(const std::string &path)
+{
+    struct stat st {};
+    return ::stat(path.c_str(), &st) == 0;
+}
+
+constexpr size_t kMaxRecordBytes = CDRO_CAPTURE_RECORD_OVERHEAD + CDRO_CAPTURE_MAX_DATA;
+
+} // namespace
+
+// ---- writer --------------------------------------------------------------------------------
+
+CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters)
+    : config_(config), source_(std::move(source)), counters_(counters),
+      rotate_bytes_(static_cast<uint64_t>(std::llround(config.rotate_mib * 1024.0 * 1024.0)))
+{
+    if (source_.size() > CDRO_CAPTURE_MAX_SOURCE) {
+        source_.resize(CDRO_CAPTURE_MAX_SOURCE);
+    }
+}
+
+CaptureWriter::~CaptureWriter() { close(); }
+
+std::string CaptureWriter::rotatedName(const std::string &path, uint32_t index)
+{
+    return index == 0 ? path : path + "." + std::to_string(index);
+}
+
+void CaptureWriter::open(int64_t created_unix_us)
+{
+    close();
+    if (fileExists(config_.path)) {
+        rotate(created_unix_us); // keeps the previous run's capture as path.1
+        return;
+    }
+    openFresh(created_unix_us);
+}
+
+void CaptureWriter::openFresh(int64_t created_unix_us)
+{
+    fd_ = ::open(config_.path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
+    if (fd_ < 0) {
+        throw CaptureError("capture: cannot create " + config_.path + ": " + std::strerror(errno));
+    }
+    cdro_capture_header_t header{};
+    header.format_version = CDRO_CAPTURE_FORMAT_VERSION;
+    header.created_unix_us = created_unix_us;
+    header.source_len = static_cast<uint8_t>(source_.size());
+    std::memcpy(header.source, source_.data(), source_.size());
+    uint8_t bytes[CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE];
+    const size_t size = cdro_capture_header_encode(&header, bytes, sizeof bytes);
+    std::string error;
+    if (size == 0 || !writeAll(fd_, bytes, size, &error)) {
+        ::close(fd_);
+        fd_ = -1;
+        throw CaptureError("capture: cannot write the header of " + config_.path + ": " + error);
+    }
+    file_bytes_ = size;
+    counters_.capture_bytes += size;
+}
+
+void CaptureWriter::rotate(int64_t created_unix_us)
+{
+    if (fd_ >= 0) {
+        ::close(fd_);
+        fd_ = -1;
+    }
+    // path.<keep> falls off the end; then every file moves up by one.
+    if (config_.keep == 0) {
+        ::unlink(config_.path.c_str());
+    } else {
+        ::unlink(rotatedName(config_.path, config_.keep).c_str());
+        for (uint32_t index = config_.keep; index >= 1; --index) {
+            const std::string from = rotatedName(config_.path, index - 1);
+            if (fileExists(from)) {
+                ::rename(from.c_str(), rotatedName(config_.path, index).c_str());
+            }
+        }
+    }
+    ++counters_.capture_rotations;
+    log()->info("capture: rotated {} (keeping {} older files)", config_.path, config_.keep);
+    openFresh(created_unix_us);
+}
+
+void CaptureWriter::append(uint8_t flags, int64_t host_time_us, const uint8_t *data, size_t len)
+{
+    if (fd_ < 0) {
+        return;
+    }
+    if (len > CDRO_CAPTURE_MAX_DATA) {
+        len = CDRO_CAPTURE_MAX_DATA;
+        flags = static_cast<uint8_t>(flags | CDRO_CAPTURE_FLAG_TRUNCATED);
+    }
+    uint8_t bytes[kMaxRecordBytes];
+    cdro_capture_record_t record{};
+    record.flags = flags;
+    record.host_time_us = host_time_us;
+    record.data_len = static_cast<uint16_t>(len);
+    record.data = data;
+    const size_t size = cdro_capture_record_encode(&record, bytes, sizeof bytes);
+    if (file_bytes_ + size > rotate_bytes_ && file_bytes_ > CDRO_CAPTURE_HEADER_FIXED + source_.size()) {
+        try {
+            rotate(host_time_us);
+        } catch (const CaptureError &error) {
+            ++counters_.capture_write_errors;
+            log()->error("{}; capture stopped", error.what());
+            return;
+        }
+    }
+    std::string error;
+    if (!writeAll(fd_, bytes, size, &error)) {
+        ++counters_.capture_write_errors;
+        if (!write_error_logged_) {
+            write_error_logged_ = true;
+            log()->error("capture: cannot append to {}: {} (counted in capture_write_errors; further errors "
+                         "are not logged)",
+                         config_.path, error);
+        }
+        return;
+    }
+    file_bytes_ += size;
+    ++counters_.capture_records;
+    counters_.capture_bytes += size;
+}
+
+void CaptureWriter::close()
+{
+    if (fd_ >= 0) {
+        ::fsync(fd_);
+        ::close(fd_);
+        fd_ = -1;
+    }
+}
+
+// ---- reader --------------------------------------------------------------------------------
+
+CaptureReader::CaptureReader(const std::string &path) : path_(path), buffer_(1 << 20)
+{
+    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd_ < 0) {
+        throw CaptureError(path + ": cannot open: " + std::strerror(errno));
+    }
+    while (!eof_ && end_ < CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE) {
+        fill();
+    }
+    size_t consumed = 0;
+    const cdro_result_t status = cdro_capture_header_decode(buffer_.data(), end_, &header_, &consumed);
+    switch (status) {
+    case CDRO_OK: break;
+    case CDRO_PENDING: throw CaptureError(path + ": not a capture file (it ends inside the header)");
+    case CDRO_ERR_TYPE: throw CaptureError(path + ": not a capture file (bad magic)");
+    case CDRO_ERR_VERSION:
+        throw CaptureError(path + ": capture format version is newer than this build reads (" +
+                           std::to_string(CDRO_CAPTURE_FORMAT_VERSION) + ")");
+    case CDRO_ERR_CRC: throw CaptureError(path + ": corrupt capture header (CRC mismatch)");
+    default: throw CaptureError(path + ": inconsistent capture header (" + cdro_result_name(status) + ")");
+    }
+    begin_ = consumed;
+}
+
+CaptureReader::~CaptureReader()
+{
+    if (fd_ >= 0) {
+        ::close(fd_);
+    }
+}
+
+bool CaptureReader::fill()
+{
+    if (eof_) {
+        return false;
+    }
+    if (begin_ > 0) {
+        std::memmove(buffer_.data(), buffer_.data() + begin_, end_ - begin_);
+        end_ -= begin_;
+        begin_ = 0;
+    }
+    for (;;) {
+        const ssize_t n = ::read(fd_, buffer_.data() + end_, buffer_.size() - end_);
+        if (n < 0 && errno == EINTR) {
+            continue;
+        }
+        if (n < 0) {
+            throw CaptureError(path_ + ": read failed: " + std::strerror(errno));
+        }
+        if (n == 0) {
+            eof_ = true;
+            return false;
+        }
+        end_ += static_cast<size_t>(n);
+        return true;
+    }
+}
+
+bool CaptureReader::next(CaptureRecord &record)
+{
+    for (;;) {
+        cdro_capture_record_t raw{};
+        size_t skipped = 0;
+        size_t consumed = 0;
+        const size_t available = end_ - begin_;
+        const cdro_result_t status =
+            cdro_capture_next_record(buffer_.data() + begin_, available, &raw, &skipped, &consumed);
+        if (status == CDRO_OK) {
+            corrupt_bytes_ += skipped;
+            record.flags = raw.flags;
+            record.host_time_us = raw.host_time_us;
+            record.data.assign(raw.data, raw.data + raw.data_len);
+            begin_ += skipped + consumed;
+            ++records_;
+            return true;
+        }
+        if (eof_) {
+            // No good record in what is left: a cut-short last record (or trailing garbage).
+            truncated_bytes_ += available;
+            begin_ = end_;
+            return false;
+        }
+        // No complete good record starts before the last kMaxRecordBytes: those bytes are
+        // corrupt, the rest may be the start of a record that the next read completes.
+        if (available > kMaxRecordBytes) {
+            const size_t drop = available - kMaxRecordBytes;
+            corrupt_bytes_ += drop;
+            begin_ += drop;
+        }
+        fill();
+    }
+}
+
+} // namespace cdro::service

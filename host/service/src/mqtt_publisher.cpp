@@ -1,0 +1,276 @@
+#include "cdro/service/mqtt_publisher.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <mutex>
+
+#include <mosquitto.h>
+#include <nlohmann/json.hpp>
+#include <poll.h>
+
+#include "cdro/service/json_output.hpp"
+#include "cdro/service/log.hpp"
+
+namespace cdro::service {
+
+namespace {
+std::once_flag g_mosquitto_init;
+constexpr int64_t kMiscPeriodUs = 1'000'000; // libmosquitto wants loop_misc about once a second
+} // namespace
+
+MqttPublisher::MqttPublisher(EventLoop &loop, const MqttConfig &config, ServiceCounters &counters)
+    : loop_(loop), config_(config), counters_(counters), backoff_us_(secondsToUs(config.reconnect_min_s))
+{
+}
+
+MqttPublisher::~MqttPublisher() { shutdown(); }
+
+void MqttPublisher::start()
+{
+    if (config_.url.empty()) {
+        return;
+    }
+    const MqttUrl url = parseMqttUrl(config_.url);
+    host_ = url.host;
+    port_ = url.port;
+    std::call_once(g_mosquitto_init, [] { mosquitto_lib_init(); });
+    mosq_ = mosquitto_new(config_.client_id.c_str(), true, this);
+    if (mosq_ == nullptr) {
+        throw ConfigError("mqtt: cannot create a client (client_id '" + config_.client_id + "')");
+    }
+    const std::string will_topic = topic("status");
+    mosquitto_will_set(mosq_, will_topic.c_str(), 7, "offline", config_.qos, true);
+    mosquitto_connect_callback_set(mosq_, &MqttPublisher::connectCallback);
+    mosquitto_disconnect_callback_set(mosq_, &MqttPublisher::disconnectCallback);
+    connect();
+}
+
+void MqttPublisher::connect()
+{
+    retry_timer_ = 0;
+    if (stopping_ || mosq_ == nullptr) {
+        return;
+    }
+    const int keepalive_s = static_cast<int>(config_.keepalive_s);
+    const int rc = first_connect_ ? mosquitto_connect_async(mosq_, host_.c_str(), port_, keepalive_s)
+                                  : mosquitto_reconnect_async(mosq_);
+    first_connect_ = first_connect_ && rc != MOSQ_ERR_SUCCESS;
+    if (rc != MOSQ_ERR_SUCCESS) {
+        onLost(std::string("cannot connect: ") + (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+        return;
+    }
+    fd_ = mosquitto_socket(mosq_);
+    if (fd_ < 0) {
+        onLost("no socket after connect");
+        return;
+    }
+    loop_.watchFd(fd_, POLLIN, [this](short revents) { onSocketEvents(revents); });
+    updateInterest();
+    if (misc_timer_ == 0) {
+        misc_timer_ = loop_.addTimerAfter(kMiscPeriodUs, [this] { tick(); });
+    }
+}
+
+void MqttPublisher::tick()
+{
+    misc_timer_ = 0;
+    if (mosq_ == nullptr || stopping_) {
+        return;
+    }
+    if (fd_ >= 0) {
+        const int rc = mosquitto_loop_misc(mosq_);
+        if (rc != MOSQ_ERR_SUCCESS && rc != MOSQ_ERR_NO_CONN) {
+            onLost(std::string("keepalive failed: ") + mosquitto_strerror(rc));
+        } else {
+            updateInterest();
+        }
+    }
+    misc_timer_ = loop_.addTimerAfter(kMiscPeriodUs, [this] { tick(); });
+}
+
+void MqttPublisher::updateInterest()
+{
+    if (fd_ < 0 || mosq_ == nullptr) {
+        return;
+    }
+    loop_.setFdEvents(fd_, static_cast<short>(mosquitto_want_write(mosq_) ? (POLLIN | POLLOUT) : POLLIN));
+}
+
+void MqttPublisher::onSocketEvents(short revents)
+{
+    if (revents & (POLLIN | POLLHUP | POLLERR)) {
+        const int rc = mosquitto_loop_read(mosq_, 16);
+        if (rc != MOSQ_ERR_SUCCESS) {
+            onLost(std::string("read: ") + (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+            return;
+        }
+    }
+    if (fd_ >= 0 && (revents & POLLOUT)) {
+        const int rc = mosquitto_loop_write(mosq_, 16);
+        if (rc != MOSQ_ERR_SUCCESS) {
+            onLost(std::string("write: ") + (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+            return;
+        }
+    }
+    updateInterest();
+}
+
+void MqttPublisher::connectCallback(struct mosquitto *, void *self, int rc)
+{
+    static_cast<MqttPublisher *>(self)->onConnected(rc);
+}
+
+void MqttPublisher::disconnectCallback(struct mosquitto *, void *self, int rc)
+{
+    auto *publisher = static_cast<MqttPublisher *>(self);
+    if (!publisher->stopping_) {
+        publisher->onLost(std::string("disconnected: ") + mosquitto_strerror(rc));
+    }
+}
+
+void MqttPublisher::onConnected(int rc)
+{
+    if (rc != 0) {
+        onLost(std::string("the broker refused the connection: ") + mosquitto_connack_string(rc));
+        return;
+    }
+    connected_ = true;
+    outage_logged_ = false;
+    backoff_us_ = secondsToUs(config_.reconnect_min_s);
+    ++counters_.mqtt_connects;
+    log()->info("mqtt: connected to {}:{}, publishing under '{}/'", host_, port_, config_.topic_prefix);
+    publish(topic("status"), "online", true);
+    // Everything retained goes out again: a subscriber that connects later, or a broker that
+    // restarted without persistence, gets the current picture.
+    const std::map<std::string, std::string> retained = retained_;
+    for (const auto &[name, payload] : retained) {
+        if (name != topic("status")) {
+            publish(name, payload, true);
+        }
+    }
+}
+
+void MqttPublisher::onLost(const std::string &reason)
+{
+    if (fd_ >= 0) {
+        loop_.unwatchFd(fd_); // before anything can reuse the descriptor number
+        fd_ = -1;
+    }
+    if (connected_) {
+        ++counters_.mqtt_disconnects;
+        connected_ = false;
+    }
+    if (!outage_logged_) {
+        outage_logged_ = true;
+        log()->warn("mqtt: broker {}:{} unavailable ({}); retrying with backoff, estimates keep flowing elsewhere",
+                    host_, port_, reason);
+    }
+    scheduleReconnect();
+}
+
+void MqttPublisher::scheduleReconnect()
+{
+    if (stopping_ || retry_timer_ != 0) {
+        return;
+    }
+    const int64_t delay_us = backoff_us_;
+    backoff_us_ = std::min(backoff_us_ * 2, secondsToUs(config_.reconnect_max_s));
+    retry_timer_ = loop_.addTimerAfter(delay_us, [this] { connect(); });
+}
+
+void MqttPublisher::publish(const std::string &name, const std::string &payload, bool retain)
+{
+    if (retain) {
+        retained_[name] = payload;
+    }
+    if (!connected_ || mosq_ == nullptr) {
+        ++counters_.mqtt_dropped;
+        return;
+    }
+    const int rc = mosquitto_publish(mosq_, nullptr, name.c_str(), static_cast<int>(payload.size()), payload.data(),
+                                     config_.qos, retain);
+    if (rc == MOSQ_ERR_SUCCESS) {
+        ++counters_.mqtt_published;
+    } else {
+        ++counters_.mqtt_dropped;
+        if (rc == MOSQ_ERR_NO_CONN || rc == MOSQ_ERR_CONN_LOST) {
+            onLost(mosquitto_strerror(rc));
+            return;
+        }
+    }
+    updateInterest();
+}
+
+void MqttPublisher::onUpdate(const MapState &map, int64_t event_us)
+{
+    if (mosq_ == nullptr) {
+        return;
+    }
+    const int64_t period_us = config_.rate_hz > 0.0 ? static_cast<int64_t>(std::llround(1e6 / config_.rate_hz)) : 0;
+    for (const NodeEstimate &node : map.nodes) {
+        auto last = last_node_.find(node.id);
+        if (last != last_node_.end() && sameEstimate(last->second, node)) {
+            continue;
+        }
+        auto due = next_due_us_.find(node.id);
+        if (period_us > 0 && due != next_due_us_.end() && event_us < due->second) {
+            continue;
+        }
+        next_due_us_[node.id] = event_us + period_us;
+        last_node_[node.id] = node;
+        publish(topic("nodes/" + std::to_string(node.id)), JsonLinesWriter::line(nodeJson(node, map.t_s)), true);
+    }
+    if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
+        last_robot_ = map.robot;
+        publish(topic("robot"), JsonLinesWriter::line(robotJson(*map.robot, map.t_s)), true);
+    }
+}
+
+void MqttPublisher::publishHealth(const Health &health, double t_s)
+{
+    if (mosq_ == nullptr) {
+        return;
+    }
+    publish(topic("health"), JsonLinesWriter::line(healthJson(health, t_s)), true);
+}
+
+bool MqttPublisher::flushed() const { return connected_ && mosq_ != nullptr && !mosquitto_want_write(mosq_); }
+
+void MqttPublisher::shutdown()
+{
+    if (mosq_ == nullptr) {
+        return;
+    }
+    if (connected_) {
+        publish(topic("status"), "offline", true);
+        stopping_ = true;
+        mosquitto_disconnect(mosq_);
+        // Bounded flush of what is queued (the offline status and the DISCONNECT).
+        for (int i = 0; i < 50 && fd_ >= 0 && mosquitto_want_write(mosq_); ++i) {
+            pollfd p{fd_, POLLOUT, 0};
+            if (::poll(&p, 1, 20) > 0 && mosquitto_loop_write(mosq_, 16) != MOSQ_ERR_SUCCESS) {
+                break;
+            }
+        }
+    }
+    stopping_ = true;
+    if (fd_ >= 0) {
+        loop_.unwatchFd(fd_);
+        fd_ = -1;
+    }
+    if (retry_timer_ != 0) {
+        loop_.cancelTimer(retry_timer_);
+        retry_timer_ = 0;
+    }
+    if (misc_timer_ != 0) {
+        loop_.cancelTimer(misc_timer_);
+        misc_timer_ = 0;
+    }
+    mosquitto_destroy(mosq_);
+    mosq_ = nullptr;
+    connected_ = false;
+}
+
+} // namespace cdro::service

@@ -1,0 +1,452 @@
+#include "cdro/service/service.hpp"
+
+#include <csignal>
+
+#include <nlohmann/json.hpp>
+
+#include "cdro/service/log.hpp"
+
+namespace cdro::service {
+
+// Forwards every frame to the engine, then lets the service publish what changed, so that the
+// outputs follow the frames one by one (and a replay reproduces them exactly).
+class Service::ConsumerTap final : public FrameConsumer {
+public:
+    ConsumerTap(Service &service, FrameConsumer &inner) : service_(service), inner_(inner) {}
+    void onRange(const cdro_range_t &range, const FrameContext &context) override
+    {
+        inner_.onRange(range, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onMotion(const cdro_motion_t &motion, const FrameContext &context) override
+    {
+        inner_.onMotion(motion, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onHello(const cdro_hello_t &hello, const FrameContext &context) override
+    {
+        inner_.onHello(hello, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onStatus(const cdro_status_t &status, const FrameContext &context) override
+    {
+        inner_.onStatus(status, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onNodeList(const cdro_node_list_t &list, const FrameContext &context) override
+    {
+        inner_.onNodeList(list, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onDeviceError(const cdro_error_t &error, const FrameContext &context) override
+    {
+        inner_.onDeviceError(error, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onDeviceReset(DeviceResetReason reason, const FrameContext &context) override
+    {
+        inner_.onDeviceReset(reason, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+
+private:
+    Service &service_;
+    FrameConsumer &inner_;
+};
+
+Service::Service(const ServiceConfig &config, const RunOptions &run, ServiceHooks hooks, const Clock &clock)
+    : config_(config), run_(run), hooks_(hooks), clock_(clock), loop_(clock),
+      intake_(config.nodes, config.logging.drop_log_per_s, counters_, clock), jsonl_(config.output, counters_),
+      mqtt_(loop_, config.mqtt, counters_)
+{
+    if (hooks_.consumer == nullptr) {
+        throw ConfigError("service: a FrameConsumer is required");
+    }
+    tap_ = std::make_unique<ConsumerTap>(*this, *hooks_.consumer);
+    intake_.setConsumer(tap_.get());
+}
+
+Service::~Service()
+{
+    shutdown("service destroyed");
+}
+
+void Service::start()
+{
+    // --resume first: a bad checkpoint must stop the start before anything is opened.
+    if (!run_.resume_path.empty()) {
+        if (hooks_.checkpoint == nullptr) {
+            throw ConfigError("--resume: this build has no checkpoint provider");
+        }
+        const SogSnapshot snapshot = loadCheckpointFile(run_.resume_path);
+        hooks_.checkpoint->restore(snapshot);
+        ServiceCheckpointInfo info;
+        const SogSnapshot::Extension *own = snapshot.findExtension(kServiceExtensionTag);
+        if (own != nullptr && decodeServiceInfo(own->bytes, &info)) {
+            log()->info("resume: {} ({} nodes, {} pairs; the run had delivered {} frames)", run_.resume_path,
+                        snapshot.nodes.size(), snapshot.pairs.size(), info.frames_delivered);
+        } else {
+            log()->info("resume: {} ({} nodes, {} pairs)", run_.resume_path, snapshot.nodes.size(),
+                        snapshot.pairs.size());
+        }
+    }
+
+    std::string source;
+    if (!run_.replay_path.empty()) {
+        replay_ = std::make_unique<ReplaySource>(loop_, std::vector<std::string>{run_.replay_path}, run_.replay_speed,
+                                                 intake_, counters_);
+        replay_->open();
+        run_start_unix_us_ = replay_->runStartUnixUs();
+        source = replay_->source();
+    } else {
+        run_start_unix_us_ = clock_.unixUs();
+        SerialLink::Listener &link_listener = *this;
+        link_ = std::make_unique<SerialLink>(loop_, config_.serial, link_listener, counters_);
+        source = link_->description();
+        CommandSink &sink = *this;
+        SessionListener &session_listener = *this;
+        session_ = std::make_unique<DeviceSession>(config_, clock_, sink, session_listener, counters_);
+        intake_.setObserver(session_.get());
+        if (!config_.capture.path.empty()) {
+            capture_ = std::make_unique<CaptureWriter>(config_.capture, source, counters_);
+            capture_->open(run_start_unix_us_);
+            intake_.setCapture(capture_.get());
+            log()->info("capture: {} (rotated at {} MiB, {} kept)", config_.capture.path, config_.capture.rotate_mib,
+                        config_.capture.keep);
+        }
+    }
+
+    jsonl_.open();
+    mqtt_.start();
+    if (config_.http.port != 0) {
+        http_ = std::make_unique<HttpServer>(loop_, config_.http, store_, [this](uint16_t id) -> std::optional<std::string> {
+            if (hooks_.map == nullptr) {
+                return std::nullopt;
+            }
+            const std::optional<NodeComponents> components = hooks_.map->components(id);
+            if (!components) {
+                return std::nullopt;
+            }
+            return componentsJson(*components).dump();
+        });
+        http_->start();
+    }
+
+    loop_.handleSignals({SIGTERM, SIGINT}, [this](int signo) {
+        shutdown(signo == SIGTERM ? "SIGTERM" : signo == SIGINT ? "SIGINT" : "signal");
+    });
+
+    if (config_.output.health_period_s > 0.0) {
+        loop_.addTimerAfter(secondsToUs(config_.output.health_period_s), [this] { healthTick(); });
+    }
+    if (http_) {
+        loop_.addTimerAfter(0, [this] { httpTick(); });
+    }
+    if (hooks_.checkpoint != nullptr && !config_.checkpoint.path.empty() && config_.checkpoint.period_s > 0.0) {
+        loop_.addTimerAfter(secondsToUs(config_.checkpoint.period_s), [this] { checkpointTick(); });
+    }
+
+    started_ = true;
+    if (replay_) {
+        replay_->start([this] { afterBatch(); }, [this] { shutdown("the replay is complete"); });
+    } else {
+        link_->start();
+        rearmSession();
+    }
+}
+
+int Service::run()
+{
+    if (!started_) {
+        start();
+    }
+    loop_.run();
+    return 0;
+}
+
+void Service::requestStop()
+{
+    loop_.post([this] { shutdown("stop requested"); });
+}
+
+LinkState Service::linkState() const
+{
+    if (replay_) {
+        return LinkState::Replay;
+    }
+    return session_ ? session_->linkState() : LinkState::Disconnected;
+}
+
+std::string Service::liveMapUrl() const { return http_ ? http_->url() : std::string(); }
+int Service::httpPort() const { return http_ ? http_->port() : 0; }
+
+int64_t Service::nowEventUnixUs() const
+{
+    // Live: the wall clock (frames are stamped with it too). Replay: the last record's time.
+    if (replay_) {
+        return intake_.lastEventUnixUs() != 0 ? intake_.lastEventUnixUs() : run_start_unix_us_;
+    }
+    return clock_.unixUs();
+}
+
+double Service::tSeconds(int64_t event_unix_us) const
+{
+    return static_cast<double>(event_unix_us - run_start_unix_us_) * 1e-6;
+}
+
+Health Service::health(int64_t now_event_unix_us) const
+{
+    Health h;
+    h.link = linkState();
+    h.device = replay_ ? replay_->source() : (link_ ? link_->description() : std::string());
+    if (intake_.incompatible()) {
+        h.detail = intake_.incompatibleMessage();
+    } else if (session_) {
+        h.detail = session_->detail();
+    } else if (replay_) {
+        h.detail = replay_->finished() ? "replay complete" : "replaying";
+    }
+    h.device_node_id = intake_.deviceNodeId();
+    h.device_firmware = intake_.deviceFirmware();
+    h.counters = counters_;
+    h.rates = intake_.rates(now_event_unix_us);
+    return h;
+}
+
+MapState Service::currentMap() const
+{
+    MapState map;
+    const int64_t now_us = nowEventUnixUs();
+    if (hooks_.map != nullptr) {
+        hooks_.map->fill(map);
+    }
+    map.t_s = tSeconds(now_us);
+    map.health = health(now_us);
+    return map;
+}
+
+void Service::afterFrame(int64_t event_unix_us)
+{
+    if (hooks_.map == nullptr || shut_down_) {
+        return;
+    }
+    const uint64_t revision = hooks_.map->revision();
+    if (revision == last_map_revision_) {
+        return;
+    }
+    last_map_revision_ = revision;
+    map_dirty_ = true;
+    MapState map;
+    hooks_.map->fill(map);
+    map.t_s = tSeconds(event_unix_us);
+    jsonl_.onUpdate(map, event_unix_us);
+    mqtt_.onUpdate(map, event_unix_us);
+}
+
+void Service::afterBatch()
+{
+    jsonl_.flush();
+    rearmSession();
+}
+
+// ---- link, session, commands -------------------------------------------------------------------
+
+void Service::onLinkUp()
+{
+    session_->onLinkUp();
+    rearmSession();
+}
+
+void Service::onLinkBytes(const uint8_t *bytes, size_t len, int64_t received_unix_us)
+{
+    intake_.push(bytes, len, received_unix_us);
+    afterBatch();
+}
+
+void Service::onLinkDown(const std::string &)
+{
+    intake_.endOfStream(clock_.unixUs());
+    session_->onLinkDown();
+    afterBatch();
+}
+
+bool Service::sendCommand(cdro_frame_t &frame)
+{
+    frame.sequence = host_sequence_++;
+    uint8_t bytes[CDRO_MAX_ENCODED_FRAME];
+    const size_t size = cdro_frame_encode(&frame, bytes, sizeof bytes);
+    if (size == 0 || link_ == nullptr || !link_->send(bytes, size)) {
+        return false;
+    }
+    ++counters_.commands_sent;
+    if (capture_) {
+        capture_->append(CDRO_CAPTURE_FLAG_TO_DEVICE, clock_.unixUs(), bytes, size - 1); // without the 0x00
+    }
+    intake_.noteSentFrame(frame.type);
+    return true;
+}
+
+void Service::onSessionState(LinkState state, const std::string &detail)
+{
+    log()->info("link: {} ({})", linkStateName(state), detail);
+    if (state == LinkState::Connected && link_) {
+        link_->resetBackoff();
+    }
+}
+
+void Service::onReopenRequested(const std::string &reason)
+{
+    if (link_) {
+        link_->reopen(reason);
+    }
+}
+
+void Service::rearmSession()
+{
+    if (!session_ || shut_down_) {
+        return;
+    }
+    const int64_t deadline_us = session_->nextDeadlineUs();
+    if (deadline_us == session_timer_deadline_us_) {
+        return;
+    }
+    if (session_timer_ != 0) {
+        loop_.cancelTimer(session_timer_);
+        session_timer_ = 0;
+    }
+    session_timer_deadline_us_ = deadline_us;
+    if (deadline_us == INT64_MAX) {
+        return;
+    }
+    session_timer_ = loop_.addTimerAt(deadline_us, [this] {
+        session_timer_ = 0;
+        session_timer_deadline_us_ = INT64_MAX;
+        session_->onTick();
+        afterBatch();
+    });
+}
+
+// ---- timers ------------------------------------------------------------------------------------
+
+void Service::healthTick()
+{
+    if (shut_down_) {
+        return;
+    }
+    const int64_t now_us = nowEventUnixUs();
+    const Health h = health(now_us);
+    jsonl_.writeHealth(h, tSeconds(now_us));
+    jsonl_.flush();
+    mqtt_.publishHealth(h, tSeconds(now_us));
+    loop_.addTimerAfter(secondsToUs(config_.output.health_period_s), [this] { healthTick(); });
+}
+
+void Service::httpTick()
+{
+    if (shut_down_ || !http_) {
+        return;
+    }
+    const MapState map = currentMap();
+    std::string map_json = mapJson(map).dump();
+    // Rates and wall time move on their own; publish when the picture (less t_s) changed.
+    nlohmann::ordered_json comparable = mapJson(map);
+    comparable.erase("t_s");
+    comparable["health"].erase("t_s");
+    std::string key = comparable.dump();
+    if (key != last_published_map_) {
+        last_published_map_ = std::move(key);
+        store_.publish(std::move(map_json), healthJson(map.health, map.t_s).dump());
+    }
+    map_dirty_ = false;
+    loop_.addTimerAfter(std::max<int64_t>(secondsToUs(config_.http.update_period_s), 10'000), [this] { httpTick(); });
+}
+
+bool Service::writeCheckpointNow()
+{
+    if (hooks_.checkpoint == nullptr || config_.checkpoint.path.empty()) {
+        if (!checkpoint_warned_) {
+            checkpoint_warned_ = true;
+            log()->info("checkpoint: none written ({})",
+                        hooks_.checkpoint == nullptr ? "no provider" : "checkpoint.path is empty");
+        }
+        return false;
+    }
+    try {
+        SogSnapshot snapshot = hooks_.checkpoint->snapshot();
+        snapshot.header.created_unix_us = nowEventUnixUs();
+        ServiceCheckpointInfo info;
+        info.run_start_unix_us = run_start_unix_us_;
+        info.last_event_unix_us = intake_.lastEventUnixUs();
+        info.frames_delivered = counters_.frames_delivered;
+        snapshot.extensions.push_back({kServiceExtensionTag, encodeServiceInfo(info)});
+        writeCheckpointFile(config_.checkpoint.path, snapshot);
+        ++counters_.checkpoints_written;
+        log()->debug("checkpoint: wrote {} ({} nodes)", config_.checkpoint.path, snapshot.nodes.size());
+        return true;
+    } catch (const std::exception &error) {
+        ++counters_.checkpoint_errors;
+        log()->error("{} (the previous checkpoint is intact)", error.what());
+        return false;
+    }
+}
+
+void Service::checkpointTick()
+{
+    if (shut_down_) {
+        return;
+    }
+    writeCheckpointNow();
+    loop_.addTimerAfter(secondsToUs(config_.checkpoint.period_s), [this] { checkpointTick(); });
+}
+
+void Service::shutdown(const std::string &why)
+{
+    if (shut_down_) {
+        return;
+    }
+    if (started_) {
+        log()->info("stopping ({}): final checkpoint, flushing outputs, closing the capture", why);
+    }
+    // 1. No more input.
+    if (link_) {
+        link_->shutdown();
+    }
+    if (replay_) {
+        replay_->stop();
+    }
+    if (session_timer_ != 0) {
+        loop_.cancelTimer(session_timer_);
+        session_timer_ = 0;
+    }
+    if (started_) {
+        // 2. The last estimates and health, then the checkpoint.
+        const MapState map = currentMap();
+        jsonl_.finish(map);
+        if (config_.output.health_period_s > 0.0) {
+            jsonl_.writeHealth(map.health, map.t_s);
+        }
+        writeCheckpointNow();
+        if (http_) {
+            store_.publish(mapJson(map).dump(), healthJson(map.health, map.t_s).dump());
+        }
+        mqtt_.onUpdate(map, nowEventUnixUs());
+        mqtt_.publishHealth(map.health, map.t_s);
+    }
+    shut_down_ = true;
+    // 3. Outputs flushed and closed.
+    jsonl_.close();
+    if (capture_) {
+        capture_->close();
+    }
+    mqtt_.shutdown();
+    if (http_) {
+        http_->stop();
+    }
+    loop_.stop();
+    if (started_) {
+        log()->info("stopped: {} frames delivered, {} chunks rejected, {} device resets", counters_.frames_delivered,
+                    counters_.chunks_rejected, counters_.device_resets);
+    }
+}
+
+} // namespace cdro::service

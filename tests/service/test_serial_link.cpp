@@ -1,0 +1,110 @@
+// SerialLink on real pseudo-terminals: raw 8N1, bytes both ways, a vanished device is noticed,
+// retried with exponential backoff, and resumed when it comes back at the same path.
+#include <termios.h>
+
+#include <gtest/gtest.h>
+
+#include "cdro/service/serial_link.hpp"
+#include "support.hpp"
+
+using namespace cdro::service;
+
+namespace {
+struct Listener final : SerialLink::Listener {
+    int ups = 0, downs = 0;
+    std::vector<uint8_t> bytes;
+    std::string last_reason;
+    void onLinkUp() override { ++ups; }
+    void onLinkBytes(const uint8_t *b, size_t n, int64_t) override { bytes.insert(bytes.end(), b, b + n); }
+    void onLinkDown(const std::string &reason) override
+    {
+        ++downs;
+        last_reason = reason;
+    }
+};
+
+// Runs the loop until done() (each iteration blocks in poll; 2000 iterations of at most 10 ms
+// each are a deadlock guard, not a speed assumption).
+template <typename Done> void runUntil(EventLoop &loop, Done done)
+{
+    for (int i = 0; i < 2000 && !done(); ++i) {
+        loop.runOnce(10'000);
+    }
+    ASSERT_TRUE(done());
+}
+} // namespace
+
+class SerialLinkTest : public ::testing::Test {
+protected:
+    cdro::test::TempDir dir;
+    SystemClock clock;
+    ServiceCounters counters;
+    Listener listener;
+    SerialConfig config;
+    void SetUp() override
+    {
+        config.device = dir.file("ttyPOZYX");
+        config.reconnect_min_s = 0.05;
+        config.reconnect_max_s = 0.4;
+    }
+};
+
+TEST_F(SerialLinkTest, OpensRawAndMovesBytesBothWays)
+{
+    cdro::test::FakeDevicePty device(config.device);
+    EventLoop loop(clock);
+    SerialLink link(loop, config, listener, counters);
+    link.start();
+    ASSERT_TRUE(link.isOpen());
+    EXPECT_EQ(listener.ups, 1);
+    // Bytes a cooked tty would mangle: CR, ^C, ^D, XOFF, DEL, 0x00.
+    const std::vector<uint8_t> tricky = {0x0D, 0x03, 0x04, 0x13, 0x7F, 0x00, 0x0A, 0xFF};
+    device.write(tricky);
+    runUntil(loop, [&] { return listener.bytes.size() >= tricky.size(); });
+    EXPECT_EQ(listener.bytes, tricky);
+    const uint8_t out[] = {0x11, 0x0D, 0x00, 0x0A};
+    ASSERT_TRUE(link.send(out, sizeof out));
+    std::vector<uint8_t> got;
+    for (int i = 0; i < 50 && got.size() < sizeof out; ++i) {
+        const auto part = device.read(100);
+        got.insert(got.end(), part.begin(), part.end());
+    }
+    EXPECT_EQ(got, std::vector<uint8_t>(out, out + sizeof out));
+    EXPECT_EQ(counters.bytes_sent, sizeof out);
+    EXPECT_EQ(link.description(), "serial:" + config.device + "@115200");
+}
+
+TEST_F(SerialLinkTest, BackoffDoublesWhileTheDeviceIsAbsentThenTheLinkComesBack)
+{
+    EventLoop loop(clock);
+    SerialLink link(loop, config, listener, counters);
+    link.start(); // nothing at the path yet
+    EXPECT_FALSE(link.isOpen());
+    EXPECT_EQ(counters.link_open_failures, 1U);
+    // Let a few retries fail: the backoff grows 0.05 -> 0.1 -> 0.2 -> 0.4 (max).
+    runUntil(loop, [&] { return counters.link_open_failures >= 5; });
+    EXPECT_EQ(link.currentBackoffUs(), secondsToUs(config.reconnect_max_s));
+    cdro::test::FakeDevicePty device(config.device);
+    runUntil(loop, [&] { return link.isOpen(); });
+    EXPECT_EQ(listener.ups, 1);
+    EXPECT_EQ(counters.link_connects, 1U);
+    device.write({1, 2, 3});
+    runUntil(loop, [&] { return listener.bytes.size() >= 3; });
+    // The device vanishes and a new one appears at the same path: the link follows it.
+    device.vanish();
+    runUntil(loop, [&] { return listener.downs > 0; });
+    EXPECT_NE(listener.last_reason.find("hang-up"), std::string::npos) << listener.last_reason;
+    cdro::test::FakeDevicePty again(config.device);
+    runUntil(loop, [&] { return link.isOpen(); });
+    EXPECT_EQ(listener.ups, 2);
+    again.write({4, 5});
+    runUntil(loop, [&] { return listener.bytes.size() >= 5; });
+    EXPECT_EQ(listener.bytes, std::vector<uint8_t>({1, 2, 3, 4, 5}));
+}
+
+TEST_F(SerialLinkTest, UnsupportedBaudIsAConfigError)
+{
+    EventLoop loop(clock);
+    config.baud = 12345;
+    EXPECT_THROW(SerialLink(loop, config, listener, counters), ConfigError);
+}
