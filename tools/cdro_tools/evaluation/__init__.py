@@ -1,0 +1,1 @@
+"""Evaluation of anchor-free maps against ground truth (cdro-eval); see docs/tools.md."""
