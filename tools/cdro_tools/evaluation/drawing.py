@@ -68,8 +68,13 @@ def draw_estimates(ax, positions_m: Mapping[int, np.ndarray], covariances_m2: Ma
             covariance_ellipse(ax, p, covariances_m2[node_id], edgecolor=color, linewidth=0.8, zorder=5)
         ax.scatter([p[0]], [p[1]], s=20, color=color, marker=marker, zorder=6, label=label if first else None)
         first = False
-        if ids:
-            ax.annotate(node_label(node_id), p, textcoords="offset points", xytext=(5, 5), fontsize=8)
+    if ids:
+        draw_ids(ax, positions_m)
+
+
+def draw_ids(ax, positions_m: Mapping[int, np.ndarray]) -> None:
+    for node_id, p in sorted(positions_m.items()):
+        ax.annotate(node_label(node_id), p, textcoords="offset points", xytext=(5, 5), fontsize=8)
 
 
 def finish(fig, ax, path: str, title: str, xlabel: str = "x (m)", ylabel: str = "y (m)", equal: bool = True) -> None:
