@@ -155,9 +155,9 @@ def _fmt(value: float | None, digits: int = 3) -> str:
     return "-" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def evaluate(args) -> tuple[dict, dict]:
-    """Everything but the output: (the JSON report, what the plots need)."""
-    bad: list[BadRow] = []
+def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
+    """Everything but the output: (the JSON report, what the plots need); bad rows are
+    appended to `bad` as they are found."""
     truth_xy, truth_z = read_truth(args.truth, bad)
     if not truth_xy:
         raise InputError(f"{args.truth}: no usable truth row")
@@ -387,22 +387,28 @@ def _json_safe(value):
     return value
 
 
+def _report_bad_rows(bad: list[BadRow]) -> None:
+    by_file: dict[str, int] = {}
+    for row in bad:
+        by_file[row.path] = by_file.get(row.path, 0) + 1
+        if by_file[row.path] <= BAD_ROWS_SHOWN:
+            _log(f"{row}: row skipped")
+    for path, count in by_file.items():
+        _log(f"{path}: {count} bad row(s) skipped" + (" (all in --json)" if count > BAD_ROWS_SHOWN else ""))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     _check_arguments(parser, args)
+    bad: list[BadRow] = []
     try:
-        report, plots = evaluate(args)
+        report, plots = evaluate(args, bad)
     except InputError as error:
+        _report_bad_rows(bad)           # they often explain the error ("no usable row")
         _log(str(error))
         return 2
-    by_file: dict[str, int] = {}
-    for row in report["bad_rows"]["rows"]:
-        by_file[row["file"]] = by_file.get(row["file"], 0) + 1
-        if by_file[row["file"]] <= BAD_ROWS_SHOWN:
-            _log(f"{row['file']}:{row['line']}: {row['reason']}: row skipped")
-    for path, count in by_file.items():
-        _log(f"{path}: {count} bad row(s) skipped" + (" (all in --json)" if count > BAD_ROWS_SHOWN else ""))
+    _report_bad_rows(bad)
 
     table_out = sys.stderr if args.json == "-" else sys.stdout
     for line in _summary_lines(report):
