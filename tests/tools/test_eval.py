@@ -133,7 +133,8 @@ def test_that_least_squares_on_gaussian_ranges_reaches_the_crb():
     trials = 200
     squared = []
     for _ in range(trials):
-        measured = np.array([np.linalg.norm(truth[a] - truth[b]) for a, b in pairs]) + rng.normal(0, sigma_m, len(pairs))
+        exact = np.array([np.linalg.norm(truth[a] - truth[b]) for a, b in pairs])
+        measured = exact + rng.normal(0, sigma_m, len(pairs))
         links = ev.Links(pairs, measured, np.ones(len(pairs), dtype=np.int64))
         solution = ev.solve_lsq(links, truth, loss="linear")
         squared.append(ev.align(solution.positions_m, truth).rmse_m ** 2)

@@ -105,10 +105,10 @@ def _parser() -> argparse.ArgumentParser:
     choice.add_argument("--baselines", type=_baseline_list, metavar="LIST",
                         help=f"comma list of {','.join(BASELINES)} (default: all, when --ranges is given)")
     choice.add_argument("--no-baselines", action="store_true", help="no baselines and no bound")
-    base.add_argument("--sigma-m", type=_positive, default=DEFAULT_SIGMA_M,
+    base.add_argument("--sigma-m", type=_positive, default=DEFAULT_SIGMA_M, metavar="M",
                       help=f"Gaussian range noise std for the CRB and the Huber scale, m (default {DEFAULT_SIGMA_M})")
     base.add_argument("--crb-per-link", action="store_true",
-                      help="CRB with one entry per link (default: one per range, as the estimator sees them)")
+                      help="CRB with one entry per link (default: one entry per range)")
     base.add_argument("--huber-scale-m", type=_positive, metavar="M",
                       help=f"Huber f_scale, m (default {HUBER_K} x --sigma-m)")
     base.add_argument("--drop-threshold-m", type=_non_negative, default=DROP_THRESHOLD_M, metavar="M",
@@ -116,8 +116,10 @@ def _parser() -> argparse.ArgumentParser:
     base.add_argument("--resolve-loss", choices=("linear", "huber"), default="linear",
                       help="lsq-drop: loss of the re-solve (default linear: plain least squares)")
     out = p.add_argument_group("outputs")
-    out.add_argument("--json", metavar="PATH", help="every figure as JSON (- for stdout; the table then goes to stderr)")
-    out.add_argument("--map-png", metavar="PATH", help="map: truth, aligned estimates with 2-sigma ellipses, links, ids")
+    out.add_argument("--json", metavar="PATH",
+                     help="every figure as JSON (- for stdout; the table then goes to stderr)")
+    out.add_argument("--map-png", metavar="PATH",
+                     help="map: truth, aligned estimates with 2-sigma ellipses, links, ids")
     out.add_argument("--map-baselines", action="store_true", help="also draw the baselines' solutions on the map")
     out.add_argument("--rmse-png", metavar="PATH", help="aligned RMSE over ranges processed, one curve per --trace")
     out.add_argument("--title", default="", help="plot title")
@@ -214,7 +216,7 @@ def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
                       ranged_nodes_without_estimate=sorted(ranged - set(estimates)))
         notes = [f"{len(converged)}/{len(estimates)} converged"]
         if engine["rmse_converged_m"] is not None and len(converged) < len(estimates):
-            notes.append(f"converged only {_fmt(engine['rmse_converged_m'])} m")
+            notes.append(f"converged nodes alone {_fmt(engine['rmse_converged_m'])} m")
         if engine["nodes_without_truth"]:
             notes.append(f"{len(engine['nodes_without_truth'])} without truth")
         if engine["ranged_nodes_without_estimate"]:
@@ -289,6 +291,8 @@ def _table(report: dict) -> str:
         rows.append((TITLES["crb"], _fmt(c["rmse_m"]), str(c["nodes"]), "; ".join(c["notes"])))
     widths = [max(len(r[k]) for r in rows) for k in range(3)]
     lines = [f"{r[0]:<{widths[0]}}  {r[1]:>{widths[1]}}  {r[2]:>{widths[2]}}  {r[3]}".rstrip() for r in rows]
+    if len(rows) == 1:
+        lines = []                      # traces only: no method to score
 
     # per-node errors, one column per method
     methods = [n for n in ("engine", *LSQ_NAMES) if n in report["methods"] and "per_node" in report["methods"][n]]
@@ -302,15 +306,17 @@ def _table(report: dict) -> str:
         body = [[drawing.node_label(i), *(_fmt(errors[n].get(i)) for n in methods),
                  *(("never" if c[i] is None else str(c[i])) if i in c else "-" for c in converged)] for i in ids]
         widths = [max(len(row[k]) for row in [header, *body]) for k in range(len(header))]
-        lines += ["", "per-node errors (aligned)" + (" and convergence time (ranges processed)" if traces else "")]
+        heading = "per-node errors (aligned)" + (" and convergence time (ranges processed)" if traces else "")
+        lines += ["" if lines else None, heading]
         for row in [header, *body]:
             lines.append("  ".join(f"{cell:>{w}}" for cell, w in zip(row, widths)))
     for t in traces:
         at = t["all_converged_at_ranges"]
-        lines.append(f"trace {t['label']}: {t['snapshots']} snapshots up to {t['last_ranges']} ranges; all converged "
-                     f"{'at ' + str(at) + ' ranges' if at is not None else 'never'}; final RMSE "
-                     f"{_fmt(t['final_rmse_m'])} m")
-    return "\n".join(lines)
+        never = ", ".join(drawing.node_label(i) for i in t["never_converged"])
+        lines.append(f"trace {t['label']}: {t['snapshots']} snapshots up to {t['last_ranges']} ranges; "
+                     + (f"all converged at {at} ranges" if at is not None else f"never converged: {never or '-'}")
+                     + f"; final RMSE {_fmt(t['final_rmse_m'])} m")
+    return "\n".join(line for line in lines if line is not None)
 
 
 def _summary_lines(report: dict) -> list[str]:
@@ -348,7 +354,8 @@ def _plot_map(path: str, report: dict, plots: dict, with_baselines: bool, title:
     if with_baselines:
         for name, solution in plots["baselines"].items():
             color, marker = BASELINE_STYLE[name]
-            drawing.draw_estimates(ax, solution, None, f"{TITLES[name]} ({_fmt(report['methods'][name]['rmse_m'], 2)} m)",
+            label = f"{TITLES[name]} ({_fmt(report['methods'][name]['rmse_m'], 2)} m)"
+            drawing.draw_estimates(ax, solution, None, label,
                                    color=color, marker=marker, ids=False)
     if "engine" in plots:
         estimates, alignment = plots["engine"]

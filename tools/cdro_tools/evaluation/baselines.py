@@ -189,7 +189,8 @@ def run_baselines(links_all: Links, names: list[str], f_scale_m: float, drop_thr
         return out
     huber = solve_lsq(links, mds, "huber", f_scale_m)
     if "lsq-huber" in names:
-        out.append(BaselineResult("lsq-huber", huber.positions_m, common + [f"Huber f_scale {f_scale_m:.3g} m, from MDS-MAP"],
+        out.append(BaselineResult("lsq-huber", huber.positions_m,
+                                  common + [f"Huber f_scale {f_scale_m:.3g} m, from MDS-MAP"],
                                   {**base, "f_scale_m": f_scale_m, "evaluations": huber.evaluations,
                                    "status": huber.status}))
     if "lsq-drop" in names:
