@@ -227,6 +227,20 @@ def test_that_drop_and_resolve_keeps_a_link_that_reads_short():
     assert results["lsq-drop"].details["dropped_links"] == []
 
 
+def test_that_a_solve_cut_short_by_the_evaluation_limit_says_so(monkeypatch):
+    from cdro_tools.evaluation import baselines
+    monkeypatch.setattr(baselines, "MAX_EVALUATIONS", 2)
+    seed = 49
+    print(f"seed {seed}")
+    rng = np.random.default_rng(seed)
+    truth = dict(enumerate(rng.uniform(0, 30, size=(10, 2))))
+    near = [(a, b) for a in truth for b in truth if a < b and np.linalg.norm(truth[a] - truth[b]) < 15.0]
+    results = {r.name: r for r in ev.run_baselines(exact_links(truth, near), ["lsq-huber", "lsq-drop"], 0.13)}
+    assert results["lsq-huber"].details["status"] == 0
+    assert any("limit of 2 evaluations: not converged" in note for note in results["lsq-huber"].notes)
+    assert any("started from a Huber solution that stopped" in note for note in results["lsq-drop"].notes)
+
+
 def test_that_a_group_of_nodes_without_links_to_the_rest_is_not_solved():
     square = {1: np.array([0.0, 0.0]), 2: np.array([10.0, 0.0]), 3: np.array([10.0, 10.0]), 4: np.array([0.0, 10.0]),
               7: np.array([50.0, 50.0]), 8: np.array([55.0, 50.0])}

@@ -204,8 +204,8 @@ def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
         if not estimates:
             raise InputError(f"{args.estimates}: no usable estimate row")
         if not any(i in truth_xy for i in estimates):
-            raise InputError(f"{args.estimates}: none of its ids is in {args.truth} (ids: "
-                             f"{', '.join(map(str, sorted(estimates)[:5]))}...)")
+            shown = ", ".join(map(str, sorted(estimates)[:5])) + (", ..." if len(estimates) > 5 else "")
+            raise InputError(f"{args.estimates}: none of its ids is in {args.truth} (its ids: {shown})")
         alignment = align({i: e.xy_m for i, e in estimates.items()}, truth_xy)
         converged = {i: e for i, e in estimates.items() if e.converged}
         converged_alignment = align({i: e.xy_m for i, e in converged.items()}, truth_xy)

@@ -25,7 +25,12 @@ import numpy as np
 
 HUBER_K = 1.345                     # Huber's tuning constant, in units of sigma
 DROP_THRESHOLD_M = 0.6
-DENSE_JACOBIAN_MAX_PARAMETERS = 600  # beyond this a sparse Jacobian (lsmr steps) is cheaper
+# The exact trust-region steps (dense SVD) converge in tens to hundreds of evaluations where
+# lsmr steps took thousands (random networks of 60-200 nodes: 70-207 against 3800-40000
+# evaluations, 4-15x slower overall); at 400 nodes a dense solve took about 2 minutes, so
+# beyond 300 nodes the sparse steps run, up to the evaluation limit.
+DENSE_JACOBIAN_MAX_PARAMETERS = 600
+MAX_EVALUATIONS = 2000              # PLANT needs 40; a solve that hits this says so in its notes
 NAMES = ("mds", "lsq-huber", "lsq-drop")
 
 
@@ -112,7 +117,11 @@ class LsqSolution:
     positions_m: dict[int, np.ndarray]
     residuals_m: np.ndarray             # per link: measured range - fitted distance
     evaluations: int
-    status: int                         # scipy's: > 0 converged by a tolerance
+    status: int                         # scipy's: > 0 converged by a tolerance, 0 evaluation limit
+
+    @property
+    def converged(self) -> bool:
+        return self.status > 0
 
 
 def solve_lsq(links: Links, start_m: Mapping[int, np.ndarray], loss: str = "huber",
@@ -150,7 +159,7 @@ def solve_lsq(links: Links, start_m: Mapping[int, np.ndarray], loss: str = "hube
 
     x0 = np.concatenate([np.asarray(start_m[i], dtype=float)[:2] for i in ids])
     result = least_squares(residuals, x0, jac=jacobian, loss=loss, f_scale=f_scale_m,
-                           tr_solver="lsmr" if sparse else "exact")
+                           tr_solver="lsmr" if sparse else "exact", max_nfev=MAX_EVALUATIONS)
     xy = result.x.reshape(-1, 2)
     return LsqSolution({node_id: xy[k] for node_id, k in index.items()}, -residuals(result.x), int(result.nfev),
                        int(result.status))
@@ -188,9 +197,11 @@ def run_baselines(links_all: Links, names: list[str], f_scale_m: float, drop_thr
     if "lsq-huber" not in names and "lsq-drop" not in names:
         return out
     huber = solve_lsq(links, mds, "huber", f_scale_m)
+    limit = [f"stopped at the limit of {MAX_EVALUATIONS} evaluations: not converged"]
     if "lsq-huber" in names:
         out.append(BaselineResult("lsq-huber", huber.positions_m,
-                                  common + [f"Huber f_scale {f_scale_m:.3g} m, from MDS-MAP"],
+                                  common + [f"Huber f_scale {f_scale_m:.3g} m, from MDS-MAP"]
+                                  + (limit if not huber.converged else []),
                                   {**base, "f_scale_m": f_scale_m, "evaluations": huber.evaluations,
                                    "status": huber.status}))
     if "lsq-drop" in names:
@@ -205,11 +216,15 @@ def run_baselines(links_all: Links, names: list[str], f_scale_m: float, drop_thr
                           f"from the Huber solution"]
         if weak:
             notes.append(f"node(s) {weak} left with fewer than 2 links: not fixed by the ranges")
+        if not huber.converged:
+            notes.append(f"started from a Huber solution that {limit[0]}")
         if kept.pairs:
             start = huber.positions_m
             solution = solve_lsq(kept, start, resolve_loss, f_scale_m)
             positions = {**start, **solution.positions_m}      # a node with no link left stays put
             evaluations, status = solution.evaluations, solution.status
+            if not solution.converged:
+                notes += limit
         else:
             positions, evaluations, status = dict(huber.positions_m), 0, 0
         out.append(BaselineResult("lsq-drop", positions, notes,
