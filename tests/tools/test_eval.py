@@ -300,7 +300,8 @@ def test_that_cdro_eval_scores_a_simulated_network_end_to_end(tmp_path):
     seed = 47
     print(f"seed {seed}")
     rng = np.random.default_rng(seed)
-    run_sim("--scenario", "paper-fig3", "--seed", 1, "--ranges-csv", tmp_path / "ranges.csv", "--truth-csv", tmp_path / "truth.csv")
+    run_sim("--scenario", "paper-fig3", "--seed", 1, "--ranges-csv", tmp_path / "ranges.csv", "--truth-csv",
+            tmp_path / "truth.csv")
     truth = read_truth_csv(tmp_path / "truth.csv")
     ids = sorted(truth)
     points = np.array([truth[i] for i in ids])
