@@ -30,21 +30,12 @@ import sys
 
 import numpy as np
 
+from .evaluation import drawing
+from .evaluation.alignment import align, rigid_fit, rmse  # noqa: F401  (rigid_fit: part of this module's API)
+
 
 class InputError(ValueError):
     """An input file that cannot be used at all."""
-
-
-def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """R (2x2, orthogonal: rotation or reflection) and t minimising sum |R s_i + t - g_i|^2."""
-    if len(source) == 0:
-        return np.eye(2), np.zeros(2)
-    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
-    if len(source) == 1:
-        return np.eye(2), target_mean - source_mean
-    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
-    rotation = vt.T @ u.T
-    return rotation, target_mean - rotation @ source_mean
 
 
 @dataclasses.dataclass
@@ -185,16 +176,9 @@ def latest(series: list[Estimate], times: list[float], t_s: float) -> Estimate |
 
 def aligned_errors(estimates: dict[int, Estimate], truth: Truth, t_s: float, offset_s: float):
     """(R, t, {id: error_m}) for the nodes with both an estimate and a truth, at t_s."""
-    ids = sorted(i for i in estimates if truth.has(i))
-    source = np.array([[estimates[i].x_m, estimates[i].y_m] for i in ids]).reshape(-1, 2)
-    target = np.array([truth.at(i, t_s + offset_s) for i in ids]).reshape(-1, 2)
-    rotation, translation = rigid_fit(source, target)
-    errors = {i: float(np.linalg.norm(rotation @ s + translation - g)) for i, s, g in zip(ids, source, target)}
-    return rotation, translation, errors
-
-
-def rmse(errors: dict[int, float]) -> float:
-    return math.sqrt(sum(e * e for e in errors.values()) / len(errors)) if errors else float("nan")
+    alignment = align({i: (e.x_m, e.y_m) for i, e in estimates.items()},
+                      {i: truth.at(i, t_s + offset_s) for i in estimates if truth.has(i)})
+    return alignment.rotation, alignment.translation_m, alignment.errors_m
 
 
 def rmse_series(est: Estimates, truth: Truth, step_s: float, offset_s: float, min_nodes: int = 3):
@@ -224,30 +208,15 @@ def rmse_series(est: Estimates, truth: Truth, step_s: float, offset_s: float, mi
     return out
 
 
-def _ellipse(ax, centre, cov, **style):
-    from matplotlib.patches import Ellipse
-    values, vectors = np.linalg.eigh((cov + cov.T) / 2.0)
-    values = np.clip(values, 0.0, None)
-    angle = math.degrees(math.atan2(vectors[1, 1], vectors[0, 1]))
-    width, height = 2 * 2 * math.sqrt(values[1]), 2 * 2 * math.sqrt(values[0])   # 2 sigma
-    ax.add_patch(Ellipse(centre, width, height, angle=angle, fill=False, **style))
-
-
 def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]], rotation, translation,
              offset_s: float, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     def aligned(e: Estimate) -> np.ndarray:
         return rotation @ [e.x_m, e.y_m] + translation
 
-    fig, ax = plt.subplots(figsize=(8, 7), dpi=100)
+    fig, ax = drawing.new_figure(drawing.MAP_SIZE_IN)
     final = {i: series[-1] for i, series in est.nodes.items() if series}
     positions = {i: aligned(e) for i, e in final.items()}
-    for a, b in sorted(links):
-        if a in positions and b in positions:
-            ax.plot(*zip(positions[a], positions[b]), color="0.85", linewidth=0.8, zorder=1)
+    drawing.draw_links(ax, links, positions)
     for node_id, (times, xy) in truth.tracks.items():
         ax.plot(xy[:, 0], xy[:, 1], "--", color="tab:green", linewidth=1.2, zorder=2,
                 label="true track" if node_id == next(iter(truth.tracks)) else None)
@@ -265,40 +234,19 @@ def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]
     if ids_truth:
         final_t = max((e.t_s for e in final.values()), default=0.0)
         txy = np.array([truth.at(i, final_t + offset_s) for i in ids_truth])
-        ax.scatter(txy[:, 0], txy[:, 1], s=90, facecolors="none", edgecolors="black", zorder=4, label="truth")
-    for node_id, e in final.items():
-        p = positions[node_id]
-        _ellipse(ax, p, rotation @ e.cov_m2 @ rotation.T, edgecolor="tab:blue", linewidth=0.8, zorder=5)
-        ax.scatter([p[0]], [p[1]], s=20, color="tab:blue", zorder=6, label="estimate (2-sigma)" if node_id == min(final) else None)
-        ax.annotate(f"0x{node_id:04X}", p, textcoords="offset points", xytext=(5, 5), fontsize=8)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(title)
-    ax.grid(True, linewidth=0.3)
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+        drawing.draw_truth(ax, txy)
+    drawing.draw_estimates(ax, positions, {i: rotation @ e.cov_m2 @ rotation.T for i, e in final.items()},
+                           "estimate (2-sigma)")
+    drawing.finish(fig, ax, path, title)
 
 
 def plot_rmse(path: str, series, title: str) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=100)
+    fig, ax = drawing.new_figure(drawing.CURVE_SIZE_IN)
     t = [s[0] for s in series]
     ax.plot(t, [s[1] for s in series], label="nodes, aligned RMSE")
     if any(not math.isnan(s[2]) for s in series):
         ax.plot(t, [s[2] for s in series], label="robot position error")
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("error (m)")
-    ax.set_title(title)
-    ax.grid(True, linewidth=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    drawing.finish(fig, ax, path, title, xlabel="t (s)", ylabel="error (m)", equal=False)
 
 
 def read_links(path: str) -> set[tuple[int, int]]:
