@@ -1,0 +1,88 @@
+// params.hpp: every parameter of the engine, with its default and unit. docs/engine.md lists
+// them with the reasons for the defaults; the config file's `engine:` section and the command
+// line set them (host/hostd/engine_config.hpp).
+#pragma once
+
+#include <cstdint>
+
+#include "cdro/engine/placement.hpp"
+#include "cdro/engine/range_likelihood.hpp"
+#include "cdro/engine/ring_sog.hpp"
+#include "cdro/engine/types.hpp"
+
+namespace cdro::engine {
+
+struct RangeParams {
+    double sigma_m = 0.10;          // m, line-of-sight range noise (Pozyx nominal 0.1 m)
+    double max_range_m = 100.0;     // m, longer ranges are absurd (Pozyx's maximum) and rejected
+    uint32_t window = 15;           // ranges per link in its median (1..32)
+};
+
+struct SogUpdateParams {
+    bool cooperative = true;        // weights from the other nodes' ranges (eq. 8-11); false:
+                                    // from the ring's own range only (the ablation)
+    bool weight_transfer = true;    // eq. 15 after every weight update
+    double transfer_sigma_m = 0.5;  // m, sigma of eq. 15
+    double gate_sigma = 4.0;        // EKF innovation gate, in standard deviations
+    double process_noise_m2 = 1e-6; // m^2 added to each component's covariance per update
+    uint32_t full_update_every = 16;// every k-th range of a ring updates all its components;
+                                    // the others only its active set (ring_sog.hpp). 1 = always
+                                    // all, exactly the paper's filter
+};
+
+struct RefinementParams {
+    bool enabled = true;              // polish the merged estimate against every link (robust
+                                      // Gauss-Newton); false: the merged SoG is the estimate
+    uint32_t max_iterations = 5;      // Gauss-Newton iterations per update
+    double hypothesis_switch_m = 1.0; // m, a merged SoG this far from the estimate is tried too
+    double switch_gap_nats = 2.0;     // nats, it must explain the links this much better
+    uint32_t relax_per_range = 8;     // neighbour updates after each range (bounded work)
+    double relax_threshold_m = 1e-3;  // m, a node that moved more than this updates its neighbours
+    uint32_t settle_per_placed = 20;  // neighbour updates per node placed, right after placing
+    double inconsistent_residual_m = 1.5; // m, a link residual beyond this is inconsistent
+    double inconsistent_fraction = 0.5;   // more than this share of a node's links (and >= 2)
+                                          // inconsistent: the node is placed again
+    uint32_t max_placements = 4;      // times one node may be placed (then it stays)
+};
+
+// Streaming placement decides early, from the links seen so far (and their first ranges).
+// When the link graph has grown, the initialization is run again on everything known, and its
+// map replaces the current one if it explains the links better (map cost, engine.hpp). The
+// number of runs is logarithmic in the number of links; none happen once every link is known.
+struct ReinitializationParams {
+    bool enabled = true;
+    double link_growth = 1.25;     // run again when the links have grown by this factor
+    uint32_t min_links = 6;        // not before this many links
+    double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges
+                                   // per link (every pair ranged twice more), if links
+                                   // appeared since it last ran
+    uint32_t sweeps = 30;          // refinement sweeps over the new map before comparing
+    double min_gain_nats = 1.0;    // nats, how much cheaper the new map must be
+};
+
+struct ConvergenceParams {
+    double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
+    double threshold_m = 0.01;        // m, step of the moving average under which a node is still
+    uint32_t consecutive = 3;         // still updates in a row to count as converged
+    double unconverge_factor = 10.0;  // a step above factor * threshold clears convergence
+};
+
+struct FrameParams {
+    NodeId origin = 0;                // the named frame: this node at (0, 0),
+    NodeId x_axis = 0;                // this one on the +x axis,
+    NodeId positive_y = 0;            // this one on the +y side. 0 = the frame triangle's own
+};
+
+struct EngineParams {
+    RangeParams range;
+    RangeLikelihoodParams likelihood;
+    RingSogParams ring;               // radial_sigma_m is always range.sigma_m (sigma_s)
+    SogUpdateParams sog;
+    PlacementParams placement;
+    RefinementParams refinement;
+    ReinitializationParams reinitialization;
+    ConvergenceParams convergence;
+    FrameParams frame;
+};
+
+} // namespace cdro::engine

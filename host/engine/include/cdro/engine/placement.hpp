@@ -1,0 +1,94 @@
+// placement.hpp: initialization by iterative multilateration (paper eq. 1-4), made streaming
+// and multi-hop.
+//
+// The frame: three nodes that ranged to each other, chosen for a long baseline, a large
+// height (non-collinear) and many links (not simply the first three ids), placed as the paper
+// does: p0 = (0, 0), p1 = (r01, 0), p2 on the +y side.
+//
+// Every further node is placed from the placed nodes it ranged to: each pair of them with a
+// usable baseline gives the two circle intersections (eq. 4, the sign chosen by the others),
+// every intersection is polished by robust Gauss-Newton against all placed neighbours
+// (point_solver.hpp), and the distinct local optima are the candidates. A node is placed
+// only when the decision is clear: the best candidate's cost beats every distinct rival by
+// `ambiguity_gap_nats`. The paper's sign rule alone is not enough on real networks: three
+// nearly collinear neighbours, or one NLOS link among three, make both mirror images fit.
+// Multi-hop placement follows from this: a node that does not see the frame nodes is placed
+// from any placed nodes it sees, as soon as it sees enough of them.
+//
+// Where ranges cannot decide (a node with two placed neighbours, or mirror images that fit
+// equally), the coarse MDS-MAP layout of the network (mds.hpp), rigidly aligned to the placed
+// nodes, breaks the tie: the candidate nearest to the node's MDS position is taken if it is
+// clearly the nearer. That is what joins two well-meshed parts of a building that see each
+// other through a few nodes only (PLANT's north and south halves).
+#pragma once
+
+#include <array>
+#include <optional>
+#include <vector>
+
+#include "cdro/engine/network.hpp"
+#include "cdro/engine/point_solver.hpp"
+#include "cdro/engine/range_likelihood.hpp"
+
+namespace cdro::engine {
+
+struct PlacementParams {
+    double min_triangle_height_m = 1.0;  // m, a frame triangle's smallest height (non-collinear)
+    double min_baseline_m = 1.0;         // m, neighbours closer than this give no intersection
+    double ambiguity_gap_nats = 4.0;     // nats, how much better than any rival the best must be
+    double distinct_m = 1.0;             // m, candidates closer than this are one solution
+    bool mds_tie_break = true;           // break remaining ties with the MDS-MAP layout
+    double mds_decisive_ratio = 0.5;     // the nearest candidate must be nearer than this
+                                         // fraction of the second's distance to the MDS position
+    double mds_margin_sigmas = 3.0;      // and nearer by this many times the layout's own error
+                                         // (its RMS misfit to the placed nodes)
+};
+
+struct PlacementCandidate {
+    Vector2 position_m = Vector2::Zero();        // m
+    Matrix2 covariance_m2 = Matrix2::Identity(); // m^2
+    double cost = 0.0;                           // nats (point_solver.hpp)
+};
+
+// Distinct local optima of a node's robust cost against its constraints, best first.
+std::vector<PlacementCandidate> placementCandidates(const std::vector<RangeConstraint> &constraints,
+                                                    const RangeLikelihood &likelihood,
+                                                    const PointSolverParams &solver, const PlacementParams &params);
+
+enum class PlacementDecision { Placed, Ambiguous, NoCandidate };
+
+struct PlacementChoice {
+    PlacementDecision decision = PlacementDecision::NoCandidate;
+    PlacementCandidate chosen;
+    bool by_tie_break = false; // decided by the hint, not by the ranges
+    double confidence = 0.0;   // tie breaks: how clearly, in units of the hint's error
+};
+
+// Where a coarse layout puts the node, and how wrong that layout is known to be.
+struct PlacementHint {
+    Vector2 position_m = Vector2::Zero(); // m
+    double error_m = 0.0;                 // m, RMS misfit of the layout on the placed nodes
+};
+
+// Decides among candidates found from constraint_count constraints: by cost gap, or, failing
+// that, by the hint when given.
+PlacementChoice choosePlacement(const std::vector<PlacementCandidate> &candidates, size_t constraint_count,
+                                const PlacementParams &params, const PlacementHint *hint);
+
+struct FrameTriangle {
+    uint32_t origin = kNoIndex;     // p0 = (0, 0)
+    uint32_t x_axis = kNoIndex;     // p1 = (r01, 0)
+    uint32_t positive_y = kNoIndex; // p2, y > 0
+    Vector2 origin_m = Vector2::Zero();
+    Vector2 x_axis_m = Vector2::Zero();
+    Vector2 positive_y_m = Vector2::Zero();
+};
+
+// The frame's triangle among the links so far, or nullopt if none is usable yet. `preferred`
+// (origin, x-axis, +y node indices) is taken when those three ranged to each other and are
+// not collinear. Only nodes for which `eligible` is true are considered.
+std::optional<FrameTriangle> chooseFrameTriangle(const Network &network, const PlacementParams &params,
+                                                 const std::vector<bool> &eligible,
+                                                 const std::optional<std::array<uint32_t, 3>> &preferred);
+
+} // namespace cdro::engine

@@ -1,0 +1,62 @@
+#include "cdro/engine/alignment.hpp"
+
+#include <cmath>
+
+#include <Eigen/LU>
+#include <Eigen/SVD>
+
+namespace cdro::engine {
+
+namespace {
+
+RigidTransform fitProper(const std::vector<Vector2> &source, const std::vector<Vector2> &target, bool reflect)
+{
+    const Matrix2 mirror = reflect ? Matrix2(Eigen::Vector2d(1.0, -1.0).asDiagonal()) : Matrix2::Identity();
+    const size_t count = source.size();
+    Vector2 source_mean = Vector2::Zero();
+    Vector2 target_mean = Vector2::Zero();
+    for (size_t i = 0; i < count; ++i) {
+        source_mean += mirror * source[i];
+        target_mean += target[i];
+    }
+    source_mean /= static_cast<double>(count);
+    target_mean /= static_cast<double>(count);
+    Matrix2 cross = Matrix2::Zero();
+    for (size_t i = 0; i < count; ++i) {
+        cross += (mirror * source[i] - source_mean) * (target[i] - target_mean).transpose();
+    }
+    const Eigen::JacobiSVD<Matrix2> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Matrix2 correction = Matrix2::Identity();
+    if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0.0) {
+        correction(1, 1) = -1.0;
+    }
+    const Matrix2 rotation = svd.matrixV() * correction * svd.matrixU().transpose();
+    RigidTransform transform;
+    transform.rotation = rotation * mirror;
+    transform.translation_m = target_mean - rotation * source_mean;
+    transform.reflected = reflect;
+    double squared = 0.0;
+    for (size_t i = 0; i < count; ++i) {
+        squared += (transform.apply(source[i]) - target[i]).squaredNorm();
+    }
+    transform.rms_error_m = std::sqrt(squared / static_cast<double>(count));
+    return transform;
+}
+
+} // namespace
+
+RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<Vector2> &target_m,
+                        bool allow_reflection)
+{
+    if (source_m.size() != target_m.size() || source_m.size() < 2) {
+        return RigidTransform{};
+    }
+    RigidTransform proper = fitProper(source_m, target_m, false);
+    if (!allow_reflection) {
+        return proper;
+    }
+    RigidTransform mirrored = fitProper(source_m, target_m, true);
+    return mirrored.rms_error_m < proper.rms_error_m ? mirrored : proper;
+}
+
+} // namespace cdro::engine
