@@ -1,0 +1,64 @@
+// engine_adapter.hpp: the SLAM engine behind the service's three interfaces
+// (host/service: consumer.hpp, map_state.hpp, checkpoint.hpp), for cdro-hostd.
+//
+//   FrameConsumer       RANGE -> Engine::addRange (mm -> m), MOTION -> Engine::setMoving
+//   MapSource           the engine's estimates in the output frame, its links, SoG components
+//   CheckpointProvider  the engine state in common/'s fixed-point SoG layout (sog_layout.h),
+//                       plus an extension block (tag kEngineExtensionTag) with what the layout
+//                       does not hold: link windows, update counts, the frame, the counters
+//
+// Resuming from a checkpoint continues from the state rounded to the layout's scales
+// (positions to 0.5 mm, standard deviations to 0.5 um, weights to 7.7e-6, ranges in the link
+// windows to 0.5 mm) and with an empty neighbour-update queue; docs/service.md states the
+// tolerance this gives and tests/hostd checks it.
+//
+// Called on the service's loop thread only; never reads a clock (event time comes in the
+// FrameContext), so a replay gives the same estimates bit for bit.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include "cdro/engine/engine.hpp"
+#include "cdro/service/checkpoint.hpp"
+#include "cdro/service/consumer.hpp"
+#include "cdro/service/map_state.hpp"
+
+namespace cdro::hostd {
+
+constexpr uint16_t kEngineExtensionTag = 0x0001;
+
+class EngineAdapter final : public service::FrameConsumer,
+                            public service::MapSource,
+                            public service::CheckpointProvider {
+public:
+    explicit EngineAdapter(engine::Engine &engine);
+
+    // FrameConsumer
+    void onRange(const cdro_range_t &range, const service::FrameContext &context) override;
+    void onMotion(const cdro_motion_t &motion, const service::FrameContext &context) override;
+
+    // MapSource
+    uint64_t revision() const override { return engine_.revision(); }
+    void fill(service::MapState &map) const override;
+    std::optional<service::NodeComponents> components(uint16_t id) const override;
+
+    // CheckpointProvider
+    service::SogSnapshot snapshot() override;
+    void restore(const service::SogSnapshot &snapshot) override;
+
+    uint64_t rangesRefused() const { return ranges_refused_; }
+    int64_t lastEventUnixUs() const { return last_event_unix_us_; }
+
+private:
+    engine::Engine &engine_;
+    uint64_t ranges_refused_ = 0;
+    int64_t last_event_unix_us_ = 0;
+};
+
+// The conversions, usable on their own (tests, tools).
+service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_unix_us);
+void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot); // throws CheckpointError
+
+} // namespace cdro::hostd

@@ -1,0 +1,22 @@
+// estimates_csv.hpp: the estimate CSV files written by the offline mode.
+//   nodes: id,x,y,var_x,cov_xy,var_y,converged
+//   trace: ranges,id,x,y,var_x,cov_xy,var_y,converged   (a snapshot every N ranges)
+// Numbers are written with 17 significant digits, so that the same run gives the same bytes
+// and a file read back gives the same doubles.
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "cdro/engine/engine.hpp"
+
+namespace cdro::hostd {
+
+void writeNodesHeader(std::FILE *out);
+void writeNodeRow(std::FILE *out, const engine::NodeOutput &node);
+void writeTraceHeader(std::FILE *out);
+void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::NodeOutput> &nodes);
+
+} // namespace cdro::hostd

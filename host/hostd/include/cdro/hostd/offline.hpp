@@ -1,0 +1,40 @@
+// offline.hpp: cdro-hostd's offline mode. Ranges from a CSV go through the engine in file
+// order, exactly as they would arrive over the link, one at a time; the estimates are written
+// as CSV. Used by the benchmarks, the tests and anyone with recorded data:
+//
+//   cdro-hostd --ranges-csv FILE [--heights-csv FILE] [--fixed-csv FILE] [--config FILE]
+//              [--no-weight-transfer] [--no-cooperative] [--no-refinement] [--set K=V]...
+//              [--trace-csv FILE [--trace-every N]] [--no-settle] --out-csv OUT
+//
+// OUT: one row per node, `id,x,y,var_x,cov_xy,var_y,converged` (m, m^2, 0/1; a node that could
+// not be placed has empty position fields). Bad rows are reported on stderr with their line
+// numbers, counted and skipped; so are ranges the engine refuses (a node ranging itself, a
+// range that is not positive or beyond engine.range.max_range_m). At the end of the file the
+// engine settles (engine.hpp) unless --no-settle: a live run keeps receiving ranges, a file
+// ends.
+#pragma once
+
+#include <cstdio>
+#include <string>
+
+#include "cdro/engine/params.hpp"
+
+namespace cdro::hostd {
+
+struct OfflineOptions {
+    std::string ranges_csv;
+    std::string heights_csv;
+    std::string fixed_csv;
+    std::string out_csv;
+    std::string trace_csv;        // "" = none
+    uint32_t trace_every = 10;    // ranges between trace snapshots
+    bool settle = true;
+    uint64_t settle_budget = 0;   // node updates at the end; 0 = 200 per node
+    uint32_t max_reported_rows = 20; // bad rows printed one by one (all are counted)
+};
+
+// Returns the process exit code: 0, or 2 with a message on stderr when an input cannot be
+// used at all (missing file, header without the columns, unwritable output).
+int runOffline(const OfflineOptions &options, const engine::EngineParams &params, std::FILE *log);
+
+} // namespace cdro::hostd

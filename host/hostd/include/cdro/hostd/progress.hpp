@@ -1,0 +1,27 @@
+// progress.hpp: `cdro-hostd --progress`: one line on stderr every second of wall time (a
+// timer on the service's loop, so it reads the engine on the loop thread): link state, good
+// and rejected frames, ranges the map took, nodes placed and converged.
+#pragma once
+
+#include <cstdio>
+
+#include "cdro/engine/engine.hpp"
+#include "cdro/service/service.hpp"
+
+namespace cdro::hostd {
+
+class ProgressLine {
+public:
+    ProgressLine(service::Service &service, const engine::Engine &engine, std::FILE *out);
+    ProgressLine(const ProgressLine &) = delete;
+    ProgressLine &operator=(const ProgressLine &) = delete;
+
+private:
+    void tick();
+
+    service::Service &service_;
+    const engine::Engine &engine_;
+    std::FILE *out_;
+};
+
+} // namespace cdro::hostd

@@ -1,0 +1,367 @@
+#include "cdro/hostd/engine_adapter.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+
+#include "cdro/fixed.h"
+#include "cdro/wire.h"
+
+namespace cdro::hostd {
+
+using service::CheckpointError;
+
+namespace {
+
+// ---- little-endian byte blocks for the extension ----------------------------------------
+
+class ByteWriter {
+public:
+    void u8(uint8_t v) { bytes_.push_back(v); }
+    void u16(uint16_t v) { put(v, 2); }
+    void u32(uint32_t v) { put(v, 4); }
+    void u64(uint64_t v) { put(v, 8); }
+    std::vector<uint8_t> take() { return std::move(bytes_); }
+
+private:
+    void put(uint64_t v, size_t size)
+    {
+        uint8_t buffer[8];
+        cdro_put_u64(buffer, v);
+        bytes_.insert(bytes_.end(), buffer, buffer + size);
+    }
+    std::vector<uint8_t> bytes_;
+};
+
+class ByteReader {
+public:
+    ByteReader(const std::vector<uint8_t> &bytes) : bytes_(bytes) {}
+    uint8_t u8() { return static_cast<uint8_t>(get(1)); }
+    uint16_t u16() { return static_cast<uint16_t>(get(2)); }
+    uint32_t u32() { return static_cast<uint32_t>(get(4)); }
+    uint64_t u64() { return get(8); }
+    bool done() const { return position_ == bytes_.size(); }
+
+private:
+    uint64_t get(size_t size)
+    {
+        if (position_ + size > bytes_.size()) {
+            throw CheckpointError("the engine block of the checkpoint is cut short");
+        }
+        uint8_t buffer[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+        std::memcpy(buffer, bytes_.data() + position_, size);
+        position_ += size;
+        return cdro_get_u64(buffer);
+    }
+    const std::vector<uint8_t> &bytes_;
+    size_t position_ = 0;
+};
+
+constexpr uint8_t kEngineBlockVersion = 1;
+
+uint32_t mmOfRange(double metres)
+{
+    const double mm = std::round(std::max(metres, 0.0) * 1000.0);
+    return mm >= 4294967295.0 ? 0xFFFFFFFFU : static_cast<uint32_t>(mm);
+}
+
+uint16_t saturate16(uint64_t value) { return value > 0xFFFFU ? 0xFFFFU : static_cast<uint16_t>(value); }
+
+// The counters, in one fixed order (append only).
+std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
+{
+    return {&c.ranges_received, &c.ranges_used, &c.ranges_stored, &c.rejected_self, &c.rejected_value,
+            &c.projection_clamped, &c.ekf_component_updates, &c.ekf_gated, &c.weight_terms,
+            &c.weight_terms_downweighted, &c.weight_collapses, &c.weight_transfers, &c.placements,
+            &c.placements_by_tie_break, &c.placement_ambiguous, &c.mds_layouts, &c.replacements, &c.refinements,
+            &c.refinement_links_downweighted, &c.hypothesis_switches, &c.node_updates, &c.relaxations,
+            &c.reinitializations, &c.reinitializations_adopted};
+}
+
+engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)
+{
+    double xx = 0.0;
+    double xy = 0.0;
+    double yy = 0.0;
+    cdro_fixed_covariance_to(fixed, &xx, &xy, &yy);
+    engine::Matrix2 covariance;
+    covariance << xx, xy, xy, yy;
+    return covariance;
+}
+
+} // namespace
+
+EngineAdapter::EngineAdapter(engine::Engine &engine) : engine_(engine) {}
+
+void EngineAdapter::onRange(const cdro_range_t &range, const service::FrameContext &context)
+{
+    last_event_unix_us_ = context.host_unix_us;
+    const engine::RangeVerdict verdict =
+        engine_.addRange(range.from_id, range.to_id, static_cast<double>(range.distance_mm) / 1000.0);
+    if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
+        ++ranges_refused_;
+    }
+}
+
+void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameContext &context)
+{
+    last_event_unix_us_ = context.host_unix_us;
+    engine_.setMoving(motion.node_id, motion.moving != 0);
+}
+
+void EngineAdapter::fill(service::MapState &map) const
+{
+    map.nodes.clear();
+    for (const engine::NodeOutput &node : engine_.estimates()) {
+        if (node.link_count == 0 && !node.fixed) {
+            continue;
+        }
+        service::NodeEstimate out;
+        out.id = node.id;
+        out.placed = node.placed;
+        out.converged = node.converged;
+        out.moving = node.moving;
+        if (node.placed) {
+            out.x_m = node.position_m.x();
+            out.y_m = node.position_m.y();
+            out.var_x_m2 = node.covariance_m2(0, 0);
+            out.cov_xy_m2 = node.covariance_m2(0, 1);
+            out.var_y_m2 = node.covariance_m2(1, 1);
+        }
+        map.nodes.push_back(out);
+    }
+    map.links.clear();
+    for (const engine::LinkOutput &link : engine_.links()) {
+        service::LinkEstimate out;
+        out.a = link.a;
+        out.b = link.b;
+        out.last_range_m = link.last_range_m;
+        out.range_count = link.range_count;
+        map.links.push_back(out);
+    }
+    map.robot.reset();
+}
+
+std::optional<service::NodeComponents> EngineAdapter::components(uint16_t id) const
+{
+    if (!engine_.estimate(id)) {
+        return std::nullopt;
+    }
+    service::NodeComponents out;
+    out.id = id;
+    for (const engine::RingOutput &ring : engine_.ringsDescribing(id)) {
+        for (const engine::SogComponentState &component : ring.components) {
+            service::SogComponent c;
+            c.center_id = ring.center;
+            c.x_m = component.mean_m.x();
+            c.y_m = component.mean_m.y();
+            c.var_x_m2 = component.covariance_m2(0, 0);
+            c.cov_xy_m2 = component.covariance_m2(0, 1);
+            c.var_y_m2 = component.covariance_m2(1, 1);
+            c.weight = component.weight;
+            out.components.push_back(c);
+        }
+    }
+    return out;
+}
+
+service::SogSnapshot EngineAdapter::snapshot() { return snapshotOf(engine_, last_event_unix_us_); }
+
+void EngineAdapter::restore(const service::SogSnapshot &snapshot) { restoreFrom(engine_, snapshot); }
+
+service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_unix_us)
+{
+    const engine::Network &network = engine.network();
+    service::SogSnapshot snapshot;
+    snapshot.header.created_unix_us = created_unix_us;
+    snapshot.header.ranges_processed = static_cast<uint32_t>(std::min<uint64_t>(engine.counters().ranges_received, 0xFFFFFFFFULL));
+    ByteWriter block;
+    block.u8(kEngineBlockVersion);
+    const auto frame = engine.frameNodes();
+    block.u8(frame ? 1 : 0);
+    for (size_t i = 0; i < 3; ++i) {
+        block.u16(frame ? (*frame)[i] : 0);
+    }
+    block.u32(static_cast<uint32_t>(network.nodes.size()));
+    for (const engine::NodeState &node : network.nodes) {
+        cdro_sog_node_t out{};
+        out.id = node.id;
+        out.flags = static_cast<uint8_t>((node.placed ? CDRO_SOG_NODE_PLACED : 0) |
+                                         (node.converged ? CDRO_SOG_NODE_CONVERGED : 0) |
+                                         (node.moving ? CDRO_SOG_NODE_MOVING : 0) | (node.fixed ? CDRO_SOG_NODE_FIXED : 0) |
+                                         (node.height_known ? CDRO_SOG_NODE_HEIGHT_KNOWN : 0));
+        out.x_mm = cdro_fixed_mm_from_m(node.position_m.x());
+        out.y_mm = cdro_fixed_mm_from_m(node.position_m.y());
+        out.z_mm = cdro_fixed_mm_from_m(node.height_m);
+        const cdro_fixed_covariance_t covariance = cdro_fixed_covariance_from(
+            node.covariance_m2(0, 0), node.covariance_m2(0, 1), node.covariance_m2(1, 1));
+        out.std_x_um = covariance.std_x_um;
+        out.std_y_um = covariance.std_y_um;
+        out.correlation_q15 = covariance.correlation_q15;
+        out.average_x_mm = cdro_fixed_mm_from_m(node.average_m.x());
+        out.average_y_mm = cdro_fixed_mm_from_m(node.average_m.y());
+        out.merge_count = saturate16(node.update_count);
+        snapshot.nodes.push_back(out);
+        block.u16(node.id);
+        block.u32(node.still_updates);
+        block.u32(node.placements);
+        block.u32(node.update_count);
+    }
+    block.u32(static_cast<uint32_t>(network.links.size()));
+    for (const engine::LinkState &link : network.links) {
+        block.u16(network.nodes[link.node_a].id);
+        block.u16(network.nodes[link.node_b].id);
+        block.u32(link.range_count);
+        block.u32(mmOfRange(link.last_range_m));
+        block.u16(cdro_fixed_q16_from(link.inlier_probability));
+        const std::vector<double> window = link.window.values();
+        block.u8(static_cast<uint8_t>(window.size()));
+        for (double value : window) {
+            block.u32(mmOfRange(value));
+        }
+    }
+    uint32_t rings = 0;
+    for (const engine::RingSog &ring : engine.rings()) {
+        rings += ring.empty() ? 0U : 1U;
+    }
+    block.u32(rings);
+    for (const engine::RingSog &ring : engine.rings()) {
+        if (ring.empty()) {
+            continue;
+        }
+        service::SogSnapshot::Pair pair;
+        pair.pair.center_id = ring.center();
+        pair.pair.target_id = ring.target();
+        const uint32_t center = network.findNode(ring.center());
+        const uint32_t target = network.findNode(ring.target());
+        const uint32_t link = network.findLink(center, target);
+        pair.pair.last_range_mm = mmOfRange(network.links[link].representative_m);
+        pair.pair.range_count = saturate16(network.links[link].range_count);
+        for (const engine::SogComponentState &component : ring.components()) {
+            cdro_sog_component_t out{};
+            out.x_mm = cdro_fixed_mm_from_m(component.mean_m.x());
+            out.y_mm = cdro_fixed_mm_from_m(component.mean_m.y());
+            const cdro_fixed_covariance_t covariance = cdro_fixed_covariance_from(
+                component.covariance_m2(0, 0), component.covariance_m2(0, 1), component.covariance_m2(1, 1));
+            out.std_x_um = covariance.std_x_um;
+            out.std_y_um = covariance.std_y_um;
+            out.correlation_q15 = covariance.correlation_q15;
+            out.weight_q16 = cdro_fixed_q16_from(component.weight);
+            pair.components.push_back(out);
+        }
+        snapshot.pairs.push_back(std::move(pair));
+        block.u32(ring.updateCount());
+    }
+    block.u64(engine.reinitLinkCount());
+    block.u64(engine.rangesSinceNewLink());
+    engine::EngineCounters counters = engine.counters();
+    const std::vector<uint64_t *> fields = counterFields(counters);
+    block.u8(static_cast<uint8_t>(fields.size()));
+    for (uint64_t *field : fields) {
+        block.u64(*field);
+    }
+    snapshot.extensions.push_back({kEngineExtensionTag, block.take()});
+    return snapshot;
+}
+
+void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
+{
+    const service::SogSnapshot::Extension *extension = snapshot.findExtension(kEngineExtensionTag);
+    if (extension == nullptr) {
+        throw CheckpointError("the checkpoint has no engine block (tag 0x0001): not written by cdro-hostd");
+    }
+    ByteReader block(extension->bytes);
+    if (block.u8() != kEngineBlockVersion) {
+        throw CheckpointError("the checkpoint's engine block is of another version");
+    }
+    engine::Engine::RestoredState state;
+    const bool has_frame = block.u8() != 0;
+    std::array<engine::NodeId, 3> frame{};
+    for (size_t i = 0; i < 3; ++i) {
+        frame[i] = block.u16();
+    }
+    if (has_frame) {
+        state.frame_nodes = frame;
+    }
+    const uint32_t node_count = block.u32();
+    if (node_count != snapshot.nodes.size()) {
+        throw CheckpointError("the checkpoint's engine block names " + std::to_string(node_count) + " nodes, the map " +
+                              std::to_string(snapshot.nodes.size()));
+    }
+    for (const cdro_sog_node_t &in : snapshot.nodes) {
+        engine::NodeState node;
+        node.id = in.id;
+        if (block.u16() != in.id) {
+            throw CheckpointError("the checkpoint's engine block lists the nodes in another order");
+        }
+        node.still_updates = block.u32();
+        node.placements = block.u32();
+        node.update_count = block.u32();
+        node.placed = (in.flags & CDRO_SOG_NODE_PLACED) != 0;
+        node.converged = (in.flags & CDRO_SOG_NODE_CONVERGED) != 0;
+        node.moving = (in.flags & CDRO_SOG_NODE_MOVING) != 0;
+        node.fixed = (in.flags & CDRO_SOG_NODE_FIXED) != 0;
+        node.height_known = (in.flags & CDRO_SOG_NODE_HEIGHT_KNOWN) != 0;
+        node.height_m = cdro_fixed_mm_to_m(in.z_mm);
+        node.position_m = engine::Vector2(cdro_fixed_mm_to_m(in.x_mm), cdro_fixed_mm_to_m(in.y_mm));
+        node.average_m = engine::Vector2(cdro_fixed_mm_to_m(in.average_x_mm), cdro_fixed_mm_to_m(in.average_y_mm));
+        node.covariance_m2 = covarianceOf({in.std_x_um, in.std_y_um, in.correlation_q15});
+        state.nodes.push_back(node);
+    }
+    const uint32_t link_count = block.u32();
+    for (uint32_t i = 0; i < link_count; ++i) {
+        engine::Engine::RestoredLink link;
+        link.a = block.u16();
+        link.b = block.u16();
+        link.range_count = block.u32();
+        link.last_range_m = block.u32() / 1000.0;
+        link.inlier_probability = cdro_fixed_q16_to(block.u16());
+        const uint8_t size = block.u8();
+        for (uint8_t k = 0; k < size; ++k) {
+            link.window_m.push_back(block.u32() / 1000.0);
+        }
+        state.links.push_back(std::move(link));
+    }
+    const uint32_t ring_count = block.u32();
+    if (ring_count != snapshot.pairs.size()) {
+        throw CheckpointError("the checkpoint's engine block names " + std::to_string(ring_count) + " SoGs, the map " +
+                              std::to_string(snapshot.pairs.size()));
+    }
+    for (const service::SogSnapshot::Pair &pair : snapshot.pairs) {
+        std::vector<engine::SogComponentState> components;
+        for (const cdro_sog_component_t &in : pair.components) {
+            engine::SogComponentState component;
+            component.mean_m = engine::Vector2(cdro_fixed_mm_to_m(in.x_mm), cdro_fixed_mm_to_m(in.y_mm));
+            component.covariance_m2 = covarianceOf({in.std_x_um, in.std_y_um, in.correlation_q15});
+            component.weight = cdro_fixed_q16_to(in.weight_q16);
+            components.push_back(component);
+        }
+        engine::RingSog ring;
+        ring.setIdentity(pair.pair.center_id, pair.pair.target_id);
+        const size_t count = std::max<size_t>(components.size(), 1U);
+        ring.setWeightFloor(std::min(engine.params().ring.weight_floor, 0.1 / static_cast<double>(count)));
+        ring.setComponents(components);
+        ring.setUpdateCount(block.u32());
+        state.rings.push_back(std::move(ring));
+    }
+    state.reinit_link_count = block.u64();
+    state.ranges_since_new_link = block.u64();
+    std::vector<uint64_t *> fields = counterFields(state.counters);
+    const uint8_t stored = block.u8();
+    for (uint8_t i = 0; i < stored; ++i) {
+        const uint64_t value = block.u64();
+        if (i < fields.size()) {
+            *fields[i] = value;
+        }
+    }
+    if (!block.done()) {
+        throw CheckpointError("the checkpoint's engine block has bytes after its end");
+    }
+    try {
+        engine.restore(state);
+    } catch (const std::invalid_argument &error) {
+        throw CheckpointError(std::string("the checkpoint does not describe a consistent map: ") + error.what());
+    }
+}
+
+} // namespace cdro::hostd

@@ -1,0 +1,142 @@
+// cdro-hostd: the CDRO-SLAM service next to the robot.
+//
+//   cdro-hostd [--config FILE] [service options]           serial link (or --replay FILE)
+//   cdro-hostd --ranges-csv FILE ... --out-csv OUT          offline (offline.hpp)
+//   cdro-hostd --print-config [--config FILE] [--set ...]   the engine settings in effect
+//
+// docs/service.md documents the service, docs/engine.md the engine and its parameters.
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include <CLI/CLI.hpp>
+#include <yaml-cpp/yaml.h>
+
+#include "cdro/engine/engine.hpp"
+#include "cdro/hostd/engine_adapter.hpp"
+#include "cdro/hostd/engine_config.hpp"
+#include "cdro/hostd/offline.hpp"
+#include "cdro/hostd/progress.hpp"
+#include "cdro/service/config_cli.hpp"
+#include "cdro/service/log.hpp"
+#include "cdro/service/service.hpp"
+
+namespace {
+
+using cdro::service::ConfigError;
+
+// The YAML document of --config with the --set settings applied, and the text the service's
+// parser reads (the file's own text when nothing was set, so its messages name real lines).
+struct ConfigDocument {
+    YAML::Node root;
+    std::string service_text;
+    std::string origin;
+};
+
+ConfigDocument loadDocument(const std::string &path, const std::vector<std::string> &sets)
+{
+    ConfigDocument document;
+    document.origin = path.empty() ? "<defaults>" : path;
+    if (!path.empty()) {
+        std::ifstream in(path, std::ios::binary);
+        if (!in) {
+            throw ConfigError(path + ": cannot read the configuration file");
+        }
+        std::ostringstream text;
+        text << in.rdbuf();
+        document.service_text = text.str();
+        try {
+            document.root = YAML::Load(document.service_text);
+        } catch (const YAML::Exception &error) {
+            throw ConfigError(path + ": not valid YAML: " + error.what());
+        }
+    }
+    if (!sets.empty()) {
+        cdro::hostd::applySettings(document.root, sets);
+        YAML::Emitter out;
+        out << document.root;
+        document.service_text = out.c_str();
+        document.origin += " + --set";
+    }
+    return document;
+}
+
+} // namespace
+
+int main(int argc, char **argv)
+{
+    CLI::App app{"cdro-hostd: cooperative range-only SLAM for Pozyx UWB networks.\n\n"
+                 "Live:     cdro-hostd --config config/cdro-hostd.example.yaml --device /dev/ttyACM0\n"
+                 "Replay:   cdro-hostd --replay run.cdrocap --speed max --jsonl out/estimates.jsonl\n"
+                 "Offline:  cdro-hostd --ranges-csv ../shared/data/plant/ranges.csv \\\n"
+                 "              --heights-csv ../shared/data/plant/nodes.csv --out-csv out/plant.csv\n"};
+    app.set_version_flag("--version", "cdro-hostd 0.1.0");
+    cdro::service::ServiceOverrides service_overrides;
+    cdro::service::addServiceOptions(app, service_overrides);
+    cdro::hostd::EngineOverrides engine_overrides;
+    cdro::hostd::addEngineOptions(app, engine_overrides);
+
+    cdro::hostd::OfflineOptions offline;
+    auto *ranges_option = app.add_option("--ranges-csv", offline.ranges_csv,
+                                         "offline: ranges [t,]from,to,range_m in file order (m)");
+    app.add_option("--heights-csv", offline.heights_csv, "offline: known heights id,z (m)")->needs(ranges_option);
+    app.add_option("--fixed-csv", offline.fixed_csv, "offline: known coordinates id,x,y (m)")->needs(ranges_option);
+    app.add_option("--out-csv", offline.out_csv, "offline: estimates id,x,y,var_x,cov_xy,var_y,converged")
+        ->needs(ranges_option);
+    app.add_option("--trace-csv", offline.trace_csv, "offline: every node's estimate every --trace-every ranges")
+        ->needs(ranges_option);
+    app.add_option("--trace-every", offline.trace_every, "offline: ranges between trace snapshots (default 10)")
+        ->needs(ranges_option);
+    bool no_settle = false;
+    app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")->needs(ranges_option);
+    bool print_config = false;
+    app.add_flag("--print-config", print_config, "print the engine settings in effect (YAML) and exit");
+    bool progress = false;
+    app.add_flag("--progress", progress, "a progress line on stderr every second (link, frames, map)");
+    CLI11_PARSE(app, argc, argv);
+
+    try {
+        const ConfigDocument document = loadDocument(service_overrides.config_path, engine_overrides.sets);
+        cdro::hostd::EngineOverrides switches = engine_overrides;
+        switches.sets.clear(); // already in the document
+        cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);
+        if (switches.no_weight_transfer) params.sog.weight_transfer = false;
+        if (switches.no_cooperative) params.sog.cooperative = false;
+        if (switches.no_refinement) params.refinement.enabled = false;
+        if (print_config) {
+            std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
+            return 0;
+        }
+        if (!offline.ranges_csv.empty()) {
+            if (offline.out_csv.empty()) {
+                std::fprintf(stderr, "cdro-hostd: --ranges-csv needs --out-csv\n");
+                return 2;
+            }
+            offline.settle = !no_settle;
+            return cdro::hostd::runOffline(offline, params, stderr);
+        }
+
+        cdro::service::ServiceConfig config = document.service_text.empty()
+                                                  ? cdro::service::ServiceConfig{}
+                                                  : cdro::service::parseServiceConfig(document.service_text, document.origin);
+        cdro::service::applyOverrides(config, service_overrides);
+        cdro::service::setupLogging(config.logging);
+        cdro::engine::Engine engine(params);
+        engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
+        cdro::hostd::EngineAdapter adapter(engine);
+        cdro::service::SystemClock clock;
+        cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter}, clock);
+        service.start();
+        if (!service.liveMapUrl().empty()) {
+            std::fprintf(stderr, "cdro-hostd: live map: %s\n", service.liveMapUrl().c_str());
+        }
+        std::unique_ptr<cdro::hostd::ProgressLine> line;
+        if (progress) {
+            line = std::make_unique<cdro::hostd::ProgressLine>(service, engine, stderr);
+        }
+        return service.run();
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-hostd: %s\n", error.what());
+        return 2;
+    }
+}

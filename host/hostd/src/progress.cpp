@@ -1,0 +1,39 @@
+#include "cdro/hostd/progress.hpp"
+
+namespace cdro::hostd {
+
+namespace {
+constexpr int64_t kPeriodUs = 1'000'000; // us
+} // namespace
+
+ProgressLine::ProgressLine(service::Service &service, const engine::Engine &engine, std::FILE *out)
+    : service_(service), engine_(engine), out_(out)
+{
+    service_.loop().addTimerAfter(kPeriodUs, [this] { tick(); });
+}
+
+void ProgressLine::tick()
+{
+    const service::ServiceCounters &c = service_.counters();
+    size_t nodes = 0;
+    size_t placed = 0;
+    size_t converged = 0;
+    for (const engine::NodeOutput &node : engine_.estimates()) {
+        if (node.link_count == 0) {
+            continue;
+        }
+        ++nodes;
+        placed += node.placed ? 1U : 0U;
+        converged += node.converged ? 1U : 0U;
+    }
+    std::fprintf(out_,
+                 "cdro-hostd: %s | frames %llu good, %llu rejected, %llu lost | ranges %llu used | "
+                 "nodes %zu: %zu placed, %zu converged\n",
+                 service::linkStateName(service_.linkState()), static_cast<unsigned long long>(c.frames_ok),
+                 static_cast<unsigned long long>(c.chunks_rejected), static_cast<unsigned long long>(c.frames_lost),
+                 static_cast<unsigned long long>(engine_.counters().ranges_used), nodes, placed, converged);
+    std::fflush(out_);
+    service_.loop().addTimerAfter(kPeriodUs, [this] { tick(); });
+}
+
+} // namespace cdro::hostd
