@@ -87,10 +87,120 @@ void Engine::applyFixedNodes()
 
 void Engine::setMoving(NodeId id, bool moving)
 {
-    NodeState &state = network_.nodes[nodeIndex(id)];
-    if (state.moving != moving) {
-        state.moving = moving;
-        ++revision_;
+    const uint32_t node = nodeIndex(id);
+    network_.nodes[node].motion_reported = true;
+    applyMotion(node, moving);
+}
+
+void Engine::applyMotion(uint32_t node, bool moving)
+{
+    NodeState &state = network_.nodes[node];
+    if (state.moving == moving) {
+        return;
+    }
+    state.moving = moving;
+    state.motion_inferred = false;
+    ++revision_;
+    if (!params_.motion.reset) {
+        return; // the ablation: the flag is shown, the node is handled as static
+    }
+    moving ? ++counters_.motion_starts : ++counters_.motion_stops;
+    trace("node " + std::to_string(state.id) + (moving ? " moves" : " stopped"));
+    state.converged = false;
+    state.still_updates = 0;
+    state.track_anchor_m = state.position_m;
+    state.track_updates = 0;
+    state.recent_count = 0;
+    for (uint32_t link : state.links) {
+        // Ranges from before the change describe another place: start the links afresh.
+        network_.links[link].window.clear();
+        // The SoGs centred on the node describe its neighbours from where it was.
+        uint32_t &slot = ringSlot(link, node);
+        if (slot != kNoIndex) {
+            rings_[slot] = RingSog{};
+            free_rings_.push_back(slot);
+            slot = kNoIndex;
+        }
+    }
+    if (!moving && state.placed) {
+        ensureRings(node); // generated again around where it stopped
+    }
+    // Neighbours lose (or regain) an anchor.
+    enqueueNeighbours(node);
+}
+
+void Engine::refreshLinkRange(uint32_t link)
+{
+    LinkState &state = network_.links[link];
+    const bool tracking = params_.motion.reset &&
+                          (network_.nodes[state.node_a].moving || network_.nodes[state.node_b].moving);
+    // A moving end makes old ranges wrong: its link's range is the newest one.
+    state.representative_m = tracking ? state.window.newest() : state.window.median();
+}
+
+void Engine::pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2)
+{
+    const uint32_t node = nodeIndex(id);
+    NodeState &state = network_.nodes[node];
+    const Vector2 delta = position_m - state.position_m;
+    const bool was_placed = state.placed;
+    state.pinned = true;
+    state.placed = true;
+    state.position_m = position_m;
+    state.covariance_m2 = covariance_m2;
+    if (was_placed) {
+        for (uint32_t link : state.links) {
+            const uint32_t slot = ringSlot(link, node);
+            if (slot != kNoIndex) {
+                rings_[slot].translate(delta);
+            }
+        }
+    } else {
+        ensureRings(node);
+    }
+    ++revision_;
+}
+
+void Engine::unpinNode(NodeId id)
+{
+    const uint32_t node = network_.findNode(id);
+    if (node != kNoIndex && network_.nodes[node].pinned) {
+        network_.nodes[node].pinned = false;
+        enqueue(node);
+    }
+}
+
+void Engine::watchForMotion(uint32_t node, uint32_t link, double residual_m)
+{
+    // The fallback detector: a node that has no motion reports moves when several of its
+    // recent ranges, on different links, read far from the map (one NLOS link reads far on
+    // one link only).
+    NodeState &state = network_.nodes[node];
+    const MotionParams &motion = params_.motion;
+    if (!motion.reset || !motion.infer_from_ranges || state.motion_reported || state.moving || state.fixed) {
+        return;
+    }
+    const uint32_t window = std::clamp<uint32_t>(motion.inferred_window, 1U, NodeState::kRecentRanges);
+    state.recent_links[state.recent_next] = link;
+    state.recent_large[state.recent_next] = std::abs(residual_m) > motion.inferred_residual_m;
+    state.recent_next = (state.recent_next + 1) % window;
+    state.recent_count = std::min(state.recent_count + 1, window);
+    uint32_t large = 0;
+    std::vector<uint32_t> large_links;
+    for (uint32_t i = 0; i < state.recent_count; ++i) {
+        if (state.recent_large[i]) {
+            ++large;
+            if (std::find(large_links.begin(), large_links.end(), state.recent_links[i]) == large_links.end()) {
+                large_links.push_back(state.recent_links[i]);
+            }
+        }
+    }
+    if (large >= motion.inferred_min_large && large_links.size() >= motion.inferred_min_links) {
+        ++counters_.motion_inferred;
+        trace("node " + std::to_string(state.id) + ": " + std::to_string(large) + " of its last " +
+              std::to_string(state.recent_count) + " ranges read far from the map: taken as moving");
+        applyMotion(node, true);
+        state.motion_inferred = true;
     }
 }
 
@@ -118,10 +228,24 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m)
     const size_t links_before = network_.links.size();
     const uint32_t link = network_.addLink(a, b, params_.range.window);
     LinkState &state = network_.links[link];
+    // How far this range is from the link's own recent ranges (a static NLOS link reads long
+    // but consistently; a node that moves reads differently from before).
+    const double jump_m = state.window.size() > 0 ? planar_m - state.window.median() : 0.0;
     state.window.push(planar_m);
-    state.representative_m = state.window.median();
+    refreshLinkRange(link);
     state.last_range_m = range_m;
     ++state.range_count;
+    // The map is only a reference for motion once both ends have converged on it.
+    const NodeState &end_a = network_.nodes[a];
+    const NodeState &end_b = network_.nodes[b];
+    if (end_a.placed && end_b.placed && (end_a.converged || end_a.pinned || end_a.fixed) &&
+        (end_b.converged || end_b.pinned || end_b.fixed) && !end_a.moving && !end_b.moving) {
+        const double residual = planar_m - (end_a.position_m - end_b.position_m).norm();
+        // Far from the map and from the link's own history: something moved.
+        const double evidence = std::abs(jump_m) < std::abs(residual) ? jump_m : residual;
+        watchForMotion(a, link, evidence);
+        watchForMotion(b, link, evidence);
+    }
     const ReinitializationParams &again = params_.reinitialization;
     if (network_.links.size() != links_before) {
         ranges_since_new_link_ = 0;
@@ -458,7 +582,32 @@ void Engine::updateRing(uint32_t link, uint32_t center_node, double range_m)
 {
     const uint32_t target_node = network_.otherNode(link, center_node);
     const NodeState &center = network_.nodes[center_node];
-    if (network_.nodes[target_node].fixed) {
+    const NodeState &target = network_.nodes[target_node];
+    if (target.fixed || target.pinned) {
+        return;
+    }
+    const bool tracking = params_.motion.reset;
+    if (tracking && center.moving) {
+        return; // a moving node describes nobody; its SoGs come back when it stops
+    }
+    if (tracking && target.moving) {
+        // Paper Fig. 4(a): the new range resets the SoG around the ranging neighbour; the other
+        // neighbours' latest ranges weight it (4(b)).
+        uint32_t &slot = ringSlot(link, center_node);
+        RingSog ring = RingSog::generate(center.id, target.id, center.position_m, network_.links[link].representative_m,
+                                         params_.ring);
+        if (slot == kNoIndex) {
+            if (!free_rings_.empty()) {
+                slot = free_rings_.back();
+                free_rings_.pop_back();
+            } else {
+                slot = static_cast<uint32_t>(rings_.size());
+                rings_.emplace_back();
+            }
+        }
+        rings_[slot] = std::move(ring);
+        ++counters_.motion_resets;
+        reweightRing(link, center_node, range_m, true);
         return;
     }
     if (ringSlot(link, center_node) == kNoIndex) {
@@ -497,7 +646,7 @@ void Engine::reweightRing(uint32_t link, uint32_t center_node, double own_range_
         // from m; the components that agree gain weight.
         for (uint32_t other_link : target.links) {
             const uint32_t other = network_.otherNode(other_link, target_node);
-            if (other == center_node || !network_.nodes[other].placed) {
+            if (other == center_node || !network_.nodes[other].placed || network_.nodes[other].moving) {
                 continue;
             }
             const NodeState &witness = network_.nodes[other];
@@ -537,7 +686,7 @@ Gaussian2 Engine::mergeRings(uint32_t node, uint32_t *ring_count) const
         const uint32_t other = network_.otherNode(link, node);
         const LinkState &link_state = network_.links[link];
         const uint32_t slot = link_state.node_a == other ? link_state.ring_from_a : link_state.ring_from_b;
-        if (slot == kNoIndex || rings_[slot].empty()) {
+        if (slot == kNoIndex || rings_[slot].empty() || network_.nodes[other].moving) {
             continue;
         }
         rings_[slot].accumulateMoments(&first, &second, &total);
@@ -555,10 +704,11 @@ Gaussian2 Engine::mergeRings(uint32_t node, uint32_t *ring_count) const
 void Engine::updateNode(uint32_t node, bool after_range)
 {
     NodeState &state = network_.nodes[node];
-    if (!state.placed || state.fixed) {
+    if (!state.placed || state.fixed || state.pinned) {
         return;
     }
     ++counters_.node_updates;
+    const bool tracked = state.moving && params_.motion.reset;
     if (!after_range && !params_.refinement.enabled) {
         // Without refinement the merged SoG is the estimate: a neighbour update repeats the
         // paper's iteration (weights from the other nodes' ranges, transfer) before merging.
@@ -608,7 +758,7 @@ void Engine::updateNode(uint32_t node, bool after_range)
                     ++inconsistent;
                 }
             }
-            replace = inconsistent >= 2 &&
+            replace = !tracked && inconsistent >= 2 &&
                       static_cast<double>(inconsistent) >
                           params_.refinement.inconsistent_fraction * static_cast<double>(constraints.size()) &&
                       state.placements < params_.refinement.max_placements;
@@ -639,6 +789,24 @@ void Engine::updateNode(uint32_t node, bool after_range)
                 rings_[slot].translate(delta);
             }
         }
+    }
+    if (tracked) {
+        // No convergence while it moves; an inferred motion ends when the track stands still.
+        state.converged = false;
+        state.still_updates = 0;
+        state.average_m = state.position_m;
+        if (state.motion_inferred && ++state.track_updates >= params_.motion.inferred_still_updates) {
+            const bool still = (state.position_m - state.track_anchor_m).norm() < params_.motion.inferred_still_m;
+            state.track_anchor_m = state.position_m;
+            state.track_updates = 0;
+            if (still) {
+                applyMotion(node, false);
+            }
+        }
+        if (changed) {
+            ++revision_;
+        }
+        return; // the neighbours do not lean on a moving node
     }
     updateConvergence(state);
     if (changed) {
@@ -678,7 +846,8 @@ void Engine::updateConvergence(NodeState &state)
 
 void Engine::enqueue(uint32_t node)
 {
-    if (!in_relax_queue_[node] && network_.nodes[node].placed && !network_.nodes[node].fixed) {
+    if (!in_relax_queue_[node] && network_.nodes[node].placed && !network_.nodes[node].fixed &&
+        !network_.nodes[node].pinned) {
         in_relax_queue_[node] = true;
         relax_queue_.push_back(node);
     }

@@ -14,7 +14,8 @@ std::vector<RangeConstraint> placedConstraints(const Network &network, uint32_t 
     constraints.reserve(state.links.size());
     for (uint32_t link : state.links) {
         const NodeState &other = network.nodes[network.otherNode(link, node)];
-        if (!other.placed) {
+        // A moving node is tracked by the others, never an anchor for them.
+        if (!other.placed || other.moving) {
             continue;
         }
         RangeConstraint constraint;

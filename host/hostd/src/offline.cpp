@@ -141,14 +141,16 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         std::fprintf(log,
                      "cdro-hostd: %zu nodes placed, %zu converged, %zu links; NLOS handling: %llu EKF updates gated, "
                      "%llu weight terms down-weighted, %llu refinement links down-weighted; %llu re-placements, "
-                     "%llu initializations (%llu adopted), %llu settle updates\n",
+                     "%llu initializations (%llu adopted), %llu settle updates; motion: %llu starts (%llu inferred from "
+                     "ranges), %llu stops\n",
                      placed, converged, engine.network().links.size(), static_cast<unsigned long long>(c.ekf_gated),
                      static_cast<unsigned long long>(c.weight_terms_downweighted),
                      static_cast<unsigned long long>(c.refinement_links_downweighted),
                      static_cast<unsigned long long>(c.replacements),
                      static_cast<unsigned long long>(c.reinitializations),
                      static_cast<unsigned long long>(c.reinitializations_adopted),
-                     static_cast<unsigned long long>(settled));
+                     static_cast<unsigned long long>(settled), static_cast<unsigned long long>(c.motion_starts),
+                     static_cast<unsigned long long>(c.motion_inferred), static_cast<unsigned long long>(c.motion_stops));
         return 0;
     } catch (const CsvError &error) {
         std::fprintf(log, "cdro-hostd: %s\n", error.what());

@@ -70,6 +70,10 @@ struct EngineCounters {
     uint64_t relaxations = 0;                // neighbour updates (step 5)
     uint64_t reinitializations = 0;          // initializations run again on all links
     uint64_t reinitializations_adopted = 0;  // ... whose map replaced the current one
+    uint64_t motion_starts = 0;              // nodes that started moving (reported or inferred)
+    uint64_t motion_stops = 0;
+    uint64_t motion_inferred = 0;            // ... of the starts, found by the range detector
+    uint64_t motion_resets = 0;              // SoGs reset by a range to a moving node (Fig. 4)
 };
 
 // A node's estimate in the output frame.
@@ -116,8 +120,13 @@ public:
     // One range between two nodes, as measured (3D, m).
     RangeVerdict addRange(NodeId from, NodeId to, double range_m);
 
-    // Marks a node moving or still (stage 2 builds on this).
+    // A motion report (MOTION frame, motion CSV): the node is moving or still (params.motion).
     void setMoving(NodeId id, bool moving);
+
+    // The movement stage's EKF owns this node's position: here it is an anchor at that position
+    // (not refined, not placed again) until unpinned.
+    void pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2);
+    void unpinNode(NodeId id);
 
     // Updates neighbours until no node moves more than refinement.relax_threshold_m, or
     // max_updates were made (after running the initialization again if links appeared since
@@ -186,6 +195,9 @@ private:
     uint32_t nodeIndex(NodeId id);
     void runPlacement();
     void applyFixedNodes();
+    void applyMotion(uint32_t node, bool moving);
+    void refreshLinkRange(uint32_t link);
+    void watchForMotion(uint32_t node, uint32_t link, double residual_m);
     std::unique_ptr<Engine> unplacedCopy() const;
     bool placeFromMds();
     void sweep(uint32_t sweeps, bool anneal);

@@ -41,7 +41,10 @@ struct NodeState {
     bool placed = false;            // has a position in the engine frame
     bool fixed = false;             // known coordinates, never updated
     bool height_known = false;
-    bool moving = false;            // reported moving (MOTION frames or the motion CSV)
+    bool moving = false;            // moving: tracked, not an anchor for others (paper Fig. 4)
+    bool motion_reported = false;   // motion comes from reports (MOTION frames, the motion CSV)
+    bool motion_inferred = false;   // moving because its ranges jumped (no reports for it)
+    bool pinned = false;            // position owned by the movement stage's EKF: an anchor here
     bool converged = false;
     double height_m = 0.0;          // m, meaningful when height_known
     Vector2 position_m = Vector2::Zero();        // m, engine frame
@@ -51,6 +54,15 @@ struct NodeState {
     uint32_t update_count = 0;      // merges/refinements since placed (saturating)
     uint32_t placements = 0;        // times placed (re-placements after an inconsistency count)
     std::vector<uint32_t> links;    // indices into Network::links, in order of appearance
+    // The fallback motion detector's memory: the last ranges of this node, whether each read
+    // far from the map, and on which link.
+    static constexpr uint32_t kRecentRanges = 16;
+    std::array<uint32_t, kRecentRanges> recent_links{};
+    std::array<bool, kRecentRanges> recent_large{};
+    uint32_t recent_count = 0;
+    uint32_t recent_next = 0;
+    Vector2 track_anchor_m = Vector2::Zero(); // m, where an inferred-moving node was N updates ago
+    uint32_t track_updates = 0;
 };
 
 struct LinkState {

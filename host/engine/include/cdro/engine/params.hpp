@@ -60,6 +60,25 @@ struct ReinitializationParams {
     double min_gain_nats = 1.0;    // nats, how much cheaper the new map must be
 };
 
+// Moving nodes (paper Fig. 4): a node reported moving stops being an anchor for the others; every
+// new range to it resets the SoG centred on the ranging neighbour (eq. 5-7 around that
+// neighbour, with this range), which is weighted by the other neighbours' latest ranges and
+// merged, and the estimate is refined against the latest ranges; its links use their newest
+// range instead of a median. When it stops, its links start fresh, the SoGs centred on it are
+// generated again, and it converges again. Nodes without accelerometer reports are watched by a
+// fallback detector on range residuals.
+struct MotionParams {
+    bool reset = true;                 // false: --no-motion-reset, moving nodes handled as static
+    bool infer_from_ranges = true;     // the fallback detector for nodes without reports
+    double inferred_residual_m = 0.5;  // m, a range this far from the map and from its link's
+                                       // recent median is large
+    uint32_t inferred_window = 8;      // of the node's last ranges (<= 16) ...
+    uint32_t inferred_min_large = 4;   // ... this many large ones ...
+    uint32_t inferred_min_links = 2;   // ... on this many different links: the node moves
+    double inferred_still_m = 0.15;    // m, an inferred-moving node that moved less than this ...
+    uint32_t inferred_still_updates = 12; // ... over this many updates has stopped
+};
+
 struct ConvergenceParams {
     double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;        // m, step of the moving average under which a node is still
@@ -81,6 +100,7 @@ struct EngineParams {
     PlacementParams placement;
     RefinementParams refinement;
     ReinitializationParams reinitialization;
+    MotionParams motion;
     ConvergenceParams convergence;
     FrameParams frame;
 };

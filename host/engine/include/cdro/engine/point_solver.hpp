@@ -25,7 +25,8 @@ struct RangeConstraint {
     uint32_t link = kNoIndex;                      // for the caller's bookkeeping
 };
 
-// The links of `node` to placed neighbours, as constraints (order of the node's links).
+// The links of `node` to placed neighbours that are not moving, as constraints (in the order
+// of the node's links).
 std::vector<RangeConstraint> placedConstraints(const Network &network, uint32_t node);
 
 struct PointSolution {
