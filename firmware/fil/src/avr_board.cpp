@@ -221,6 +221,7 @@ void AvrBoard::uartOutHook(avr_irq_t *, uint32_t value, void *param)
 {
     auto *board = static_cast<AvrBoard *>(param);
     ++board->tx_bytes_;
+    board->last_tx_byte_ = static_cast<uint8_t>(value);
     if (board->tx_sink_) {
         board->tx_sink_(static_cast<uint8_t>(value));
     }

@@ -61,6 +61,8 @@ class AvrBoard {
     size_t receivePending() const { return rx_queue_.size(); }
 
     uint64_t txBytes() const { return tx_bytes_; }
+    // True when the last byte sent was a frame delimiter (0x00), or nothing was sent yet.
+    bool txAtFrameBoundary() const { return tx_bytes_ == 0 || last_tx_byte_ == 0; }
     uint64_t rxBytes() const { return rx_bytes_; }
     // bit/s the firmware configured on UART0 (from UBRR0 and U2X0), 0 before it did.
     uint32_t uartBaud() const;
@@ -97,6 +99,7 @@ class AvrBoard {
     bool feeding_ = false;
     bool rx_fifo_full_ = false;
     uint64_t tx_bytes_ = 0, rx_bytes_ = 0, rx_waits_full_ = 0;
+    uint8_t last_tx_byte_ = 0;
 
     // main-loop watch
     uint32_t loop_pc_ = 0;

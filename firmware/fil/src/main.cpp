@@ -125,6 +125,16 @@ int run(const Options &options, int stdout_fd)
     if (options.duration_s >= 0.0) {
         scenario.duration_s = options.duration_s;
     }
+    if (!options.summary.empty()) {
+        // The summary is written at the end: find out now, not after the run, if it cannot be.
+        const std::string probe = options.summary + ".tmp";
+        std::FILE *out = std::fopen(probe.c_str(), "w");
+        if (out == nullptr) {
+            throw std::runtime_error(options.summary + ": cannot write the summary (" + std::strerror(errno) + ")");
+        }
+        std::fclose(out);
+        std::remove(probe.c_str());
+    }
     World world(scenario);
     if (options.trace_pozyx) {
         world.sim()->config.trace = &traceLine;
@@ -148,19 +158,28 @@ int run(const Options &options, int stdout_fd)
     }
 
     const uint64_t slice_us = 1000; // simulated time run between two looks at the wall clock
-    const uint64_t end_us = scenario.duration_s > 0.0 ? static_cast<uint64_t>(std::llround(scenario.duration_s * 1e6))
-                                                      : UINT64_MAX;
+    // The run stops at its duration (or at a signal), then runs on until the UART has sent a
+    // frame's last byte, so the host never gets a frame cut by the harness: at most one frame
+    // time at the link's rate (73 bytes, 6.2 ms), bounded here.
+    const uint64_t finish_limit_us = 100000;
+    uint64_t stop_us = scenario.duration_s > 0.0 ? static_cast<uint64_t>(std::llround(scenario.duration_s * 1e6))
+                                                 : UINT64_MAX - finish_limit_us;
     const auto start = std::chrono::steady_clock::now();
     uint64_t max_lag_us = 0;
     std::string exit_reason = "duration";
     AvrBoard::State state = AvrBoard::State::Running;
     uint8_t host_bytes[64];
-    while (board.nowUs() < end_us) {
-        if (g_stop_signal != 0) {
+    for (;;) {
+        if (g_stop_signal != 0 && exit_reason != "signal") {
             exit_reason = "signal";
+            stop_us = std::min(stop_us, board.nowUs());
+        }
+        if (board.nowUs() >= stop_us &&
+            (board.txAtFrameBoundary() || board.nowUs() >= stop_us + finish_limit_us)) {
             break;
         }
-        const uint64_t target_us = std::min(end_us, board.nowUs() + slice_us);
+        const uint64_t limit_us = board.nowUs() < stop_us ? stop_us : stop_us + finish_limit_us;
+        const uint64_t target_us = std::min(limit_us, board.nowUs() + slice_us);
         // Never ahead of the wall clock: the slice runs only once the wall clock has reached
         // its end. Meanwhile the host's bytes are taken in (a few at a time: the rest waits in
         // the terminal, as on the USB bridge, until the UART has taken these).
@@ -172,9 +191,12 @@ int run(const Options &options, int stdout_fd)
                 }
             }
             const uint64_t wall_us = wallUs(start);
-            if (wall_us >= target_us || g_stop_signal != 0) {
+            if (wall_us >= target_us) {
                 max_lag_us = std::max(max_lag_us, wall_us - target_us);
                 break;
+            }
+            if (g_stop_signal != 0) {
+                break; // ending: the last few milliseconds need not wait for the clock
             }
             const uint64_t wait_us = target_us - wall_us;
             pollfd p = {pty.masterFd(), board.receivePending() < sizeof host_bytes ? static_cast<short>(POLLIN) : short{0},
@@ -194,6 +216,7 @@ int run(const Options &options, int stdout_fd)
             break;
         }
     }
+    world.advance(board.nowUs()); // the network (and the truth file) up to the last cycle run
     const double wall_s = static_cast<double>(wallUs(start)) / 1e6;
     const bool drained = pty.drain(2000);
 
@@ -273,7 +296,12 @@ int main(int argc, char **argv)
     app.add_option("--loop-symbol", options.board.loop_symbol,
                    "function whose entries delimit main-loop iterations (default loop)");
     app.add_flag("--trace-pozyx", options.trace_pozyx, "log every simulated Pozyx call and event to stderr");
-    CLI11_PARSE(app, argc, argv);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError &error) {
+        // --help is a "parse error" with code 0; every real one is bad input: exit 2.
+        return app.exit(error) == 0 ? 0 : 2;
+    }
     options.board.elf_path = options.elf;
 
     // Anything a library prints on stdout would corrupt the summary: stdout is kept aside for
