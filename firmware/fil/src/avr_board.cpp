@@ -290,7 +290,7 @@ uint64_t AvrBoard::feedTimer(avr_t *, uint64_t when, void *param)
 void AvrBoard::onLoopEntry()
 {
     const uint64_t now = cycles();
-    if (loop_iterations_ > 0) {
+    if (loop_entered_) {
         const uint64_t length = now - last_loop_entry_;
         loop_cycles_total_ += length;
         if (length > worst_loop_cycles_) {
@@ -306,6 +306,7 @@ void AvrBoard::onLoopEntry()
         ++loop_histogram_[bucket];
     }
     last_loop_entry_ = now;
+    loop_entered_ = true;
     ++loop_iterations_;
 }
 
@@ -322,8 +323,8 @@ AvrBoard::State AvrBoard::runUntil(uint64_t until_cycles)
             onLoopEntry();
         } else if (avr_->pc == 0 && cycles() > 0) {
             ++resets_;
-            feeding_ = false; // a reset cancels every cycle timer, ours included
-            loop_iterations_ = 0;
+            feeding_ = false;       // a reset cancels every cycle timer, ours included
+            loop_entered_ = false;  // setup() runs again before the next iteration
             armFeed();
         }
         if (cycles() >= next_advance_) {
@@ -350,7 +351,7 @@ void AvrBoard::report(nlohmann::ordered_json &out) const
             histogram["<" + std::to_string(2ull << i) + "us"] = loop_histogram_[i];
         }
     }
-    const uint64_t measured = loop_iterations_ > 1 ? loop_iterations_ - 1 : 0;
+    const uint64_t measured = loop_iterations_ > resets_ + 1 ? loop_iterations_ - resets_ - 1 : 0;
     out["loop"] = {
         {"symbol", loop_symbol_},
         {"address", loop_pc_},

@@ -104,6 +104,7 @@ class AvrBoard {
     // main-loop watch
     uint32_t loop_pc_ = 0;
     uint64_t loop_iterations_ = 0;
+    bool loop_entered_ = false; // loop() was entered since the last reset
     uint64_t last_loop_entry_ = 0;
     uint64_t worst_loop_cycles_ = 0;
     uint64_t worst_loop_at_cycles_ = 0;
