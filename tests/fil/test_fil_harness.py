@@ -106,7 +106,7 @@ def test_handshake_commands_and_keepalive(run):
     health = last_connected_health(run)
     counters = health["counters"]
     assert counters["handshakes"] == 1
-    for name in ("nacks", "command_timeouts", "pings_missed", "hello_requests", "device_resets",
+    for name in ("nacks", "command_timeouts", "pings_missed", "device_resets",
                  "chunks_rejected", "frames_lost", "sequence_gaps", "unknown_node_frames", "value_errors"):
         assert counters[name] == 0, f"{name} = {counters[name]}"
     # Connected from the handshake until the simulation ended (then the port went away).
