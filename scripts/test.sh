@@ -4,7 +4,8 @@
 #   2. the same suites built with AddressSanitizer + UndefinedBehaviorSanitizer
 #   3. AVR cross builds with avr-gcc: the Uno image (with its flash/RAM budget) and the Mega image
 #   4. libFuzzer on the frame decoder: a short run with a fixed seed and a fixed number of inputs
-#   5. pytest: the Python tools and the end-to-end tests against the native build
+#   5. pytest: the Python tools, the end-to-end tests against the native build, and firmware in
+#      the loop (tests/fil: the Uno image of step 3 in simavr, cdro-fil of step 1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -44,6 +45,6 @@ fi
 grep -E "^Done [0-9]+ runs" build-fuzz/fuzz.log
 
 step "5/5 pytest"
-CDRO_BUILD_DIR="$PWD/build" .venv/bin/python -m pytest -q tests
+CDRO_BUILD_DIR="$PWD/build" CDRO_AVR_BUILD_DIR="$PWD/build-avr" .venv/bin/python -m pytest -q tests
 
 printf '\nAll tests passed.\n'

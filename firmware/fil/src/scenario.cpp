@@ -1,0 +1,417 @@
+#include "scenario.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include <yaml-cpp/yaml.h>
+
+#include "pozyx_sim/pozyx_sim.h"
+
+namespace cdro::fil {
+
+namespace {
+
+const char *const kFaultNames[kFaultKindCount] = {
+    "nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
+    "stale_range",  "drop_remote_reply", "refuse_function", "power_off"};
+
+std::string where(const YAML::Node &node, const std::string &origin)
+{
+    const YAML::Mark mark = node.Mark();
+    return mark.line < 0 ? origin : origin + ":" + std::to_string(mark.line + 1);
+}
+
+std::string text(const YAML::Node &node)
+{
+    return node.IsScalar() ? node.Scalar() : std::string(node.IsSequence() ? "a list" : "a map");
+}
+
+// A YAML map read key by key; finish() rejects the keys nobody asked for, so that a typo is an
+// error instead of a silent default.
+class Map {
+  public:
+    Map(const YAML::Node &node, std::string path, const std::string &origin)
+        : node_(node), path_(std::move(path)), origin_(origin)
+    {
+        if (!node_.IsMap()) {
+            throw ScenarioError(where(node_, origin_) + ": " + path_ + ": expected a map of keys, got " +
+                                text(node_));
+        }
+    }
+
+    [[noreturn]] void fail(const YAML::Node &at, const std::string &key, const std::string &message) const
+    {
+        throw ScenarioError(where(at, origin_) + ": " + path_ + (key.empty() ? "" : "." + key) + ": " + message);
+    }
+
+    YAML::Node get(const std::string &key)
+    {
+        used_.insert(key);
+        const YAML::Node &lookup = node_; // the const operator[] never adds the key
+        return lookup[key];
+    }
+
+    bool has(const std::string &key) const
+    {
+        const YAML::Node &lookup = node_;
+        return static_cast<bool>(lookup[key]);
+    }
+
+    double number(const std::string &key, double fallback, double minimum, double maximum, bool required = false)
+    {
+        const YAML::Node item = get(key);
+        if (!item) {
+            if (required) {
+                fail(node_, key, "missing");
+            }
+            return fallback;
+        }
+        double value = 0.0;
+        try {
+            value = item.as<double>();
+        } catch (const YAML::Exception &) {
+            fail(item, key, "expected a number, got '" + text(item) + "'");
+        }
+        if (!std::isfinite(value) || value < minimum || value > maximum) {
+            std::ostringstream message;
+            message << "must be between " << minimum << " and " << maximum << ", got " << text(item);
+            fail(item, key, message.str());
+        }
+        return value;
+    }
+
+    int64_t integer(const std::string &key, int64_t fallback, int64_t minimum, int64_t maximum, bool required = false)
+    {
+        const YAML::Node item = get(key);
+        if (!item) {
+            if (required) {
+                fail(node_, key, "missing");
+            }
+            return fallback;
+        }
+        return integerOf(item, key, minimum, maximum);
+    }
+
+    int64_t integerOf(const YAML::Node &item, const std::string &key, int64_t minimum, int64_t maximum) const
+    {
+        int64_t value = 0;
+        try {
+            value = item.as<int64_t>(); // decimal or 0x hex
+        } catch (const YAML::Exception &) {
+            fail(item, key, "expected an integer (decimal or 0x hex), got '" + text(item) + "'");
+        }
+        if (value < minimum || value > maximum) {
+            fail(item, key,
+                 "must be between " + std::to_string(minimum) + " and " + std::to_string(maximum) + ", got " +
+                     text(item));
+        }
+        return value;
+    }
+
+    bool boolean(const std::string &key, bool fallback)
+    {
+        const YAML::Node item = get(key);
+        if (!item) {
+            return fallback;
+        }
+        try {
+            return item.as<bool>();
+        } catch (const YAML::Exception &) {
+            fail(item, key, "expected true or false, got '" + text(item) + "'");
+        }
+    }
+
+    std::string string(const std::string &key, const std::string &fallback)
+    {
+        const YAML::Node item = get(key);
+        if (!item) {
+            return fallback;
+        }
+        if (!item.IsScalar()) {
+            fail(item, key, "expected a string");
+        }
+        return item.Scalar();
+    }
+
+    void finish() const
+    {
+        for (const auto &entry : node_) {
+            const std::string key = entry.first.as<std::string>();
+            if (used_.count(key) == 0) {
+                std::string known;
+                for (const std::string &k : used_) {
+                    known += (known.empty() ? "" : ", ") + k;
+                }
+                fail(entry.first, key, "unknown key (known here: " + known + ")");
+            }
+        }
+    }
+
+    const YAML::Node &node() const { return node_; }
+    const std::string &path() const { return path_; }
+
+  private:
+    YAML::Node node_;
+    std::string path_;
+    const std::string &origin_;
+    std::set<std::string> used_;
+};
+
+uint16_t nodeId(Map &map, const std::string &key, bool required)
+{
+    // 0 is not an address and 0xFFFF is the UWB broadcast (and the firmware's "no Pozyx" id).
+    return static_cast<uint16_t>(map.integer(key, 0, 1, 0xFFFE, required));
+}
+
+std::vector<Vec3> waypoints(Map &map, const std::string &key, double default_z_m)
+{
+    const YAML::Node list = map.get(key);
+    if (!list || !list.IsSequence() || list.size() == 0) {
+        map.fail(list ? list : map.node(), key, "expected a non-empty list of [x, y] or [x, y, z] points in metres");
+    }
+    std::vector<Vec3> points;
+    for (const YAML::Node &point : list) {
+        if (!point.IsSequence() || point.size() < 2 || point.size() > 3) {
+            map.fail(point, key, "each waypoint is [x, y] or [x, y, z] in metres, got " + text(point));
+        }
+        double v[3] = {0.0, 0.0, default_z_m};
+        for (size_t i = 0; i < point.size(); ++i) {
+            try {
+                v[i] = point[i].as<double>();
+            } catch (const YAML::Exception &) {
+                map.fail(point[i], key, "waypoint coordinate '" + text(point[i]) + "' is not a number");
+            }
+            if (!std::isfinite(v[i]) || std::fabs(v[i]) > 1000.0) {
+                map.fail(point[i], key, "waypoint coordinates must be within +-1000 m");
+            }
+        }
+        points.push_back({v[0], v[1], v[2]});
+    }
+    return points;
+}
+
+double pathLength(const Vec3 &from, const std::vector<Vec3> &points)
+{
+    double length_m = 0.0;
+    Vec3 at = from;
+    for (const Vec3 &p : points) {
+        length_m += std::sqrt((p.x_m - at.x_m) * (p.x_m - at.x_m) + (p.y_m - at.y_m) * (p.y_m - at.y_m) +
+                              (p.z_m - at.z_m) * (p.z_m - at.z_m));
+        at = p;
+    }
+    return length_m;
+}
+
+} // namespace
+
+const char *faultKindName(FaultKind kind)
+{
+    return kFaultNames[static_cast<int>(kind)];
+}
+
+const NodeSpec *Scenario::node(uint16_t id) const
+{
+    for (const NodeSpec &n : nodes) {
+        if (n.id == id) {
+            return &n;
+        }
+    }
+    return nullptr;
+}
+
+Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
+{
+    YAML::Node root;
+    try {
+        root = YAML::Load(yaml_text);
+    } catch (const YAML::Exception &error) {
+        throw ScenarioError(origin + ": not valid YAML: " + error.what());
+    }
+    if (!root || root.IsNull()) {
+        throw ScenarioError(origin + ": empty scenario");
+    }
+    Scenario s;
+    s.source = origin;
+    Map top(root, "scenario", origin);
+    s.name = top.string("name", "unnamed");
+    s.description = top.string("description", "");
+    s.seed = static_cast<uint64_t>(top.integer("seed", 1, 0, std::numeric_limits<int64_t>::max()));
+    s.duration_s = top.number("duration_s", 0.0, 0.0, 1e6);
+
+    // ---- nodes
+    const YAML::Node nodes = top.get("nodes");
+    if (!nodes || !nodes.IsSequence() || nodes.size() < 2) {
+        top.fail(nodes ? nodes : root, "nodes", "expected a list of at least 2 nodes (the shield's and remote ones)");
+    }
+    if (nodes.size() > POZYX_SIM_MAX_NODES) {
+        top.fail(nodes, "nodes", "at most " + std::to_string(POZYX_SIM_MAX_NODES) + " nodes, got " +
+                                     std::to_string(nodes.size()));
+    }
+    for (size_t i = 0; i < nodes.size(); ++i) {
+        Map n(nodes[i], "nodes[" + std::to_string(i) + "]", origin);
+        NodeSpec spec;
+        spec.id = nodeId(n, "id", true);
+        spec.tag = n.boolean("tag", false);
+        spec.position.x_m = n.number("x_m", 0.0, -1000.0, 1000.0, true);
+        spec.position.y_m = n.number("y_m", 0.0, -1000.0, 1000.0, true);
+        spec.position.z_m = n.number("z_m", 0.0, -1000.0, 1000.0);
+        n.finish();
+        if (s.node(spec.id) != nullptr) {
+            n.fail(nodes[i], "id", "node id " + std::to_string(spec.id) + " is listed twice");
+        }
+        s.nodes.push_back(spec);
+    }
+    s.own_id = nodeId(top, "own", true);
+    if (s.node(s.own_id) == nullptr) {
+        top.fail(top.get("own"), "own", "node " + std::to_string(s.own_id) + " is not in nodes");
+    }
+
+    // ---- motion
+    if (const YAML::Node motion = top.get("motion")) {
+        if (!motion.IsSequence()) {
+            top.fail(motion, "motion", "expected a list of carried stretches");
+        }
+        for (size_t i = 0; i < motion.size(); ++i) {
+            Map m(motion[i], "motion[" + std::to_string(i) + "]", origin);
+            MotionSpec spec;
+            spec.node = nodeId(m, "node", true);
+            const NodeSpec *node = s.node(spec.node);
+            if (node == nullptr) {
+                m.fail(m.get("node"), "node", "node " + std::to_string(spec.node) + " is not in nodes");
+            }
+            spec.start_s = m.number("start_s", 0.0, 0.0, 1e6, true);
+            spec.speed_mps = m.number("speed_mps", 1.0, 0.01, 20.0, true);
+            spec.waypoints = waypoints(m, "waypoints_m", node->position.z_m);
+            m.finish();
+            s.motion.push_back(spec);
+        }
+        // Stretches of one node must not overlap: each starts where the previous one ended.
+        for (const NodeSpec &node : s.nodes) {
+            std::vector<const MotionSpec *> mine;
+            for (const MotionSpec &m : s.motion) {
+                if (m.node == node.id) {
+                    mine.push_back(&m);
+                }
+            }
+            std::sort(mine.begin(), mine.end(), [](auto *a, auto *b) { return a->start_s < b->start_s; });
+            Vec3 at = node.position;
+            double free_s = 0.0;
+            for (const MotionSpec *m : mine) {
+                if (m->start_s < free_s) {
+                    throw ScenarioError(origin + ": motion: node " + std::to_string(node.id) +
+                                        " starts a stretch at " + std::to_string(m->start_s) +
+                                        " s before its previous one ends at " + std::to_string(free_s) + " s");
+                }
+                free_s = m->start_s + pathLength(at, m->waypoints) / m->speed_mps;
+                at = m->waypoints.back();
+            }
+        }
+    }
+
+    // ---- faults
+    if (const YAML::Node faults = top.get("faults")) {
+        if (!faults.IsSequence()) {
+            top.fail(faults, "faults", "expected a list of faults");
+        }
+        for (size_t i = 0; i < faults.size(); ++i) {
+            Map f(faults[i], "faults[" + std::to_string(i) + "]", origin);
+            FaultSpec spec;
+            const std::string kind = f.string("kind", "");
+            if (kind == "hang") {
+                f.fail(f.get("kind"), "kind",
+                       "'hang' cannot be simulated here: simavr's TWI completes every byte on its own timer, so a "
+                       "slave cannot hold the clock low (the native tests cover the hung bus)");
+            }
+            bool known = false;
+            for (int k = 0; k < kFaultKindCount; ++k) {
+                if (kind == kFaultNames[k]) {
+                    spec.kind = static_cast<FaultKind>(k);
+                    known = true;
+                }
+            }
+            if (!known) {
+                std::string names;
+                for (const char *name : kFaultNames) {
+                    names += (names.empty() ? "" : ", ") + std::string(name);
+                }
+                f.fail(f.has("kind") ? f.get("kind") : faults[i], "kind", "'" + kind + "' is not one of: " + names);
+            }
+            spec.at_s = f.number("at_s", 0.0, 0.0, 1e6, true);
+            if (spec.kind == FaultKind::PowerOff) {
+                spec.node = nodeId(f, "node", true);
+                if (s.node(spec.node) == nullptr) {
+                    f.fail(f.get("node"), "node", "node " + std::to_string(spec.node) + " is not in nodes");
+                }
+                spec.duration_s = f.number("duration_s", 0.0, 0.001, 1e6, true);
+                spec.count = 1;
+            } else {
+                spec.count = static_cast<uint32_t>(f.integer("count", 1, 1, 1000000));
+                if (spec.kind == FaultKind::ErrorCompletion) {
+                    spec.error_code = static_cast<uint8_t>(f.integer("error_code", 0x11, 1, 255));
+                }
+            }
+            f.finish();
+            s.faults.push_back(spec);
+        }
+        // Power-off windows of one node must not overlap (the second "on" would end the first).
+        for (size_t i = 0; i < s.faults.size(); ++i) {
+            for (size_t j = i + 1; j < s.faults.size(); ++j) {
+                const FaultSpec &a = s.faults[i];
+                const FaultSpec &b = s.faults[j];
+                if (a.kind == FaultKind::PowerOff && b.kind == FaultKind::PowerOff && a.node == b.node &&
+                    a.at_s < b.at_s + b.duration_s && b.at_s < a.at_s + a.duration_s) {
+                    throw ScenarioError(origin + ": faults[" + std::to_string(i) + "] and faults[" +
+                                        std::to_string(j) + "]: overlapping power_off of node " +
+                                        std::to_string(a.node));
+                }
+            }
+        }
+        std::stable_sort(s.faults.begin(), s.faults.end(),
+                         [](const FaultSpec &a, const FaultSpec &b) { return a.at_s < b.at_s; });
+    }
+
+    // ---- models
+    if (top.has("uwb")) {
+        Map u(top.get("uwb"), "uwb", origin);
+        s.uwb.noise_std_mm = u.number("noise_std_mm", s.uwb.noise_std_mm, 0.0, 10000.0);
+        s.uwb.bias_mm = u.number("bias_mm", s.uwb.bias_mm, -10000.0, 10000.0);
+        s.uwb.max_range_m = u.number("max_range_m", s.uwb.max_range_m, 0.1, 10000.0);
+        s.uwb.ranging_us = static_cast<uint32_t>(u.integer("ranging_us", s.uwb.ranging_us, 1, 10000000));
+        s.uwb.message_us = static_cast<uint32_t>(u.integer("message_us", s.uwb.message_us, 1, 10000000));
+        s.uwb.processing_us = static_cast<uint32_t>(u.integer("processing_us", s.uwb.processing_us, 0, 10000000));
+        u.finish();
+    }
+    if (top.has("accelerometer")) {
+        Map a(top.get("accelerometer"), "accelerometer", origin);
+        s.accel.noise_std_mg = a.number("noise_std_mg", s.accel.noise_std_mg, 0.0, 16000.0);
+        s.accel.moving_amplitude_mg = a.number("moving_amplitude_mg", s.accel.moving_amplitude_mg, 0.0, 15000.0);
+        s.accel.moving_frequency_hz = a.number("moving_frequency_hz", s.accel.moving_frequency_hz, 0.01, 50.0);
+        a.finish();
+    }
+    if (top.has("pozyx")) {
+        Map p(top.get("pozyx"), "pozyx", origin);
+        s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i", s.pozyx_who_am_i, 0, 255));
+        s.pozyx_firmware_version = static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
+        p.finish();
+    }
+    top.finish();
+    return s;
+}
+
+Scenario loadScenario(const std::string &path)
+{
+    std::ifstream in(path);
+    if (!in) {
+        throw ScenarioError(path + ": cannot open the scenario file");
+    }
+    std::stringstream buffer;
+    buffer << in.rdbuf();
+    return parseScenario(buffer.str(), path);
+}
+
+} // namespace cdro::fil

@@ -1,0 +1,104 @@
+// scenario.hpp: what a firmware-in-the-loop run simulates around the Uno: the Pozyx nodes
+// (the local one on the shield and the remote ones), their geometry, which of them are carried
+// along a path and when, the faults to inject, the UWB and accelerometer models and the seed.
+// Read from a YAML file, strictly: an unknown key, a wrong type or an impossible value is an
+// error naming the file, the line and the key (docs/firmware.md, "Firmware in the loop").
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace cdro::fil {
+
+class ScenarioError : public std::runtime_error {
+  public:
+    using std::runtime_error::runtime_error;
+};
+
+struct Vec3 {
+    double x_m = 0.0;
+    double y_m = 0.0;
+    double z_m = 0.0;
+};
+
+struct NodeSpec {
+    uint16_t id = 0;
+    bool tag = false; // a tag has an accelerometer; an anchor does not
+    Vec3 position;    // where it stands at t = 0
+};
+
+// One carried stretch: from where the node is at start_s, through the waypoints at a constant
+// speed; it then stays at the last waypoint. Waypoints without z keep the node's height.
+struct MotionSpec {
+    uint16_t node = 0;
+    double start_s = 0.0;
+    double speed_mps = 1.0;
+    std::vector<Vec3> waypoints;
+};
+
+enum class FaultKind {
+    NackAddress,     // the next `count` I2C address phases are NACKed
+    NackWrite,       // the next `count` written bytes are NACKed
+    NoCompletion,    // the next `count` long Pozyx operations never complete
+    ErrorCompletion, // the next `count` complete with ERR and `error_code`
+    GarbageRange,    // the next `count` rangings store 167772160 mm
+    StaleRange,      // the next `count` rangings report success but store nothing new
+    DropRemoteReply, // the next `count` replies to remote requests are lost
+    RefuseFunction,  // the next `count` function calls return 0
+    PowerOff,        // `node` is off (silent on UWB; the local one also on I2C) for duration_s
+};
+
+constexpr int kFaultKindCount = 9;
+
+const char *faultKindName(FaultKind kind);
+
+struct FaultSpec {
+    FaultKind kind = FaultKind::NackAddress;
+    double at_s = 0.0;
+    uint32_t count = 1;          // counted faults
+    uint8_t error_code = 0x11;   // error_completion: the Pozyx ERRORCODE (POZYX_ERROR_RANGING)
+    uint16_t node = 0;           // power_off
+    double duration_s = 0.0;     // power_off
+};
+
+struct UwbSpec {
+    double noise_std_mm = 30.0;      // Gaussian noise of each distance
+    double bias_mm = 0.0;            // added to every distance
+    double max_range_m = 50.0;       // longer links fail
+    uint32_t ranging_us = 15000;     // one two-way ranging exchange
+    uint32_t message_us = 3000;      // one UWB message on air, turnaround included
+    uint32_t processing_us = 1000;   // a remote node's handling of a request
+};
+
+struct AccelSpec {
+    double noise_std_mg = 5.0;         // per axis
+    double moving_amplitude_mg = 250.0; // vertical bounce of a carried node (walking)
+    double moving_frequency_hz = 1.8;   // step frequency
+};
+
+struct Scenario {
+    std::string source;      // file it came from, for messages
+    std::string name;
+    std::string description;
+    uint64_t seed = 1;
+    double duration_s = 0.0; // simulated seconds; 0 = until SIGTERM/SIGINT
+    uint16_t own_id = 0;     // the Pozyx on the shield (the I2C device); one of `nodes`
+    std::vector<NodeSpec> nodes;
+    std::vector<MotionSpec> motion;
+    std::vector<FaultSpec> faults;
+    UwbSpec uwb;
+    AccelSpec accel;
+    uint8_t pozyx_who_am_i = 0x43;       // another value: the firmware reports POZYX_ABSENT
+    uint8_t pozyx_firmware_version = 0x11;
+
+    const NodeSpec *node(uint16_t id) const;
+};
+
+// Reads and checks a scenario file; throws ScenarioError with file:line: key: problem.
+Scenario loadScenario(const std::string &path);
+// The same from YAML text (`origin` names it in messages); for the tests.
+Scenario parseScenario(const std::string &yaml_text, const std::string &origin);
+
+} // namespace cdro::fil

@@ -1,0 +1,147 @@
+// Scenario files of cdro-fil: the shipped scenario reads as written, defaults apply, and every
+// mistake is an error that names the file, the line and the key.
+#include <gtest/gtest.h>
+
+#include <string>
+
+#include "scenario.hpp"
+
+using cdro::fil::FaultKind;
+using cdro::fil::parseScenario;
+using cdro::fil::Scenario;
+using cdro::fil::ScenarioError;
+
+namespace {
+
+const char *const kMinimal = R"(
+own: 0x6000
+nodes:
+  - {id: 0x6000, tag: true, x_m: 0, y_m: 0}
+  - {id: 0x6A01, x_m: 4, y_m: 0, z_m: 2}
+)";
+
+// The message of the ScenarioError that parsing `text` throws ("" if it does not throw).
+std::string errorOf(const std::string &text)
+{
+    try {
+        (void)parseScenario(text, "test.yaml");
+    } catch (const ScenarioError &error) {
+        return error.what();
+    }
+    return "";
+}
+
+} // namespace
+
+TEST(FilScenario, ShippedScenarioReadsAsWritten)
+{
+    const Scenario s = cdro::fil::loadScenario(CDRO_SOURCE_DIR "/tests/fil/office_60s.yaml");
+    EXPECT_EQ(s.name, "office-60s");
+    EXPECT_EQ(s.own_id, 0x6000);
+    ASSERT_EQ(s.nodes.size(), 7U);
+    EXPECT_TRUE(s.node(0x6B05)->tag);
+    EXPECT_FALSE(s.node(0x6A02)->tag);
+    EXPECT_DOUBLE_EQ(s.node(0x6A01)->position.z_m, 2.4);
+    ASSERT_EQ(s.motion.size(), 1U);
+    EXPECT_EQ(s.motion[0].node, 0x6B05);
+    ASSERT_EQ(s.motion[0].waypoints.size(), 2U);
+    EXPECT_DOUBLE_EQ(s.motion[0].waypoints[0].z_m, 1.1) << "a waypoint without z keeps the node's height";
+    ASSERT_EQ(s.faults.size(), 9U);
+    for (size_t i = 1; i < s.faults.size(); ++i) {
+        EXPECT_LE(s.faults[i - 1].at_s, s.faults[i].at_s) << "faults sorted by time";
+    }
+    EXPECT_EQ(s.faults[6].kind, FaultKind::PowerOff);
+    EXPECT_EQ(s.faults[6].node, 0x6A02);
+    EXPECT_DOUBLE_EQ(s.faults[6].duration_s, 14.0);
+    EXPECT_EQ(s.faults[5].error_code, 0x11);
+    EXPECT_GE(s.duration_s, 60.0);
+}
+
+TEST(FilScenario, DefaultsApply)
+{
+    const Scenario s = parseScenario(kMinimal, "test.yaml");
+    EXPECT_EQ(s.seed, 1U);
+    EXPECT_DOUBLE_EQ(s.duration_s, 0.0) << "0 = until a signal";
+    EXPECT_DOUBLE_EQ(s.uwb.noise_std_mm, 30.0);
+    EXPECT_EQ(s.uwb.ranging_us, 15000U);
+    EXPECT_DOUBLE_EQ(s.accel.moving_amplitude_mg, 250.0);
+    EXPECT_EQ(s.pozyx_who_am_i, 0x43);
+    EXPECT_DOUBLE_EQ(s.node(0x6000)->position.z_m, 0.0);
+    EXPECT_TRUE(s.motion.empty());
+    EXPECT_TRUE(s.faults.empty());
+}
+
+TEST(FilScenario, MistakesNameTheLineAndTheKey)
+{
+    const std::string base = kMinimal;
+    // An unknown key: file, line, path and the known keys.
+    std::string message = errorOf(base + "    \n" + "seeed: 3\n");
+    EXPECT_NE(message.find("test.yaml:7: scenario.seeed: unknown key"), std::string::npos) << message;
+    EXPECT_NE(message.find("seed"), std::string::npos) << message;
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0, colour: red}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("test.yaml:3: nodes[0].colour: unknown key"), std::string::npos) << message;
+    // Missing and malformed values.
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("nodes[0].x_m: missing"), std::string::npos) << message;
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: far, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("nodes[0].x_m: expected a number, got 'far'"), std::string::npos) << message;
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0xFFFF, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("nodes[0].id: must be between 1 and 65534"), std::string::npos) << message;
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6000, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("listed twice"), std::string::npos) << message;
+    message = errorOf("own: 0x7000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("scenario.own: node 28672 is not in nodes"), std::string::npos) << message;
+    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n");
+    EXPECT_NE(message.find("at least 2 nodes"), std::string::npos) << message;
+    EXPECT_NE(errorOf("nodes: [").find("not valid YAML"), std::string::npos);
+    EXPECT_NE(errorOf("").find("empty scenario"), std::string::npos);
+    message = errorOf(base + "uwb: {noise_std_mm: -1}\n");
+    EXPECT_NE(message.find("uwb.noise_std_mm: must be between 0"), std::string::npos) << message;
+}
+
+TEST(FilScenario, MotionIsChecked)
+{
+    const std::string base = kMinimal;
+    std::string message = errorOf(base + "motion:\n  - {node: 0x6A09, start_s: 1, speed_mps: 1, waypoints_m: [[1, 1]]}\n");
+    EXPECT_NE(message.find("motion[0].node: node 27145 is not in nodes"), std::string::npos) << message;
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[1]]}\n");
+    EXPECT_NE(message.find("each waypoint is [x, y] or [x, y, z]"), std::string::npos) << message;
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 0, waypoints_m: [[1, 1]]}\n");
+    EXPECT_NE(message.find("motion[0].speed_mps: must be between"), std::string::npos) << message;
+    // 4 m at 1 m/s from 1 s: busy until 5 s; a second stretch at 3 s overlaps.
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[8, 0, 2]]}\n"
+                             "  - {node: 0x6A01, start_s: 3, speed_mps: 1, waypoints_m: [[4, 0]]}\n");
+    EXPECT_NE(message.find("before its previous one ends at 5"), std::string::npos) << message;
+    EXPECT_EQ(errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[8, 0, 2]]}\n"
+                             "  - {node: 0x6A01, start_s: 5, speed_mps: 1, waypoints_m: [[4, 0]]}\n"),
+              "");
+}
+
+TEST(FilScenario, FaultsAreChecked)
+{
+    const std::string base = kMinimal;
+    std::string message = errorOf(base + "faults:\n  - {kind: hang, at_s: 1}\n");
+    EXPECT_NE(message.find("'hang' cannot be simulated here"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: lightning, at_s: 1}\n");
+    EXPECT_NE(message.find("'lightning' is not one of: nack_address, nack_write"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: power_off, at_s: 1, node: 0x6A01}\n");
+    EXPECT_NE(message.find("faults[0].duration_s: missing"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: power_off, at_s: 1, node: 0x6A01, duration_s: 5}\n"
+                             "  - {kind: power_off, at_s: 4, node: 0x6A01, duration_s: 5}\n");
+    EXPECT_NE(message.find("overlapping power_off of node 27137"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: garbage_range, at_s: 1, count: 0}\n");
+    EXPECT_NE(message.find("faults[0].count: must be between 1"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: garbage_range, at_s: 1, node: 0x6A01}\n");
+    EXPECT_NE(message.find("faults[0].node: unknown key"), std::string::npos) << message;
+    message = errorOf(base + "faults:\n  - {kind: nack_write, at_s: 1, error_code: 3}\n");
+    EXPECT_NE(message.find("faults[0].error_code: unknown key"), std::string::npos) << message;
+
+    const Scenario s = parseScenario(base + "faults:\n  - {kind: error_completion, at_s: 2, count: 3, error_code: 0x17}\n"
+                                            "  - {kind: nack_write, at_s: 1}\n",
+                                     "test.yaml");
+    ASSERT_EQ(s.faults.size(), 2U);
+    EXPECT_EQ(s.faults[0].kind, FaultKind::NackWrite);
+    EXPECT_EQ(s.faults[0].count, 1U);
+    EXPECT_EQ(s.faults[1].count, 3U);
+    EXPECT_EQ(s.faults[1].error_code, 0x17);
+}
