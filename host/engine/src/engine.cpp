@@ -111,6 +111,15 @@ void Engine::applyMotion(uint32_t node, bool moving)
     state.track_anchor_m = state.position_m;
     state.track_updates = 0;
     state.recent_count = 0;
+    // Stopping: the track, at rest, stays the estimate until every link has a range again
+    // (the links start afresh below, and a median of nothing is no range).
+    state.settling = !moving && state.has_track && params_.motion.track;
+    if (state.settling) {
+        state.track.stop();
+        state.position_m = state.track.position();
+    } else {
+        state.has_track = false;
+    }
     for (uint32_t link : state.links) {
         // Ranges from before the change describe another place: start the links afresh.
         network_.links[link].window.clear();
@@ -170,6 +179,31 @@ void Engine::unpinNode(NodeId id)
     }
 }
 
+void Engine::updateTrack(uint32_t moving_node, uint32_t anchor_node, double range_m, double t_s)
+{
+    NodeState &state = network_.nodes[moving_node];
+    const NodeState &anchor = network_.nodes[anchor_node];
+    const MotionParams &motion = params_.motion;
+    if (!motion.reset || !motion.track || !(state.moving || state.settling) || anchor.moving || !anchor.placed) {
+        return;
+    }
+    if (!state.has_track) {
+        // An inferred motion is found late: the node is already somewhere else, by metres.
+        const double position_sigma = state.motion_inferred ? 2.0 : 0.3;
+        state.track = MotionTrack(state.position_m, position_sigma, motion.track_speed_sigma_mps);
+        state.has_track = true;
+    }
+    // At rest (settling) only a little jitter is allowed, not walking.
+    state.track.predict(t_s, state.settling ? 0.05 : motion.track_accel_sigma_mps2);
+    const Matrix2 anchor_covariance = anchor.fixed ? Matrix2::Zero() : anchor.covariance_m2;
+    if (state.track.updateRange(anchor.position_m, anchor_covariance, range_m, params_.range.sigma_m, likelihood_,
+                                params_.sog.gate_sigma)) {
+        ++counters_.track_updates;
+    } else {
+        ++counters_.track_refused;
+    }
+}
+
 void Engine::watchForMotion(uint32_t node, uint32_t link, double residual_m)
 {
     // The fallback detector: a node that has no motion reports moves when several of its
@@ -204,9 +238,12 @@ void Engine::watchForMotion(uint32_t node, uint32_t link, double residual_m)
     }
 }
 
-RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m)
+RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s)
 {
     ++counters_.ranges_received;
+    if (std::isfinite(t_s)) {
+        last_time_s_ = std::max(last_time_s_, t_s);
+    }
     if (from == to) {
         ++counters_.rejected_self;
         return RangeVerdict::RejectedSelf;
@@ -271,6 +308,10 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m)
         return RangeVerdict::Stored;
     }
     ++counters_.ranges_used;
+    if (std::isfinite(t_s)) {
+        updateTrack(a, b, planar_m, t_s);
+        updateTrack(b, a, planar_m, t_s);
+    }
     updateRing(link, a, planar_m);
     updateRing(link, b, planar_m);
     updateNode(a, true);
@@ -291,6 +332,9 @@ void Engine::markPlacementPending(uint32_t node)
 
 bool Engine::placeFrame()
 {
+    if (frame_held_) {
+        return false;
+    }
     std::vector<bool> eligible(network_.nodes.size(), true);
     std::optional<std::array<uint32_t, 3>> preferred;
     const FrameParams &frame = params_.frame;
@@ -724,7 +768,22 @@ void Engine::updateNode(uint32_t node, bool after_range)
     Vector2 position = state.position_m;
     Matrix2 covariance = state.covariance_m2;
     bool replace = false;
-    if (params_.refinement.enabled) {
+    if (state.settling) {
+        bool fresh = true;
+        for (uint32_t link : state.links) {
+            const NodeState &other = network_.nodes[network_.otherNode(link, node)];
+            fresh = fresh && (!other.placed || other.moving || network_.links[link].window.size() > 0);
+        }
+        if (fresh) {
+            state.settling = false;
+            state.has_track = false;
+        }
+    }
+    if ((tracked || state.settling) && state.has_track && state.track.updates() >= params_.motion.track_warmup) {
+        // A moving node's estimate is its track (the SoG resets keep the multimodal picture).
+        position = state.track.position();
+        covariance = state.track.positionCovariance();
+    } else if (params_.refinement.enabled) {
         const std::vector<RangeConstraint> constraints = placedConstraints(network_, node);
         if (constraints.size() >= 2) {
             std::vector<double> inliers;
@@ -790,16 +849,22 @@ void Engine::updateNode(uint32_t node, bool after_range)
             }
         }
     }
-    if (tracked) {
+    if (tracked || state.settling) {
         // No convergence while it moves; an inferred motion ends when the track stands still.
         state.converged = false;
         state.still_updates = 0;
         state.average_m = state.position_m;
-        if (state.motion_inferred && ++state.track_updates >= params_.motion.inferred_still_updates) {
-            const bool still = (state.position_m - state.track_anchor_m).norm() < params_.motion.inferred_still_m;
-            state.track_anchor_m = state.position_m;
-            state.track_updates = 0;
-            if (still) {
+        if (state.motion_inferred) {
+            // Stopped: the track's speed stayed low for a while (or, without a track, the
+            // estimate stayed within inferred_still_m).
+            const bool slow = state.has_track ? state.track.velocity().norm() < params_.motion.inferred_still_speed_mps
+                                              : (state.position_m - state.track_anchor_m).norm() <
+                                                    params_.motion.inferred_still_m;
+            state.track_updates = slow ? state.track_updates + 1 : 0;
+            if (!slow) {
+                state.track_anchor_m = state.position_m;
+            }
+            if (state.track_updates >= params_.motion.inferred_still_updates) {
                 applyMotion(node, false);
             }
         }
@@ -1207,7 +1272,10 @@ std::vector<NodeOutput> Engine::estimates() const
         node.height_m = state.height_m;
         node.link_count = static_cast<uint32_t>(state.links.size());
         if (state.placed) {
-            node.position_m = transform.apply(state.position_m);
+            // A moving node is where its track says it is now, not at its last range.
+            const bool predicted = state.moving && state.has_track && std::isfinite(last_time_s_) &&
+                                   state.track.updates() >= params_.motion.track_warmup;
+            node.position_m = transform.apply(predicted ? state.track.positionAt(last_time_s_) : state.position_m);
             if (single_fixed_ && single_fixed_->first == state.id) {
                 node.position_m = single_fixed_->second;
                 node.fixed = true;

@@ -162,7 +162,7 @@ bool idField(const std::map<std::string, std::string> &values, const char *name,
     const auto found = values.find(name);
     if (found == values.end() || !parseNodeId(found->second, out)) {
         problem = std::string(name) + " '" + (found == values.end() ? "" : found->second) +
-                  "' is not a node id (1..65535, decimal or 0x hex)";
+                  "' is not a node id (0..65535, decimal or 0x hex)";
         return false;
     }
     return true;
@@ -179,7 +179,7 @@ bool parseNodeId(const std::string &text, uint16_t *id)
     errno = 0;
     const bool hex = text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
     const long long value = std::strtoll(text.c_str(), &end, hex ? 16 : 10);
-    if (*end != '\0' || errno == ERANGE || value < 1 || value > 65535) {
+    if (*end != '\0' || errno == ERANGE || value < 0 || value > 65535) {
         return false;
     }
     *id = static_cast<uint16_t>(value);

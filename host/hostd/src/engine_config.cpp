@@ -90,6 +90,23 @@ void parseReinitialization(Section &s, engine::ReinitializationParams &p)
     s.read<double>("min_gain_nats", p.min_gain_nats, 0.0, kHuge);
 }
 
+void parseMotion(Section &s, engine::MotionParams &p)
+{
+    s.readBool("reset", p.reset);
+    s.readBool("infer_from_ranges", p.infer_from_ranges);
+    s.read<double>("inferred_residual_m", p.inferred_residual_m, 0.0, kHuge);
+    s.read<uint32_t>("inferred_window", p.inferred_window, 1, engine::NodeState::kRecentRanges);
+    s.read<uint32_t>("inferred_min_large", p.inferred_min_large, 1, engine::NodeState::kRecentRanges);
+    s.read<uint32_t>("inferred_min_links", p.inferred_min_links, 1, engine::NodeState::kRecentRanges);
+    s.read<double>("inferred_still_speed_mps", p.inferred_still_speed_mps, 0.0, kHuge);
+    s.read<double>("inferred_still_m", p.inferred_still_m, 0.0, kHuge);
+    s.read<uint32_t>("inferred_still_updates", p.inferred_still_updates, 1, 100000);
+    s.readBool("track", p.track);
+    s.read<double>("track_accel_sigma_mps2", p.track_accel_sigma_mps2, 0.0, 1000.0);
+    s.read<double>("track_speed_sigma_mps", p.track_speed_sigma_mps, 0.0, 1000.0);
+    s.read<uint32_t>("track_warmup", p.track_warmup, 0, 1000);
+}
+
 void parseConvergence(Section &s, engine::ConvergenceParams &p)
 {
     s.read<double>("smoothing", p.smoothing, 0.0, 0.9999);
@@ -129,7 +146,97 @@ void validate(const engine::EngineParams &p)
     }
 }
 
+void parseOdometryNoise(Section &s, engine::RobotFilterNoise &p)
+{
+    s.read<double>("distance_fraction", p.distance_fraction, 0.0, 10.0);
+    s.read<double>("distance_floor_m", p.distance_floor_m, 0.0, kHuge);
+    s.read<double>("heading_fraction", p.heading_fraction, 0.0, 10.0);
+    s.read<double>("heading_floor_rad", p.heading_floor_rad, 0.0, 10.0);
+    s.read<double>("heading_walk_rad_per_sqrt_s", p.heading_walk_rad_per_sqrt_s, 0.0, 10.0);
+    s.read<double>("scale_walk_per_sqrt_s", p.scale_walk_per_sqrt_s, 0.0, 1.0);
+    s.read<double>("offset_walk_m_per_sqrt_s", p.offset_walk_m_per_sqrt_s, 0.0, kHuge);
+}
+
+void parseMovement(Section &s, engine::MovementParams &p)
+{
+    readNodeId(s, "robot_id", p.robot_id);
+    s.read<double>("range_sigma_m", p.range_sigma_m, 0.0, 100.0);
+    s.read<double>("adaptive_initial_sigma_m", p.adaptive_initial_sigma_m, 0.001, 100.0);
+    s.read<uint32_t>("adaptive_window", p.adaptive_window, 8, 100000);
+    s.readBool("estimate_scale", p.estimate_scale);
+    s.read<double>("scale_sigma", p.scale_sigma, 0.0, 1.0);
+    s.readBool("estimate_offset", p.estimate_offset);
+    s.read<double>("offset_sigma_m", p.offset_sigma_m, 0.0, 100.0);
+    s.read<double>("gate_sigma", p.gate_sigma, 0.5, 1000.0);
+    s.read<double>("motion_start_m", p.motion_start_m, 0.0, kHuge);
+    s.read<uint32_t>("heading_hypotheses", p.heading_hypotheses, 1, 360);
+    s.read<double>("heading_collapse_weight", p.heading_collapse_weight, 0.5, 1.0);
+    s.read<double>("heading_prune_weight", p.heading_prune_weight, 0.0, 0.5);
+    s.read<double>("heading_merge_m", p.heading_merge_m, 0.0, kHuge);
+    s.read<double>("heading_merge_rad", p.heading_merge_rad, 0.0, 3.2);
+    s.read<double>("beacon_arc_spacing_m", p.beacon_arc_spacing_m, 0.05, 100.0);
+    s.read<uint32_t>("beacon_min_components", p.beacon_min_components, 3, 100000);
+    s.read<double>("beacon_prune_ratio", p.beacon_prune_ratio, 0.0, 1.0);
+    s.read<uint32_t>("beacon_min_ranges", p.beacon_min_ranges, 1, 100000);
+    s.read<double>("beacon_insert_std_m", p.beacon_insert_std_m, 0.001, kHuge);
+    s.read<double>("beacon_min_baseline_m", p.beacon_min_baseline_m, 0.0, kHuge);
+    Section noise(s.child("odometry"), "movement.odometry", s.origin());
+    parseOdometryNoise(noise, p.odometry);
+    noise.rejectUnknownKeys();
+}
+
 } // namespace
+
+engine::MovementParams parseMovementParams(const YAML::Node &root, const std::string &origin)
+{
+    engine::MovementParams params;
+    if (!root || root.IsNull() || !root.IsMap()) {
+        return params;
+    }
+    Section s(root["movement"], "movement", origin);
+    parseMovement(s, params);
+    s.rejectUnknownKeys();
+    return params;
+}
+
+std::string movementParamsYaml(const engine::MovementParams &p)
+{
+    YAML::Emitter out;
+    out.SetDoublePrecision(12); // round trips every default, without 0.10000000000000001
+    auto b = [](bool value) { return value ? "true" : "false"; };
+    out << YAML::BeginMap << YAML::Key << "movement" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "robot_id" << YAML::Value << p.robot_id;
+    out << YAML::Key << "range_sigma_m" << YAML::Value << p.range_sigma_m;
+    out << YAML::Key << "adaptive_initial_sigma_m" << YAML::Value << p.adaptive_initial_sigma_m;
+    out << YAML::Key << "adaptive_window" << YAML::Value << p.adaptive_window;
+    out << YAML::Key << "estimate_scale" << YAML::Value << b(p.estimate_scale);
+    out << YAML::Key << "scale_sigma" << YAML::Value << p.scale_sigma;
+    out << YAML::Key << "estimate_offset" << YAML::Value << b(p.estimate_offset);
+    out << YAML::Key << "offset_sigma_m" << YAML::Value << p.offset_sigma_m;
+    out << YAML::Key << "gate_sigma" << YAML::Value << p.gate_sigma;
+    out << YAML::Key << "motion_start_m" << YAML::Value << p.motion_start_m;
+    out << YAML::Key << "heading_hypotheses" << YAML::Value << p.heading_hypotheses;
+    out << YAML::Key << "heading_collapse_weight" << YAML::Value << p.heading_collapse_weight;
+    out << YAML::Key << "heading_prune_weight" << YAML::Value << p.heading_prune_weight;
+    out << YAML::Key << "heading_merge_m" << YAML::Value << p.heading_merge_m;
+    out << YAML::Key << "heading_merge_rad" << YAML::Value << p.heading_merge_rad;
+    out << YAML::Key << "beacon_arc_spacing_m" << YAML::Value << p.beacon_arc_spacing_m;
+    out << YAML::Key << "beacon_min_components" << YAML::Value << p.beacon_min_components;
+    out << YAML::Key << "beacon_prune_ratio" << YAML::Value << p.beacon_prune_ratio;
+    out << YAML::Key << "beacon_min_ranges" << YAML::Value << p.beacon_min_ranges;
+    out << YAML::Key << "beacon_insert_std_m" << YAML::Value << p.beacon_insert_std_m;
+    out << YAML::Key << "beacon_min_baseline_m" << YAML::Value << p.beacon_min_baseline_m;
+    out << YAML::Key << "odometry" << YAML::Value << YAML::BeginMap;
+    out << YAML::Key << "distance_fraction" << YAML::Value << p.odometry.distance_fraction;
+    out << YAML::Key << "distance_floor_m" << YAML::Value << p.odometry.distance_floor_m;
+    out << YAML::Key << "heading_fraction" << YAML::Value << p.odometry.heading_fraction;
+    out << YAML::Key << "heading_floor_rad" << YAML::Value << p.odometry.heading_floor_rad;
+    out << YAML::Key << "heading_walk_rad_per_sqrt_s" << YAML::Value << p.odometry.heading_walk_rad_per_sqrt_s;
+    out << YAML::Key << "scale_walk_per_sqrt_s" << YAML::Value << p.odometry.scale_walk_per_sqrt_s;
+    out << YAML::Key << "offset_walk_m_per_sqrt_s" << YAML::Value << p.odometry.offset_walk_m_per_sqrt_s;
+    out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
+    return std::string(out.c_str()) + "\n";
+}
 
 engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string &origin)
 {
@@ -147,6 +254,7 @@ engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string
     group(engine_section, "placement", parsePlacement, params.placement);
     group(engine_section, "refinement", parseRefinement, params.refinement);
     group(engine_section, "reinitialization", parseReinitialization, params.reinitialization);
+    group(engine_section, "motion", parseMotion, params.motion);
     group(engine_section, "convergence", parseConvergence, params.convergence);
     group(engine_section, "frame", parseFrame, params.frame);
     engine_section.rejectUnknownKeys();
@@ -224,6 +332,12 @@ engine::EngineParams loadEngineParams(const std::string &config_path, const Engi
         origin += " + --set";
     }
     engine::EngineParams params = parseEngineParams(root, origin);
+    applySwitches(params, overrides);
+    return params;
+}
+
+void applySwitches(engine::EngineParams &params, const EngineOverrides &overrides)
+{
     if (overrides.no_weight_transfer) {
         params.sog.weight_transfer = false;
     }
@@ -233,7 +347,9 @@ engine::EngineParams loadEngineParams(const std::string &config_path, const Engi
     if (overrides.no_refinement) {
         params.refinement.enabled = false;
     }
-    return params;
+    if (overrides.no_motion_reset) {
+        params.motion.reset = false;
+    }
 }
 
 void addEngineOptions(CLI::App &app, EngineOverrides &o)
@@ -245,11 +361,14 @@ void addEngineOptions(CLI::App &app, EngineOverrides &o)
                  "ablation: SoG weights from the ring's own range only, not the other nodes' ranges");
     app.add_flag("--no-refinement", o.no_refinement,
                  "the paper's filter alone: the merged SoG is the estimate (no robust refinement)");
+    app.add_flag("--no-motion-reset", o.no_motion_reset, "ablation: moving nodes handled as static (no SoG resets, no track)");
 }
 
 std::string engineParamsYaml(const engine::EngineParams &p)
 {
     YAML::Emitter out;
+    out.SetDoublePrecision(12);
+    out.SetDoublePrecision(12); // round trips every default, without 0.10000000000000001
     auto b = [](bool value) { return value ? "true" : "false"; };
     out << YAML::BeginMap << YAML::Key << "engine" << YAML::Value << YAML::BeginMap;
     out << YAML::Key << "range" << YAML::Value << YAML::BeginMap << YAML::Key << "sigma_m" << YAML::Value
@@ -291,6 +410,18 @@ std::string engineParamsYaml(const engine::EngineParams &p)
         << "quiet_ranges_per_link" << YAML::Value << p.reinitialization.quiet_ranges_per_link << YAML::Key << "sweeps"
         << YAML::Value << p.reinitialization.sweeps << YAML::Key << "min_gain_nats" << YAML::Value
         << p.reinitialization.min_gain_nats << YAML::EndMap;
+    out << YAML::Key << "motion" << YAML::Value << YAML::BeginMap << YAML::Key << "reset" << YAML::Value
+        << b(p.motion.reset) << YAML::Key << "infer_from_ranges" << YAML::Value << b(p.motion.infer_from_ranges)
+        << YAML::Key << "inferred_residual_m" << YAML::Value << p.motion.inferred_residual_m << YAML::Key
+        << "inferred_window" << YAML::Value << p.motion.inferred_window << YAML::Key << "inferred_min_large"
+        << YAML::Value << p.motion.inferred_min_large << YAML::Key << "inferred_min_links" << YAML::Value
+        << p.motion.inferred_min_links << YAML::Key << "inferred_still_speed_mps" << YAML::Value << p.motion.inferred_still_speed_mps
+        << YAML::Key << "inferred_still_m" << YAML::Value << p.motion.inferred_still_m
+        << YAML::Key << "inferred_still_updates" << YAML::Value << p.motion.inferred_still_updates << YAML::Key
+        << "track" << YAML::Value << b(p.motion.track) << YAML::Key << "track_accel_sigma_mps2" << YAML::Value
+        << p.motion.track_accel_sigma_mps2 << YAML::Key << "track_speed_sigma_mps" << YAML::Value
+        << p.motion.track_speed_sigma_mps << YAML::Key << "track_warmup" << YAML::Value << p.motion.track_warmup
+        << YAML::EndMap;
     out << YAML::Key << "convergence" << YAML::Value << YAML::BeginMap << YAML::Key << "smoothing" << YAML::Value
         << p.convergence.smoothing << YAML::Key << "threshold_m" << YAML::Value << p.convergence.threshold_m
         << YAML::Key << "consecutive" << YAML::Value << p.convergence.consecutive << YAML::Key << "unconverge_factor"

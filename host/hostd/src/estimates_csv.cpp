@@ -26,9 +26,9 @@ void writeNodeRow(std::FILE *out, const engine::NodeOutput &node)
     std::fputc('\n', out);
 }
 
-void writeTraceHeader(std::FILE *out) { std::fputs("ranges,id,x,y,var_x,cov_xy,var_y,converged\n", out); }
+void writeTraceHeader(std::FILE *out) { std::fputs("ranges,id,x,y,var_x,cov_xy,var_y,converged,t\n", out); }
 
-void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::NodeOutput> &nodes)
+void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::NodeOutput> &nodes, const double *t_s)
 {
     for (const engine::NodeOutput &node : nodes) {
         if (!node.placed) {
@@ -36,7 +36,11 @@ void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::N
         }
         std::fprintf(out, "%llu,%u", static_cast<unsigned long long>(ranges), static_cast<unsigned>(node.id));
         writeEstimateFields(out, node);
-        std::fputc('\n', out);
+        if (t_s != nullptr) {
+            std::fprintf(out, ",%.17g\n", *t_s);
+        } else {
+            std::fputs(",\n", out);
+        }
     }
 }
 

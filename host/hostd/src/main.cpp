@@ -87,8 +87,17 @@ int main(int argc, char **argv)
         ->needs(ranges_option);
     app.add_option("--trace-every", offline.trace_every, "offline: ranges between trace snapshots (default 10)")
         ->needs(ranges_option);
+    app.add_option("--odometry-csv", offline.odometry_csv, "offline movement stage: odometry t,distance_m,dheading_rad")
+        ->needs(ranges_option);
+    app.add_option("--robot-id", offline.robot_id, "offline movement stage: the robot's node id")->needs(ranges_option);
+    app.add_option("--motion-csv", offline.motion_csv, "offline: motion reports t,id,moving")->needs(ranges_option);
+    app.add_option("--out-trajectory", offline.out_trajectory,
+                   "offline movement stage: causal robot estimate t,x,y,heading_rad,var_x,cov_xy,var_y")
+        ->needs(ranges_option);
     bool no_settle = false;
     app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")->needs(ranges_option);
+    app.add_flag("--verbose", offline.verbose, "offline: the engine's decisions (placements, motion, ...) on stderr")
+        ->needs(ranges_option);
     bool print_config = false;
     app.add_flag("--print-config", print_config, "print the engine settings in effect (YAML) and exit");
     bool progress = false;
@@ -100,11 +109,11 @@ int main(int argc, char **argv)
         cdro::hostd::EngineOverrides switches = engine_overrides;
         switches.sets.clear(); // already in the document
         cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);
-        if (switches.no_weight_transfer) params.sog.weight_transfer = false;
-        if (switches.no_cooperative) params.sog.cooperative = false;
-        if (switches.no_refinement) params.refinement.enabled = false;
+        cdro::hostd::applySwitches(params, switches);
+        cdro::engine::MovementParams movement = cdro::hostd::parseMovementParams(document.root, document.origin);
         if (print_config) {
             std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
+            std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
             return 0;
         }
         if (!offline.ranges_csv.empty()) {
@@ -113,7 +122,7 @@ int main(int argc, char **argv)
                 return 2;
             }
             offline.settle = !no_settle;
-            return cdro::hostd::runOffline(offline, params, stderr);
+            return cdro::hostd::runOffline(offline, params, movement, stderr);
         }
 
         cdro::service::ServiceConfig config = document.service_text.empty()

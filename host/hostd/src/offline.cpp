@@ -2,9 +2,11 @@
 
 #include <cerrno>
 #include <cstring>
+#include <limits>
 #include <memory>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/engine/movement.hpp"
 #include "cdro/hostd/csv_input.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
 
@@ -46,9 +48,136 @@ void reportProblems(const std::string &path, const Table &table, uint32_t limit,
     }
 }
 
+// Sorts rows by time (stable) and says how many were out of order.
+template <typename Row>
+void sortByTime(std::vector<Row> &rows, const std::string &path, std::FILE *log)
+{
+    size_t out_of_order = 0;
+    for (size_t i = 1; i < rows.size(); ++i) {
+        out_of_order += rows[i].t_s < rows[i - 1].t_s ? 1U : 0U;
+    }
+    if (out_of_order > 0) {
+        std::fprintf(log, "cdro-hostd: %s: %zu rows out of time order; sorted by t (stable)\n", path.c_str(),
+                     out_of_order);
+        std::stable_sort(rows.begin(), rows.end(), [](const Row &a, const Row &b) { return a.t_s < b.t_s; });
+    }
+}
+
+void writeTrajectoryRow(std::FILE *out, double t_s, const engine::RobotOutput &robot)
+{
+    std::fprintf(out, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", t_s, robot.pose.x_m, robot.pose.y_m,
+                 robot.pose.heading_rad, robot.covariance(0, 0), robot.covariance(0, 1), robot.covariance(1, 1));
+}
+
+int runMovement(const OfflineOptions &options, const engine::EngineParams &params,
+                const engine::MovementParams &movement_params, engine::Engine &engine,
+                const CsvTable<RangeRow> &ranges_table, std::FILE *out, std::FILE *log)
+{
+    std::vector<RangeRow> ranges = ranges_table.rows;
+    for (const RangeRow &row : ranges) {
+        if (!row.has_time) {
+            std::fprintf(log, "cdro-hostd: %s: the movement stage needs a t column in the ranges\n",
+                         options.ranges_csv.c_str());
+            return 2;
+        }
+    }
+    CsvTable<OdometryRow> odometry = readOdometryCsv(options.odometry_csv);
+    reportProblems(options.odometry_csv, odometry, options.max_reported_rows, log);
+    CsvTable<MotionRow> motion;
+    if (!options.motion_csv.empty()) {
+        motion = readMotionCsv(options.motion_csv);
+        reportProblems(options.motion_csv, motion, options.max_reported_rows, log);
+    }
+    sortByTime(ranges, options.ranges_csv, log);
+    sortByTime(odometry.rows, options.odometry_csv, log);
+    sortByTime(motion.rows, options.motion_csv, log);
+    File trajectory = openForWriting(options.out_trajectory, log);
+    if (!trajectory) {
+        return 2;
+    }
+    std::fputs("t,x,y,heading_rad,var_x,cov_xy,var_y\n", trajectory.get());
+
+    engine::MovementStage stage(engine, movement_params);
+    if (options.verbose) {
+        stage.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: movement: %s\n", message.c_str()); });
+        engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
+    }
+    // Merge the three streams by time; at equal times odometry first (it ends its step at t),
+    // then motion reports, then ranges.
+    size_t o = 0;
+    size_t m = 0;
+    size_t r = 0;
+    uint64_t refused = 0;
+    while (o < odometry.rows.size() || m < motion.rows.size() || r < ranges.size()) {
+        const double inf = std::numeric_limits<double>::infinity();
+        const double to = o < odometry.rows.size() ? odometry.rows[o].t_s : inf;
+        const double tm = m < motion.rows.size() ? motion.rows[m].t_s : inf;
+        const double tr = r < ranges.size() ? ranges[r].t_s : inf;
+        if (to <= tm && to <= tr) {
+            const OdometryRow &row = odometry.rows[o++];
+            stage.addOdometry(row.t_s, engine::OdometryStep{row.distance_m, row.dheading_rad});
+            const std::optional<engine::RobotOutput> robot = stage.robot();
+            if (robot) {
+                writeTrajectoryRow(trajectory.get(), row.t_s, *robot);
+            }
+        } else if (tm <= tr) {
+            const MotionRow &row = motion.rows[m++];
+            stage.setMoving(row.t_s, row.id, row.moving);
+        } else {
+            const RangeRow &row = ranges[r++];
+            const engine::RangeVerdict verdict = stage.addRange(row.t_s, row.from, row.to, row.range_m);
+            if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
+                if (refused++ < options.max_reported_rows) {
+                    std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
+                                 options.ranges_csv.c_str(), row.line, engine::rangeVerdictName(verdict),
+                                 static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
+                }
+            }
+        }
+    }
+    writeNodesHeader(out);
+    size_t placed = 0;
+    for (const engine::NodeOutput &node : stage.estimates()) {
+        if (node.link_count > 0 || node.fixed) {
+            writeNodeRow(out, node);
+        }
+        placed += node.placed ? 1U : 0U;
+    }
+    if (std::fflush(trajectory.get()) != 0 || std::ferror(trajectory.get())) {
+        std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_trajectory.c_str(), std::strerror(errno));
+        return 2;
+    }
+    const engine::MovementCounters &c = stage.counters();
+    const std::optional<engine::RobotOutput> robot = stage.robot();
+    std::fprintf(log,
+                 "cdro-hostd: movement stage: %llu odometry steps, %llu ranges (%llu with the robot), %llu EKF updates, "
+                 "%llu gated, %llu nodes taken into the EKF (%llu via a SoG around the robot), %llu taken out moving; "
+                 "%zu nodes placed\n",
+                 static_cast<unsigned long long>(c.odometry_steps), static_cast<unsigned long long>(ranges.size()),
+                 static_cast<unsigned long long>(c.robot_ranges), static_cast<unsigned long long>(c.ekf_updates),
+                 static_cast<unsigned long long>(c.ekf_gated), static_cast<unsigned long long>(c.nodes_inserted),
+                 static_cast<unsigned long long>(c.beacon_sogs), static_cast<unsigned long long>(c.nodes_removed),
+                 placed);
+    if (robot && robot->localized) {
+        std::fprintf(log,
+                     "cdro-hostd: range calibration: scale %.5f +- %.5f, offset %.3f +- %.3f m; range noise %.3f m; "
+                     "%u heading hypotheses left\n",
+                     robot->range_scale, robot->range_scale_sigma, robot->range_offset_m, robot->range_offset_sigma_m,
+                     stage.rangeSigmaInUse(), robot->hypotheses);
+    }
+    (void)params;
+    return 0;
+}
+
 } // namespace
 
 int runOffline(const OfflineOptions &options, const engine::EngineParams &params, std::FILE *log)
+{
+    return runOffline(options, params, engine::MovementParams{}, log);
+}
+
+int runOffline(const OfflineOptions &options, const engine::EngineParams &params,
+               const engine::MovementParams &movement_params, std::FILE *log)
 {
     try {
         engine::Engine engine(params);
@@ -83,12 +212,51 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             writeTraceHeader(trace.get());
         }
 
+        const bool movement = !options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty();
+        if (movement) {
+            if (options.odometry_csv.empty() || options.robot_id < 0 || options.out_trajectory.empty()) {
+                std::fprintf(log, "cdro-hostd: the movement stage needs --odometry-csv, --robot-id and --out-trajectory\n");
+                return 2;
+            }
+            engine::MovementParams stage_params = movement_params;
+            stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
+            const int code = runMovement(options, params, stage_params, engine, ranges, out.get(), log);
+            if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
+                std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
+                return 2;
+            }
+            return code;
+        }
         uint64_t refused = 0;
         uint64_t processed = 0;
         const uint32_t every = std::max<uint32_t>(options.trace_every, 1U);
+        // Motion reports (optional) are applied in time order between the ranges.
+        CsvTable<MotionRow> motion;
+        if (!options.motion_csv.empty()) {
+            motion = readMotionCsv(options.motion_csv);
+            reportProblems(options.motion_csv, motion, options.max_reported_rows, log);
+            for (const RangeRow &row : ranges.rows) {
+                if (!row.has_time) {
+                    std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n",
+                                 options.ranges_csv.c_str());
+                    return 2;
+                }
+            }
+            sortByTime(motion.rows, options.motion_csv, log);
+        }
+        size_t next_motion = 0;
+        double last_t_s = 0.0;
+        bool timed = false;
         for (const RangeRow &row : ranges.rows) {
-            const engine::RangeVerdict verdict = engine.addRange(row.from, row.to, row.range_m);
+            while (next_motion < motion.rows.size() && motion.rows[next_motion].t_s <= row.t_s) {
+                engine.setMoving(motion.rows[next_motion].id, motion.rows[next_motion].moving);
+                ++next_motion;
+            }
+            const engine::RangeVerdict verdict =
+                engine.addRange(row.from, row.to, row.range_m, row.has_time ? row.t_s : std::nan(""));
             ++processed;
+            timed = row.has_time;
+            last_t_s = row.t_s;
             if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
                 if (refused++ < options.max_reported_rows) {
                     std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
@@ -96,8 +264,9 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
                                  static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
                 }
             }
-            if (trace && processed % every == 0) {
-                writeTraceRows(trace.get(), processed, engine.estimates());
+            // The last range's snapshot is the final one, written after settling.
+            if (trace && processed % every == 0 && processed != ranges.rows.size()) {
+                writeTraceRows(trace.get(), processed, engine.estimates(), timed ? &last_t_s : nullptr);
             }
         }
         if (refused > options.max_reported_rows) {
@@ -113,7 +282,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         const std::vector<engine::NodeOutput> estimates = engine.estimates();
         if (trace) {
             // The final state, after settling, as the last snapshot.
-            writeTraceRows(trace.get(), processed, estimates);
+            writeTraceRows(trace.get(), processed, estimates, timed ? &last_t_s : nullptr);
         }
         writeNodesHeader(out.get());
         size_t placed = 0;

@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 #include <optional>
@@ -74,6 +75,8 @@ struct EngineCounters {
     uint64_t motion_stops = 0;
     uint64_t motion_inferred = 0;            // ... of the starts, found by the range detector
     uint64_t motion_resets = 0;              // SoGs reset by a range to a moving node (Fig. 4)
+    uint64_t track_updates = 0;              // ranges taken by a moving node's track
+    uint64_t track_refused = 0;              // ... refused as outliers
 };
 
 // A node's estimate in the output frame.
@@ -117,8 +120,9 @@ public:
     void setHeight(NodeId id, double height_m);
     void setFixed(NodeId id, const Vector2 &position_m);
 
-    // One range between two nodes, as measured (3D, m).
-    RangeVerdict addRange(NodeId from, NodeId to, double range_m);
+    // One range between two nodes, as measured (3D, m), at time t_s (s; NaN when unknown: the
+    // initialization does not need it, tracking a moving node does).
+    RangeVerdict addRange(NodeId from, NodeId to, double range_m, double t_s = std::numeric_limits<double>::quiet_NaN());
 
     // A motion report (MOTION frame, motion CSV): the node is moving or still (params.motion).
     void setMoving(NodeId id, bool moving);
@@ -127,6 +131,9 @@ public:
     // (not refined, not placed again) until unpinned.
     void pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2);
     void unpinNode(NodeId id);
+    // While held, no frame triangle is placed: nodes are placed only from fixed or pinned ones
+    // (the movement stage's own frame).
+    void holdFrame(bool held) { frame_held_ = held; }
 
     // Updates neighbours until no node moves more than refinement.relax_threshold_m, or
     // max_updates were made (after running the initialization again if links appeared since
@@ -198,6 +205,7 @@ private:
     void applyMotion(uint32_t node, bool moving);
     void refreshLinkRange(uint32_t link);
     void watchForMotion(uint32_t node, uint32_t link, double residual_m);
+    void updateTrack(uint32_t moving_node, uint32_t anchor_node, double range_m, double t_s);
     std::unique_ptr<Engine> unplacedCopy() const;
     bool placeFromMds();
     void sweep(uint32_t sweeps, bool anneal);
@@ -239,6 +247,8 @@ private:
     std::optional<std::pair<NodeId, Vector2>> single_fixed_; // one fixed node: output shift only
     bool fixed_applied_ = false;
     bool placing_ = false;
+    bool frame_held_ = false;
+    double last_time_s_ = -std::numeric_limits<double>::infinity(); // s, latest range time seen
     EngineCounters counters_;
     uint64_t revision_ = 0;
     std::vector<RangeWitness> scratch_witnesses_;

@@ -10,6 +10,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "cdro/engine/motion_track.hpp"
 #include "cdro/engine/types.hpp"
 
 namespace cdro::engine {
@@ -63,6 +64,10 @@ struct NodeState {
     uint32_t recent_next = 0;
     Vector2 track_anchor_m = Vector2::Zero(); // m, where an inferred-moving node was N updates ago
     uint32_t track_updates = 0;
+    bool has_track = false;          // while moving: the constant-velocity track (motion_track.hpp)
+    bool settling = false;           // stopped, but not every link has a range since: the track
+                                     // (at rest) is still the estimate
+    MotionTrack track;
 };
 
 struct LinkState {

@@ -9,7 +9,7 @@
 // A first line that is not numbers is a header and names the columns (in any order; other
 // columns are ignored); without a header the columns are positional. Blank lines and lines
 // starting with # are skipped. A row that cannot be read (too few fields, not a number, an
-// id outside 1..65535, a non-finite value) is reported with its line number and skipped:
+// id outside 0..65535, a non-finite value) is reported with its line number and skipped:
 // the rest of the file is still used. Semantic checks (a node ranging itself, an absurd
 // range) belong to the engine, which counts them.
 #pragma once
@@ -83,7 +83,8 @@ CsvTable<FixedRow> readFixedCsv(const std::string &path);
 CsvTable<OdometryRow> readOdometryCsv(const std::string &path);
 CsvTable<MotionRow> readMotionCsv(const std::string &path);
 
-// "42" or "0x2A" -> 42 in 1..65535; false otherwise.
+// "42" or "0x2A" -> 42 in 0..65535 (0 is not a Pozyx id, but datasets such as Plaza use it);
+// false otherwise.
 bool parseNodeId(const std::string &text, uint16_t *id);
 
 } // namespace cdro::hostd

@@ -12,17 +12,32 @@
 // range that is not positive or beyond engine.range.max_range_m). At the end of the file the
 // engine settles (engine.hpp) unless --no-settle: a live run keeps receiving ranges, a file
 // ends.
+//
+// With --odometry-csv, --robot-id and --out-trajectory the movement stage runs (movement.hpp):
+//   cdro-hostd --ranges-csv FILE --odometry-csv FILE --robot-id ID [--motion-csv FILE]
+//              --out-csv NODES --out-trajectory TRAJ
+// Ranges need their t column then. Every input is merged in time order (an odometry row at t
+// ends its step at t, so it is applied before a range at the same t); rows out of time order
+// in a file are reported, counted and sorted (stable). TRAJ has a row per odometry step: the
+// robot's estimate right after that step (causal: nothing later is used).
 #pragma once
 
 #include <cstdio>
 #include <string>
 
+#include "cdro/engine/movement.hpp"
 #include "cdro/engine/params.hpp"
 
 namespace cdro::hostd {
 
 struct OfflineOptions {
     std::string ranges_csv;
+    // The movement stage (all three, or none): odometry t,distance_m,dheading_rad, the robot's
+    // node id, and the robot's causal trajectory t,x,y,heading_rad,var_x,cov_xy,var_y.
+    std::string odometry_csv;
+    int robot_id = -1;            // -1 = none
+    std::string out_trajectory;
+    std::string motion_csv;       // t,id,moving (optional)
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;
@@ -31,10 +46,13 @@ struct OfflineOptions {
     bool settle = true;
     uint64_t settle_budget = 0;   // node updates at the end; 0 = 200 per node
     uint32_t max_reported_rows = 20; // bad rows printed one by one (all are counted)
+    bool verbose = false;         // the engine's decisions on stderr (--verbose)
 };
 
 // Returns the process exit code: 0, or 2 with a message on stderr when an input cannot be
 // used at all (missing file, header without the columns, unwritable output).
 int runOffline(const OfflineOptions &options, const engine::EngineParams &params, std::FILE *log);
+int runOffline(const OfflineOptions &options, const engine::EngineParams &params,
+               const engine::MovementParams &movement, std::FILE *log);
 
 } // namespace cdro::hostd

@@ -1,0 +1,168 @@
+// movement.hpp: the movement stage (paper section II-C; docs/engine.md "Stage 2").
+//
+// The robot's own tag is a node with odometry. While the robot stands still it is an ordinary
+// node of the initialization stage (engine.hpp). Once it moves:
+//
+//   * the EKF of robot_filter.hpp takes over: robot pose, range scale and offset, and the nodes
+//     that have converged (seeded from their merged means and covariances); robot-node and
+//     node-node ranges update it; those nodes are pinned in the initialization stage (anchors
+//     at the EKF's positions), which keeps handling the nodes that have not converged yet
+//     (their SoGs) and the nodes that move (Fig. 4);
+//   * if the initialization stage had a map, its frame is kept: the robot's position is its
+//     estimate there, and its unknown heading is a bank of hypotheses (as PX4's EKF-GSF does
+//     for yaw), weighted by their range innovations until one wins;
+//   * without a map (a robot ranging to beacons that never range to each other, the Plaza
+//     case) the frame is the odometry's own (the robot starts at 0, 0, heading 0) and every
+//     beacon is first a ring SoG around the robot (the conventional SoG RO-SLAM path, as in
+//     MRPT), updated by the robot's ranges as it moves, and enters the EKF once its SoG has
+//     become one concentrated mode.
+//
+// A node reported moving (MOTION) leaves the EKF (it is marginalised) and is tracked by the
+// initialization stage; when it has stopped and converged again, it rejoins.
+//
+// Time: every input carries its time (s); inputs must come in time order (the offline mode
+// sorts them). No clock is read.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <string>
+#include <optional>
+#include <vector>
+
+#include "cdro/engine/engine.hpp"
+#include "cdro/engine/robot_filter.hpp"
+
+namespace cdro::engine {
+
+struct MovementParams {
+    NodeId robot_id = 0;                  // the node carried by the robot; 0 = no robot
+    RobotFilterNoise odometry;            // odometry and calibration drift noise
+    double range_sigma_m = 0.0;           // m, noise of the ranges in the EKF; 0 = adaptive: from the
+                                          // spread of the robot's range innovations (robust, over the
+                                          // last adaptive_window of them), never below the engine's
+                                          // range.sigma_m, starting from adaptive_initial_sigma_m
+    double adaptive_initial_sigma_m = 1.0; // m
+    uint32_t adaptive_window = 60;        // innovations
+    bool estimate_scale = true;           // range scale s in the state
+    double scale_sigma = 0.1;             // prior std of s around 1
+    bool estimate_offset = true;          // range offset b in the state
+    double offset_sigma_m = 0.3;          // m, prior std of b around 0
+    double gate_sigma = 5.0;              // innovations beyond this many std (and NLOS-looking) are refused
+    double motion_start_m = 0.05;         // m travelled before the robot counts as moving
+    uint32_t heading_hypotheses = 12;     // the heading bank (with a map to start from)
+    double heading_collapse_weight = 0.99; // one hypothesis with this weight wins
+    double heading_prune_weight = 1e-4;   // hypotheses below this weight are dropped
+    double heading_merge_m = 0.3;         // m, hypotheses this close ...
+    double heading_merge_rad = 0.05;      // rad, ... and this aligned are merged
+    // Beacons first seen by the robot alone (a SoG around the robot):
+    double beacon_arc_spacing_m = 1.0;    // m between the ring's means
+    uint32_t beacon_min_components = 36;
+    double beacon_prune_ratio = 1e-3;     // components below this fraction of the best are dropped
+    uint32_t beacon_min_ranges = 10;      // ranges before it may enter the EKF ...
+    double beacon_insert_std_m = 1.5;     // ... and its SoG's largest std must be below this (m)
+    double beacon_min_baseline_m = 3.0;   // m, and the robot must have ranged it from places this far apart
+};
+
+struct RobotOutput {
+    NodeId id = 0;
+    double t_s = 0.0;                        // s, time of the last input
+    Pose2 pose;                              // output frame
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero(); // (m^2, m^2 rad, rad^2)
+    bool localized = false;                  // the EKF runs (false: dead reckoning before it starts)
+    uint32_t hypotheses = 0;                 // heading hypotheses alive (1 once decided)
+    double range_scale = 1.0;
+    double range_scale_sigma = 0.0;
+    double range_offset_m = 0.0;             // m
+    double range_offset_sigma_m = 0.0;       // m
+};
+
+struct MovementCounters {
+    uint64_t odometry_steps = 0;
+    uint64_t robot_ranges = 0;
+    uint64_t ekf_updates = 0;
+    uint64_t ekf_gated = 0;
+    uint64_t nodes_inserted = 0;
+    uint64_t nodes_removed = 0;          // moving nodes taken out of the EKF
+    uint64_t beacon_sogs = 0;            // beacons started as a SoG around the robot
+    uint64_t hypotheses_pruned = 0;
+};
+
+class MovementStage {
+public:
+    MovementStage(Engine &engine, const MovementParams &params);
+
+    void addOdometry(double t_s, const OdometryStep &step);
+    RangeVerdict addRange(double t_s, NodeId from, NodeId to, double range_m);
+    void setMoving(double t_s, NodeId id, bool moving);
+
+    std::optional<RobotOutput> robot() const;
+    void setTrace(std::function<void(const std::string &)> sink) { trace_ = std::move(sink); }
+    // Every node, output frame: the EKF's estimate where it holds the node, else the
+    // initialization stage's (or a beacon SoG's merged estimate).
+    std::vector<NodeOutput> estimates() const;
+    const MovementCounters &counters() const { return counters_; }
+    const MovementParams &params() const { return params_; }
+    bool started() const { return started_; }
+    double rangeSigmaInUse() const { return rangeSigma(); } // m
+    uint64_t revision() const { return revision_ + engine_.revision(); }
+
+private:
+    struct BeaconComponent {
+        Vector2 mean_m = Vector2::Zero();
+        Matrix2 covariance_m2 = Matrix2::Zero();
+        double weight = 0.0;
+    };
+    struct BeaconSog {
+        std::vector<BeaconComponent> components;
+        uint32_t ranges = 0;
+        Vector2 first_robot_m = Vector2::Zero();
+        double baseline_m = 0.0; // m, farthest robot position from the first one
+    };
+    struct Hypothesis {
+        RobotFilter filter;
+        double log_weight = 0.0;
+    };
+
+    void start(double t_s);
+    void insertConvergedNodes();
+    bool insertNode(NodeId id);
+    void updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, double height_difference_m);
+    void pinNodes();
+    double heightDifference(NodeId a, NodeId b) const;
+    double rangeSigma() const;
+    void learnNoise(const RangeUpdateOutcome &outcome, double sigma_m);
+    const RobotFilter &best() const;
+    RobotFilter &best();
+    void normaliseHypotheses();
+
+    Engine &engine_;
+    MovementParams params_;
+    RangeLikelihood likelihood_;
+    bool started_ = false;
+    bool own_frame_ = false;      // the odometry frame (no map to start from)
+    bool waiting_for_fix_ = false; // a map exists but the robot is not placed in it yet
+    double moved_m_ = 0.0;
+    double last_t_s_ = 0.0;
+    bool have_time_ = false;
+    Pose2 dead_reckoning_;        // before the EKF starts (odometry frame)
+    std::vector<Hypothesis> hypotheses_;
+    std::map<NodeId, BeaconSog> beacons_;
+    std::map<NodeId, bool> moving_;
+    std::vector<double> innovations_m_;      // recent robot-range innovations (m), a ring
+    std::vector<double> prior_variances_m2_; // their predicted variances without the noise (m^2)
+    size_t innovation_next_ = 0;
+    double adaptive_sigma_m_ = 0.0;          // m, 0 until learned
+    MovementCounters counters_;
+    uint64_t revision_ = 0;
+    std::function<void(const std::string &)> trace_;
+    void trace(const std::string &message) const
+    {
+        if (trace_) {
+            trace_(message);
+        }
+    }
+};
+
+} // namespace cdro::engine

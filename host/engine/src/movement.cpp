@@ -1,0 +1,569 @@
+#include "cdro/engine/movement.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "cdro/engine/scaled_range_model.hpp"
+
+namespace cdro::engine {
+
+namespace {
+constexpr double kTwoPi = 6.28318530717958647692;
+
+double headingOf(const Matrix2 &rotation, double heading_rad)
+{
+    const Vector2 direction = rotation * Vector2(std::cos(heading_rad), std::sin(heading_rad));
+    return std::atan2(direction.y(), direction.x());
+}
+} // namespace
+
+MovementStage::MovementStage(Engine &engine, const MovementParams &params)
+    : engine_(engine), params_(params), likelihood_(engine.params().likelihood)
+{
+}
+
+double MovementStage::rangeSigma() const
+{
+    if (params_.range_sigma_m > 0.0) {
+        return params_.range_sigma_m;
+    }
+    const double floor_m = engine_.params().range.sigma_m;
+    return std::max(adaptive_sigma_m_ > 0.0 ? adaptive_sigma_m_ : params_.adaptive_initial_sigma_m, floor_m);
+}
+
+void MovementStage::learnNoise(const RangeUpdateOutcome &outcome, double sigma_m)
+{
+    if (params_.range_sigma_m > 0.0 || outcome.variance_m2 <= 0.0) {
+        return;
+    }
+    // The innovations' spread is the noise plus what the state still does not know: a robust
+    // spread (1.4826 x the median absolute innovation) minus the predicted part.
+    const size_t window = std::max<size_t>(params_.adaptive_window, 8U);
+    const double prior = std::max(outcome.variance_m2 - sigma_m * sigma_m, 0.0);
+    if (innovations_m_.size() < window) {
+        innovations_m_.push_back(outcome.innovation_m);
+        prior_variances_m2_.push_back(prior);
+    } else {
+        innovations_m_[innovation_next_] = outcome.innovation_m;
+        prior_variances_m2_[innovation_next_] = prior;
+        innovation_next_ = (innovation_next_ + 1) % window;
+    }
+    if (innovations_m_.size() < window) {
+        return;
+    }
+    std::vector<double> absolute(innovations_m_.size());
+    for (size_t i = 0; i < absolute.size(); ++i) {
+        absolute[i] = std::abs(innovations_m_[i]);
+    }
+    std::nth_element(absolute.begin(), absolute.begin() + static_cast<long>(absolute.size() / 2), absolute.end());
+    const double spread = 1.4826 * absolute[absolute.size() / 2];
+    double prior_mean = 0.0;
+    for (double value : prior_variances_m2_) {
+        prior_mean += value;
+    }
+    prior_mean /= static_cast<double>(prior_variances_m2_.size());
+    adaptive_sigma_m_ = std::sqrt(std::max(spread * spread - prior_mean, 0.0));
+}
+
+double MovementStage::heightDifference(NodeId a, NodeId b) const
+{
+    const Network &network = engine_.network();
+    const uint32_t ia = network.findNode(a);
+    const uint32_t ib = network.findNode(b);
+    if (ia == kNoIndex || ib == kNoIndex || !network.nodes[ia].height_known || !network.nodes[ib].height_known) {
+        return 0.0;
+    }
+    return network.nodes[ia].height_m - network.nodes[ib].height_m;
+}
+
+const RobotFilter &MovementStage::best() const
+{
+    size_t index = 0;
+    for (size_t i = 1; i < hypotheses_.size(); ++i) {
+        if (hypotheses_[i].log_weight > hypotheses_[index].log_weight) {
+            index = i;
+        }
+    }
+    return hypotheses_[index].filter;
+}
+
+RobotFilter &MovementStage::best() { return const_cast<RobotFilter &>(static_cast<const MovementStage *>(this)->best()); }
+
+void MovementStage::addOdometry(double t_s, const OdometryStep &step)
+{
+    const double dt = have_time_ ? std::max(t_s - last_t_s_, 0.0) : 0.0;
+    last_t_s_ = t_s;
+    have_time_ = true;
+    ++counters_.odometry_steps;
+    ++revision_;
+    if (!started_) {
+        dead_reckoning_ = predictOdometry(dead_reckoning_, step).pose;
+        moved_m_ += std::abs(step.distance_m);
+        if (moved_m_ >= params_.motion_start_m) {
+            start(t_s);
+        }
+        return;
+    }
+    for (Hypothesis &hypothesis : hypotheses_) {
+        hypothesis.filter.predict(step, dt, params_.odometry);
+    }
+    if (trace_ && hypotheses_.size() > 1 && counters_.odometry_steps % 100 == 0) {
+        std::string text = "t " + std::to_string(t_s) + " s:";
+        for (const Hypothesis &hypothesis : hypotheses_) {
+            const Pose2 pose = hypothesis.filter.pose();
+            text += " [" + std::to_string(pose.x_m) + ", " + std::to_string(pose.y_m) + ", " +
+                    std::to_string(pose.heading_rad) + (hypothesis.filter.mirrored() ? " mirrored" : "") + ": " +
+                    std::to_string(hypothesis.log_weight) + "]";
+        }
+        trace(text);
+    }
+}
+
+void MovementStage::start(double t_s)
+{
+    (void)t_s;
+    const NodeId robot = params_.robot_id;
+    const Network &network = engine_.network();
+    bool map = false;
+    for (const NodeState &node : network.nodes) {
+        map = map || (node.placed && node.id != robot);
+    }
+    const uint32_t robot_node = network.findNode(robot);
+    const double scale_sigma = params_.estimate_scale ? params_.scale_sigma : 0.0;
+    const double offset_sigma = params_.estimate_offset ? params_.offset_sigma_m : 0.0;
+    if (!map) {
+        // No map to join: the odometry's frame is the map's. The robot is where it started.
+        own_frame_ = true;
+        engine_.holdFrame(true);
+        Eigen::Matrix3d covariance = Eigen::Matrix3d::Identity() * 1e-6;
+        hypotheses_.push_back({RobotFilter(dead_reckoning_, covariance, 1.0, scale_sigma, 0.0, offset_sigma), 0.0});
+        started_ = true;
+        waiting_for_fix_ = false;
+        engine_.setMoving(robot, true);
+        trace("robot moves: no map to join, the EKF starts in the odometry frame");
+        return;
+    }
+    engine_.setMoving(robot, true);
+    if (robot_node == kNoIndex || !network.nodes[robot_node].placed) {
+        // The map exists but does not hold the robot yet: the initialization stage tracks it
+        // (it is moving) until it is placed, then the EKF starts from there.
+        waiting_for_fix_ = true;
+        return;
+    }
+    const NodeState &fix = network.nodes[robot_node];
+    const uint32_t count = std::max<uint32_t>(params_.heading_hypotheses, 1U);
+    const double spread = kTwoPi / count;
+    // Every heading, in the map's frame and in its mirror image (the map may be reflected).
+    for (bool mirrored : {false, true}) {
+        for (uint32_t k = 0; k < count; ++k) {
+            Pose2 pose{fix.position_m.x(), fix.position_m.y(), wrapAngle(spread * k)};
+            Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+            covariance.topLeftCorner<2, 2>() = fix.covariance_m2 + 0.01 * Matrix2::Identity();
+            covariance(2, 2) = (spread / 2.0) * (spread / 2.0);
+            Hypothesis hypothesis{RobotFilter(pose, covariance, 1.0, scale_sigma, 0.0, offset_sigma), 0.0};
+            hypothesis.filter.setMirrored(mirrored);
+            hypotheses_.push_back(std::move(hypothesis));
+        }
+    }
+    normaliseHypotheses();
+    started_ = true;
+    waiting_for_fix_ = false;
+    insertConvergedNodes();
+    trace("robot moves: EKF starts in the map's frame at (" + std::to_string(fix.position_m.x()) + ", " +
+          std::to_string(fix.position_m.y()) + ") with " + std::to_string(count) + " heading hypotheses and " +
+          std::to_string(hypotheses_.front().filter.nodes().size()) + " nodes");
+}
+
+void MovementStage::insertConvergedNodes()
+{
+    for (const NodeState &node : engine_.network().nodes) {
+        if (node.id != params_.robot_id && !hypotheses_.front().filter.hasNode(node.id)) {
+            insertNode(node.id);
+        }
+    }
+}
+
+bool MovementStage::insertNode(NodeId id)
+{
+    const Network &network = engine_.network();
+    const uint32_t index = network.findNode(id);
+    if (index == kNoIndex || id == params_.robot_id || hypotheses_.empty()) {
+        return false;
+    }
+    const NodeState &node = network.nodes[index];
+    const bool moving = moving_.count(id) != 0 && moving_.at(id);
+    if (!node.placed || node.moving || moving || node.pinned || !(node.converged || node.fixed)) {
+        return false;
+    }
+    // Never more certain than one range could make it: the initialization's covariances
+    // ignore its neighbours' correlations.
+    const double floor_m2 = rangeSigma() * rangeSigma();
+    Matrix2 covariance = node.fixed ? Matrix2::Identity() * 1e-8 : node.covariance_m2;
+    if (!node.fixed && minEigenvalue(covariance) < floor_m2) {
+        covariance += floor_m2 * Matrix2::Identity();
+    }
+    if (hypotheses_.front().filter.full()) {
+        return false; // the EKF is dense; beyond its size the initialization stage keeps the node
+    }
+    for (Hypothesis &hypothesis : hypotheses_) {
+        hypothesis.filter.insertNode(id, node.position_m, covariance);
+    }
+    ++counters_.nodes_inserted;
+    engine_.pinNode(id, node.position_m, covariance);
+    return true;
+}
+
+void MovementStage::pinNodes()
+{
+    const RobotFilter &filter = best();
+    for (NodeId id : filter.nodes()) {
+        engine_.pinNode(id, filter.nodePosition(id), filter.nodeCovariance(id));
+    }
+}
+
+void MovementStage::normaliseHypotheses()
+{
+    if (hypotheses_.empty()) {
+        return;
+    }
+    double largest = -std::numeric_limits<double>::infinity();
+    for (const Hypothesis &hypothesis : hypotheses_) {
+        largest = std::max(largest, hypothesis.log_weight);
+    }
+    double total = 0.0;
+    for (const Hypothesis &hypothesis : hypotheses_) {
+        total += std::exp(hypothesis.log_weight - largest);
+    }
+    const double log_total = largest + std::log(total);
+    for (Hypothesis &hypothesis : hypotheses_) {
+        hypothesis.log_weight -= log_total;
+    }
+    if (hypotheses_.size() == 1) {
+        hypotheses_.front().log_weight = 0.0;
+        return;
+    }
+    // Hypotheses that have reached the same pose are one: their weights add up.
+    for (size_t i = 0; i < hypotheses_.size(); ++i) {
+        for (size_t j = hypotheses_.size(); j-- > i + 1;) {
+            const Pose2 a = hypotheses_[i].filter.pose();
+            const Pose2 b = hypotheses_[j].filter.pose();
+            // Closer than their own uncertainty (or the fixed thresholds): the same hypothesis.
+            const Eigen::Matrix3d &p = hypotheses_[i].filter.poseCovariance();
+            const Matrix2 position_covariance = p.topLeftCorner<2, 2>();
+            const double position_sigma = std::sqrt(std::max(position_covariance.trace() - minEigenvalue(position_covariance), 0.0));
+            const double heading_sigma = std::sqrt(std::max(p(2, 2), 0.0));
+            if (hypotheses_[i].filter.mirrored() == hypotheses_[j].filter.mirrored() &&
+                std::hypot(a.x_m - b.x_m, a.y_m - b.y_m) < std::max(params_.heading_merge_m, 3.0 * position_sigma) &&
+                std::abs(wrapAngle(a.heading_rad - b.heading_rad)) <
+                    std::max(params_.heading_merge_rad, 3.0 * heading_sigma)) {
+                const double high = std::max(hypotheses_[i].log_weight, hypotheses_[j].log_weight);
+                const double sum = high + std::log(std::exp(hypotheses_[i].log_weight - high) +
+                                                   std::exp(hypotheses_[j].log_weight - high));
+                if (hypotheses_[j].log_weight > hypotheses_[i].log_weight) {
+                    std::swap(hypotheses_[i], hypotheses_[j]);
+                }
+                hypotheses_[i].log_weight = sum;
+                hypotheses_.erase(hypotheses_.begin() + static_cast<long>(j));
+                ++counters_.hypotheses_pruned;
+            }
+        }
+    }
+    const double collapse = std::log(params_.heading_collapse_weight);
+    const double prune = std::log(params_.heading_prune_weight);
+    std::vector<Hypothesis> kept;
+    for (Hypothesis &hypothesis : hypotheses_) {
+        if (hypothesis.log_weight >= collapse) {
+            kept = {hypothesis};
+            kept.front().log_weight = 0.0;
+            break;
+        }
+        if (hypothesis.log_weight >= prune) {
+            kept.push_back(hypothesis);
+        }
+    }
+    counters_.hypotheses_pruned += hypotheses_.size() - kept.size();
+    if (!kept.empty()) {
+        const bool decided = kept.size() == 1 && hypotheses_.size() > 1;
+        hypotheses_ = std::move(kept);
+        if (decided) {
+            trace(std::string("robot heading decided: ") + std::to_string(hypotheses_.front().filter.pose().heading_rad) +
+                  " rad" + (hypotheses_.front().filter.mirrored() ? ", the map is the world's mirror image" : ""));
+        }
+    }
+    if (hypotheses_.size() == 1) {
+        pinNodes();
+    }
+}
+
+void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, double height_difference_m)
+{
+    const RobotFilter &filter = best();
+    const Pose2 robot = filter.pose();
+    const Vector2 robot_m(robot.x_m, robot.y_m);
+    const Matrix2 robot_covariance = filter.poseCovariance().topLeftCorner<2, 2>();
+    const double scale = filter.scale();
+    const double offset = filter.offset();
+    const double noise = rangeSigma() * rangeSigma() + filter.scaleSigma() * filter.scaleSigma() * range_m * range_m +
+                         filter.offsetSigma() * filter.offsetSigma();
+    if (sog.components.empty()) {
+        // A ring around the robot, of the range corrected by the current calibration.
+        const double radius = std::sqrt(std::max(std::pow((range_m - offset) / scale, 2.0) -
+                                                     height_difference_m * height_difference_m,
+                                                 0.0));
+        const uint32_t count = std::max<uint32_t>(
+            params_.beacon_min_components,
+            static_cast<uint32_t>(std::floor(kTwoPi * radius / std::max(params_.beacon_arc_spacing_m, 0.05))) + 1U);
+        const double tangential = kTwoPi * radius / count / 2.5;
+        for (uint32_t k = 0; k < count; ++k) {
+            const double angle = kTwoPi * k / count;
+            const Vector2 radial(std::cos(angle), std::sin(angle));
+            const Vector2 across(-radial.y(), radial.x());
+            BeaconComponent component;
+            component.mean_m = robot_m + radius * radial;
+            component.covariance_m2 = noise * radial * radial.transpose() +
+                                      tangential * tangential * across * across.transpose() + robot_covariance;
+            component.weight = 1.0 / count;
+            sog.components.push_back(component);
+        }
+        sog.first_robot_m = robot_m;
+        sog.ranges = 1;
+        ++counters_.beacon_sogs;
+        return;
+    }
+    ++sog.ranges;
+    sog.baseline_m = std::max(sog.baseline_m, (robot_m - sog.first_robot_m).norm());
+    double best_weight = 0.0;
+    for (BeaconComponent &component : sog.components) {
+        const ScaledRangePrediction prediction =
+            predictScaledRange(component.mean_m, robot_m, height_difference_m, scale, offset);
+        if (prediction.singular) {
+            continue;
+        }
+        const Eigen::RowVector2d h = prediction.jacobian_a;
+        const double variance = (h * component.covariance_m2 * h.transpose()).value() +
+                                (h * robot_covariance * h.transpose()).value() + noise;
+        const double innovation = range_m - prediction.range_m;
+        component.weight *= likelihood_.density(innovation, variance);
+        const Eigen::Vector2d gain = component.covariance_m2 * h.transpose() / variance;
+        component.mean_m += gain * innovation;
+        component.covariance_m2 -= gain * h * component.covariance_m2;
+        component.covariance_m2 = 0.5 * (component.covariance_m2 + component.covariance_m2.transpose());
+        best_weight = std::max(best_weight, component.weight);
+    }
+    if (!(best_weight > 0.0)) {
+        return;
+    }
+    // Normalise and drop what has lost: only the plausible part of the ring is kept.
+    const double threshold = params_.beacon_prune_ratio * best_weight;
+    std::vector<BeaconComponent> kept;
+    double total = 0.0;
+    for (const BeaconComponent &component : sog.components) {
+        if (component.weight >= threshold) {
+            kept.push_back(component);
+            total += component.weight;
+        }
+    }
+    for (BeaconComponent &component : kept) {
+        component.weight /= total;
+    }
+    sog.components = std::move(kept);
+    (void)id;
+}
+
+RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double range_m)
+{
+    last_t_s_ = std::max(last_t_s_, t_s);
+    const RangeVerdict verdict = engine_.addRange(from, to, range_m, t_s);
+    if (verdict == RangeVerdict::RejectedSelf || verdict == RangeVerdict::RejectedValue) {
+        return verdict;
+    }
+    ++revision_;
+    if (!started_) {
+        if (waiting_for_fix_) {
+            const uint32_t robot = engine_.network().findNode(params_.robot_id);
+            if (robot != kNoIndex && engine_.network().nodes[robot].placed) {
+                start(t_s);
+            }
+        }
+        return verdict;
+    }
+    const NodeId robot = params_.robot_id;
+    const bool robot_range = from == robot || to == robot;
+    const double sigma = rangeSigma();
+    if (robot_range) {
+        const NodeId other = from == robot ? to : from;
+        ++counters_.robot_ranges;
+        if (moving_.count(other) != 0 && moving_.at(other)) {
+            return verdict; // a carried node is tracked by the initialization stage
+        }
+        const double dz = heightDifference(robot, other);
+        if (!hypotheses_.front().filter.hasNode(other) && !insertNode(other)) {
+            if (!own_frame_ || hypotheses_.size() != 1) {
+                return verdict;
+            }
+            BeaconSog &sog = beacons_[other];
+            updateBeaconSog(other, sog, range_m, dz);
+            const Gaussian2 merged = [&] {
+                Gaussian2 g;
+                for (const BeaconComponent &c : sog.components) {
+                    g.mean_m += c.weight * c.mean_m;
+                }
+                for (const BeaconComponent &c : sog.components) {
+                    const Vector2 spread = c.mean_m - g.mean_m;
+                    g.covariance_m2 += c.weight * (c.covariance_m2 + spread * spread.transpose());
+                }
+                return g;
+            }();
+            const double largest_variance =
+                merged.covariance_m2.trace() - minEigenvalue(merged.covariance_m2); // the larger eigenvalue
+            if (sog.ranges >= params_.beacon_min_ranges && sog.baseline_m >= params_.beacon_min_baseline_m &&
+                largest_variance <= params_.beacon_insert_std_m * params_.beacon_insert_std_m) {
+                for (Hypothesis &hypothesis : hypotheses_) {
+                    hypothesis.filter.insertNode(other, merged.mean_m, merged.covariance_m2);
+                }
+                ++counters_.nodes_inserted;
+                engine_.pinNode(other, merged.mean_m, merged.covariance_m2);
+                beacons_.erase(other);
+            }
+            return verdict;
+        }
+        const RobotFilter *leader = &best();
+        for (Hypothesis &hypothesis : hypotheses_) {
+            const RangeUpdateOutcome outcome =
+                hypothesis.filter.updateRobotRange(other, range_m, dz, sigma, params_.gate_sigma, likelihood_);
+            hypothesis.log_weight += outcome.log_likelihood;
+            counters_.ekf_updates += outcome.used ? 1U : 0U;
+            counters_.ekf_gated += outcome.gated ? 1U : 0U;
+            // Only a decided heading says anything about the noise (the wrong ones see huge innovations).
+            if (&hypothesis.filter == leader && hypotheses_.size() == 1) {
+                learnNoise(outcome, sigma);
+            }
+        }
+        normaliseHypotheses();
+        if (hypotheses_.size() == 1) {
+            pinNodes();
+        }
+        return verdict;
+    }
+    // Between two nodes: the EKF refines both when it holds both.
+    RobotFilter &filter = hypotheses_.front().filter;
+    if (!filter.hasNode(from)) {
+        insertNode(from);
+    }
+    if (!filter.hasNode(to)) {
+        insertNode(to);
+    }
+    if (filter.hasNode(from) && filter.hasNode(to)) {
+        const double dz = heightDifference(from, to);
+        for (Hypothesis &hypothesis : hypotheses_) {
+            const RangeUpdateOutcome outcome =
+                hypothesis.filter.updateNodeRange(from, to, range_m, dz, sigma, params_.gate_sigma, likelihood_);
+            counters_.ekf_updates += outcome.used ? 1U : 0U;
+            counters_.ekf_gated += outcome.gated ? 1U : 0U;
+        }
+        if (hypotheses_.size() == 1) {
+            pinNodes();
+        }
+    }
+    return verdict;
+}
+
+void MovementStage::setMoving(double t_s, NodeId id, bool moving)
+{
+    last_t_s_ = std::max(last_t_s_, t_s);
+    if (id == params_.robot_id) {
+        return; // the robot's motion comes from its odometry
+    }
+    moving_[id] = moving;
+    ++revision_;
+    if (moving && !hypotheses_.empty() && hypotheses_.front().filter.hasNode(id)) {
+        for (Hypothesis &hypothesis : hypotheses_) {
+            hypothesis.filter.removeNode(id);
+        }
+        ++counters_.nodes_removed;
+        engine_.unpinNode(id);
+    }
+    engine_.setMoving(id, moving);
+}
+
+std::optional<RobotOutput> MovementStage::robot() const
+{
+    if (params_.robot_id == 0) {
+        return std::nullopt;
+    }
+    RobotOutput out;
+    out.id = params_.robot_id;
+    out.t_s = last_t_s_;
+    const RigidTransform transform = engine_.outputTransform();
+    if (!started_ || hypotheses_.empty()) {
+        const std::optional<NodeOutput> node = engine_.estimate(params_.robot_id);
+        if (node && node->placed) {
+            out.pose = Pose2{node->position_m.x(), node->position_m.y(), 0.0};
+            out.covariance.topLeftCorner<2, 2>() = node->covariance_m2;
+            out.covariance(2, 2) = kTwoPi * kTwoPi / 12.0; // heading unknown
+        } else {
+            out.pose = dead_reckoning_;
+        }
+        return out;
+    }
+    const RobotFilter &filter = best();
+    const Pose2 pose = filter.pose();
+    const Vector2 position = transform.apply(Vector2(pose.x_m, pose.y_m));
+    out.pose = Pose2{position.x(), position.y(), headingOf(transform.rotation, pose.heading_rad)};
+    out.covariance = filter.poseCovariance();
+    out.covariance.topLeftCorner<2, 2>() = transform.applyToCovariance(out.covariance.topLeftCorner<2, 2>());
+    out.localized = true;
+    out.hypotheses = static_cast<uint32_t>(hypotheses_.size());
+    out.range_scale = filter.scale();
+    out.range_scale_sigma = filter.scaleSigma();
+    out.range_offset_m = filter.offset();
+    out.range_offset_sigma_m = filter.offsetSigma();
+    return out;
+}
+
+std::vector<NodeOutput> MovementStage::estimates() const
+{
+    std::vector<NodeOutput> out = engine_.estimates();
+    if (!started_ || hypotheses_.empty()) {
+        return out;
+    }
+    const RigidTransform transform = engine_.outputTransform();
+    const RobotFilter &filter = best();
+    for (NodeOutput &node : out) {
+        if (node.id == params_.robot_id) {
+            const Pose2 pose = filter.pose();
+            node.placed = true;
+            node.moving = true;
+            node.converged = hypotheses_.size() == 1;
+            node.position_m = transform.apply(Vector2(pose.x_m, pose.y_m));
+            node.covariance_m2 = transform.applyToCovariance(filter.poseCovariance().topLeftCorner<2, 2>());
+        } else if (filter.hasNode(node.id)) {
+            node.placed = true;
+            node.converged = true;
+            node.position_m = transform.apply(filter.nodePosition(node.id));
+            node.covariance_m2 = transform.applyToCovariance(filter.nodeCovariance(node.id));
+        } else {
+            const auto beacon = beacons_.find(node.id);
+            if (beacon != beacons_.end() && !beacon->second.components.empty()) {
+                // Still a SoG around the robot's path: its merged mean, not converged.
+                Vector2 mean = Vector2::Zero();
+                for (const BeaconComponent &c : beacon->second.components) {
+                    mean += c.weight * c.mean_m;
+                }
+                Matrix2 covariance = Matrix2::Zero();
+                for (const BeaconComponent &c : beacon->second.components) {
+                    const Vector2 spread = c.mean_m - mean;
+                    covariance += c.weight * (c.covariance_m2 + spread * spread.transpose());
+                }
+                node.placed = true;
+                node.converged = false;
+                node.position_m = transform.apply(mean);
+                node.covariance_m2 = transform.applyToCovariance(covariance);
+            }
+        }
+    }
+    return out;
+}
+
+} // namespace cdro::engine
