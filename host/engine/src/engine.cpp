@@ -546,6 +546,7 @@ void Engine::placeNode(uint32_t node, const Vector2 &position_m, const Matrix2 &
     }
     state.average_m = position_m;
     state.still_updates = 0;
+    state.update_count = 0;
     state.converged = false;
     ++state.placements;
     ++counters_.placements;
@@ -796,6 +797,8 @@ void Engine::updateNode(uint32_t node, bool after_range)
                     solvePoint(constraints, merged.mean_m, likelihood_, refine_solver_, &alternative_inliers);
                 if (alternative.well_posed &&
                     alternative.cost + params_.refinement.switch_gap_nats < solution.cost) {
+                    trace("node " + std::to_string(state.id) + ": its SoGs explain the links better " +
+                          std::to_string((alternative.position_m - solution.position_m).norm()) + " m away: moved there");
                     solution = alternative;
                     inliers = alternative_inliers;
                     ++counters_.hypothesis_switches;
@@ -896,7 +899,7 @@ void Engine::updateConvergence(NodeState &state)
         state.still_updates = 0;
     }
     const bool was = state.converged;
-    if (state.still_updates >= convergence.consecutive) {
+    if (state.still_updates >= convergence.consecutive && state.update_count >= convergence.min_updates) {
         state.converged = true;
     }
     if (step > convergence.unconverge_factor * convergence.threshold_m) {

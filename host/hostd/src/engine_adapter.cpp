@@ -92,13 +92,24 @@ engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)
 
 } // namespace
 
-EngineAdapter::EngineAdapter(engine::Engine &engine) : engine_(engine) {}
+EngineAdapter::EngineAdapter(engine::Engine &engine, engine::MovementStage *movement)
+    : engine_(engine), movement_(movement)
+{
+}
+
+namespace {
+// Event time in seconds (the frames' host receive time, replayed as recorded).
+double seconds(int64_t unix_us) { return static_cast<double>(unix_us) * 1e-6; }
+} // namespace
 
 void EngineAdapter::onRange(const cdro_range_t &range, const service::FrameContext &context)
 {
     last_event_unix_us_ = context.host_unix_us;
-    const engine::RangeVerdict verdict =
-        engine_.addRange(range.from_id, range.to_id, static_cast<double>(range.distance_mm) / 1000.0);
+    const double range_m = static_cast<double>(range.distance_mm) / 1000.0;
+    const double t_s = seconds(context.host_unix_us);
+    const engine::RangeVerdict verdict = movement_ != nullptr
+                                             ? movement_->addRange(t_s, range.from_id, range.to_id, range_m)
+                                             : engine_.addRange(range.from_id, range.to_id, range_m, t_s);
     if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
         ++ranges_refused_;
     }
@@ -107,13 +118,25 @@ void EngineAdapter::onRange(const cdro_range_t &range, const service::FrameConte
 void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameContext &context)
 {
     last_event_unix_us_ = context.host_unix_us;
-    engine_.setMoving(motion.node_id, motion.moving != 0);
+    if (movement_ != nullptr) {
+        movement_->setMoving(seconds(context.host_unix_us), motion.node_id, motion.moving != 0);
+    } else {
+        engine_.setMoving(motion.node_id, motion.moving != 0);
+    }
+}
+
+void EngineAdapter::onOdometry(double t_s, const engine::OdometryStep &step)
+{
+    if (movement_ != nullptr) {
+        movement_->addOdometry(t_s, step);
+    }
 }
 
 void EngineAdapter::fill(service::MapState &map) const
 {
     map.nodes.clear();
-    for (const engine::NodeOutput &node : engine_.estimates()) {
+    const std::vector<engine::NodeOutput> estimates = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
+    for (const engine::NodeOutput &node : estimates) {
         if (node.link_count == 0 && !node.fixed) {
             continue;
         }
@@ -141,6 +164,20 @@ void EngineAdapter::fill(service::MapState &map) const
         map.links.push_back(out);
     }
     map.robot.reset();
+    if (movement_ != nullptr) {
+        const std::optional<engine::RobotOutput> robot = movement_->robot();
+        if (robot && robot->localized) {
+            service::RobotPose pose;
+            pose.id = robot->id;
+            pose.x_m = robot->pose.x_m;
+            pose.y_m = robot->pose.y_m;
+            pose.heading_rad = robot->pose.heading_rad;
+            pose.var_x_m2 = robot->covariance(0, 0);
+            pose.cov_xy_m2 = robot->covariance(0, 1);
+            pose.var_y_m2 = robot->covariance(1, 1);
+            map.robot = pose;
+        }
+    }
 }
 
 std::optional<service::NodeComponents> EngineAdapter::components(uint16_t id) const

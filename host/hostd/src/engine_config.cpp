@@ -112,6 +112,7 @@ void parseConvergence(Section &s, engine::ConvergenceParams &p)
     s.read<double>("smoothing", p.smoothing, 0.0, 0.9999);
     s.read<double>("threshold_m", p.threshold_m, 0.0, kHuge);
     s.read<uint32_t>("consecutive", p.consecutive, 1, 100000);
+    s.read<uint32_t>("min_updates", p.min_updates, 0, 100000000);
     s.read<double>("unconverge_factor", p.unconverge_factor, 1.0, kHuge);
 }
 
@@ -424,7 +425,8 @@ std::string engineParamsYaml(const engine::EngineParams &p)
         << YAML::EndMap;
     out << YAML::Key << "convergence" << YAML::Value << YAML::BeginMap << YAML::Key << "smoothing" << YAML::Value
         << p.convergence.smoothing << YAML::Key << "threshold_m" << YAML::Value << p.convergence.threshold_m
-        << YAML::Key << "consecutive" << YAML::Value << p.convergence.consecutive << YAML::Key << "unconverge_factor"
+        << YAML::Key << "consecutive" << YAML::Value << p.convergence.consecutive
+        << YAML::Key << "min_updates" << YAML::Value << p.convergence.min_updates << YAML::Key << "unconverge_factor"
         << YAML::Value << p.convergence.unconverge_factor << YAML::EndMap;
     out << YAML::Key << "frame" << YAML::Value << YAML::BeginMap << YAML::Key << "origin" << YAML::Value
         << p.frame.origin << YAML::Key << "x_axis" << YAML::Value << p.frame.x_axis << YAML::Key << "positive_y"

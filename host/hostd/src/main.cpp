@@ -132,7 +132,12 @@ int main(int argc, char **argv)
         cdro::service::setupLogging(config.logging);
         cdro::engine::Engine engine(params);
         engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
-        cdro::hostd::EngineAdapter adapter(engine);
+        std::unique_ptr<cdro::engine::MovementStage> stage;
+        if (movement.robot_id != 0) {
+            stage = std::make_unique<cdro::engine::MovementStage>(engine, movement);
+            stage->setTrace([](const std::string &message) { cdro::service::log()->debug("movement: {}", message); });
+        }
+        cdro::hostd::EngineAdapter adapter(engine, stage.get());
         cdro::service::SystemClock clock;
         cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter}, clock);
         service.start();

@@ -100,7 +100,6 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     engine::MovementStage stage(engine, movement_params);
     if (options.verbose) {
         stage.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: movement: %s\n", message.c_str()); });
-        engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
     }
     // Merge the three streams by time; at equal times odometry first (it ends its step at t),
     // then motion reports, then ranges.
@@ -181,6 +180,9 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
 {
     try {
         engine::Engine engine(params);
+        if (options.verbose) {
+            engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
+        }
         if (!options.heights_csv.empty()) {
             const CsvTable<HeightRow> heights = readHeightsCsv(options.heights_csv);
             reportProblems(options.heights_csv, heights, options.max_reported_rows, log);

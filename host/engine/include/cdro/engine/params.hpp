@@ -87,7 +87,8 @@ struct MotionParams {
 struct ConvergenceParams {
     double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;        // m, step of the moving average under which a node is still
-    uint32_t consecutive = 3;         // still updates in a row to count as converged
+    uint32_t consecutive = 5;         // still updates in a row to count as converged ...
+    uint32_t min_updates = 15;        // ... and at least this many updates since it was placed
     double unconverge_factor = 10.0;  // a step above factor * threshold clears convergence
 };
 

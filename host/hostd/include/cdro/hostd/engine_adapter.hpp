@@ -1,7 +1,8 @@
 // engine_adapter.hpp: the SLAM engine behind the service's three interfaces
 // (host/service: consumer.hpp, map_state.hpp, checkpoint.hpp), for cdro-hostd.
 //
-//   FrameConsumer       RANGE -> Engine::addRange (mm -> m), MOTION -> Engine::setMoving
+//   FrameConsumer       RANGE -> Engine::addRange (mm -> m), MOTION -> Engine::setMoving (or the
+//                       movement stage's, with the frame's event time in s)
 //   MapSource           the engine's estimates in the output frame, its links, SoG components
 //   CheckpointProvider  the engine state in common/'s fixed-point SoG layout (sog_layout.h),
 //                       plus an extension block (tag kEngineExtensionTag) with what the layout
@@ -21,6 +22,7 @@
 #include <string>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/engine/movement.hpp"
 #include "cdro/service/checkpoint.hpp"
 #include "cdro/service/consumer.hpp"
 #include "cdro/service/map_state.hpp"
@@ -33,14 +35,19 @@ class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,
                             public service::CheckpointProvider {
 public:
-    explicit EngineAdapter(engine::Engine &engine);
+    // movement: the movement stage over the same engine when a robot is configured, else null.
+    explicit EngineAdapter(engine::Engine &engine, engine::MovementStage *movement = nullptr);
+
+    // Odometry from the robot (the service's odometry input): a step ending at t_s (s, the
+    // same clock as the frames' event time).
+    void onOdometry(double t_s, const engine::OdometryStep &step);
 
     // FrameConsumer
     void onRange(const cdro_range_t &range, const service::FrameContext &context) override;
     void onMotion(const cdro_motion_t &motion, const service::FrameContext &context) override;
 
     // MapSource
-    uint64_t revision() const override { return engine_.revision(); }
+    uint64_t revision() const override { return movement_ != nullptr ? movement_->revision() : engine_.revision(); }
     void fill(service::MapState &map) const override;
     std::optional<service::NodeComponents> components(uint16_t id) const override;
 
@@ -53,6 +60,7 @@ public:
 
 private:
     engine::Engine &engine_;
+    engine::MovementStage *movement_ = nullptr;
     uint64_t ranges_refused_ = 0;
     int64_t last_event_unix_us_ = 0;
 };
