@@ -198,6 +198,7 @@ void Engine::updateTrack(uint32_t moving_node, uint32_t anchor_node, double rang
     const Matrix2 anchor_covariance = anchor.fixed ? Matrix2::Zero() : anchor.covariance_m2;
     if (state.track.updateRange(anchor.position_m, anchor_covariance, range_m, params_.range.sigma_m, likelihood_,
                                 params_.sog.gate_sigma)) {
+        state.track.limitSpeed(motion.track_max_speed_mps);
         ++counters_.track_updates;
     } else {
         ++counters_.track_refused;
@@ -216,7 +217,9 @@ void Engine::watchForMotion(uint32_t node, uint32_t link, double residual_m)
     }
     const uint32_t window = std::clamp<uint32_t>(motion.inferred_window, 1U, NodeState::kRecentRanges);
     state.recent_links[state.recent_next] = link;
-    state.recent_large[state.recent_next] = std::abs(residual_m) > motion.inferred_residual_m;
+    // Large means beyond both the configured distance and four standard deviations of the noise.
+    const double large_m = std::max(motion.inferred_residual_m, 4.0 * params_.range.sigma_m);
+    state.recent_large[state.recent_next] = std::abs(residual_m) > large_m;
     state.recent_next = (state.recent_next + 1) % window;
     state.recent_count = std::min(state.recent_count + 1, window);
     uint32_t large = 0;
@@ -303,6 +306,19 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
         runPlacement();
     }
     if (!network_.nodes[a].placed || !network_.nodes[b].placed) {
+        for (uint32_t end : {a, b}) {
+            NodeState &waiting = network_.nodes[end];
+            if (!waiting.placed) {
+                ++waiting.ambiguous_ranges;
+                // Patience runs out: look at it again even if nothing else changed.
+                if (waiting.ambiguous_ranges == params_.placement.patience_ranges) {
+                    markPlacementPending(end);
+                }
+            }
+        }
+        if (any_placement_pending_) {
+            runPlacement();
+        }
         ++counters_.ranges_stored;
         relax(params_.refinement.relax_per_range);
         return RangeVerdict::Stored;
@@ -408,6 +424,16 @@ void Engine::runPlacement()
                 if (choice.decision == PlacementDecision::Placed) {
                     placement_pending_[node] = false;
                     placeNode(node, choice.chosen.position_m, choice.chosen.covariance_m2);
+                    progress = true;
+                } else if (constraints.size() >= 3 && !candidates.empty() &&
+                           state.ambiguous_ranges >= params_.placement.patience_ranges) {
+                    // Noisy ranges may never make the choice clear: after enough of them, the
+                    // best explanation is taken (the SoGs and the refinement can still move it).
+                    trace("node " + std::to_string(state.id) + " stayed ambiguous for " +
+                          std::to_string(state.ambiguous_ranges) + " ranges: placed at its best candidate");
+                    placement_pending_[node] = false;
+                    placeNode(node, candidates.front().position_m, candidates.front().covariance_m2);
+                    ++counters_.placements_forced;
                     progress = true;
                 } else {
                     ++counters_.placement_ambiguous;
@@ -549,6 +575,7 @@ void Engine::placeNode(uint32_t node, const Vector2 &position_m, const Matrix2 &
     state.update_count = 0;
     state.converged = false;
     ++state.placements;
+    state.ambiguous_ranges = 0;
     ++counters_.placements;
     ++revision_;
     ensureRings(node);
@@ -706,7 +733,8 @@ void Engine::reweightRing(uint32_t link, uint32_t center_node, double own_range_
     if (witnesses.empty()) {
         return;
     }
-    const WeightUpdateResult weights = ring.updateWeights(witnesses, likelihood_, params_.range.sigma_m, full);
+    const WeightUpdateResult weights =
+        ring.updateWeights(witnesses, likelihood_, params_.range.sigma_m, full, params_.sog.collapse_reset);
     counters_.weight_terms += witnesses.size();
     counters_.weight_terms_downweighted += weights.downweighted;
     if (weights.collapsed) {
@@ -813,10 +841,12 @@ void Engine::updateNode(uint32_t node, bool after_range)
             }
             counters_.refinement_links_downweighted += solution.downweighted;
             uint32_t inconsistent = 0;
+            const double inconsistent_m =
+                std::max(params_.refinement.inconsistent_residual_m, 4.0 * params_.range.sigma_m);
             for (size_t i = 0; i < constraints.size(); ++i) {
                 network_.links[constraints[i].link].inlier_probability = inliers[i];
                 const double residual = constraints[i].range_m - (position - constraints[i].anchor_m).norm();
-                if (std::abs(residual) > params_.refinement.inconsistent_residual_m) {
+                if (std::abs(residual) > inconsistent_m) {
                     ++inconsistent;
                 }
             }
@@ -844,7 +874,7 @@ void Engine::updateNode(uint32_t node, bool after_range)
     state.position_m = position;
     state.covariance_m2 = covariance;
     // Rings are relative to their centre: they move with it.
-    if (delta.squaredNorm() > 0.0) {
+    if (delta.squaredNorm() > 0.0 && params_.sog.rings_follow_center) {
         for (uint32_t link : state.links) {
             const uint32_t slot = ringSlot(link, node);
             if (slot != kNoIndex) {

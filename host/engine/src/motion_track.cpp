@@ -67,4 +67,12 @@ bool MotionTrack::updateRange(const Vector2 &anchor_m, const Matrix2 &anchor_cov
     return true;
 }
 
+void MotionTrack::limitSpeed(double max_speed_mps)
+{
+    const double speed = velocity().norm();
+    if (speed > max_speed_mps && speed > 0.0) {
+        state_.segment<2>(2) *= max_speed_mps / speed;
+    }
+}
+
 } // namespace cdro::engine

@@ -110,7 +110,8 @@ RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix
 }
 
 WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witnesses,
-                                          const RangeLikelihood &likelihood, double range_sigma_m, bool full)
+                                          const RangeLikelihood &likelihood, double range_sigma_m, bool full,
+                                          bool allow_reset)
 {
     WeightUpdateResult result;
     if (witnesses.empty() || components_.empty()) {
@@ -148,7 +149,7 @@ WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witne
         }
     }
     // Only a full update sees the whole ring, so only it can tell that the ring collapsed.
-    result.collapsed = applyLikelihood(scratch_, full);
+    result.collapsed = applyLikelihood(scratch_, full && allow_reset);
     return result;
 }
 

@@ -76,7 +76,8 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.placements_by_tie_break, &c.placement_ambiguous, &c.mds_layouts, &c.replacements, &c.refinements,
             &c.refinement_links_downweighted, &c.hypothesis_switches, &c.node_updates, &c.relaxations,
             &c.reinitializations, &c.reinitializations_adopted, &c.motion_starts, &c.motion_stops,
-            &c.motion_inferred, &c.motion_resets, &c.track_updates, &c.track_refused};
+            &c.motion_inferred, &c.motion_resets, &c.track_updates, &c.track_refused,
+            &c.placements_forced};
 }
 
 engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)

@@ -1,5 +1,6 @@
 #include "cdro/hostd/engine_config.hpp"
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -17,118 +18,235 @@ namespace {
 
 constexpr double kHuge = 1e9;
 
-void readNodeId(Section &s, const char *key, engine::NodeId &id)
+// One configuration key: where it lives, its type and range, and how to reach it. The same
+// table parses the file, prints --print-config and is what docs/engine.md must list.
+template <typename Params> struct Key {
+    const char *group; // nested section under the top one ("" = directly in it)
+    const char *name;
+    enum class Kind { Real, Count, Flag, Id } kind;
+    double minimum;
+    double maximum;
+    double *(*real)(Params &);
+    uint32_t *(*count)(Params &);
+    bool *(*flag)(Params &);
+    uint16_t *(*id)(Params &);
+};
+
+#define CDRO_REAL(G, N, MIN, MAX, FIELD) \
+    Key<P>{G, N, Key<P>::Kind::Real, MIN, MAX, [](P &p) { return &p.FIELD; }, nullptr, nullptr, nullptr}
+#define CDRO_COUNT(G, N, MIN, MAX, FIELD) \
+    Key<P>{G, N, Key<P>::Kind::Count, MIN, MAX, nullptr, [](P &p) { return &p.FIELD; }, nullptr, nullptr}
+#define CDRO_FLAG(G, N, FIELD) \
+    Key<P>{G, N, Key<P>::Kind::Flag, 0, 1, nullptr, nullptr, [](P &p) { return &p.FIELD; }, nullptr}
+#define CDRO_ID(G, N, FIELD) \
+    Key<P>{G, N, Key<P>::Kind::Id, 0, 65535, nullptr, nullptr, nullptr, [](P &p) { return &p.FIELD; }}
+
+const std::vector<Key<engine::EngineParams>> &engineKeys()
 {
-    int64_t value = id;
-    s.read<int64_t>(key, value, 0, 65535);
-    id = static_cast<engine::NodeId>(value);
+    using P = engine::EngineParams;
+    static const std::vector<Key<P>> keys = {
+        CDRO_REAL("range", "sigma_m", 0.001, 100.0, range.sigma_m),
+        CDRO_REAL("range", "max_range_m", 0.1, 1e6, range.max_range_m),
+        CDRO_COUNT("range", "window", 1, engine::RangeWindow::kCapacity, range.window),
+        CDRO_FLAG("likelihood", "robust", likelihood.robust),
+        CDRO_REAL("likelihood", "nlos_fraction", 0.0, 1.0, likelihood.nlos_fraction),
+        CDRO_REAL("likelihood", "nlos_mean_excess_m", 0.001, 1000.0, likelihood.nlos_mean_excess_m),
+        CDRO_REAL("likelihood", "gross_density_per_m", 1e-12, 1.0, likelihood.gross_density_per_m),
+        CDRO_REAL("sog", "arc_spacing_m", 0.01, 100.0, ring.arc_spacing_m),
+        CDRO_COUNT("sog", "min_components", 3, 100000, ring.min_components),
+        CDRO_COUNT("sog", "max_components", 3, 100000, ring.max_components),
+        CDRO_REAL("sog", "tangential_overlap", 0.1, 100.0, ring.tangential_overlap),
+        CDRO_REAL("sog", "weight_floor", 0.0, 0.01, ring.weight_floor),
+        CDRO_FLAG("sog", "collapse_reset", sog.collapse_reset),
+        CDRO_FLAG("sog", "rings_follow_center", sog.rings_follow_center),
+        CDRO_FLAG("sog", "cooperative", sog.cooperative),
+        CDRO_FLAG("sog", "weight_transfer", sog.weight_transfer),
+        CDRO_REAL("sog", "transfer_sigma_m", 0.001, 100.0, sog.transfer_sigma_m),
+        CDRO_REAL("sog", "gate_sigma", 0.5, 1000.0, sog.gate_sigma),
+        CDRO_REAL("sog", "process_noise_m2", 0.0, 100.0, sog.process_noise_m2),
+        CDRO_COUNT("sog", "full_update_every", 1, 100000, sog.full_update_every),
+        CDRO_REAL("placement", "min_triangle_height_m", 0.0, kHuge, placement.min_triangle_height_m),
+        CDRO_REAL("placement", "min_baseline_m", 0.0, kHuge, placement.min_baseline_m),
+        CDRO_REAL("placement", "ambiguity_gap_nats", 0.0, kHuge, placement.ambiguity_gap_nats),
+        CDRO_REAL("placement", "distinct_m", 0.001, kHuge, placement.distinct_m),
+        CDRO_FLAG("placement", "mds_tie_break", placement.mds_tie_break),
+        CDRO_REAL("placement", "mds_decisive_ratio", 0.0, 1.0, placement.mds_decisive_ratio),
+        CDRO_REAL("placement", "mds_margin_sigmas", 0.0, kHuge, placement.mds_margin_sigmas),
+        CDRO_COUNT("placement", "patience_ranges", 1, 100000000, placement.patience_ranges),
+        CDRO_FLAG("refinement", "enabled", refinement.enabled),
+        CDRO_COUNT("refinement", "max_iterations", 1, 1000, refinement.max_iterations),
+        CDRO_REAL("refinement", "hypothesis_switch_m", 0.0, kHuge, refinement.hypothesis_switch_m),
+        CDRO_REAL("refinement", "switch_gap_nats", 0.0, kHuge, refinement.switch_gap_nats),
+        CDRO_COUNT("refinement", "relax_per_range", 0, 100000, refinement.relax_per_range),
+        CDRO_REAL("refinement", "relax_threshold_m", 0.0, kHuge, refinement.relax_threshold_m),
+        CDRO_COUNT("refinement", "settle_per_placed", 0, 100000, refinement.settle_per_placed),
+        CDRO_REAL("refinement", "inconsistent_residual_m", 0.0, kHuge, refinement.inconsistent_residual_m),
+        CDRO_REAL("refinement", "inconsistent_fraction", 0.0, 1.0, refinement.inconsistent_fraction),
+        CDRO_COUNT("refinement", "max_placements", 1, 1000, refinement.max_placements),
+        CDRO_FLAG("reinitialization", "enabled", reinitialization.enabled),
+        CDRO_REAL("reinitialization", "link_growth", 1.0001, 100.0, reinitialization.link_growth),
+        CDRO_COUNT("reinitialization", "min_links", 3, 1000000, reinitialization.min_links),
+        CDRO_REAL("reinitialization", "quiet_ranges_per_link", 0.0, kHuge, reinitialization.quiet_ranges_per_link),
+        CDRO_COUNT("reinitialization", "sweeps", 1, 10000, reinitialization.sweeps),
+        CDRO_REAL("reinitialization", "min_gain_nats", 0.0, kHuge, reinitialization.min_gain_nats),
+        CDRO_FLAG("motion", "reset", motion.reset),
+        CDRO_FLAG("motion", "infer_from_ranges", motion.infer_from_ranges),
+        CDRO_REAL("motion", "inferred_residual_m", 0.0, kHuge, motion.inferred_residual_m),
+        CDRO_COUNT("motion", "inferred_window", 1, engine::NodeState::kRecentRanges, motion.inferred_window),
+        CDRO_COUNT("motion", "inferred_min_large", 1, engine::NodeState::kRecentRanges, motion.inferred_min_large),
+        CDRO_COUNT("motion", "inferred_min_links", 1, engine::NodeState::kRecentRanges, motion.inferred_min_links),
+        CDRO_REAL("motion", "inferred_still_speed_mps", 0.0, kHuge, motion.inferred_still_speed_mps),
+        CDRO_REAL("motion", "inferred_still_m", 0.0, kHuge, motion.inferred_still_m),
+        CDRO_COUNT("motion", "inferred_still_updates", 1, 100000, motion.inferred_still_updates),
+        CDRO_FLAG("motion", "track", motion.track),
+        CDRO_REAL("motion", "track_accel_sigma_mps2", 0.0, 1000.0, motion.track_accel_sigma_mps2),
+        CDRO_REAL("motion", "track_speed_sigma_mps", 0.0, 1000.0, motion.track_speed_sigma_mps),
+        CDRO_COUNT("motion", "track_warmup", 0, 1000, motion.track_warmup),
+        CDRO_REAL("motion", "track_max_speed_mps", 0.01, 1000.0, motion.track_max_speed_mps),
+        CDRO_REAL("convergence", "smoothing", 0.0, 0.9999, convergence.smoothing),
+        CDRO_REAL("convergence", "threshold_m", 0.0, kHuge, convergence.threshold_m),
+        CDRO_COUNT("convergence", "consecutive", 1, 100000, convergence.consecutive),
+        CDRO_COUNT("convergence", "min_updates", 0, 100000000, convergence.min_updates),
+        CDRO_REAL("convergence", "unconverge_factor", 1.0, kHuge, convergence.unconverge_factor),
+        CDRO_ID("frame", "origin", frame.origin),
+        CDRO_ID("frame", "x_axis", frame.x_axis),
+        CDRO_ID("frame", "positive_y", frame.positive_y),
+    };
+    return keys;
 }
 
-// Each group is one nested section: engine.<group>.<key>.
-void parseRange(Section &s, engine::RangeParams &p)
+const std::vector<Key<engine::MovementParams>> &movementKeys()
 {
-    s.read<double>("sigma_m", p.sigma_m, 0.001, 100.0);
-    s.read<double>("max_range_m", p.max_range_m, 0.1, 1e6);
-    s.read<uint32_t>("window", p.window, 1, engine::RangeWindow::kCapacity);
+    using P = engine::MovementParams;
+    static const std::vector<Key<P>> keys = {
+        CDRO_ID("", "robot_id", robot_id),
+        CDRO_REAL("", "range_sigma_m", 0.0, 100.0, range_sigma_m),
+        CDRO_REAL("", "adaptive_initial_sigma_m", 0.001, 100.0, adaptive_initial_sigma_m),
+        CDRO_COUNT("", "adaptive_window", 8, 100000, adaptive_window),
+        CDRO_FLAG("", "estimate_scale", estimate_scale),
+        CDRO_REAL("", "scale_sigma", 0.0, 1.0, scale_sigma),
+        CDRO_FLAG("", "estimate_offset", estimate_offset),
+        CDRO_REAL("", "offset_sigma_m", 0.0, 100.0, offset_sigma_m),
+        CDRO_REAL("", "gate_sigma", 0.5, 1000.0, gate_sigma),
+        CDRO_REAL("", "motion_start_m", 0.0, kHuge, motion_start_m),
+        CDRO_COUNT("", "heading_hypotheses", 1, 360, heading_hypotheses),
+        CDRO_REAL("", "heading_collapse_weight", 0.5, 1.0, heading_collapse_weight),
+        CDRO_REAL("", "heading_prune_weight", 0.0, 0.5, heading_prune_weight),
+        CDRO_REAL("", "heading_merge_m", 0.0, kHuge, heading_merge_m),
+        CDRO_REAL("", "heading_merge_rad", 0.0, 3.2, heading_merge_rad),
+        CDRO_REAL("", "beacon_arc_spacing_m", 0.05, 100.0, beacon_arc_spacing_m),
+        CDRO_COUNT("", "beacon_min_components", 3, 100000, beacon_min_components),
+        CDRO_REAL("", "beacon_prune_ratio", 0.0, 1.0, beacon_prune_ratio),
+        CDRO_COUNT("", "beacon_min_ranges", 1, 100000, beacon_min_ranges),
+        CDRO_REAL("", "beacon_insert_std_m", 0.001, kHuge, beacon_insert_std_m),
+        CDRO_REAL("", "beacon_min_baseline_m", 0.0, kHuge, beacon_min_baseline_m),
+        CDRO_REAL("odometry", "distance_fraction", 0.0, 10.0, odometry.distance_fraction),
+        CDRO_REAL("odometry", "distance_floor_m", 0.0, kHuge, odometry.distance_floor_m),
+        CDRO_REAL("odometry", "heading_fraction", 0.0, 10.0, odometry.heading_fraction),
+        CDRO_REAL("odometry", "heading_floor_rad", 0.0, 10.0, odometry.heading_floor_rad),
+        CDRO_REAL("odometry", "heading_walk_rad_per_sqrt_s", 0.0, 10.0, odometry.heading_walk_rad_per_sqrt_s),
+        CDRO_REAL("odometry", "scale_walk_per_sqrt_s", 0.0, 1.0, odometry.scale_walk_per_sqrt_s),
+        CDRO_REAL("odometry", "offset_walk_m_per_sqrt_s", 0.0, kHuge, odometry.offset_walk_m_per_sqrt_s),
+    };
+    return keys;
 }
 
-void parseLikelihood(Section &s, engine::RangeLikelihoodParams &p)
+#undef CDRO_REAL
+#undef CDRO_COUNT
+#undef CDRO_FLAG
+#undef CDRO_ID
+
+// Reads every key of `keys` under the top section `top` of root, group by group, rejecting
+// keys (and groups) that are not in the table.
+template <typename Params>
+void parseKeys(const YAML::Node &root, const char *top, const std::string &origin,
+               const std::vector<Key<Params>> &keys, Params &params)
 {
-    s.readBool("robust", p.robust);
-    s.read<double>("nlos_fraction", p.nlos_fraction, 0.0, 1.0);
-    s.read<double>("nlos_mean_excess_m", p.nlos_mean_excess_m, 0.001, 1000.0);
-    s.read<double>("gross_density_per_m", p.gross_density_per_m, 1e-12, 1.0);
+    Section top_section(root[top], top, origin);
+    std::vector<std::string> groups;
+    for (const Key<Params> &key : keys) {
+        if (std::find(groups.begin(), groups.end(), key.group) == groups.end()) {
+            groups.push_back(key.group);
+        }
+    }
+    for (const std::string &group : groups) {
+        const bool nested = !group.empty();
+        Section nested_section(nested ? top_section.child(group.c_str()) : YAML::Node(YAML::NodeType::Undefined),
+                               std::string(top) + "." + group, origin);
+        Section &section = nested ? nested_section : top_section;
+        for (const Key<Params> &key : keys) {
+            if (group != key.group) {
+                continue;
+            }
+            switch (key.kind) {
+            case Key<Params>::Kind::Real:
+                section.read<double>(key.name, *key.real(params), key.minimum, key.maximum);
+                break;
+            case Key<Params>::Kind::Count:
+                section.read<uint32_t>(key.name, *key.count(params), static_cast<uint32_t>(key.minimum),
+                                       static_cast<uint32_t>(key.maximum));
+                break;
+            case Key<Params>::Kind::Flag:
+                section.readBool(key.name, *key.flag(params));
+                break;
+            case Key<Params>::Kind::Id: {
+                int64_t value = *key.id(params);
+                section.read<int64_t>(key.name, value, 0, 65535);
+                *key.id(params) = static_cast<uint16_t>(value);
+                break;
+            }
+            }
+        }
+        if (nested) {
+            nested_section.rejectUnknownKeys();
+        }
+    }
+    top_section.rejectUnknownKeys();
 }
 
-void parseSog(Section &s, engine::EngineParams &p)
+template <typename Params>
+std::string emitKeys(const char *top, const std::vector<Key<Params>> &keys, const Params &defaults)
 {
-    s.read<double>("arc_spacing_m", p.ring.arc_spacing_m, 0.01, 100.0);
-    s.read<uint32_t>("min_components", p.ring.min_components, 3, 100000);
-    s.read<uint32_t>("max_components", p.ring.max_components, 3, 100000);
-    s.read<double>("tangential_overlap", p.ring.tangential_overlap, 0.1, 100.0);
-    s.read<double>("weight_floor", p.ring.weight_floor, 0.0, 0.01);
-    s.readBool("cooperative", p.sog.cooperative);
-    s.readBool("weight_transfer", p.sog.weight_transfer);
-    s.read<double>("transfer_sigma_m", p.sog.transfer_sigma_m, 0.001, 100.0);
-    s.read<double>("gate_sigma", p.sog.gate_sigma, 0.5, 1000.0);
-    s.read<double>("process_noise_m2", p.sog.process_noise_m2, 0.0, 100.0);
-    s.read<uint32_t>("full_update_every", p.sog.full_update_every, 1, 100000);
+    Params params = defaults;
+    YAML::Emitter out;
+    out.SetDoublePrecision(12); // round trips every value, without 0.10000000000000001
+    out << YAML::BeginMap << YAML::Key << top << YAML::Value << YAML::BeginMap;
+    std::string open_group;
+    bool in_group = false;
+    for (const Key<Params> &key : keys) {
+        if (key.group != open_group) {
+            if (in_group) {
+                out << YAML::EndMap;
+                in_group = false;
+            }
+            open_group = key.group;
+            if (!open_group.empty()) {
+                out << YAML::Key << open_group << YAML::Value << YAML::BeginMap;
+                in_group = true;
+            }
+        }
+        out << YAML::Key << key.name << YAML::Value;
+        switch (key.kind) {
+        case Key<Params>::Kind::Real: out << *key.real(params); break;
+        case Key<Params>::Kind::Count: out << *key.count(params); break;
+        case Key<Params>::Kind::Flag: out << (*key.flag(params) ? "true" : "false"); break;
+        case Key<Params>::Kind::Id: out << *key.id(params); break;
+        }
+    }
+    if (in_group) {
+        out << YAML::EndMap;
+    }
+    out << YAML::EndMap << YAML::EndMap;
+    return std::string(out.c_str()) + "\n";
 }
 
-void parsePlacement(Section &s, engine::PlacementParams &p)
+template <typename Params> std::vector<std::string> keyNames(const char *top, const std::vector<Key<Params>> &keys)
 {
-    s.read<double>("min_triangle_height_m", p.min_triangle_height_m, 0.0, kHuge);
-    s.read<double>("min_baseline_m", p.min_baseline_m, 0.0, kHuge);
-    s.read<double>("ambiguity_gap_nats", p.ambiguity_gap_nats, 0.0, kHuge);
-    s.read<double>("distinct_m", p.distinct_m, 0.001, kHuge);
-    s.readBool("mds_tie_break", p.mds_tie_break);
-    s.read<double>("mds_decisive_ratio", p.mds_decisive_ratio, 0.0, 1.0);
-    s.read<double>("mds_margin_sigmas", p.mds_margin_sigmas, 0.0, kHuge);
-}
-
-void parseRefinement(Section &s, engine::RefinementParams &p)
-{
-    s.readBool("enabled", p.enabled);
-    s.read<uint32_t>("max_iterations", p.max_iterations, 1, 1000);
-    s.read<double>("hypothesis_switch_m", p.hypothesis_switch_m, 0.0, kHuge);
-    s.read<double>("switch_gap_nats", p.switch_gap_nats, 0.0, kHuge);
-    s.read<uint32_t>("relax_per_range", p.relax_per_range, 0, 100000);
-    s.read<double>("relax_threshold_m", p.relax_threshold_m, 0.0, kHuge);
-    s.read<uint32_t>("settle_per_placed", p.settle_per_placed, 0, 100000);
-    s.read<double>("inconsistent_residual_m", p.inconsistent_residual_m, 0.0, kHuge);
-    s.read<double>("inconsistent_fraction", p.inconsistent_fraction, 0.0, 1.0);
-    s.read<uint32_t>("max_placements", p.max_placements, 1, 1000);
-}
-
-void parseReinitialization(Section &s, engine::ReinitializationParams &p)
-{
-    s.readBool("enabled", p.enabled);
-    s.read<double>("link_growth", p.link_growth, 1.0001, 100.0);
-    s.read<uint32_t>("min_links", p.min_links, 3, 1000000);
-    s.read<double>("quiet_ranges_per_link", p.quiet_ranges_per_link, 0.0, kHuge);
-    s.read<uint32_t>("sweeps", p.sweeps, 1, 10000);
-    s.read<double>("min_gain_nats", p.min_gain_nats, 0.0, kHuge);
-}
-
-void parseMotion(Section &s, engine::MotionParams &p)
-{
-    s.readBool("reset", p.reset);
-    s.readBool("infer_from_ranges", p.infer_from_ranges);
-    s.read<double>("inferred_residual_m", p.inferred_residual_m, 0.0, kHuge);
-    s.read<uint32_t>("inferred_window", p.inferred_window, 1, engine::NodeState::kRecentRanges);
-    s.read<uint32_t>("inferred_min_large", p.inferred_min_large, 1, engine::NodeState::kRecentRanges);
-    s.read<uint32_t>("inferred_min_links", p.inferred_min_links, 1, engine::NodeState::kRecentRanges);
-    s.read<double>("inferred_still_speed_mps", p.inferred_still_speed_mps, 0.0, kHuge);
-    s.read<double>("inferred_still_m", p.inferred_still_m, 0.0, kHuge);
-    s.read<uint32_t>("inferred_still_updates", p.inferred_still_updates, 1, 100000);
-    s.readBool("track", p.track);
-    s.read<double>("track_accel_sigma_mps2", p.track_accel_sigma_mps2, 0.0, 1000.0);
-    s.read<double>("track_speed_sigma_mps", p.track_speed_sigma_mps, 0.0, 1000.0);
-    s.read<uint32_t>("track_warmup", p.track_warmup, 0, 1000);
-}
-
-void parseConvergence(Section &s, engine::ConvergenceParams &p)
-{
-    s.read<double>("smoothing", p.smoothing, 0.0, 0.9999);
-    s.read<double>("threshold_m", p.threshold_m, 0.0, kHuge);
-    s.read<uint32_t>("consecutive", p.consecutive, 1, 100000);
-    s.read<uint32_t>("min_updates", p.min_updates, 0, 100000000);
-    s.read<double>("unconverge_factor", p.unconverge_factor, 1.0, kHuge);
-}
-
-void parseFrame(Section &s, engine::FrameParams &p)
-{
-    readNodeId(s, "origin", p.origin);
-    readNodeId(s, "x_axis", p.x_axis);
-    readNodeId(s, "positive_y", p.positive_y);
-}
-
-template <typename Parse, typename Value>
-void group(Section &engine_section, const char *name, Parse parse, Value &value)
-{
-    Section s(engine_section.child(name), std::string("engine.") + name, engine_section.origin());
-    parse(s, value);
-    s.rejectUnknownKeys();
+    std::vector<std::string> names;
+    for (const Key<Params> &key : keys) {
+        names.push_back(std::string(top) + "." + (key.group[0] != '\0' ? std::string(key.group) + "." : "") + key.name);
+    }
+    return names;
 }
 
 void validate(const engine::EngineParams &p)
@@ -147,45 +265,6 @@ void validate(const engine::EngineParams &p)
     }
 }
 
-void parseOdometryNoise(Section &s, engine::RobotFilterNoise &p)
-{
-    s.read<double>("distance_fraction", p.distance_fraction, 0.0, 10.0);
-    s.read<double>("distance_floor_m", p.distance_floor_m, 0.0, kHuge);
-    s.read<double>("heading_fraction", p.heading_fraction, 0.0, 10.0);
-    s.read<double>("heading_floor_rad", p.heading_floor_rad, 0.0, 10.0);
-    s.read<double>("heading_walk_rad_per_sqrt_s", p.heading_walk_rad_per_sqrt_s, 0.0, 10.0);
-    s.read<double>("scale_walk_per_sqrt_s", p.scale_walk_per_sqrt_s, 0.0, 1.0);
-    s.read<double>("offset_walk_m_per_sqrt_s", p.offset_walk_m_per_sqrt_s, 0.0, kHuge);
-}
-
-void parseMovement(Section &s, engine::MovementParams &p)
-{
-    readNodeId(s, "robot_id", p.robot_id);
-    s.read<double>("range_sigma_m", p.range_sigma_m, 0.0, 100.0);
-    s.read<double>("adaptive_initial_sigma_m", p.adaptive_initial_sigma_m, 0.001, 100.0);
-    s.read<uint32_t>("adaptive_window", p.adaptive_window, 8, 100000);
-    s.readBool("estimate_scale", p.estimate_scale);
-    s.read<double>("scale_sigma", p.scale_sigma, 0.0, 1.0);
-    s.readBool("estimate_offset", p.estimate_offset);
-    s.read<double>("offset_sigma_m", p.offset_sigma_m, 0.0, 100.0);
-    s.read<double>("gate_sigma", p.gate_sigma, 0.5, 1000.0);
-    s.read<double>("motion_start_m", p.motion_start_m, 0.0, kHuge);
-    s.read<uint32_t>("heading_hypotheses", p.heading_hypotheses, 1, 360);
-    s.read<double>("heading_collapse_weight", p.heading_collapse_weight, 0.5, 1.0);
-    s.read<double>("heading_prune_weight", p.heading_prune_weight, 0.0, 0.5);
-    s.read<double>("heading_merge_m", p.heading_merge_m, 0.0, kHuge);
-    s.read<double>("heading_merge_rad", p.heading_merge_rad, 0.0, 3.2);
-    s.read<double>("beacon_arc_spacing_m", p.beacon_arc_spacing_m, 0.05, 100.0);
-    s.read<uint32_t>("beacon_min_components", p.beacon_min_components, 3, 100000);
-    s.read<double>("beacon_prune_ratio", p.beacon_prune_ratio, 0.0, 1.0);
-    s.read<uint32_t>("beacon_min_ranges", p.beacon_min_ranges, 1, 100000);
-    s.read<double>("beacon_insert_std_m", p.beacon_insert_std_m, 0.001, kHuge);
-    s.read<double>("beacon_min_baseline_m", p.beacon_min_baseline_m, 0.0, kHuge);
-    Section noise(s.child("odometry"), "movement.odometry", s.origin());
-    parseOdometryNoise(noise, p.odometry);
-    noise.rejectUnknownKeys();
-}
-
 } // namespace
 
 engine::MovementParams parseMovementParams(const YAML::Node &root, const std::string &origin)
@@ -194,50 +273,11 @@ engine::MovementParams parseMovementParams(const YAML::Node &root, const std::st
     if (!root || root.IsNull() || !root.IsMap()) {
         return params;
     }
-    Section s(root["movement"], "movement", origin);
-    parseMovement(s, params);
-    s.rejectUnknownKeys();
+    parseKeys(root, "movement", origin, movementKeys(), params);
     return params;
 }
 
-std::string movementParamsYaml(const engine::MovementParams &p)
-{
-    YAML::Emitter out;
-    out.SetDoublePrecision(12); // round trips every default, without 0.10000000000000001
-    auto b = [](bool value) { return value ? "true" : "false"; };
-    out << YAML::BeginMap << YAML::Key << "movement" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "robot_id" << YAML::Value << p.robot_id;
-    out << YAML::Key << "range_sigma_m" << YAML::Value << p.range_sigma_m;
-    out << YAML::Key << "adaptive_initial_sigma_m" << YAML::Value << p.adaptive_initial_sigma_m;
-    out << YAML::Key << "adaptive_window" << YAML::Value << p.adaptive_window;
-    out << YAML::Key << "estimate_scale" << YAML::Value << b(p.estimate_scale);
-    out << YAML::Key << "scale_sigma" << YAML::Value << p.scale_sigma;
-    out << YAML::Key << "estimate_offset" << YAML::Value << b(p.estimate_offset);
-    out << YAML::Key << "offset_sigma_m" << YAML::Value << p.offset_sigma_m;
-    out << YAML::Key << "gate_sigma" << YAML::Value << p.gate_sigma;
-    out << YAML::Key << "motion_start_m" << YAML::Value << p.motion_start_m;
-    out << YAML::Key << "heading_hypotheses" << YAML::Value << p.heading_hypotheses;
-    out << YAML::Key << "heading_collapse_weight" << YAML::Value << p.heading_collapse_weight;
-    out << YAML::Key << "heading_prune_weight" << YAML::Value << p.heading_prune_weight;
-    out << YAML::Key << "heading_merge_m" << YAML::Value << p.heading_merge_m;
-    out << YAML::Key << "heading_merge_rad" << YAML::Value << p.heading_merge_rad;
-    out << YAML::Key << "beacon_arc_spacing_m" << YAML::Value << p.beacon_arc_spacing_m;
-    out << YAML::Key << "beacon_min_components" << YAML::Value << p.beacon_min_components;
-    out << YAML::Key << "beacon_prune_ratio" << YAML::Value << p.beacon_prune_ratio;
-    out << YAML::Key << "beacon_min_ranges" << YAML::Value << p.beacon_min_ranges;
-    out << YAML::Key << "beacon_insert_std_m" << YAML::Value << p.beacon_insert_std_m;
-    out << YAML::Key << "beacon_min_baseline_m" << YAML::Value << p.beacon_min_baseline_m;
-    out << YAML::Key << "odometry" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "distance_fraction" << YAML::Value << p.odometry.distance_fraction;
-    out << YAML::Key << "distance_floor_m" << YAML::Value << p.odometry.distance_floor_m;
-    out << YAML::Key << "heading_fraction" << YAML::Value << p.odometry.heading_fraction;
-    out << YAML::Key << "heading_floor_rad" << YAML::Value << p.odometry.heading_floor_rad;
-    out << YAML::Key << "heading_walk_rad_per_sqrt_s" << YAML::Value << p.odometry.heading_walk_rad_per_sqrt_s;
-    out << YAML::Key << "scale_walk_per_sqrt_s" << YAML::Value << p.odometry.scale_walk_per_sqrt_s;
-    out << YAML::Key << "offset_walk_m_per_sqrt_s" << YAML::Value << p.odometry.offset_walk_m_per_sqrt_s;
-    out << YAML::EndMap << YAML::EndMap << YAML::EndMap;
-    return std::string(out.c_str()) + "\n";
-}
+std::string movementParamsYaml(const engine::MovementParams &params) { return emitKeys("movement", movementKeys(), params); }
 
 engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string &origin)
 {
@@ -248,19 +288,19 @@ engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string
     if (!root.IsMap()) {
         throw ConfigError(origin + ": the configuration must be a map of sections (serial:, engine:, ...)");
     }
-    Section engine_section(root["engine"], "engine", origin);
-    group(engine_section, "range", parseRange, params.range);
-    group(engine_section, "likelihood", parseLikelihood, params.likelihood);
-    group(engine_section, "sog", parseSog, params);
-    group(engine_section, "placement", parsePlacement, params.placement);
-    group(engine_section, "refinement", parseRefinement, params.refinement);
-    group(engine_section, "reinitialization", parseReinitialization, params.reinitialization);
-    group(engine_section, "motion", parseMotion, params.motion);
-    group(engine_section, "convergence", parseConvergence, params.convergence);
-    group(engine_section, "frame", parseFrame, params.frame);
-    engine_section.rejectUnknownKeys();
+    parseKeys(root, "engine", origin, engineKeys(), params);
     validate(params);
     return params;
+}
+
+std::string engineParamsYaml(const engine::EngineParams &params) { return emitKeys("engine", engineKeys(), params); }
+
+std::vector<std::string> configurationKeys()
+{
+    std::vector<std::string> names = keyNames("engine", engineKeys());
+    const std::vector<std::string> movement = keyNames("movement", movementKeys());
+    names.insert(names.end(), movement.begin(), movement.end());
+    return names;
 }
 
 void applySettings(YAML::Node &root, const std::vector<std::string> &settings)
@@ -363,76 +403,6 @@ void addEngineOptions(CLI::App &app, EngineOverrides &o)
     app.add_flag("--no-refinement", o.no_refinement,
                  "the paper's filter alone: the merged SoG is the estimate (no robust refinement)");
     app.add_flag("--no-motion-reset", o.no_motion_reset, "ablation: moving nodes handled as static (no SoG resets, no track)");
-}
-
-std::string engineParamsYaml(const engine::EngineParams &p)
-{
-    YAML::Emitter out;
-    out.SetDoublePrecision(12);
-    out.SetDoublePrecision(12); // round trips every default, without 0.10000000000000001
-    auto b = [](bool value) { return value ? "true" : "false"; };
-    out << YAML::BeginMap << YAML::Key << "engine" << YAML::Value << YAML::BeginMap;
-    out << YAML::Key << "range" << YAML::Value << YAML::BeginMap << YAML::Key << "sigma_m" << YAML::Value
-        << p.range.sigma_m << YAML::Key << "max_range_m" << YAML::Value << p.range.max_range_m << YAML::Key << "window"
-        << YAML::Value << p.range.window << YAML::EndMap;
-    out << YAML::Key << "likelihood" << YAML::Value << YAML::BeginMap << YAML::Key << "robust" << YAML::Value
-        << b(p.likelihood.robust) << YAML::Key << "nlos_fraction" << YAML::Value << p.likelihood.nlos_fraction
-        << YAML::Key << "nlos_mean_excess_m" << YAML::Value << p.likelihood.nlos_mean_excess_m << YAML::Key
-        << "gross_density_per_m" << YAML::Value << p.likelihood.gross_density_per_m << YAML::EndMap;
-    out << YAML::Key << "sog" << YAML::Value << YAML::BeginMap << YAML::Key << "arc_spacing_m" << YAML::Value
-        << p.ring.arc_spacing_m << YAML::Key << "min_components" << YAML::Value << p.ring.min_components << YAML::Key
-        << "max_components" << YAML::Value << p.ring.max_components << YAML::Key << "tangential_overlap" << YAML::Value
-        << p.ring.tangential_overlap << YAML::Key << "weight_floor" << YAML::Value << p.ring.weight_floor << YAML::Key
-        << "cooperative" << YAML::Value << b(p.sog.cooperative) << YAML::Key << "weight_transfer" << YAML::Value
-        << b(p.sog.weight_transfer) << YAML::Key << "transfer_sigma_m" << YAML::Value << p.sog.transfer_sigma_m
-        << YAML::Key << "gate_sigma" << YAML::Value << p.sog.gate_sigma << YAML::Key << "process_noise_m2"
-        << YAML::Value << p.sog.process_noise_m2 << YAML::Key << "full_update_every" << YAML::Value
-        << p.sog.full_update_every << YAML::EndMap;
-    out << YAML::Key << "placement" << YAML::Value << YAML::BeginMap << YAML::Key << "min_triangle_height_m"
-        << YAML::Value << p.placement.min_triangle_height_m << YAML::Key << "min_baseline_m" << YAML::Value
-        << p.placement.min_baseline_m << YAML::Key << "ambiguity_gap_nats" << YAML::Value
-        << p.placement.ambiguity_gap_nats << YAML::Key << "distinct_m" << YAML::Value << p.placement.distinct_m
-        << YAML::Key << "mds_tie_break" << YAML::Value << b(p.placement.mds_tie_break) << YAML::Key
-        << "mds_decisive_ratio" << YAML::Value << p.placement.mds_decisive_ratio << YAML::Key << "mds_margin_sigmas"
-        << YAML::Value << p.placement.mds_margin_sigmas << YAML::EndMap;
-    out << YAML::Key << "refinement" << YAML::Value << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
-        << b(p.refinement.enabled) << YAML::Key << "max_iterations" << YAML::Value << p.refinement.max_iterations
-        << YAML::Key << "hypothesis_switch_m" << YAML::Value << p.refinement.hypothesis_switch_m << YAML::Key
-        << "switch_gap_nats" << YAML::Value << p.refinement.switch_gap_nats << YAML::Key << "relax_per_range"
-        << YAML::Value << p.refinement.relax_per_range << YAML::Key << "relax_threshold_m" << YAML::Value
-        << p.refinement.relax_threshold_m << YAML::Key << "settle_per_placed" << YAML::Value
-        << p.refinement.settle_per_placed << YAML::Key << "inconsistent_residual_m" << YAML::Value
-        << p.refinement.inconsistent_residual_m << YAML::Key << "inconsistent_fraction" << YAML::Value
-        << p.refinement.inconsistent_fraction << YAML::Key << "max_placements" << YAML::Value
-        << p.refinement.max_placements << YAML::EndMap;
-    out << YAML::Key << "reinitialization" << YAML::Value << YAML::BeginMap << YAML::Key << "enabled" << YAML::Value
-        << b(p.reinitialization.enabled) << YAML::Key << "link_growth" << YAML::Value << p.reinitialization.link_growth
-        << YAML::Key << "min_links" << YAML::Value << p.reinitialization.min_links << YAML::Key
-        << "quiet_ranges_per_link" << YAML::Value << p.reinitialization.quiet_ranges_per_link << YAML::Key << "sweeps"
-        << YAML::Value << p.reinitialization.sweeps << YAML::Key << "min_gain_nats" << YAML::Value
-        << p.reinitialization.min_gain_nats << YAML::EndMap;
-    out << YAML::Key << "motion" << YAML::Value << YAML::BeginMap << YAML::Key << "reset" << YAML::Value
-        << b(p.motion.reset) << YAML::Key << "infer_from_ranges" << YAML::Value << b(p.motion.infer_from_ranges)
-        << YAML::Key << "inferred_residual_m" << YAML::Value << p.motion.inferred_residual_m << YAML::Key
-        << "inferred_window" << YAML::Value << p.motion.inferred_window << YAML::Key << "inferred_min_large"
-        << YAML::Value << p.motion.inferred_min_large << YAML::Key << "inferred_min_links" << YAML::Value
-        << p.motion.inferred_min_links << YAML::Key << "inferred_still_speed_mps" << YAML::Value << p.motion.inferred_still_speed_mps
-        << YAML::Key << "inferred_still_m" << YAML::Value << p.motion.inferred_still_m
-        << YAML::Key << "inferred_still_updates" << YAML::Value << p.motion.inferred_still_updates << YAML::Key
-        << "track" << YAML::Value << b(p.motion.track) << YAML::Key << "track_accel_sigma_mps2" << YAML::Value
-        << p.motion.track_accel_sigma_mps2 << YAML::Key << "track_speed_sigma_mps" << YAML::Value
-        << p.motion.track_speed_sigma_mps << YAML::Key << "track_warmup" << YAML::Value << p.motion.track_warmup
-        << YAML::EndMap;
-    out << YAML::Key << "convergence" << YAML::Value << YAML::BeginMap << YAML::Key << "smoothing" << YAML::Value
-        << p.convergence.smoothing << YAML::Key << "threshold_m" << YAML::Value << p.convergence.threshold_m
-        << YAML::Key << "consecutive" << YAML::Value << p.convergence.consecutive
-        << YAML::Key << "min_updates" << YAML::Value << p.convergence.min_updates << YAML::Key << "unconverge_factor"
-        << YAML::Value << p.convergence.unconverge_factor << YAML::EndMap;
-    out << YAML::Key << "frame" << YAML::Value << YAML::BeginMap << YAML::Key << "origin" << YAML::Value
-        << p.frame.origin << YAML::Key << "x_axis" << YAML::Value << p.frame.x_axis << YAML::Key << "positive_y"
-        << YAML::Value << p.frame.positive_y << YAML::EndMap;
-    out << YAML::EndMap << YAML::EndMap;
-    return std::string(out.c_str()) + "\n";
 }
 
 } // namespace cdro::hostd

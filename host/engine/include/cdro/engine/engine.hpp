@@ -62,6 +62,7 @@ struct EngineCounters {
     uint64_t placements = 0;                 // nodes placed (frame triangle included)
     uint64_t placements_by_tie_break = 0;    // ... decided by the MDS layout
     uint64_t placement_ambiguous = 0;        // evaluations that could not decide (waited)
+    uint64_t placements_forced = 0;          // placed at the best candidate after patience ran out
     uint64_t mds_layouts = 0;
     uint64_t replacements = 0;               // placed nodes found inconsistent, placed again
     uint64_t refinements = 0;

@@ -26,6 +26,8 @@ public:
     // Returns whether the range was used (false: refused as an outlier, or singular).
     bool updateRange(const Vector2 &anchor_m, const Matrix2 &anchor_covariance_m2, double range_m, double sigma_m,
                      const RangeLikelihood &likelihood, double gate_sigma);
+    // Caps the speed (m/s): noisy ranges must not fling the track away.
+    void limitSpeed(double max_speed_mps);
 
     Vector2 position() const { return Vector2(state_(0), state_(1)); }
     // Where the track puts the node at t_s (s), by its velocity (no update).

@@ -54,6 +54,7 @@ struct NodeState {
     uint32_t still_updates = 0;     // consecutive updates with the average's step under threshold
     uint32_t update_count = 0;      // merges/refinements since placed (saturating)
     uint32_t placements = 0;        // times placed (re-placements after an inconsistency count)
+    uint32_t ambiguous_ranges = 0;  // ranges seen while not placed (placement's patience)
     std::vector<uint32_t> links;    // indices into Network::links, in order of appearance
     // The fallback motion detector's memory: the last ranges of this node, whether each read
     // far from the map, and on which link.

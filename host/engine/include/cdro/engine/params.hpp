@@ -19,6 +19,12 @@ struct RangeParams {
 };
 
 struct SogUpdateParams {
+    bool collapse_reset = true;     // a ring whose weights all sit at the floor is reset to the
+                                    // evidence (EKF-GSF); false, with weight_floor 0: the paper's
+                                    // bookkeeping, where a ring can lock onto a wrong mode
+    bool rings_follow_center = true; // a SoG moves with its centre's estimate (relative to it);
+                                    // false: the paper's rings stay where they were generated and
+                                    // only the EKF pulls them towards the ring around the centre
     bool cooperative = true;        // weights from the other nodes' ranges (eq. 8-11); false:
                                     // from the ring's own range only (the ablation)
     bool weight_transfer = true;    // eq. 15 after every weight update
@@ -39,7 +45,7 @@ struct RefinementParams {
     uint32_t relax_per_range = 8;     // neighbour updates after each range (bounded work)
     double relax_threshold_m = 1e-3;  // m, a node that moved more than this updates its neighbours
     uint32_t settle_per_placed = 20;  // neighbour updates per node placed, right after placing
-    double inconsistent_residual_m = 1.5; // m, a link residual beyond this is inconsistent
+    double inconsistent_residual_m = 1.5; // m, a link residual beyond this (and 4 range sigmas) is inconsistent
     double inconsistent_fraction = 0.5;   // more than this share of a node's links (and >= 2)
                                           // inconsistent: the node is placed again
     uint32_t max_placements = 4;      // times one node may be placed (then it stays)
@@ -82,6 +88,7 @@ struct MotionParams {
     double track_accel_sigma_mps2 = 0.5; // m/s^2, how fast a carried node may change its velocity
     double track_speed_sigma_mps = 1.5; // m/s, prior std of its speed when it starts
     uint32_t track_warmup = 3;         // ranges before the track is the estimate
+    double track_max_speed_mps = 3.0;  // m/s, a carried node is not faster; the track's speed is capped
 };
 
 struct ConvergenceParams {

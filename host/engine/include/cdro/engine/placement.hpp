@@ -42,6 +42,8 @@ struct PlacementParams {
                                          // fraction of the second's distance to the MDS position
     double mds_margin_sigmas = 3.0;      // and nearer by this many times the layout's own error
                                          // (its RMS misfit to the placed nodes)
+    uint32_t patience_ranges = 60;       // a node with 3+ placed neighbours still ambiguous after
+                                         // this many of its ranges is placed at its best candidate
 };
 
 struct PlacementCandidate {

@@ -87,7 +87,7 @@ public:
     // Eq. 8-11 for every witness at once: v_k <- v_k prod_m p(r_m - |m_k - p_m|), with the
     // predictive variance sigma_r^2 + u^T (C_k + C_m) u, then normalised with the floor.
     WeightUpdateResult updateWeights(const std::vector<RangeWitness> &witnesses, const RangeLikelihood &likelihood,
-                                     double range_sigma_m, bool full = true);
+                                     double range_sigma_m, bool full = true, bool allow_reset = true);
 
     static constexpr double kActiveRatio = 1e-4; // active: weight >= this * heaviest weight
 

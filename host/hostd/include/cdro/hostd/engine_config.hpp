@@ -55,4 +55,7 @@ void applySettings(YAML::Node &root, const std::vector<std::string> &settings);
 std::string engineParamsYaml(const engine::EngineParams &params);
 std::string movementParamsYaml(const engine::MovementParams &params);
 
+// Every key, as "engine.<group>.<name>" and "movement.[<group>.]<name>" (docs/engine.md lists them).
+std::vector<std::string> configurationKeys();
+
 } // namespace cdro::hostd
