@@ -1,0 +1,181 @@
+"""Evaluation of the movement stage: the robot's causal path, the beacons, and the track of a
+node that was carried (cdro-eval-motion; docs/tools.md).
+
+- Path: the trajectory CSV `t,x,y,heading_rad,var_x,cov_xy,var_y` (the online estimate after
+  each odometry step) against a truth `t,x,y[,heading_rad]`, matched by time (nearest truth row
+  within `max_dt_s`), rigidly fitted (reflection allowed, no scale) over the whole path.
+- Beacons: the final node estimates against their truth, fitted on their own, and also seen
+  through the path's fit (one frame for both: the stricter figure).
+- Track: the engine's trace `ranges,id,x,y,...,converged,t` of a node that moved, against its
+  true track `t,id,x,y` (interpolated), in the frame fitted on the static nodes' final estimates;
+  errors while it moved (motion truth `t,id,moving`), and how long after each stop it converged.
+"""
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+
+import numpy as np
+
+from .alignment import align, rigid_fit
+from .inputs import BadRow, RowError, csv_rows, parse_flag, parse_id, parse_number
+
+
+@dataclasses.dataclass
+class PathSeries:
+    t_s: np.ndarray     # (n,)
+    xy_m: np.ndarray    # (n, 2)
+
+
+def read_path(path: str, bad: list[BadRow]) -> PathSeries:
+    """`t,x,y,...` rows (a trajectory or a ground truth), in file order."""
+    times, points = [], []
+    for line, row in csv_rows(path, ["t", "x", "y"]):
+        try:
+            times.append(parse_number(row["t"], "t"))
+            points.append((parse_number(row["x"], "x"), parse_number(row["y"], "y")))
+        except RowError as error:
+            bad.append(BadRow(path, line, str(error)))
+    return PathSeries(np.array(times), np.array(points, dtype=float).reshape(-1, 2))
+
+
+def read_tracks(path: str, bad: list[BadRow]) -> dict[int, PathSeries]:
+    """`t,id,x,y`: true tracks of the nodes that move, by id, sorted by time."""
+    rows: dict[int, list[tuple[float, float, float]]] = {}
+    for line, row in csv_rows(path, ["t", "id", "x", "y"]):
+        try:
+            rows.setdefault(parse_id(row["id"]), []).append(
+                (parse_number(row["t"], "t"), parse_number(row["x"], "x"), parse_number(row["y"], "y")))
+        except RowError as error:
+            bad.append(BadRow(path, line, str(error)))
+    out = {}
+    for node, values in rows.items():
+        values.sort()
+        out[node] = PathSeries(np.array([v[0] for v in values]), np.array([v[1:] for v in values], dtype=float))
+    return out
+
+
+def read_motion(path: str, bad: list[BadRow]) -> dict[int, list[tuple[float, float]]]:
+    """`t,id,moving`: for each node, its (start, stop) intervals of motion (s)."""
+    changes: dict[int, list[tuple[float, bool]]] = {}
+    for line, row in csv_rows(path, ["t", "id", "moving"]):
+        try:
+            changes.setdefault(parse_id(row["id"]), []).append(
+                (parse_number(row["t"], "t"), parse_flag(row["moving"], "moving")))
+        except RowError as error:
+            bad.append(BadRow(path, line, str(error)))
+    intervals: dict[int, list[tuple[float, float]]] = {}
+    for node, events in changes.items():
+        events.sort()
+        start = None
+        for t, moving in events:
+            if moving and start is None:
+                start = t
+            elif not moving and start is not None:
+                intervals.setdefault(node, []).append((start, t))
+                start = None
+        if start is not None:
+            intervals.setdefault(node, []).append((start, math.inf))
+    return intervals
+
+
+def interpolate(series: PathSeries, t_s: float) -> np.ndarray:
+    """The series' position at t_s (linear; held before the first and after the last row)."""
+    if t_s <= series.t_s[0]:
+        return series.xy_m[0]
+    if t_s >= series.t_s[-1]:
+        return series.xy_m[-1]
+    i = bisect.bisect_right(series.t_s, t_s)
+    f = (t_s - series.t_s[i - 1]) / (series.t_s[i] - series.t_s[i - 1])
+    return series.xy_m[i - 1] + f * (series.xy_m[i] - series.xy_m[i - 1])
+
+
+def _stats(errors: np.ndarray) -> dict:
+    if len(errors) == 0:
+        return {"points": 0, "rmse_m": None, "p95_m": None, "max_m": None}
+    return {"points": int(len(errors)), "rmse_m": float(np.sqrt(np.mean(errors ** 2))),
+            "p95_m": float(np.percentile(errors, 95)), "max_m": float(np.max(errors))}
+
+
+def evaluate_path(estimate: PathSeries, truth: PathSeries, max_dt_s: float = 0.06) -> dict:
+    """Aligned errors of a causal path: one rigid fit over the whole path."""
+    order = np.argsort(truth.t_s)
+    truth_t, truth_xy = truth.t_s[order], truth.xy_m[order]
+    pairs_est, pairs_true, times = [], [], []
+    for t, xy in zip(estimate.t_s, estimate.xy_m):
+        i = bisect.bisect_left(truth_t, t)
+        best = min((j for j in (i - 1, i) if 0 <= j < len(truth_t)), key=lambda j: abs(truth_t[j] - t), default=None)
+        if best is not None and abs(truth_t[best] - t) <= max_dt_s:
+            pairs_est.append(xy)
+            pairs_true.append(truth_xy[best])
+            times.append(t)
+    if len(pairs_est) < 2:
+        raise ValueError("fewer than two trajectory rows match the truth in time")
+    source, target = np.array(pairs_est), np.array(pairs_true)
+    rotation, translation = rigid_fit(source, target)
+    errors = np.linalg.norm(source @ rotation.T + translation - target, axis=1)
+    tenth = max(len(errors) // 10, 1)
+    report = _stats(errors)
+    report["by_tenth_m"] = [float(np.sqrt(np.mean(errors[k * tenth:(k + 1) * tenth] ** 2))) for k in range(10)
+                            if len(errors[k * tenth:(k + 1) * tenth])]
+    report["reflected"] = bool(np.linalg.det(rotation) < 0)
+    return {"report": report, "rotation": rotation, "translation": translation, "t_s": np.array(times),
+            "aligned_m": source @ rotation.T + translation, "truth_m": target}
+
+
+def evaluate_beacons(estimates: dict, truth: dict, path_fit: tuple | None) -> dict:
+    """Final node estimates (id -> (x, y)) against their truth: own fit, and the path's fit."""
+    own = align(estimates, truth)
+    report = {"nodes": own.nodes, "own_fit_rmse_m": own.rmse_m, "own_fit_errors_m": own.errors_m}
+    if path_fit is not None:
+        rotation, translation = path_fit
+        errors = {i: float(np.linalg.norm(rotation @ np.asarray(estimates[i][:2]) + translation - truth[i][:2]))
+                  for i in estimates if i in truth}
+        report["path_fit_rmse_m"] = float(np.sqrt(np.mean(np.square(list(errors.values()))))) if errors else None
+        report["path_fit_errors_m"] = errors
+    return report
+
+
+def evaluate_track(trace_rows: list[tuple[int, float, int, np.ndarray, bool]], node: int, truth_start: dict,
+                   track: PathSeries, intervals: list[tuple[float, float]], settle_s: float = 0.5) -> dict:
+    """trace_rows: (ranges, t_s, id, xy, converged) in file order. The frame is the rigid fit of
+    the static nodes' last estimates to their truth; errors of `node` while it moved (from each
+    start to settle_s after each stop) and the time from each stop to its first converged row."""
+    last: dict[int, np.ndarray] = {}
+    for _, _, node_id, xy, _ in trace_rows:
+        last[node_id] = xy
+    static = {i: xy for i, xy in last.items() if i != node and i in truth_start}
+    fit = align(static, truth_start)
+    errors, times = [], []
+    reconverged = []
+    for start, stop in intervals:
+        first_converged = None
+        for _, t, node_id, xy, converged in trace_rows:
+            if node_id != node:
+                continue
+            if start <= t <= stop + settle_s:
+                errors.append(float(np.linalg.norm(fit.apply(xy) - interpolate(track, t))))
+                times.append(t)
+            if math.isfinite(stop) and t > stop and converged and first_converged is None:
+                first_converged = t - stop
+        reconverged.append(first_converged)
+    report = _stats(np.array(errors))
+    report["static_rmse_m"] = fit.rmse_m
+    report["reconverged_after_s"] = reconverged
+    return {"report": report, "fit": fit, "t_s": np.array(times), "errors_m": np.array(errors)}
+
+
+def read_trace_rows(path: str, bad: list[BadRow]) -> list[tuple[int, float, int, np.ndarray, bool]]:
+    """The engine's trace with its t column: (ranges, t_s, id, xy, converged) of placed nodes."""
+    rows = []
+    for line, row in csv_rows(path, ["ranges", "id", "x", "y", "converged", "t"]):
+        try:
+            if not (row.get("x") or "").strip():
+                continue
+            rows.append((int(parse_number(row["ranges"], "ranges")), parse_number(row["t"], "t"), parse_id(row["id"]),
+                         np.array([parse_number(row["x"], "x"), parse_number(row["y"], "y")]),
+                         parse_flag(row["converged"], "converged")))
+        except RowError as error:
+            bad.append(BadRow(path, line, str(error)))
+    return rows
