@@ -32,6 +32,37 @@ double MovementStage::rangeSigma() const
     return std::max(adaptive_sigma_m_ > 0.0 ? adaptive_sigma_m_ : params_.adaptive_initial_sigma_m, floor_m);
 }
 
+bool MovementStage::linkExcluded(NodeId a, NodeId b, double innovation_m)
+{
+    LinkWatch &watch = links_[{std::min(a, b), std::max(a, b)}];
+    const size_t window = std::max<size_t>(params_.nlos_window, 4U);
+    if (watch.innovations_m.size() < window) {
+        watch.innovations_m.push_back(innovation_m);
+    } else {
+        watch.innovations_m[watch.next] = innovation_m;
+        watch.next = (watch.next + 1) % window;
+    }
+    if (watch.innovations_m.size() >= window / 2) {
+        std::vector<double> sorted = watch.innovations_m;
+        std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+        const double median = sorted[sorted.size() / 2];
+        const double limit = std::max(params_.nlos_min_m, params_.nlos_sigmas * rangeSigma());
+        // Hysteresis: out beyond the limit, back in below half of it.
+        if (!watch.excluded && std::abs(median) > limit) {
+            watch.excluded = true;
+            trace("link " + std::to_string(a) + "-" + std::to_string(b) + " reads " + std::to_string(median) +
+                  " m off persistently: left out of the EKF");
+        } else if (watch.excluded && std::abs(median) < 0.5 * limit) {
+            watch.excluded = false;
+            trace("link " + std::to_string(a) + "-" + std::to_string(b) + " agrees again: back in the EKF");
+        }
+    }
+    if (watch.excluded) {
+        ++counters_.nlos_link_ranges_skipped;
+    }
+    return watch.excluded;
+}
+
 void MovementStage::learnNoise(const RangeUpdateOutcome &outcome, double sigma_m)
 {
     if (params_.range_sigma_m > 0.0 || outcome.variance_m2 <= 0.0) {
@@ -399,7 +430,8 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
         }
         const double dz = heightDifference(robot, other);
         if (!hypotheses_.front().filter.hasNode(other) && !insertNode(other)) {
-            if (!own_frame_ || hypotheses_.size() != 1) {
+            // A node the map does not hold yet: a SoG around the robot, once its heading is known.
+            if (hypotheses_.size() != 1) {
                 return verdict;
             }
             BeaconSog &sog = beacons_[other];
@@ -426,6 +458,10 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
                 engine_.pinNode(other, merged.mean_m, merged.covariance_m2);
                 beacons_.erase(other);
             }
+            return verdict;
+        }
+        if (hypotheses_.size() == 1 &&
+            linkExcluded(robot, other, hypotheses_.front().filter.robotRangeInnovation(other, range_m, dz))) {
             return verdict;
         }
         const RobotFilter *leader = &best();
@@ -455,7 +491,12 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
         insertNode(to);
     }
     if (filter.hasNode(from) && filter.hasNode(to)) {
+        // A link the initialization found NLOS (it reads long, persistently) would pull the EKF a
+        // little with every range; its ranges are left out.
         const double dz = heightDifference(from, to);
+        if (linkExcluded(from, to, filter.nodeRangeInnovation(from, to, range_m, dz))) {
+            return verdict;
+        }
         for (Hypothesis &hypothesis : hypotheses_) {
             const RangeUpdateOutcome outcome =
                 hypothesis.filter.updateNodeRange(from, to, range_m, dz, sigma, params_.gate_sigma, likelihood_);
@@ -499,11 +540,18 @@ std::optional<RobotOutput> MovementStage::robot() const
     if (!started_ || hypotheses_.empty()) {
         const std::optional<NodeOutput> node = engine_.estimate(params_.robot_id);
         if (node && node->placed) {
+            out.placed = true;
             out.pose = Pose2{node->position_m.x(), node->position_m.y(), 0.0};
             out.covariance.topLeftCorner<2, 2>() = node->covariance_m2;
             out.covariance(2, 2) = kTwoPi * kTwoPi / 12.0; // heading unknown
         } else {
+            // Without a map yet, the odometry's frame is the one the EKF will start in.
             out.pose = dead_reckoning_;
+            bool map = false;
+            for (const NodeState &state : engine_.network().nodes) {
+                map = map || state.placed;
+            }
+            out.placed = !map && !waiting_for_fix_;
         }
         return out;
     }
@@ -514,6 +562,7 @@ std::optional<RobotOutput> MovementStage::robot() const
     out.covariance = filter.poseCovariance();
     out.covariance.topLeftCorner<2, 2>() = transform.applyToCovariance(out.covariance.topLeftCorner<2, 2>());
     out.localized = true;
+    out.placed = true;
     out.hypotheses = static_cast<uint32_t>(hypotheses_.size());
     out.range_scale = filter.scale();
     out.range_scale_sigma = filter.scaleSigma();

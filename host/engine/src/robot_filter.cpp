@@ -158,6 +158,21 @@ RangeUpdateOutcome RobotFilter::scalarUpdate(const Eigen::VectorXd &h, double in
     return outcome;
 }
 
+double RobotFilter::robotRangeInnovation(NodeId node, double range_m, double height_difference_m) const
+{
+    const Eigen::Index slot = static_cast<Eigen::Index>(slotOf(node));
+    const Vector2 robot(state_(kPose), state_(kPose + 1));
+    const Vector2 target(state_(slot), state_(slot + 1));
+    return range_m - predictScaledRange(robot, target, height_difference_m, scale(), offset()).range_m;
+}
+
+double RobotFilter::nodeRangeInnovation(NodeId a, NodeId b, double range_m, double height_difference_m) const
+{
+    const Vector2 position_a = nodePosition(a);
+    const Vector2 position_b = nodePosition(b);
+    return range_m - predictScaledRange(position_a, position_b, height_difference_m, scale(), offset()).range_m;
+}
+
 RangeUpdateOutcome RobotFilter::updateRobotRange(NodeId node, double range_m, double height_difference_m,
                                                  double sigma_m, double gate_sigma, const RangeLikelihood &likelihood)
 {

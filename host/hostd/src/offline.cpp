@@ -115,8 +115,9 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
         if (to <= tm && to <= tr) {
             const OdometryRow &row = odometry.rows[o++];
             stage.addOdometry(row.t_s, engine::OdometryStep{row.distance_m, row.dheading_rad});
+            // Only once the robot has a position in the map's frame: before that there is none.
             const std::optional<engine::RobotOutput> robot = stage.robot();
-            if (robot) {
+            if (robot && robot->placed) {
                 writeTrajectoryRow(trajectory.get(), row.t_s, *robot);
             }
         } else if (tm <= tr) {

@@ -63,6 +63,12 @@ struct MovementParams {
     uint32_t beacon_min_ranges = 10;      // ranges before it may enter the EKF ...
     double beacon_insert_std_m = 1.5;     // ... and its SoG's largest std must be below this (m)
     double beacon_min_baseline_m = 3.0;   // m, and the robot must have ranged it from places this far apart
+    // A link whose recent innovations sit persistently off (an NLOS link reads long wherever the
+    // robot is) is left out of the EKF until they come back: its median innovation over the
+    // last nlos_window ranges beyond max(nlos_min_m, nlos_sigmas x the noise).
+    uint32_t nlos_window = 20;            // ranges per link
+    double nlos_min_m = 0.3;              // m
+    double nlos_sigmas = 3.0;
 };
 
 struct RobotOutput {
@@ -71,6 +77,8 @@ struct RobotOutput {
     Pose2 pose;                              // output frame
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero(); // (m^2, m^2 rad, rad^2)
     bool localized = false;                  // the EKF runs (false: dead reckoning before it starts)
+    bool placed = false;                     // has a position in the map's frame (the EKF runs, or the
+                                             // initialization placed the robot's node while it stood)
     uint32_t hypotheses = 0;                 // heading hypotheses alive (1 once decided)
     double range_scale = 1.0;
     double range_scale_sigma = 0.0;
@@ -87,6 +95,7 @@ struct MovementCounters {
     uint64_t nodes_removed = 0;          // moving nodes taken out of the EKF
     uint64_t beacon_sogs = 0;            // beacons started as a SoG around the robot
     uint64_t hypotheses_pruned = 0;
+    uint64_t nlos_link_ranges_skipped = 0; // ranges on links that read long persistently (not used)
 };
 
 class MovementStage {
@@ -150,6 +159,13 @@ private:
     std::vector<Hypothesis> hypotheses_;
     std::map<NodeId, BeaconSog> beacons_;
     std::map<NodeId, bool> moving_;
+    struct LinkWatch {
+        std::vector<double> innovations_m; // recent innovations of this link, a ring
+        size_t next = 0;
+        bool excluded = false;
+    };
+    bool linkExcluded(NodeId a, NodeId b, double innovation_m);
+    std::map<std::pair<NodeId, NodeId>, LinkWatch> links_;
     std::vector<double> innovations_m_;      // recent robot-range innovations (m), a ring
     std::vector<double> prior_variances_m2_; // their predicted variances without the noise (m^2)
     size_t innovation_next_ = 0;

@@ -73,6 +73,10 @@ public:
     RangeUpdateOutcome updateNodeRange(NodeId a, NodeId b, double range_m, double height_difference_m, double sigma_m,
                                        double gate_sigma, const RangeLikelihood &likelihood);
 
+    // The innovation (measured - predicted, m) a range would have, without using it.
+    double robotRangeInnovation(NodeId node, double range_m, double height_difference_m) const;
+    double nodeRangeInnovation(NodeId a, NodeId b, double range_m, double height_difference_m) const;
+
     Pose2 pose() const;
     Eigen::Matrix3d poseCovariance() const { return covariance_.topLeftCorner<3, 3>(); }
     double scale() const { return state_(3); }

@@ -18,8 +18,9 @@
 //              --out-csv NODES --out-trajectory TRAJ
 // Ranges need their t column then. Every input is merged in time order (an odometry row at t
 // ends its step at t, so it is applied before a range at the same t); rows out of time order
-// in a file are reported, counted and sorted (stable). TRAJ has a row per odometry step: the
-// robot's estimate right after that step (causal: nothing later is used).
+// in a file are reported, counted and sorted (stable). TRAJ has a row per odometry step once the
+// robot has a position in the map's frame: its estimate right after that step (causal: nothing
+// later is used).
 #pragma once
 
 #include <cstdio>
