@@ -71,8 +71,10 @@ double cpuSeconds()
 }
 
 struct Memory {
-    long max_rss_kib = -1; // getrusage ru_maxrss (KiB on Linux): peak resident set so far
-    long vm_hwm_kib = -1;  // /proc/self/status VmHWM: the same peak, as the kernel's mm sees it
+    long max_rss_kib = -1; // getrusage ru_maxrss (KiB on Linux): peak resident set so far; Linux
+                           // carries it across exec, so a spawned child starts at its parent's
+    long vm_hwm_kib = -1;  // /proc/self/status VmHWM: the peak of this address space only (the
+                           // per-draw figure: the children are spawned)
     long vm_rss_kib = -1;  // /proc/self/status VmRSS: resident now
     long heap_in_use_kib = -1; // glibc mallinfo2: bytes allocated and not freed (RSS keeps memory
                                // that was freed but not returned to the system; this does not)
@@ -1101,7 +1103,7 @@ void printNetworks(const Json &networks)
                         n["mean_degree"].get<double>(), n["radius_m"].get<double>(), n["sweeps"].get<int>(),
                         n["steady"]["ranges_per_s"].get<double>(), n["steady"]["ranges_per_cpu_s"].get<double>(),
                         map_ranges, map_s, placed, formatRmse(a).c_str(), a["median_error_m"].get<double>(),
-                        bad_links, static_cast<double>(n["memory_after"]["max_rss_kib"].get<long>()) / 1024.0,
+                        bad_links, static_cast<double>(n["memory_after"]["vm_hwm_kib"].get<long>()) / 1024.0,
                         static_cast<double>(n["memory_after"]["heap_in_use_kib"].get<long>() -
                                             n["memory_before"]["heap_in_use_kib"].get<long>()) /
                             1024.0,
@@ -1114,11 +1116,11 @@ void printNetworks(const Json &networks)
         "  ranges fed and seconds spent feeding them until every node was first placed (* = some never were:\n"
         "  until the final number of placed nodes was first reached). placed: at the end. rmse_m: aligned RMSE\n"
         "  over the placed nodes at the end; median_m: the median node's error; bad_links: links the map itself\n"
-        "  misses by more than 0.5 m (5 sigma). peak_MiB: ru_maxrss of that process (its resident memory before\n"
-        "  the engine existed is given below; the peak includes the copies of the engine that re-initialization\n"
-        "  makes, and freed memory that the allocator keeps); heap_MiB: heap in use at the end less that before\n"
-        "  the engine (glibc mallinfo2): the engine's live state; state_MiB: the engine's state as estimated from\n"
-        "  its parts (ring components x 68 B + node, link and ring records).\n");
+        "  misses by more than 0.5 m (5 sigma). peak_MiB: peak resident memory of that process (VmHWM; its\n"
+        "  resident memory before the engine existed is given below; the peak includes the copies of the engine\n"
+        "  that re-initialization makes, and freed memory that the allocator keeps); heap_MiB: heap in use at\n"
+        "  the end less that before the engine (glibc mallinfo2): the engine's live state; state_MiB: the\n"
+        "  engine's state as estimated from its parts (ring components x 68 B + node, link and ring records).\n");
     for (const Json &size : networks) {
         const Json &summary = size["summary"];
         if (summary["draws_ok"].get<int>() == 0) {
@@ -1191,7 +1193,7 @@ Json summarizeDraws(const Json &draws)
         if (n["first_complete_map"]["reached"].get<bool>()) {
             first_map_s.push_back(n["first_complete_map"]["wall_s"].get<double>());
         }
-        peak_mib.push_back(static_cast<double>(n["memory_after"]["max_rss_kib"].get<long>()) / 1024.0);
+        peak_mib.push_back(static_cast<double>(n["memory_after"]["vm_hwm_kib"].get<long>()) / 1024.0);
         base_mib.push_back(static_cast<double>(n["memory_before"]["vm_rss_kib"].get<long>()) / 1024.0);
         const Json &a = n["accuracy_end"];
         rmse.push_back(a["rmse_m"].is_null() ? std::nan("") : a["rmse_m"].get<double>());
