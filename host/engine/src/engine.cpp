@@ -4,6 +4,7 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "cdro/engine/joint_solver.hpp"
 #include "cdro/engine/mds.hpp"
 #include "cdro/engine/placement.hpp"
 #include "cdro/engine/range_model.hpp"
@@ -929,7 +930,8 @@ void Engine::updateConvergence(NodeState &state)
         state.still_updates = 0;
     }
     const bool was = state.converged;
-    if (state.still_updates >= convergence.consecutive && state.update_count >= convergence.min_updates) {
+    if (state.still_updates >= convergence.consecutive && state.update_count >= convergence.min_updates &&
+        !state.ambiguous) {
         state.converged = true;
     }
     if (step > convergence.unconverge_factor * convergence.threshold_m) {
@@ -983,6 +985,7 @@ uint64_t Engine::settle(uint64_t max_updates)
         runPlacement();
     }
     relax(max_updates);
+    checkAmbiguity();
     return counters_.relaxations - before;
 }
 
@@ -1084,18 +1087,51 @@ bool Engine::placeFromMds()
 
 void Engine::sweep(uint32_t sweeps, bool anneal)
 {
-    // Graduated non-convexity: the first sweeps see the ranges as noisier than they are, so a
-    // link that disagrees still pulls instead of being written off as NLOS too early.
-    const double nominal = refine_solver_.range_sigma_m;
-    for (uint32_t done = 0; done < sweeps; ++done) {
-        const double remaining = sweeps > 1 ? 1.0 - static_cast<double>(done) / (sweeps - 1) : 0.0;
-        refine_solver_.range_sigma_m = anneal ? nominal * (1.0 + 7.0 * remaining * remaining) : nominal;
-        for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
-            enqueue(node);
-        }
-        relax(network_.nodes.size());
+    // All nodes at once (joint_solver.hpp), with graduated non-convexity when annealing, then
+    // the usual node updates so that SoGs, covariances and convergence follow.
+    JointSolveParams joint;
+    joint.range_sigma_m = params_.range.sigma_m;
+    if (!anneal) {
+        joint.sigma_scales = {1.0};
     }
-    refine_solver_.range_sigma_m = nominal;
+    joint.iterations_per_stage = std::max<uint32_t>(sweeps / static_cast<uint32_t>(joint.sigma_scales.size()), 2U);
+    std::vector<Vector2> before(network_.nodes.size());
+    for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+        before[node] = network_.nodes[node].position_m;
+    }
+    solveJointly(network_, likelihood_, joint);
+    ++counters_.joint_solves;
+    // Rings follow their centres; then every node is updated once as a neighbour would be.
+    for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+        NodeState &state = network_.nodes[node];
+        const Vector2 delta = state.position_m - before[node];
+        // A map solved at once is a new starting point: eq. 16's average starts again from it
+        // (else it would lag behind the jump for many updates, and convergence with it).
+        if (delta.squaredNorm() > 0.0) {
+            state.average_m = state.position_m;
+            state.still_updates = 0;
+        }
+        if (delta.squaredNorm() > 0.0 && params_.sog.rings_follow_center) {
+            for (uint32_t link : network_.nodes[node].links) {
+                const uint32_t slot = ringSlot(link, node);
+                if (slot != kNoIndex) {
+                    rings_[slot].translate(delta);
+                }
+            }
+        }
+    }
+}
+
+void Engine::updateAllNodes(uint32_t rounds)
+{
+    // Every node updated as a neighbour would update it, rounds times each: SoGs, covariances
+    // and convergence catch up with a map that was solved at once.
+    for (uint32_t round = 0; round < rounds; ++round) {
+        for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+            updateNode(node);
+            ++counters_.relaxations;
+        }
+    }
 }
 
 uint32_t Engine::escapeLocalMinima()
@@ -1141,6 +1177,44 @@ uint32_t Engine::escapeLocalMinima()
         }
     }
     return moved;
+}
+
+uint32_t Engine::checkAmbiguity()
+{
+    // A node is ambiguous when a distinct position explains its links about as well as where it
+    // is: nothing the ranges say decides between them, so it cannot be called converged (the
+    // honest answer is "add a link").
+    uint32_t count = 0;
+    for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+        NodeState &state = network_.nodes[node];
+        if (!state.placed || state.fixed || state.pinned || state.moving) {
+            state.ambiguous = false;
+            continue;
+        }
+        const std::vector<RangeConstraint> constraints = placedConstraints(network_, node);
+        bool ambiguous = constraints.size() < 3;
+        if (!ambiguous) {
+            const double here = robustCost(constraints, state.position_m, likelihood_, refine_solver_.range_sigma_m);
+            for (const PlacementCandidate &candidate :
+                 placementCandidates(constraints, likelihood_, refine_solver_, params_.placement)) {
+                if ((candidate.position_m - state.position_m).norm() > params_.placement.distinct_m &&
+                    candidate.cost < here + params_.placement.ambiguity_gap_nats / 2.0) {
+                    ambiguous = true;
+                    break;
+                }
+            }
+        }
+        if (ambiguous != state.ambiguous) {
+            ++revision_;
+        }
+        state.ambiguous = ambiguous;
+        if (ambiguous) {
+            state.converged = false;
+            ++count;
+        }
+    }
+    counters_.ambiguous_nodes = count;
+    return count;
 }
 
 bool Engine::reinitialize()
@@ -1196,7 +1270,10 @@ bool Engine::reinitialize()
     const char *name = names[best];
     trace("initialization again on " + std::to_string(network_.links.size()) + " links: best " + name + ", cost " +
           std::to_string(fresh_cost) + " against " + std::to_string(current_cost) + " nats now");
+    const uint32_t rounds = std::max<uint32_t>(params_.convergence.min_updates, 1U);
     if (!(fresh_cost + params_.reinitialization.min_gain_nats < current_cost)) {
+        checkAmbiguity();
+        updateAllNodes(rounds);
         return false;
     }
     // Adopt it, seen from the current frame so that the outputs do not jump.
@@ -1240,6 +1317,8 @@ bool Engine::reinitialize()
     mds_node_count_ = fresh.mds_node_count_;
     ++counters_.reinitializations_adopted;
     ++revision_;
+    checkAmbiguity();
+    updateAllNodes(rounds);
     return true;
 }
 
@@ -1301,6 +1380,7 @@ std::vector<NodeOutput> Engine::estimates() const
         node.converged = state.placed && state.converged;
         node.moving = state.moving;
         node.fixed = state.fixed;
+        node.ambiguous = state.placed && state.ambiguous;
         node.height_known = state.height_known;
         node.height_m = state.height_m;
         node.link_count = static_cast<uint32_t>(state.links.size());

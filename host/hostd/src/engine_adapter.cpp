@@ -77,7 +77,7 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.refinement_links_downweighted, &c.hypothesis_switches, &c.node_updates, &c.relaxations,
             &c.reinitializations, &c.reinitializations_adopted, &c.motion_starts, &c.motion_stops,
             &c.motion_inferred, &c.motion_resets, &c.track_updates, &c.track_refused,
-            &c.placements_forced};
+            &c.placements_forced, &c.joint_solves, &c.ambiguous_nodes};
 }
 
 engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)

@@ -291,6 +291,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         size_t placed = 0;
         size_t converged = 0;
         for (const engine::NodeOutput &node : estimates) {
+            if (node.ambiguous) {
+                std::fprintf(log, "cdro-hostd: node %u is ambiguous: another position fits its %u links about as well "
+                                  "(add a link to a node off the line of its neighbours)\n",
+                             static_cast<unsigned>(node.id), node.link_count);
+            }
             if (node.link_count > 0 || node.fixed) {
                 writeNodeRow(out.get(), node);
             }

@@ -72,6 +72,8 @@ struct EngineCounters {
     uint64_t relaxations = 0;                // neighbour updates (step 5)
     uint64_t reinitializations = 0;          // initializations run again on all links
     uint64_t reinitializations_adopted = 0;  // ... whose map replaced the current one
+    uint64_t joint_solves = 0;               // maps solved all nodes at once (joint_solver.hpp)
+    uint64_t ambiguous_nodes = 0;            // nodes found ambiguous at the last check
     uint64_t motion_starts = 0;              // nodes that started moving (reported or inferred)
     uint64_t motion_stops = 0;
     uint64_t motion_inferred = 0;            // ... of the starts, found by the range detector
@@ -87,6 +89,7 @@ struct NodeOutput {
     bool converged = false;
     bool moving = false;
     bool fixed = false;
+    bool ambiguous = false;                        // its links fit another position about as well
     bool height_known = false;
     double height_m = 0.0;                         // m
     uint32_t link_count = 0;                       // links to other nodes
@@ -210,7 +213,9 @@ private:
     std::unique_ptr<Engine> unplacedCopy() const;
     bool placeFromMds();
     void sweep(uint32_t sweeps, bool anneal);
+    void updateAllNodes(uint32_t rounds);
     uint32_t escapeLocalMinima();
+    uint32_t checkAmbiguity();
     bool placeFrame();
     void placeNode(uint32_t node, const Vector2 &position_m, const Matrix2 &covariance_m2);
     void unplaceNode(uint32_t node);

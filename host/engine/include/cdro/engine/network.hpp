@@ -47,6 +47,8 @@ struct NodeState {
     bool motion_inferred = false;   // moving because its ranges jumped (no reports for it)
     bool pinned = false;            // position owned by the movement stage's EKF: an anchor here
     bool converged = false;
+    bool ambiguous = false;         // another position fits its links about as well (a mirror
+                                    // image across nearly collinear neighbours): not converged
     double height_m = 0.0;          // m, meaningful when height_known
     Vector2 position_m = Vector2::Zero();        // m, engine frame
     Matrix2 covariance_m2 = Matrix2::Identity(); // m^2
