@@ -8,13 +8,15 @@
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap)
 {
     const size_t size = CDRO_CAPTURE_HEADER_FIXED + header->source_len;
+    const uint16_t version =
+        header->format_version == 0U ? (uint16_t)CDRO_CAPTURE_FORMAT_VERSION : header->format_version;
     uint8_t *p = out;
-    if (out_cap < size) {
+    if (out_cap < size || version > CDRO_CAPTURE_FORMAT_VERSION) {
         return 0;
     }
     memcpy(p, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE); /* includes the 0x00 */
     p += CDRO_CAPTURE_MAGIC_SIZE;
-    p = cdro_put_u16(p, CDRO_CAPTURE_FORMAT_VERSION);
+    p = cdro_put_u16(p, version);
     p = cdro_put_u16(p, (uint16_t)size);
     p = cdro_put_i64(p, header->created_unix_us);
     p = cdro_put_u8(p, header->source_len);

@@ -100,12 +100,64 @@ TEST(Capture, HeaderRejectsOtherFilesAndNewerVersions)
     not_capture[0] = 'X';
     EXPECT_EQ(cdro_capture_header_decode(not_capture.data(), not_capture.size(), &header, &consumed), CDRO_ERR_TYPE);
     auto newer = good;
-    newer[8] = 2;
+    newer[8] = CDRO_CAPTURE_FORMAT_VERSION + 1U;
     EXPECT_EQ(cdro_capture_header_decode(newer.data(), newer.size(), &header, &consumed), CDRO_ERR_VERSION);
     auto corrupt = good;
     corrupt[13] ^= 0x01;
     EXPECT_EQ(cdro_capture_header_decode(corrupt.data(), corrupt.size(), &header, &consumed), CDRO_ERR_CRC);
     EXPECT_EQ(cdro_capture_header_decode(good.data(), 10, &header, &consumed), CDRO_PENDING);
+}
+
+TEST(Capture, TheGoldenFileIsVersion2WithAnOdometryRecord)
+{
+    const auto &v = golden::vectors()["capture"];
+    cdro_capture_header_t header;
+    const auto file = golden::fromHex(v["bytes"]);
+    const Parsed parsed = parse(file, header);
+    EXPECT_EQ(header.format_version, 2U);
+    EXPECT_EQ(header.format_version, v["header"]["format_version"].get<uint16_t>());
+    const size_t index = v["odometry"]["record"].get<size_t>();
+    ASSERT_LT(index, parsed.records.size());
+    const cdro_capture_record_t &odometry = parsed.records[index];
+    EXPECT_EQ(odometry.flags, CDRO_CAPTURE_FLAG_ODOMETRY);
+    const std::string text(reinterpret_cast<const char *>(odometry.data), odometry.data_len);
+    EXPECT_EQ(nlohmann::json::parse(text), v["odometry"]["message"]);
+    for (size_t i = 0; i < parsed.records.size(); ++i) {
+        if (i != index) {
+            EXPECT_EQ(parsed.records[i].flags & CDRO_CAPTURE_FLAG_ODOMETRY, 0U) << i;
+        }
+    }
+}
+
+// Version-1 files (before odometry records) read as before, and encode to the same bytes.
+TEST(Capture, AVersion1FileStillReadsAndEncodes)
+{
+    const auto &v = golden::vectors()["capture_v1"];
+    cdro_capture_header_t header;
+    const auto file = golden::fromHex(v["bytes"]);
+    const Parsed parsed = parse(file, header);
+    EXPECT_EQ(header.format_version, 1U);
+    EXPECT_EQ(header.created_unix_us, v["header"]["created_unix_us"].get<int64_t>());
+    ASSERT_EQ(parsed.records.size(), v["records"].size());
+    for (size_t i = 0; i < parsed.records.size(); ++i) {
+        EXPECT_EQ(parsed.records[i].flags, v["records"][i]["flags"].get<uint8_t>());
+        EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len),
+                  v["records"][i]["data"].get<std::string>());
+    }
+    EXPECT_EQ(parsed.corrupt_bytes + parsed.tail_bytes, 0U);
+
+    std::vector<uint8_t> encoded(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE);
+    encoded.resize(cdro_capture_header_encode(&header, encoded.data(), encoded.size()));
+    ASSERT_GT(encoded.size(), 0U);
+    EXPECT_EQ(golden::toHex(encoded), v["bytes"].get<std::string>().substr(0, 2 * encoded.size()));
+}
+
+TEST(Capture, HeaderRefusesToEncodeAnUnknownVersion)
+{
+    cdro_capture_header_t header{};
+    header.format_version = CDRO_CAPTURE_FORMAT_VERSION + 1U;
+    uint8_t out[CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE];
+    EXPECT_EQ(cdro_capture_header_encode(&header, out, sizeof out), 0U);
 }
 
 TEST(Capture, RecordRefusesDataAboveTheMaximum)

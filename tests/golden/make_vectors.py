@@ -179,11 +179,18 @@ def stream_vector() -> dict:
     return {"bytes": hexs(bytes(stream)), "results": results, "counters": decoder.counters}
 
 
+# An odometry record's data as cdro-hostd writes it (host/service/src/odometry_intake.cpp,
+# normaliseOdometry): compact JSON, keys in this order, shortest round-trip numbers.
+ODOMETRY_RECORD = b'{"t":1795046400.225,"distance_m":0.012,"dheading_rad":-0.001,"source":"udp:127.0.0.1:40000"}'
+
+
 def capture_vector() -> dict:
+    """Format version 2: device chunks, a host frame, an odometry record."""
     header = CaptureHeader(created_unix_us=1795046400123456, source="serial:/dev/ttyACM0@115200")
     records = [
         CaptureRecord(1795046400200000, encode_frame(FRAMES[0][1])[:-1]),
         CaptureRecord(1795046400210000, encode_frame(FRAMES[11][1])[:-1], capture_file.FLAG_TO_DEVICE),
+        CaptureRecord(1795046400230000, ODOMETRY_RECORD, capture_file.FLAG_ODOMETRY),
         CaptureRecord(1795046400250000, b"\x13\x37"),
         CaptureRecord(1795046400260000, b"", 0),
     ]
@@ -193,12 +200,32 @@ def capture_vector() -> dict:
     corrupt = bytearray(blob)
     corrupt[second_record + 5] ^= 0xFF       # damage the second record's time field
     return {
+        "header": {"created_unix_us": header.created_unix_us, "source": header.source,
+                   "format_version": capture_file.FORMAT_VERSION},
+        "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
+        "odometry": {"record": 2, "message": {"t": 1795046400.225, "distance_m": 0.012, "dheading_rad": -0.001,
+                                              "source": "udp:127.0.0.1:40000"}},
+        "bytes": hexs(blob),
+        "cut_short": {"bytes": hexs(blob[:-3]), "records": len(records) - 1, "truncated_tail_bytes": 11},
+        "corrupt_middle": {"bytes": hexs(bytes(corrupt)), "records": len(records) - 1,
+                           "corrupt_bytes": len(capture_file.encode_record(records[1]))},
+    }
+
+
+def capture_v1_vector() -> dict:
+    """A format-version-1 file (before odometry records): every reader must still read it."""
+    header = CaptureHeader(created_unix_us=1795046400123456, source="serial:/dev/ttyACM0@115200", format_version=1)
+    records = [
+        CaptureRecord(1795046400200000, encode_frame(FRAMES[0][1])[:-1]),
+        CaptureRecord(1795046400210000, encode_frame(FRAMES[11][1])[:-1], capture_file.FLAG_TO_DEVICE),
+        CaptureRecord(1795046400250000, b"\x13\x37"),
+        CaptureRecord(1795046400260000, b"", 0),
+    ]
+    blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in records)
+    return {
         "header": {"created_unix_us": header.created_unix_us, "source": header.source, "format_version": 1},
         "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
         "bytes": hexs(blob),
-        "cut_short": {"bytes": hexs(blob[:-3]), "records": 3, "truncated_tail_bytes": 11},
-        "corrupt_middle": {"bytes": hexs(bytes(corrupt)), "records": 3,
-                           "corrupt_bytes": len(capture_file.encode_record(records[1]))},
     }
 
 
@@ -257,6 +284,7 @@ def main() -> None:
         "decode_errors": decode_error_vectors(),
         "stream": stream_vector(),
         "capture": capture_vector(),
+        "capture_v1": capture_v1_vector(),
         "sog": sog_vector(),
         "fixed": fixed_vectors(),
     }

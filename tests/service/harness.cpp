@@ -17,7 +17,8 @@ int main(int argc, char **argv)
     ServiceOverrides overrides;
     addServiceOptions(app, overrides);
     std::string received;
-    app.add_option("--received", received, "write every frame the consumer receives, one JSON line each");
+    app.add_option("--received", received,
+                   "write every frame and odometry message the consumer receives, one JSON line each");
     CLI11_PARSE(app, argc, argv);
     try {
         ServiceConfig config = overrides.config_path.empty() ? ServiceConfig{} : loadServiceConfig(overrides.config_path);
@@ -25,10 +26,13 @@ int main(int argc, char **argv)
         setupLogging(config.logging);
         HarnessEngine engine(received);
         SystemClock clock;
-        Service service(config, overrides.run, {&engine, &engine, &engine}, clock);
+        Service service(config, overrides.run, {&engine, &engine, &engine, &engine}, clock);
         service.start();
         if (!service.liveMapUrl().empty()) {
             std::fprintf(stderr, "live map: %s\n", service.liveMapUrl().c_str());
+        }
+        if (service.odometryUdpPort() != 0) {
+            std::fprintf(stderr, "odometry: udp port %u\n", static_cast<unsigned>(service.odometryUdpPort()));
         }
         return service.run();
     } catch (const std::exception &error) {

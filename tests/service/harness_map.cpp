@@ -71,6 +71,24 @@ void HarnessEngine::onHello(const cdro_hello_t &h, const FrameContext &c)
     std::snprintf(line, sizeof line, "{\"kind\":\"hello\",\"t_us\":%" PRId64 ",\"seq\":%u,\"node\":%u}", c.host_unix_us,
                   c.sequence, h.node_id);
     record(line);
+    own_id_ = h.node_id;
+}
+
+void HarnessEngine::onOdometry(const OdometryMessage &m)
+{
+    char line[200];
+    // %.17g: every double reads back as itself, so live and replayed lines compare exactly.
+    std::snprintf(line, sizeof line, "{\"kind\":\"odometry\",\"t_s\":%.17g,\"distance_m\":%.17g,\"dheading_rad\":%.17g}",
+                  m.t_s, m.distance_m, m.dheading_rad);
+    record(line);
+    // Plaza convention: advance along the mid-point heading.
+    const double mid_rad = robot_heading_rad_ + 0.5 * m.dheading_rad;
+    robot_x_m_ += m.distance_m * std::cos(mid_rad);
+    robot_y_m_ += m.distance_m * std::sin(mid_rad);
+    robot_heading_rad_ += m.dheading_rad;
+    have_robot_ = true;
+    ++odometry_steps_;
+    ++revision_;
 }
 
 void HarnessEngine::onStatus(const cdro_status_t &s, const FrameContext &c)
@@ -136,6 +154,11 @@ void HarnessEngine::fill(MapState &map) const
     }
     for (const auto &[pair, link] : links_) {
         map.links.push_back({pair.first, pair.second, link.last_range_m, link.count});
+    }
+    if (have_robot_) {
+        // The variance grows with the steps taken, as dead reckoning's does.
+        const double variance_m2 = 0.01 * static_cast<double>(odometry_steps_);
+        map.robot = RobotPose{own_id_, robot_x_m_, robot_y_m_, robot_heading_rad_, variance_m2, 0.0, variance_m2};
     }
 }
 

@@ -47,6 +47,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def raw_frame(type_id: int, sequence: int, payload: bytes, version: int = PROTOCOL_VERSION) -> bytes:
     """A frame built by hand (another protocol version, say): COBS(header|payload|crc) 0x00."""
     raw = bytes([version, type_id]) + sequence.to_bytes(2, "little") + bytes([len(payload)]) + payload

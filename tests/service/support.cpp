@@ -214,6 +214,13 @@ void RecordingConsumer::onDeviceReset(service::DeviceResetReason, const service:
 {
     received.push_back(make("reset", c));
 }
+void RecordingConsumer::onOdometry(const service::OdometryMessage &message)
+{
+    Received r;
+    r.kind = "odometry";
+    r.odometry = message;
+    received.push_back(r);
+}
 size_t RecordingConsumer::count(const std::string &kind) const
 {
     size_t n = 0;
@@ -223,9 +230,10 @@ size_t RecordingConsumer::count(const std::string &kind) const
     return n;
 }
 
-uint16_t freeLoopbackPort()
+namespace {
+uint16_t freePort(int type)
 {
-    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    const int fd = ::socket(AF_INET, type, 0);
     sockaddr_in address{};
     address.sin_family = AF_INET;
     address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
@@ -236,6 +244,10 @@ uint16_t freeLoopbackPort()
     ::close(fd);
     return ntohs(address.sin_port);
 }
+} // namespace
+
+uint16_t freeLoopbackPort() { return freePort(SOCK_STREAM); }
+uint16_t freeLoopbackUdpPort() { return freePort(SOCK_DGRAM); }
 
 Broker::Broker(uint16_t port) : port_(port) { start(); }
 

@@ -10,6 +10,7 @@
 
 #include "cdro/frames.h"
 #include "cdro/service/consumer.hpp"
+#include "cdro/service/odometry.hpp"
 
 namespace cdro::test {
 
@@ -54,12 +55,15 @@ cdro_frame_t ackFrame(uint16_t sequence, uint8_t acked_type, uint16_t acked_sequ
 std::vector<cdro_frame_t> decodeAll(const std::vector<uint8_t> &bytes);
 
 struct Received {
-    std::string kind;            // "range", "motion", "hello", "status", "node_list", "error", "reset"
+    std::string kind;            // "range", "motion", "hello", "status", "node_list", "error", "reset",
+                                 // "odometry"
     cdro_frame_t frame{};        // the payload in frame.as
     service::FrameContext context;
+    service::OdometryMessage odometry{0.0, 0.0, 0.0}; // kind "odometry"
 };
 
-class RecordingConsumer final : public service::FrameConsumer {
+// Frames and odometry in one list, in the order the service delivered them.
+class RecordingConsumer final : public service::FrameConsumer, public service::OdometryConsumer {
 public:
     void onRange(const cdro_range_t &r, const service::FrameContext &c) override;
     void onMotion(const cdro_motion_t &m, const service::FrameContext &c) override;
@@ -68,11 +72,13 @@ public:
     void onNodeList(const cdro_node_list_t &l, const service::FrameContext &c) override;
     void onDeviceError(const cdro_error_t &e, const service::FrameContext &c) override;
     void onDeviceReset(service::DeviceResetReason reason, const service::FrameContext &c) override;
+    void onOdometry(const service::OdometryMessage &message) override;
     std::vector<Received> received;
     size_t count(const std::string &kind) const;
 };
 
 uint16_t freeLoopbackPort();
+uint16_t freeLoopbackUdpPort();
 
 // mosquitto on 127.0.0.1:<port> with a generated config; stopped (SIGTERM) at destruction.
 class Broker {

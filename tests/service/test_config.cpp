@@ -48,6 +48,8 @@ TEST(Config, TheExampleFileParsesAndSetsEveryKey)
     EXPECT_FALSE(c.serial.device.empty());
     EXPECT_EQ(c.nodes.ids.size(), 7U);
     EXPECT_EQ(c.mqtt.url, "mqtt://127.0.0.1:1883");
+    EXPECT_EQ(odometryMqttTopic(c), "cdro/odometry");
+    EXPECT_EQ(c.odometry.udp_port, 0);
 }
 
 TEST(Config, ReadsEveryKeyOfEverySection)
@@ -161,4 +163,78 @@ TEST(Config, CommandLineOverridesTheFile)
     EXPECT_DOUBLE_EQ(parseReplaySpeed("2.5"), 2.5);
     EXPECT_THROW(parseReplaySpeed("fast"), ConfigError);
     EXPECT_THROW(parseReplaySpeed("0"), ConfigError);
+}
+
+TEST(Config, OdometryDefaultsKeysAndTopic)
+{
+    const ServiceConfig defaults = parseServiceConfig("", "empty");
+    EXPECT_EQ(defaults.odometry.udp_bind, "127.0.0.1");
+    EXPECT_EQ(defaults.odometry.udp_port, 0);
+    EXPECT_FALSE(defaults.odometry.mqtt_topic.has_value());
+    EXPECT_DOUBLE_EQ(defaults.odometry.max_velocity_gap_s, 1.0);
+    EXPECT_EQ(odometryMqttTopic(defaults), ""); // no MQTT at all
+
+    const ServiceConfig c = parseServiceConfig(
+        "odometry: {udp_bind: '::1', udp_port: 5005, mqtt_topic: robot/7/odom, max_velocity_gap_s: 0.25}\n"
+        "mqtt: {url: 'mqtt://127.0.0.1:1883', topic_prefix: lab}\n",
+        "odo");
+    EXPECT_EQ(c.odometry.udp_bind, "::1");
+    EXPECT_EQ(c.odometry.udp_port, 5005);
+    EXPECT_EQ(c.odometry.mqtt_topic.value_or("?"), "robot/7/odom");
+    EXPECT_DOUBLE_EQ(c.odometry.max_velocity_gap_s, 0.25);
+    EXPECT_EQ(odometryMqttTopic(c), "robot/7/odom");
+
+    // Unset: under the prefix; "" (or null): no subscription.
+    EXPECT_EQ(odometryMqttTopic(parseServiceConfig("mqtt: {url: 'mqtt://127.0.0.1', topic_prefix: lab}", "x")),
+              "lab/odometry");
+    EXPECT_EQ(odometryMqttTopic(parseServiceConfig("mqtt: {url: 'mqtt://127.0.0.1'}\nodometry: {mqtt_topic: ''}", "x")),
+              "");
+    EXPECT_EQ(odometryMqttTopic(parseServiceConfig("mqtt: {url: 'mqtt://127.0.0.1'}\nodometry: {mqtt_topic: ~}", "x")),
+              "");
+}
+
+TEST(Config, OdometryErrors)
+{
+    const std::string unknown = errorOf("odometry:\n  udp_prot: 5005\n");
+    EXPECT_NE(unknown.find("unknown key 'udp_prot' in section 'odometry'"), std::string::npos) << unknown;
+    EXPECT_NE(unknown.find("udp_port"), std::string::npos) << unknown; // the known keys are listed
+    EXPECT_NE(errorOf("odometry: {udp_port: 70000}").find("odometry.udp_port: must be between 0 and 65535"),
+              std::string::npos);
+    EXPECT_NE(errorOf("odometry: {mqtt_topic: 'robots/+/odom'}").find("not a filter"), std::string::npos);
+    EXPECT_NE(errorOf("odometry: {mqtt_topic: 'robots/#'}").find("not a filter"), std::string::npos);
+    EXPECT_NE(errorOf("odometry: {max_velocity_gap_s: 0}").find("odometry.max_velocity_gap_s"), std::string::npos);
+    EXPECT_NE(errorOf("odometry: {udp_port: 5005, udp_bind: ''}").find("odometry.udp_bind is empty"),
+              std::string::npos);
+    EXPECT_NE(errorOf("odometry: [1]").find("section 'odometry' must be a map"), std::string::npos);
+}
+
+TEST(Config, OdometryCommandLine)
+{
+    CLI::App app{"test"};
+    ServiceOverrides overrides;
+    addServiceOptions(app, overrides);
+    const char *argv[] = {"test", "--odometry-udp-port", "5006", "--odometry-mqtt-topic", "robot/odom", "--mqtt",
+                          "mqtt://127.0.0.1:1999"};
+    app.parse(static_cast<int>(std::size(argv)), argv);
+    ServiceConfig config;
+    applyOverrides(config, overrides);
+    EXPECT_EQ(config.odometry.udp_port, 5006);
+    EXPECT_EQ(odometryMqttTopic(config), "robot/odom");
+
+    CLI::App off{"test"};
+    ServiceOverrides none;
+    addServiceOptions(off, none);
+    const char *argv_off[] = {"test", "--odometry-mqtt-topic", "", "--mqtt", "mqtt://127.0.0.1:1999"};
+    off.parse(static_cast<int>(std::size(argv_off)), argv_off);
+    ServiceConfig quiet;
+    applyOverrides(quiet, none);
+    EXPECT_EQ(odometryMqttTopic(quiet), "");
+
+    CLI::App bad{"test"};
+    ServiceOverrides wild;
+    addServiceOptions(bad, wild);
+    const char *argv_bad[] = {"test", "--odometry-mqtt-topic", "a/#"};
+    bad.parse(static_cast<int>(std::size(argv_bad)), argv_bad);
+    ServiceConfig config_bad;
+    EXPECT_THROW(applyOverrides(config_bad, wild), ConfigError);
 }

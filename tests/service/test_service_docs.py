@@ -6,7 +6,7 @@ import re
 
 import yaml
 
-SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "mqtt", "http", "checkpoint", "logging")
+SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "mqtt", "http", "checkpoint", "odometry", "logging")
 
 
 def config_keys(repo_root):
@@ -15,7 +15,7 @@ def config_keys(repo_root):
     for section, struct in [("serial", "SerialConfig"), ("nodes", "NodesConfig"), ("schedule", "ScheduleConfig"),
                             ("capture", "CaptureConfig"), ("output", "OutputConfig"), ("mqtt", "MqttConfig"),
                             ("http", "HttpConfig"), ("checkpoint", "CheckpointConfig"),
-                            ("logging", "LoggingConfig")]:
+                            ("odometry", "OdometryConfig"), ("logging", "LoggingConfig")]:
         body = re.search(rf"struct {struct} \{{(.*?)\n\}};", header, re.S).group(1)
         keys[section] = re.findall(r"^\s+[\w:<>]+ (\w+)(?: = [^;]*)?;", body, re.M)
     return keys

@@ -104,6 +104,41 @@ def test_capture_golden(vectors):
     assert corrupt.corrupt_bytes == v["corrupt_middle"]["corrupt_bytes"]
 
 
+def test_capture_golden_odometry_record(vectors):
+    v = vectors["capture"]
+    contents = codec.parse_capture(bytes.fromhex(v["bytes"]))
+    assert contents.header.format_version == v["header"]["format_version"] == capture_file.FORMAT_VERSION == 2
+    index = v["odometry"]["record"]
+    record = contents.records[index]
+    assert record.odometry and not record.device and not record.to_device
+    assert record.odometry_message() == v["odometry"]["message"]
+    assert [r.odometry for r in contents.records].count(True) == 1
+    assert [i for i, r in enumerate(contents.records) if r.device] == [0, 3, 4]
+    with pytest.raises(ValueError):
+        contents.records[0].odometry_message()
+
+
+def test_capture_version_1_still_reads_and_encodes(vectors):
+    v = vectors["capture_v1"]
+    contents = codec.parse_capture(bytes.fromhex(v["bytes"]))
+    assert contents.header.format_version == 1
+    assert [(r.host_time_us, r.flags, r.data.hex()) for r in contents.records] == [
+        (r["host_time_us"], r["flags"], r["data"]) for r in v["records"]]
+    assert not any(r.odometry for r in contents.records)
+    header = codec.CaptureHeader(v["header"]["created_unix_us"], v["header"]["source"], format_version=1)
+    blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in contents.records)
+    assert blob.hex() == v["bytes"]
+
+
+def test_capture_refuses_newer_versions(vectors):
+    data = bytearray.fromhex(vectors["capture"]["bytes"])
+    data[8] = capture_file.FORMAT_VERSION + 1
+    with pytest.raises(codec.CaptureError, match="version 3"):
+        codec.parse_capture(bytes(data))
+    with pytest.raises(ValueError):
+        capture_file.encode_header(codec.CaptureHeader(0, "x", format_version=capture_file.FORMAT_VERSION + 1))
+
+
 def test_capture_writer_writes_what_the_reader_reads(tmp_path, vectors):
     path = tmp_path / "run.cdrocap"
     frames = [bytes.fromhex(v["bytes"])[:-1] for v in vectors["frames"]]

@@ -27,6 +27,43 @@ def test_decodes_a_capture_to_json_lines(tmp_path, golden_dir):
     assert counters["received"]["frames_ok"] == 1 and counters["received"]["cobs_errors"] == 1
 
 
+def test_shows_odometry_records_in_their_place(tmp_path, golden_dir):
+    vectors = json.loads((golden_dir / "vectors.json").read_text())
+    path = tmp_path / "golden.cdrocap"
+    path.write_bytes(bytes.fromhex(vectors["capture"]["bytes"]))
+    result = run(str(path))
+    assert result.returncode == 0, result.stderr
+    lines = [json.loads(line) for line in result.stdout.decode().splitlines()]
+    assert [(l["direction"], l.get("type")) for l in lines] == [
+        ("rx", "HELLO"), ("tx", "SET_SCHEDULE"), ("odometry", "ODOMETRY"), ("rx", None)]
+    odometry = lines[2]
+    assert odometry["result"] == "ok" and odometry["fields"] == vectors["capture"]["odometry"]["message"]
+    assert odometry["host_time_us"] == vectors["capture"]["records"][2]["host_time_us"]
+    stderr = [json.loads(line) for line in result.stderr.decode().splitlines()]
+    assert stderr[0]["capture"]["odometry_records"] == 1 and stderr[0]["capture"]["format_version"] == 2
+    assert stderr[-1]["received"]["frames_ok"] == 1  # the JSON was not fed to the frame decoder
+
+
+def test_a_damaged_odometry_record_is_shown_with_its_reason(tmp_path):
+    path = tmp_path / "bad.cdrocap"
+    with codec.CaptureWriter(path, "test", created_unix_us=0) as writer:
+        writer.write(codec.CaptureRecord(10, b"[1, 2", codec.capture_file.FLAG_ODOMETRY))
+    result = run(str(path))
+    assert result.returncode == 0, result.stderr
+    line = json.loads(result.stdout.decode())
+    assert line["result"] == "bad_odometry" and "not a JSON object" in line["reason"]
+
+
+def test_a_version_1_capture_still_decodes(tmp_path, golden_dir):
+    vectors = json.loads((golden_dir / "vectors.json").read_text())
+    path = tmp_path / "old.cdrocap"
+    path.write_bytes(bytes.fromhex(vectors["capture_v1"]["bytes"]))
+    result = run(str(path))
+    assert result.returncode == 0, result.stderr
+    assert len(result.stdout.decode().splitlines()) == 3  # (the empty record carries no chunk)
+    assert json.loads(result.stderr.decode().splitlines()[0])["capture"]["format_version"] == 1
+
+
 def test_raw_stdin_summary(golden_dir):
     vectors = json.loads((golden_dir / "vectors.json").read_text())
     result = run("--raw", "-", "--summary", stdin=bytes.fromhex(vectors["stream"]["bytes"]))

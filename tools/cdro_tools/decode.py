@@ -2,10 +2,14 @@
 
 One line per chunk: {"host_time_us", "direction", "result", "type", "sequence", "fields"} for
 good frames, and the rejection with its reason for everything else; then, on stderr, the
-decoder's counters. A pipe stage: compose it with jq, grep, or cdro-plot.
+decoder's counters. The robot's odometry messages in a capture (format version 2) are lines
+{"direction": "odometry", "result": "ok", "host_time_us", "type": "ODOMETRY", "fields": {"t",
+"distance_m", "dheading_rad", "source"}}, in their place among the frames. A pipe stage:
+compose it with jq, grep, or cdro-plot.
 
 examples:
   cdro-decode run.cdrocap | jq 'select(.type == "RANGE") | .fields.distance_mm'
+  cdro-decode run.cdrocap | jq -c 'select(.type == "ODOMETRY") | .fields'
   cdro-decode --raw dump.bin --summary
   cat /dev/ttyACM0 | cdro-decode --raw -
 """
@@ -32,6 +36,21 @@ def _line(event, host_time_us=None, direction="rx") -> dict:
     return line
 
 
+def _odometry_line(record) -> dict:
+    line: dict = {"direction": "odometry", "host_time_us": record.host_time_us}
+    try:
+        fields = record.odometry_message()
+        if not isinstance(fields, dict):
+            raise ValueError("not a JSON object")
+    except (UnicodeDecodeError, ValueError) as error:
+        # Only a hand-made or damaged-but-checksummed file gets here; say so, keep going.
+        line.update(result="bad_odometry", type="ODOMETRY", chunk=record.data.hex(), chunk_length=len(record.data),
+                    reason=f"odometry record is not a JSON object: {error}")
+        return line
+    line.update(result="ok", type="ODOMETRY", fields=fields)
+    return line
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-decode", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -53,12 +72,20 @@ def main(argv: list[str] | None = None) -> int:
                             out.write(json.dumps(_line(event)) + "\n")
         else:
             contents = read_capture(args.input)
+            odometry = 0
             for record in contents.records:
+                if record.odometry:
+                    odometry += 1
+                    if not args.summary:
+                        out.write(json.dumps(_odometry_line(record)) + "\n")
+                    continue
                 decoder, direction = (tx, "tx") if record.to_device else (rx, "rx")
                 for event in decoder.feed(record.data + b"\x00"):
                     if not args.summary:
                         out.write(json.dumps(_line(event, record.host_time_us, direction)) + "\n")
-            print(json.dumps({"capture": {"source": contents.header.source, "records": len(contents.records),
+            print(json.dumps({"capture": {"source": contents.header.source,
+                                          "format_version": contents.header.format_version,
+                                          "records": len(contents.records), "odometry_records": odometry,
                                           "corrupt_bytes": contents.corrupt_bytes,
                                           "truncated_tail_bytes": contents.truncated_tail_bytes}}),
                   file=sys.stderr)

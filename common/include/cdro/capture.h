@@ -1,12 +1,13 @@
 /*
  * capture.h: the capture-file format. A capture is what the host received (and sent) on the
- * serial link, byte for byte, with the host's clock: replaying it reproduces a run exactly.
+ * serial link, byte for byte, with the host's clock, and (format version 2) the robot's
+ * odometry messages it accepted: replaying it reproduces a run exactly.
  *
  * File = header, then records, back to back. All integers little-endian.
  *
  * Header (23 + n bytes):
  *   0   8  magic "CDROCAP" followed by 0x00
- *   8   u16 format version (CDRO_CAPTURE_FORMAT_VERSION)
+ *   8   u16 format version: 1 or 2 (CDRO_CAPTURE_FORMAT_VERSION; see "Versions" below)
  *   10  u16 header size in bytes, CRC included (23 + n; readers skip bytes they do not know)
  *   12  i64 creation time, us since the Unix epoch (UTC)
  *   20  u8  n, length of the source description
@@ -18,15 +19,24 @@
  *   1   u8  flags: CDRO_CAPTURE_FLAG_*; other bits reserved, written 0, ignored on read
  *   2   u16 n, number of data bytes (<= CDRO_CAPTURE_MAX_DATA)
  *   4   i64 host time, us since the Unix epoch, when the chunk's delimiter was received
- *           (or the frame was sent)
+ *           (or the frame was sent, or the odometry message was received)
  *   12  n   data: one chunk exactly as on the wire, i.e. the COBS bytes between two 0x00
- *           delimiters, without the delimiter; valid frames and rejected garbage alike
+ *           delimiters, without the delimiter; valid frames and rejected garbage alike.
+ *           With CDRO_CAPTURE_FLAG_ODOMETRY: one accepted odometry message as normalised
+ *           JSON (UTF-8, one object, no newline), after conversion to a step:
+ *           {"t":<s since the epoch>,"distance_m":<m>,"dheading_rad":<rad>,"source":"<where>"}
  *   12+n u16 CRC-16/CCITT-FALSE of bytes [0, 12+n)
  *
  * Each record is self-delimiting (length) and checked (CRC), and is written with a single
  * write(): a file cut short by power loss or kill -9 loses at most its last record, which
  * readers report as truncated. A corrupt record is skipped by scanning for the next marker
  * whose record checks out.
+ *
+ * Versions. 1: device chunks and host frames. 2: adds CDRO_CAPTURE_FLAG_ODOMETRY. A version-1
+ * reader ignores flag bits it does not know, so it would feed an odometry record's JSON to its
+ * frame decoder as if the device had sent it; that is why files that can hold such records
+ * say 2, which a version-1 reader refuses as newer. Readers of version 2 read version-1 files
+ * unchanged (they never have the bit set). The header's layout is the same in both.
  */
 #ifndef CDRO_CAPTURE_H
 #define CDRO_CAPTURE_H
@@ -42,7 +52,7 @@ extern "C" {
 
 #define CDRO_CAPTURE_MAGIC "CDROCAP"  /* 7 characters + the terminating 0x00 = 8 bytes */
 #define CDRO_CAPTURE_MAGIC_SIZE 8U
-#define CDRO_CAPTURE_FORMAT_VERSION 1U
+#define CDRO_CAPTURE_FORMAT_VERSION 2U /* the newest version this build reads and writes */
 #define CDRO_CAPTURE_HEADER_FIXED 23U /* header bytes without the source */
 #define CDRO_CAPTURE_MAX_SOURCE 255U
 #define CDRO_CAPTURE_RECORD_MARKER 0xC5U
@@ -51,9 +61,11 @@ extern "C" {
 
 #define CDRO_CAPTURE_FLAG_TO_DEVICE 0x01U /* sent by the host; otherwise received */
 #define CDRO_CAPTURE_FLAG_TRUNCATED 0x02U /* the chunk was longer than the data kept */
+#define CDRO_CAPTURE_FLAG_ODOMETRY 0x04U  /* version 2: an odometry message, not a device chunk;
+                                             written alone (never with the other flags) */
 
 typedef struct cdro_capture_header {
-    uint16_t format_version;
+    uint16_t format_version;   /* decode: the file's; encode: 0 = CDRO_CAPTURE_FORMAT_VERSION */
     int64_t created_unix_us;   /* us since the Unix epoch */
     uint8_t source_len;        /* bytes in source */
     char source[CDRO_CAPTURE_MAX_SOURCE]; /* not terminated */
@@ -66,7 +78,11 @@ typedef struct cdro_capture_record {
     const uint8_t *data;       /* encode: read from here; decode: points into the input */
 } cdro_capture_record_t;
 
-/* Encodes the header into out. Returns its size, or 0 if out_cap is too small. */
+/*
+ * Encodes the header into out with header->format_version (0 = the newest; an older version
+ * is for tests and converters). Returns its size, or 0 if out_cap is too small or the version
+ * is not one this build knows.
+ */
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap);
 
 /*

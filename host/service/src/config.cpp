@@ -92,6 +92,18 @@ void parseCheckpoint(Section &s, CheckpointConfig &c)
     s.read<double>("period_s", c.period_s, 0.0, kMaxSeconds);
 }
 
+void parseOdometry(Section &s, OdometryConfig &c)
+{
+    s.readString("udp_bind", c.udp_bind);
+    s.read<uint16_t>("udp_port", c.udp_port, 0, 65535);
+    if (s.child("mqtt_topic")) {
+        std::string topic;
+        s.readString("mqtt_topic", topic);
+        c.mqtt_topic = topic;
+    }
+    s.read<double>("max_velocity_gap_s", c.max_velocity_gap_s, 0.001, 3600.0);
+}
+
 void parseLogging(Section &s, LoggingConfig &c)
 {
     size_t level = 2;
@@ -182,6 +194,25 @@ void validateServiceConfig(const ServiceConfig &c)
     if (c.http.port != 0 && c.http.bind.empty()) {
         throw ConfigError("http.bind is empty");
     }
+    if (c.odometry.udp_port != 0 && c.odometry.udp_bind.empty()) {
+        throw ConfigError("odometry.udp_bind is empty");
+    }
+    if (c.odometry.mqtt_topic && c.odometry.mqtt_topic->find_first_of("#+") != std::string::npos) {
+        // A filter could match the service's own topics (cdro/#) and feed it its own output.
+        throw ConfigError("odometry.mqtt_topic '" + *c.odometry.mqtt_topic +
+                          "' must be a topic, not a filter (no # or +)");
+    }
+    if (!(c.odometry.max_velocity_gap_s > 0.0)) {
+        throw ConfigError("odometry.max_velocity_gap_s must be > 0 s");
+    }
+}
+
+std::string odometryMqttTopic(const ServiceConfig &c)
+{
+    if (c.mqtt.url.empty()) {
+        return "";
+    }
+    return c.odometry.mqtt_topic ? *c.odometry.mqtt_topic : c.mqtt.topic_prefix + "/odometry";
 }
 
 ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string &origin)
@@ -209,6 +240,7 @@ ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string
     section(root, "mqtt", origin, parseMqtt, config.mqtt);
     section(root, "http", origin, parseHttp, config.http);
     section(root, "checkpoint", origin, parseCheckpoint, config.checkpoint);
+    section(root, "odometry", origin, parseOdometry, config.odometry);
     section(root, "logging", origin, parseLogging, config.logging);
     validateServiceConfig(config);
     return config;

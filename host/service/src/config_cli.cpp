@@ -41,6 +41,10 @@ void addServiceOptions(CLI::App &app, ServiceOverrides &o)
     app.add_option("--checkpoint", o.checkpoint_path, "checkpoint file, '' = off (checkpoint.path)");
     app.add_option("--checkpoint-period", o.checkpoint_period_s, "s between checkpoints (checkpoint.period_s)");
     app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, critical, off (logging.level)");
+    app.add_option("--odometry-udp-port", o.odometry_udp_port,
+                   "UDP port for the robot's odometry JSON, 0 = off (odometry.udp_port)");
+    app.add_option("--odometry-mqtt-topic", o.odometry_mqtt_topic,
+                   "MQTT topic of the robot's odometry, '' = none (odometry.mqtt_topic)");
 }
 
 void applyOverrides(ServiceConfig &c, const ServiceOverrides &o)
@@ -65,6 +69,8 @@ void applyOverrides(ServiceConfig &c, const ServiceOverrides &o)
         }
         c.checkpoint.period_s = *o.checkpoint_period_s;
     }
+    if (o.odometry_udp_port) c.odometry.udp_port = *o.odometry_udp_port;
+    if (o.odometry_mqtt_topic) c.odometry.mqtt_topic = *o.odometry_mqtt_topic;
     if (o.log_level) {
         static const char *const levels[] = {"trace", "debug", "info", "warn", "error", "critical", "off"};
         bool known = false;

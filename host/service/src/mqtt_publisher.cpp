@@ -44,6 +44,8 @@ void MqttPublisher::start()
     mosquitto_will_set(mosq_, will_topic.c_str(), 7, "offline", config_.qos, true);
     mosquitto_connect_callback_set(mosq_, &MqttPublisher::connectCallback);
     mosquitto_disconnect_callback_set(mosq_, &MqttPublisher::disconnectCallback);
+    mosquitto_message_callback_set(mosq_, &MqttPublisher::messageCallback);
+    mosquitto_subscribe_callback_set(mosq_, &MqttPublisher::subscribeCallback);
     connect();
 }
 
@@ -130,6 +132,51 @@ void MqttPublisher::disconnectCallback(struct mosquitto *, void *self, int rc)
     }
 }
 
+void MqttPublisher::subscribe(const std::string &topic, MessageHandler handler)
+{
+    subscriptions_[topic] = std::move(handler);
+}
+
+void MqttPublisher::messageCallback(struct mosquitto *, void *self, const ::mosquitto_message *message)
+{
+    auto *publisher = static_cast<MqttPublisher *>(self);
+    ++publisher->counters_.mqtt_received;
+    const auto it = publisher->subscriptions_.find(message->topic != nullptr ? message->topic : "");
+    if (it == publisher->subscriptions_.end()) {
+        return;
+    }
+    if (message->retain) {
+        if (!publisher->retained_warned_) {
+            publisher->retained_warned_ = true;
+            log()->warn("mqtt: ignoring the retained message on '{}' (the broker keeps an old one for new "
+                        "subscribers; publish odometry without retain)",
+                        it->first);
+        }
+        return;
+    }
+    const std::string topic = it->first;
+    const MessageHandler handler = it->second; // a copy: the handler may subscribe or stop
+    handler(topic, static_cast<const char *>(message->payload), static_cast<size_t>(std::max(0, message->payloadlen)));
+}
+
+void MqttPublisher::subscribeCallback(struct mosquitto *, void *self, int mid, int qos_count, const int *granted_qos)
+{
+    auto *publisher = static_cast<MqttPublisher *>(self);
+    const auto it = publisher->pending_subscriptions_.find(mid);
+    const std::string name = it != publisher->pending_subscriptions_.end() ? it->second : std::string("?");
+    if (it != publisher->pending_subscriptions_.end()) {
+        publisher->pending_subscriptions_.erase(it);
+    }
+    for (int i = 0; i < qos_count; ++i) {
+        if (granted_qos[i] > 2) { // 0x80: the broker refused the subscription
+            log()->error("mqtt: the broker refused the subscription to '{}' (its messages will not arrive)", name);
+            continue;
+        }
+        ++publisher->subscriptions_acknowledged_;
+        log()->info("mqtt: subscribed to '{}' (QoS {})", name, granted_qos[i]);
+    }
+}
+
 void MqttPublisher::onConnected(int rc)
 {
     if (rc != 0) {
@@ -142,6 +189,18 @@ void MqttPublisher::onConnected(int rc)
     ++counters_.mqtt_connects;
     log()->info("mqtt: connected to {}:{}, publishing under '{}/'", host_, port_, config_.topic_prefix);
     publish(topic("status"), "online", true);
+    // The session is clean: a reconnect has forgotten the subscriptions.
+    subscriptions_acknowledged_ = 0;
+    pending_subscriptions_.clear();
+    for (const auto &[name, handler] : subscriptions_) {
+        int mid = 0;
+        const int sub_rc = mosquitto_subscribe(mosq_, &mid, name.c_str(), config_.qos);
+        if (sub_rc != MOSQ_ERR_SUCCESS) {
+            log()->error("mqtt: cannot subscribe to '{}': {}", name, mosquitto_strerror(sub_rc));
+        } else {
+            pending_subscriptions_[mid] = name;
+        }
+    }
     // Everything retained goes out again: a subscriber that connects later, or a broker that
     // restarted without persistence, gets the current picture.
     const std::map<std::string, std::string> retained = retained_;

@@ -64,6 +64,13 @@ bool ReplaySource::nextRecord(CaptureRecord &record)
 
 void ReplaySource::feed(const CaptureRecord &record)
 {
+    if ((record.flags & CDRO_CAPTURE_FLAG_ODOMETRY) != 0) {
+        ++counters_.replay_odometry_records;
+        if (odometry_ != nullptr) {
+            odometry_->pushRecorded(record.data.data(), record.data.size(), record.host_time_us);
+        }
+        return;
+    }
     if (record.toDevice()) {
         ++counters_.replay_to_device_records;
         cdro_frame_t frame;
@@ -131,8 +138,8 @@ void ReplaySource::finish()
     if (after_batch_) {
         after_batch_();
     }
-    log()->info("replay: finished ({} records fed, {} host-to-device records skipped)", counters_.replay_records,
-                counters_.replay_to_device_records);
+    log()->info("replay: finished ({} device records and {} odometry records fed, {} host-to-device records skipped)",
+                counters_.replay_records, counters_.replay_odometry_records, counters_.replay_to_device_records);
     if (on_finished_) {
         on_finished_();
     }

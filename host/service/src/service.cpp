@@ -1,5 +1,6 @@
 #include "cdro/service/service.hpp"
 
+#include <algorithm>
 #include <csignal>
 
 #include <nlohmann/json.hpp>
@@ -56,7 +57,8 @@ private:
 
 Service::Service(const ServiceConfig &config, const RunOptions &run, ServiceHooks hooks, const Clock &clock)
     : config_(config), run_(run), hooks_(hooks), clock_(clock), loop_(clock),
-      intake_(config.nodes, config.logging.drop_log_per_s, counters_, clock), jsonl_(config.output, counters_),
+      intake_(config.nodes, config.logging.drop_log_per_s, counters_, clock),
+      odometry_(config.odometry, config.logging.drop_log_per_s, counters_, clock), jsonl_(config.output, counters_),
       mqtt_(loop_, config.mqtt, counters_)
 {
     if (hooks_.consumer == nullptr) {
@@ -64,6 +66,10 @@ Service::Service(const ServiceConfig &config, const RunOptions &run, ServiceHook
     }
     tap_ = std::make_unique<ConsumerTap>(*this, *hooks_.consumer);
     intake_.setConsumer(tap_.get());
+    odometry_.setConsumer(hooks_.odometry);
+    // Odometry moves the robot's estimate: the outputs follow it message by message, as they
+    // follow the frames.
+    odometry_.setAfterDelivery([this](int64_t event_unix_us) { afterFrame(event_unix_us); });
 }
 
 Service::~Service()
@@ -95,6 +101,7 @@ void Service::start()
     if (!run_.replay_path.empty()) {
         replay_ = std::make_unique<ReplaySource>(loop_, std::vector<std::string>{run_.replay_path}, run_.replay_speed,
                                                  intake_, counters_);
+        replay_->setOdometryIntake(&odometry_);
         replay_->open();
         run_start_unix_us_ = replay_->runStartUnixUs();
         source = replay_->source();
@@ -111,8 +118,27 @@ void Service::start()
             capture_ = std::make_unique<CaptureWriter>(config_.capture, source, counters_);
             capture_->open(run_start_unix_us_);
             intake_.setCapture(capture_.get());
+            odometry_.setCapture(capture_.get());
             log()->info("capture: {} (rotated at {} MiB, {} kept)", config_.capture.path, config_.capture.rotate_mib,
                         config_.capture.keep);
+        }
+        // Live odometry only: on --replay it comes from the capture, and a live sender mixed in
+        // would make the replay differ from the run it replays.
+        if (config_.odometry.udp_port != 0) {
+            odometry_udp_ = std::make_unique<OdometryUdpSource>(loop_, config_.odometry.udp_bind,
+                                                                config_.odometry.udp_port, odometry_);
+            odometry_udp_->setAfterBurst([this] { afterBatch(); });
+            odometry_udp_->start();
+        }
+        const std::string topic = odometryMqttTopic(config_);
+        if (!topic.empty()) {
+            mqtt_.subscribe(topic, [this](const std::string &name, const char *payload, size_t len) {
+                if (shut_down_) {
+                    return;
+                }
+                odometry_.push("mqtt:" + name, payload, len, clock_.unixUs());
+                afterBatch();
+            });
         }
     }
 
@@ -184,7 +210,8 @@ int64_t Service::nowEventUnixUs() const
 {
     // Live: the wall clock (frames are stamped with it too). Replay: the last record's time.
     if (replay_) {
-        return intake_.lastEventUnixUs() != 0 ? intake_.lastEventUnixUs() : run_start_unix_us_;
+        const int64_t last_us = std::max(intake_.lastEventUnixUs(), odometry_.lastEventUnixUs());
+        return last_us != 0 ? last_us : run_start_unix_us_;
     }
     return clock_.unixUs();
 }
@@ -413,6 +440,9 @@ void Service::shutdown(const std::string &why)
     }
     if (replay_) {
         replay_->stop();
+    }
+    if (odometry_udp_) {
+        odometry_udp_->stop();
     }
     if (session_timer_ != 0) {
         loop_.cancelTimer(session_timer_);

@@ -1,9 +1,11 @@
 """Capture files, the Python twin of common/include/cdro/capture.h (layout documented there
 and in docs/protocol.md): a checked header, then self-delimiting checked records, one per
-chunk received (or frame sent). A file cut short loses at most its last record."""
+chunk received (or frame sent, or, from format version 2, odometry message accepted). A file
+cut short loses at most its last record. Version-1 files read unchanged."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import pathlib
 import struct
@@ -12,7 +14,7 @@ import time
 from .checksums import crc16
 
 MAGIC = b"CDROCAP\x00"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2             # the newest version read and written; 1 is still read
 HEADER_FIXED = 23
 MAX_SOURCE = 255
 RECORD_MARKER = 0xC5
@@ -20,6 +22,7 @@ RECORD_OVERHEAD = 14
 MAX_DATA = 4096
 FLAG_TO_DEVICE = 0x01
 FLAG_TRUNCATED = 0x02
+FLAG_ODOMETRY = 0x04           # version 2: the data is an odometry message (normalised JSON)
 
 
 class CaptureError(ValueError):
@@ -37,6 +40,7 @@ class CaptureHeader:
 class CaptureRecord:
     host_time_us: int              # us since the Unix epoch
     data: bytes                    # one chunk as on the wire, without the 0x00 delimiter
+                                   # (with FLAG_ODOMETRY: the message as normalised JSON)
     flags: int = 0
 
     @property
@@ -47,12 +51,31 @@ class CaptureRecord:
     def truncated(self) -> bool:
         return bool(self.flags & FLAG_TRUNCATED)
 
+    @property
+    def odometry(self) -> bool:
+        """An odometry message the service accepted, not bytes of the serial link."""
+        return bool(self.flags & FLAG_ODOMETRY)
+
+    @property
+    def device(self) -> bool:
+        """A chunk received from the device (neither sent to it nor odometry)."""
+        return not self.flags & (FLAG_TO_DEVICE | FLAG_ODOMETRY)
+
+    def odometry_message(self) -> dict:
+        """The odometry record's message: {"t", "distance_m", "dheading_rad", "source"}."""
+        if not self.odometry:
+            raise ValueError("not an odometry record")
+        return json.loads(self.data.decode("utf-8"))
+
 
 def encode_header(header: CaptureHeader) -> bytes:
+    """With header.format_version (an older one only for tests and converters)."""
     source = header.source.encode("utf-8")
     if len(source) > MAX_SOURCE:
         raise ValueError(f"source description is {len(source)} bytes, at most {MAX_SOURCE}")
-    body = MAGIC + struct.pack("<HHqB", FORMAT_VERSION, HEADER_FIXED + len(source), header.created_unix_us,
+    if not 1 <= header.format_version <= FORMAT_VERSION:
+        raise ValueError(f"capture format version {header.format_version} is not 1..{FORMAT_VERSION}")
+    body = MAGIC + struct.pack("<HHqB", header.format_version, HEADER_FIXED + len(source), header.created_unix_us,
                                len(source)) + source
     return body + struct.pack("<H", crc16(body))
 

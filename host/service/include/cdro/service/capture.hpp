@@ -2,7 +2,7 @@
 // service and read back by --replay.
 //
 // CaptureWriter appends one record per chunk received (and per frame sent, flagged
-// to-device), each with a single write() on an O_APPEND descriptor and no user-space
+// to-device, and per odometry message accepted, flagged odometry), each with a single write() on an O_APPEND descriptor and no user-space
 // buffering: a kill -9 at any moment loses at most the record being written, which readers
 // report as a truncated tail. Before a record would take the file past rotate_mib, the file is
 // rotated: path -> path.1 -> path.2 ... up to path.<keep> (older ones are deleted), and a new
@@ -72,8 +72,10 @@ private:
 struct CaptureRecord {
     uint8_t flags = 0;          // CDRO_CAPTURE_FLAG_*
     int64_t host_time_us = 0;   // us since the Unix epoch
-    std::vector<uint8_t> data;  // one chunk as on the wire, without the delimiter
+    std::vector<uint8_t> data;  // one chunk as on the wire, without the delimiter (odometry:
+                                // the message as normalised JSON)
     bool toDevice() const { return (flags & CDRO_CAPTURE_FLAG_TO_DEVICE) != 0; }
+    bool odometry() const { return (flags & CDRO_CAPTURE_FLAG_ODOMETRY) != 0; }
 };
 
 class CaptureReader {

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -87,6 +88,15 @@ struct CheckpointConfig {
     double period_s = 30.0;              // s between periodic checkpoints; 0 = only at exit
 };
 
+struct OdometryConfig {                  // the robot's odometry input (docs/service.md)
+    std::string udp_bind = "127.0.0.1";  // address the UDP socket binds to (loopback by default)
+    uint16_t udp_port = 0;               // UDP port; 0 = no UDP input
+    std::optional<std::string> mqtt_topic; // MQTT topic subscribed to when mqtt.url is set;
+                                         // unset = "<mqtt.topic_prefix>/odometry", "" = none
+    double max_velocity_gap_s = 1.0;     // s; a velocity message later than this after its
+                                         // source's previous one only restarts the clock
+};
+
 struct LoggingConfig {
     std::string level = "info";          // trace, debug, info, warn, error, critical, off
     std::string file;                    // "" = stderr (never stdout: it may carry JSON Lines)
@@ -102,8 +112,13 @@ struct ServiceConfig {
     MqttConfig mqtt;
     HttpConfig http;
     CheckpointConfig checkpoint;
+    OdometryConfig odometry;
     LoggingConfig logging;
 };
+
+// The odometry topic the service subscribes to: odometry.mqtt_topic, or its default under
+// mqtt.topic_prefix; "" when there is none (no mqtt.url, or the topic set to "").
+std::string odometryMqttTopic(const ServiceConfig &config);
 
 // Parses YAML text (origin names it in messages, e.g. the file path). Throws ConfigError.
 ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string &origin = "<config>");

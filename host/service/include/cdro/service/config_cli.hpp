@@ -46,6 +46,8 @@ struct ServiceOverrides {
     std::optional<std::string> checkpoint_path; // --checkpoint FILE
     std::optional<double> checkpoint_period_s;  // --checkpoint-period S
     std::optional<std::string> log_level;       // --log-level LEVEL
+    std::optional<uint16_t> odometry_udp_port;  // --odometry-udp-port N (0 = off)
+    std::optional<std::string> odometry_mqtt_topic; // --odometry-mqtt-topic TOPIC ("" = none)
 };
 
 // Adds the options above to app (option names are documented in docs/service.md).

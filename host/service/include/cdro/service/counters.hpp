@@ -55,12 +55,25 @@ namespace cdro::service {
     X(replay_to_device_records, "host-to-device records in the capture (skipped on replay)")       \
     X(replay_corrupt_bytes, "capture bytes skipped as corrupt on replay")                           \
     X(replay_truncated_bytes, "bytes of a cut-short last record on replay")                         \
+    X(replay_odometry_records, "odometry records fed from a capture")                               \
+    X(odometry_received, "odometry messages received (UDP, MQTT, or fed from a capture)")          \
+    X(odometry_accepted, "odometry messages handed to the consumer (as steps)")                    \
+    X(odometry_clock_starts, "velocity messages that only started their source's clock (no step)") \
+    X(odometry_clock_steps, "accepted messages whose t was over 1 s before the last one taken")   \
+    X(odometry_rejected_not_json, "odometry dropped: not JSON (or empty)")                          \
+    X(odometry_rejected_not_object, "odometry dropped: JSON, but not an object")                    \
+    X(odometry_rejected_field, "odometry dropped: a field missing, not a number or not finite")   \
+    X(odometry_rejected_both_forms, "odometry dropped: a step and velocities in one message")      \
+    X(odometry_rejected_absurd, "odometry dropped: a value beyond its documented bound")          \
+    X(odometry_rejected_out_of_order, "odometry dropped: t up to 1 s before the last one taken")  \
+    X(odometry_rejected_too_long, "odometry dropped: a message longer than 1024 bytes")           \
     X(jsonl_lines, "JSON lines written")                                                             \
     X(jsonl_write_errors, "JSON lines that could not be written")                                   \
     X(mqtt_published, "MQTT messages handed to the broker connection")                              \
     X(mqtt_dropped, "MQTT messages not sent because the broker was unreachable")                   \
     X(mqtt_connects, "MQTT connections established")                                                \
     X(mqtt_disconnects, "MQTT connections lost")                                                     \
+    X(mqtt_received, "MQTT messages received on the subscribed topics (odometry)")                 \
     X(checkpoints_written, "checkpoints written")                                                    \
     X(checkpoint_errors, "checkpoints that could not be written")
 

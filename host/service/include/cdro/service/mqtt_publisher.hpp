@@ -16,10 +16,17 @@
 // retries with backoff, and publishes them all again when the broker is back. Publishing while
 // disconnected counts mqtt_dropped and never blocks the loop.
 //
+// The same client also subscribes (subscribe(): the robot's odometry topic, odometry.hpp):
+// the subscriptions are sent on every connect (the session is clean, so a reconnect forgets
+// them), and each message arrives in a callback on the loop thread, counted in mqtt_received.
+// Retained messages are ignored: a retained odometry step is an old one, replayed by the
+// broker to every new subscriber.
+//
 // Threading: loop thread only.
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <optional>
 #include <string>
@@ -29,6 +36,7 @@
 #include "cdro/service/map_state.hpp"
 
 struct mosquitto;
+struct mosquitto_message;
 
 namespace cdro::service {
 
@@ -50,6 +58,13 @@ public:
     void onUpdate(const MapState &map, int64_t event_us);
     void publishHealth(const Health &health, double t_s);
 
+    // Subscribes to topic (an exact topic, no wildcards) on every connect; handler gets each
+    // message's payload on the loop thread. Call before start().
+    using MessageHandler = std::function<void(const std::string &topic, const char *payload, size_t len)>;
+    void subscribe(const std::string &topic, MessageHandler handler);
+    // Subscriptions the broker acknowledged since the last connect (tests).
+    uint64_t subscriptionsAcknowledged() const { return subscriptions_acknowledged_; }
+
     std::string topic(const std::string &suffix) const { return config_.topic_prefix + "/" + suffix; }
 
 private:
@@ -64,6 +79,8 @@ private:
 
     static void connectCallback(struct mosquitto *, void *self, int rc);
     static void disconnectCallback(struct mosquitto *, void *self, int rc);
+    static void messageCallback(struct mosquitto *, void *self, const ::mosquitto_message *message);
+    static void subscribeCallback(struct mosquitto *, void *self, int mid, int qos_count, const int *granted_qos);
 
     EventLoop &loop_;
     MqttConfig config_;
@@ -83,6 +100,10 @@ private:
     std::map<uint16_t, NodeEstimate> last_node_;        // id -> the estimate last published
     std::map<uint16_t, int64_t> next_due_us_;           // id -> event time of the next publish
     std::optional<RobotPose> last_robot_;
+    std::map<std::string, MessageHandler> subscriptions_; // topic -> handler
+    std::map<int, std::string> pending_subscriptions_;    // message id -> topic, until the SUBACK
+    uint64_t subscriptions_acknowledged_ = 0;
+    bool retained_warned_ = false;
 };
 
 } // namespace cdro::service

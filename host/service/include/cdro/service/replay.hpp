@@ -1,7 +1,9 @@
 // replay.hpp: --replay FILE [--speed X|max]. Feeds the device-to-host records of one or more
 // capture files through the same FrameIntake as the live link, with each record's host time
 // as the event time. The host-to-device records are not sent anywhere; their frame types go to
-// FrameIntake::noteSentFrame, exactly as the session's did when they were captured.
+// FrameIntake::noteSentFrame, exactly as the session's did when they were captured. Odometry
+// records (capture format version 2) go to the OdometryIntake (pushRecorded) in their place
+// among the frames, so the OdometryConsumer gets them between the same frames as live.
 //
 // The consumer therefore sees identical calls in identical order whatever the speed: speed X
 // only decides when, in monotonic time, each record is fed (record time / X after the first);
@@ -20,6 +22,7 @@
 #include "cdro/service/capture.hpp"
 #include "cdro/service/event_loop.hpp"
 #include "cdro/service/intake.hpp"
+#include "cdro/service/odometry_intake.hpp"
 
 namespace cdro::service {
 
@@ -29,6 +32,9 @@ public:
     ReplaySource(EventLoop &loop, std::vector<std::string> paths, double speed, FrameIntake &intake,
                  ServiceCounters &counters);
 
+    // Where odometry records go; without it they are counted (replay_odometry_records) and
+    // skipped.
+    void setOdometryIntake(OdometryIntake *odometry) { odometry_ = odometry; }
     // Opens the first file (throws CaptureError) so that its header is known before start().
     void open();
     // Starts feeding; after_batch runs after each batch, on_finished once at the end.
@@ -51,6 +57,7 @@ private:
     std::vector<std::string> paths_;
     double speed_;
     FrameIntake &intake_;
+    OdometryIntake *odometry_ = nullptr;
     ServiceCounters &counters_;
     std::unique_ptr<CaptureReader> reader_;
     size_t path_index_ = 0;

@@ -14,7 +14,8 @@
 // Data flow on the loop thread, per frame: link bytes (or a replay record) -> FrameIntake ->
 // capture record -> hooks.consumer (the engine) -> if hooks.map->revision() moved: JSON Lines
 // and MQTT get the new estimates (event time decides the rate, so replays write the same
-// lines). Timers publish health (output.health_period_s), push the live map
+// lines). Per odometry message: a UDP datagram or MQTT payload (or a replayed odometry
+// record) -> OdometryIntake -> capture record -> hooks.odometry -> the same outputs. Timers publish health (output.health_period_s), push the live map
 // (http.update_period_s) and write checkpoints (checkpoint.period_s).
 //
 // On SIGTERM/SIGINT (through the self-pipe), the replay's end or requestStop(): the input
@@ -42,6 +43,9 @@
 #include "cdro/service/json_output.hpp"
 #include "cdro/service/map_state.hpp"
 #include "cdro/service/mqtt_publisher.hpp"
+#include "cdro/service/odometry.hpp"
+#include "cdro/service/odometry_intake.hpp"
+#include "cdro/service/odometry_udp.hpp"
 #include "cdro/service/replay.hpp"
 #include "cdro/service/serial_link.hpp"
 #include "cdro/service/session.hpp"
@@ -52,6 +56,8 @@ struct ServiceHooks {
     FrameConsumer *consumer = nullptr;        // required: the estimator's input
     MapSource *map = nullptr;                 // optional: without it, outputs carry health only
     CheckpointProvider *checkpoint = nullptr; // optional: without it, no checkpoints, no --resume
+    OdometryConsumer *odometry = nullptr;     // optional: the robot's odometry (without it the
+                                              // messages are still checked, counted and captured)
 };
 
 class Service final : private SerialLink::Listener, private CommandSink, private SessionListener {
@@ -75,6 +81,8 @@ public:
     int httpPort() const;
     int64_t runStartUnixUs() const { return run_start_unix_us_; }
     EventLoop &loop() { return loop_; }
+    // The UDP port odometry is read from (0 = none), e.g. for a test that let the kernel choose.
+    uint16_t odometryUdpPort() const { return odometry_udp_ ? odometry_udp_->port() : 0; }
 
     // The current map with health (loop thread).
     MapState currentMap() const;
@@ -112,6 +120,8 @@ private:
     EventLoop loop_;
     std::unique_ptr<ConsumerTap> tap_;
     FrameIntake intake_;
+    OdometryIntake odometry_;
+    std::unique_ptr<OdometryUdpSource> odometry_udp_;
     std::unique_ptr<CaptureWriter> capture_;
     std::unique_ptr<SerialLink> link_;
     std::unique_ptr<DeviceSession> session_;
