@@ -1,5 +1,6 @@
 #include "support.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -7,6 +8,9 @@
 #include <fstream>
 #include <map>
 #include <sstream>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 
 #include "cdro/engine/alignment.hpp"
 
@@ -109,13 +113,67 @@ bool usable(const TestNetwork &network)
 
 } // namespace
 
+bool globallyRigid(const TestNetwork &network, Random &random)
+{
+    // Rigidity matrix: one row per link, d|p_a - p_b| / d(p_a, p_b).
+    const Eigen::Index n = static_cast<Eigen::Index>(network.truth_m.size());
+    const Eigen::Index m = static_cast<Eigen::Index>(network.links.size());
+    if (n < 4) {
+        return n == 3 && m == 3;
+    }
+    Eigen::MatrixXd rigidity = Eigen::MatrixXd::Zero(m, 2 * n);
+    for (Eigen::Index l = 0; l < m; ++l) {
+        const auto [a, b] = network.links[static_cast<size_t>(l)];
+        const Vector2 d = network.truth_m[a] - network.truth_m[b];
+        rigidity.block<1, 2>(l, 2 * static_cast<Eigen::Index>(a)) = d.transpose();
+        rigidity.block<1, 2>(l, 2 * static_cast<Eigen::Index>(b)) = -d.transpose();
+    }
+    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(rigidity, Eigen::ComputeFullU);
+    const Eigen::VectorXd singular = svd.singularValues();
+    const double tolerance = 1e-9 * singular(0);
+    Eigen::Index rank = 0;
+    for (Eigen::Index i = 0; i < singular.size(); ++i) {
+        rank += singular(i) > tolerance ? 1 : 0;
+    }
+    if (rank != 2 * n - 3) {
+        return false; // not even infinitesimally rigid
+    }
+    // Equilibrium stresses: the left null space of the rigidity matrix. A generic random
+    // combination of them has the largest stress-matrix rank there is; n - 3 means globally
+    // rigid (Connelly; Gortler, Healy, Thurston).
+    const Eigen::MatrixXd stresses = svd.matrixU().rightCols(m - rank);
+    if (stresses.cols() == 0) {
+        return false;
+    }
+    Eigen::VectorXd mix(stresses.cols());
+    for (Eigen::Index i = 0; i < mix.size(); ++i) {
+        mix(i) = random.normal();
+    }
+    const Eigen::VectorXd omega = stresses * mix;
+    Eigen::MatrixXd stress = Eigen::MatrixXd::Zero(n, n);
+    for (Eigen::Index l = 0; l < m; ++l) {
+        const auto [a, b] = network.links[static_cast<size_t>(l)];
+        const Eigen::Index i = static_cast<Eigen::Index>(a);
+        const Eigen::Index j = static_cast<Eigen::Index>(b);
+        stress(i, j) -= omega(l);
+        stress(j, i) -= omega(l);
+        stress(i, i) += omega(l);
+        stress(j, j) += omega(l);
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(stress);
+    const Eigen::VectorXd values = eigen.eigenvalues().cwiseAbs();
+    const double largest = values.maxCoeff();
+    Eigen::Index stress_rank = 0;
+    for (Eigen::Index i = 0; i < values.size(); ++i) {
+        stress_rank += values(i) > 1e-9 * largest ? 1 : 0;
+    }
+    return stress_rank == n - 3;
+}
+
 TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heights)
 {
     const double area_per_node_m2 = 25.0;
     const double side_m = std::sqrt(area_per_node_m2 * static_cast<double>(nodes));
-    // Expected neighbours of an interior node: nodes * pi R^2 / side^2. The border loses some,
-    // so aim a little higher than asked.
-    const double radius_m = std::sqrt(1.2 * degree * side_m * side_m / (static_cast<double>(nodes) * kPi));
     for (;;) {
         TestNetwork network;
         while (network.truth_m.size() < nodes) {
@@ -135,14 +193,19 @@ TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heig
                 network.height_m.push_back(random.uniform(0.0, 3.0));
             }
         }
+        // The radius that gives exactly the mean degree asked for: the (n d / 2)-th shortest pair.
+        std::vector<std::pair<double, std::pair<size_t, size_t>>> pairs;
         for (size_t i = 0; i < nodes; ++i) {
             for (size_t j = i + 1; j < nodes; ++j) {
-                if ((network.truth_m[i] - network.truth_m[j]).norm() < radius_m) {
-                    network.links.emplace_back(i, j);
-                }
+                pairs.push_back({(network.truth_m[i] - network.truth_m[j]).norm(), {i, j}});
             }
         }
-        if (usable(network)) {
+        std::sort(pairs.begin(), pairs.end());
+        const size_t wanted = std::min(pairs.size(), static_cast<size_t>(std::lround(0.5 * degree * static_cast<double>(nodes))));
+        for (size_t k = 0; k < wanted; ++k) {
+            network.links.push_back(pairs[k].second);
+        }
+        if (usable(network) && globallyRigid(network, random)) {
             return network;
         }
     }
