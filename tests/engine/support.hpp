@@ -1,0 +1,120 @@
+// Test support for the engine suites: seeded randomness that can be replayed, random planar
+// networks with their range streams, aligned errors against the truth, and the PLANT data.
+//
+// Randomness: a small generator of our own (splitmix64) and our own uniform/normal/shuffle, so
+// that a seed gives the same network on every standard library (std::uniform_real_distribution
+// and std::shuffle are implementation-defined). Every randomised test prints its seed; the
+// environment variable CDRO_TEST_SEED replays one (as tests/firmware does).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "cdro/engine/engine.hpp"
+
+namespace cdro::enginetest {
+
+using engine::NodeId;
+using engine::Vector2;
+
+// The sanitized build (CDRO_SANITIZE) runs the engine about 250 times slower (Debug Eigen under
+// ASan): the heaviest cases then run in the native build only, and say so when skipped.
+#ifdef CDRO_TEST_SANITIZED
+constexpr bool kSanitizedBuild = true;
+#else
+constexpr bool kSanitizedBuild = false;
+#endif
+#define CDRO_SKIP_WHEN_SANITIZED()                                                                     \
+    do {                                                                                               \
+        if (::cdro::enginetest::kSanitizedBuild) {                                                     \
+            GTEST_SKIP() << "sanitized build: the engine runs ~250x slower here; this test runs in the " \
+                            "native build";                                                            \
+        }                                                                                              \
+    } while (false)
+
+// The seeds a randomised test runs with: CDRO_TEST_SEED alone when set, else `defaults`.
+// Each is printed when used (seedTrace below), so a failure names the one to replay.
+std::vector<uint64_t> testSeeds(const std::vector<uint64_t> &defaults);
+uint64_t testSeed(uint64_t fallback);
+std::string seedTrace(uint64_t seed); // "seed N (set CDRO_TEST_SEED=N to replay)"
+
+class Random {
+public:
+    explicit Random(uint64_t seed) : state_(seed) {}
+    uint64_t next();
+    double uniform();                           // [0, 1)
+    double uniform(double low, double high);    // [low, high)
+    double normal();                            // standard normal (Box-Muller)
+    size_t below(size_t count);                 // [0, count)
+    template <typename T> void shuffle(std::vector<T> &items)
+    {
+        for (size_t i = items.size(); i > 1; --i) {
+            std::swap(items[i - 1], items[below(i)]);
+        }
+    }
+
+private:
+    uint64_t state_;
+};
+
+struct TestNetwork {
+    std::vector<NodeId> ids;
+    std::vector<Vector2> truth_m;            // m
+    std::vector<double> height_m;            // m, empty when the network is planar
+    std::vector<std::pair<size_t, size_t>> links; // indices into ids
+    double trueRange(size_t link) const;     // m, 3D when heights are set
+};
+
+// Nodes uniformly in a square (one node per 25 m^2), linked when closer than the radius that
+// gives a mean degree of `degree`; no two nodes closer than 1 m. Redrawn until every node has
+// at least 3 links and the network is globally rigid (below): otherwise the ranges themselves
+// allow another map, and no engine could be asked to find the true one.
+TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heights);
+
+// Generic global rigidity in the plane at the true positions: the rigidity matrix has rank
+// 2n - 3 and an equilibrium stress has a stress matrix of rank n - 3.
+bool globallyRigid(const TestNetwork &network, Random &random);
+
+struct TestRange {
+    NodeId from = 0;
+    NodeId to = 0;
+    double range_m = 0.0;
+};
+
+// `sweeps` passes over every link, each pass in a fresh random order and random direction;
+// Gaussian noise of noise_sigma_m (0: exact ranges).
+std::vector<TestRange> roundRobin(const TestNetwork &network, Random &random, uint32_t sweeps, double noise_sigma_m);
+
+// Feeds the network's heights and the ranges to the engine, then settles it.
+void feed(engine::Engine &engine, const TestNetwork &network, const std::vector<TestRange> &ranges,
+          bool settle = true);
+
+// Aligned RMSE (rigid fit with reflection, no scale) of the placed estimates against the truth
+// of the same ids. Returns nullopt if fewer than 2 nodes are placed; *placed counts them.
+struct AlignedError {
+    double rmse_m = 0.0;
+    double max_m = 0.0;
+    size_t placed = 0;
+    size_t converged = 0;
+    size_t nodes = 0;   // nodes with at least one link
+};
+AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, const std::vector<NodeId> &ids,
+                          const std::vector<Vector2> &truth_m);
+
+// Bitwise equality of two estimate lists (every field, doubles by their bytes).
+bool identical(const std::vector<engine::NodeOutput> &a, const std::vector<engine::NodeOutput> &b);
+
+// The PLANT data (shared/data/README.md): $CDRO_DATA_DIR/plant, else ../shared/data/plant from
+// the repository root. nullopt when it is not there; `where` says where it was looked for.
+struct PlantData {
+    std::vector<TestRange> ranges;                 // file order
+    std::vector<NodeId> ids;                       // every surveyed node
+    std::vector<Vector2> truth_m;                  // m
+    std::vector<double> height_m;                  // m
+};
+std::optional<PlantData> loadPlant(std::string *where);
+
+} // namespace cdro::enginetest

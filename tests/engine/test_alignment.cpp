@@ -1,0 +1,140 @@
+// alignment: fitRigid recovers a rotation and translation, a reflection when allowed, and its
+// rms error is that of the transform it returns, no larger than the true transform's.
+#include <cmath>
+
+#include <Eigen/LU>
+#include <gtest/gtest.h>
+
+#include "cdro/engine/alignment.hpp"
+#include "support.hpp"
+
+namespace cdro::enginetest {
+namespace {
+
+using engine::fitRigid;
+using engine::Matrix2;
+using engine::RigidTransform;
+
+constexpr double kTwoPi = 6.28318530717958647692;
+
+Matrix2 rotationOf(double angle_rad)
+{
+    Matrix2 r;
+    r << std::cos(angle_rad), -std::sin(angle_rad), std::sin(angle_rad), std::cos(angle_rad);
+    return r;
+}
+
+std::vector<Vector2> randomPoints(Random &random, size_t count)
+{
+    std::vector<Vector2> points;
+    for (size_t i = 0; i < count; ++i) {
+        points.emplace_back(random.uniform(-40.0, 40.0), random.uniform(-40.0, 40.0));
+    }
+    return points;
+}
+
+double rmsOf(const RigidTransform &t, const std::vector<Vector2> &source, const std::vector<Vector2> &target)
+{
+    double sum = 0.0;
+    for (size_t i = 0; i < source.size(); ++i) {
+        sum += (t.apply(source[i]) - target[i]).squaredNorm();
+    }
+    return std::sqrt(sum / static_cast<double>(source.size()));
+}
+
+TEST(Alignment, RecoversARandomRotationAndTranslation)
+{
+    const uint64_t seed = testSeed(3301);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    for (int trial = 0; trial < 50; ++trial) {
+        const std::vector<Vector2> source = randomPoints(random, 2 + random.below(30));
+        const Matrix2 rotation = rotationOf(random.uniform(0.0, kTwoPi));
+        const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
+        std::vector<Vector2> target;
+        for (const Vector2 &p : source) {
+            target.push_back(rotation * p + translation_m);
+        }
+        for (const bool allow_reflection : {false, true}) {
+            const RigidTransform fit = fitRigid(source, target, allow_reflection);
+            EXPECT_FALSE(fit.reflected);
+            EXPECT_NEAR((fit.rotation - rotation).norm(), 0.0, 1e-9) << trial;
+            EXPECT_NEAR((fit.translation_m - translation_m).norm(), 0.0, 1e-9) << trial;
+            EXPECT_LT(fit.rms_error_m, 1e-9);
+            EXPECT_NEAR(fit.rotation.determinant(), 1.0, 1e-12);
+        }
+    }
+}
+
+TEST(Alignment, RecoversAReflectionWhenAllowed)
+{
+    const uint64_t seed = testSeed(3302);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    for (int trial = 0; trial < 50; ++trial) {
+        const std::vector<Vector2> source = randomPoints(random, 3 + random.below(30));
+        Matrix2 mirror = rotationOf(random.uniform(0.0, kTwoPi));
+        mirror.col(1) *= -1.0; // determinant -1
+        const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
+        std::vector<Vector2> target;
+        for (const Vector2 &p : source) {
+            target.push_back(mirror * p + translation_m);
+        }
+        const RigidTransform fit = fitRigid(source, target, true);
+        EXPECT_TRUE(fit.reflected) << trial;
+        EXPECT_NEAR(fit.rotation.determinant(), -1.0, 1e-12);
+        EXPECT_NEAR((fit.rotation - mirror).norm(), 0.0, 1e-9) << trial;
+        EXPECT_NEAR((fit.translation_m - translation_m).norm(), 0.0, 1e-9) << trial;
+        EXPECT_LT(fit.rms_error_m, 1e-9);
+        for (size_t i = 0; i < source.size(); ++i) {
+            EXPECT_NEAR((fit.apply(source[i]) - target[i]).norm(), 0.0, 1e-9);
+        }
+        // Without the reflection the best proper fit is far off.
+        const RigidTransform proper = fitRigid(source, target, false);
+        EXPECT_FALSE(proper.reflected);
+        EXPECT_GT(proper.rms_error_m, 1.0) << trial;
+    }
+}
+
+TEST(Alignment, RmsErrorOfNoisyPointsIsThatOfTheReturnedTransform)
+{
+    const uint64_t seed = testSeed(3303);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    for (int trial = 0; trial < 20; ++trial) {
+        const std::vector<Vector2> source = randomPoints(random, 40);
+        const Matrix2 rotation = rotationOf(random.uniform(0.0, kTwoPi));
+        const Vector2 translation_m(random.uniform(-10.0, 10.0), random.uniform(-10.0, 10.0));
+        const double noise_m = 0.05;
+        std::vector<Vector2> target;
+        for (const Vector2 &p : source) {
+            target.push_back(rotation * p + translation_m + noise_m * Vector2(random.normal(), random.normal()));
+        }
+        const RigidTransform fit = fitRigid(source, target, true);
+        EXPECT_FALSE(fit.reflected);
+        EXPECT_NEAR(fit.rms_error_m, rmsOf(fit, source, target), 1e-12);
+        // Least squares: no worse than the transform that made the points.
+        RigidTransform truth;
+        truth.rotation = rotation;
+        truth.translation_m = translation_m;
+        EXPECT_LE(fit.rms_error_m, rmsOf(truth, source, target) + 1e-12);
+        // And about the noise: sqrt(2) sigma per point, less the 3 fitted degrees of freedom.
+        EXPECT_NEAR(fit.rms_error_m, noise_m * std::sqrt(2.0), 0.35 * noise_m);
+        EXPECT_NEAR((fit.rotation - rotation).norm(), 0.0, 0.01);
+    }
+}
+
+TEST(Alignment, TooFewOrMismatchedPointsGiveTheIdentity)
+{
+    const RigidTransform none = fitRigid({}, {}, true);
+    EXPECT_EQ(none.rotation, Matrix2::Identity());
+    EXPECT_EQ(none.translation_m, Vector2::Zero());
+    const RigidTransform one = fitRigid({Vector2(1.0, 1.0)}, {Vector2(5.0, 5.0)}, true);
+    EXPECT_EQ(one.rotation, Matrix2::Identity());
+    EXPECT_EQ(one.translation_m, Vector2::Zero());
+    const RigidTransform mismatched = fitRigid({Vector2(1.0, 1.0), Vector2(2.0, 0.0)}, {Vector2(5.0, 5.0)}, true);
+    EXPECT_EQ(mismatched.rotation, Matrix2::Identity());
+}
+
+} // namespace
+} // namespace cdro::enginetest

@@ -1,0 +1,710 @@
+// The engine as a whole: exact recovery of noise-free random networks (a property test over
+// seeds), determinism, the verdicts on bad ranges, fixed nodes, the named frame, and the
+// ablation switches. Known failures found while writing these are kept as DISABLED_ tests
+// with the bug they show (run them with --gtest_also_run_disabled_tests).
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <stdexcept>
+
+#include <gtest/gtest.h>
+
+#include "cdro/engine/engine.hpp"
+#include "support.hpp"
+
+namespace cdro::enginetest {
+namespace {
+
+using engine::Engine;
+using engine::EngineParams;
+using engine::Gaussian2;
+using engine::Matrix2;
+using engine::NodeOutput;
+using engine::RangeVerdict;
+
+std::map<NodeId, NodeOutput> byId(const std::vector<NodeOutput> &estimates)
+{
+    std::map<NodeId, NodeOutput> out;
+    for (const NodeOutput &node : estimates) {
+        out[node.id] = node;
+    }
+    return out;
+}
+
+// Ranges of a noisy network with some NLOS readings (too long by 0.5 to 2 m), as on PLANT.
+std::vector<TestRange> noisyRanges(const TestNetwork &network, Random &random, uint32_t sweeps)
+{
+    std::vector<TestRange> ranges = roundRobin(network, random, sweeps, 0.10);
+    for (TestRange &range : ranges) {
+        if (random.uniform() < 0.08) {
+            range.range_m += random.uniform(0.5, 2.0);
+        }
+    }
+    return ranges;
+}
+
+// ---- (a) noise-free random networks: the truth up to a rigid transform ----------------------
+
+struct PropertyCase {
+    uint64_t seed;
+    size_t nodes;
+    double degree; // mean links per node
+    bool heights;  // random heights 0..3 m, 3D ranges
+};
+
+std::ostream &operator<<(std::ostream &out, const PropertyCase &c)
+{
+    return out << c.nodes << " nodes, degree " << c.degree << (c.heights ? ", heights" : ", planar") << ", seed "
+               << c.seed;
+}
+
+class NoiseFreeRecovery : public ::testing::TestWithParam<PropertyCase> {};
+
+TEST_P(NoiseFreeRecovery, RecoversTheTruthUpToARigidTransform)
+{
+    PropertyCase c = GetParam();
+    if (kSanitizedBuild && c.nodes > 8) {
+        GTEST_SKIP() << "sanitized build: networks over 8 nodes run in the native build only";
+    }
+    c.seed = testSeed(c.seed);
+    SCOPED_TRACE(seedTrace(c.seed));
+    Random random(c.seed);
+    const TestNetwork network = randomNetwork(random, c.nodes, c.degree, c.heights);
+    // Every link six times, each pass in a new random order and direction.
+    const std::vector<TestRange> ranges = roundRobin(network, random, 6, 0.0);
+    Engine engine;
+    feed(engine, network, ranges);
+    const AlignedError error = alignedError(engine.estimates(), network.ids, network.truth_m);
+    std::printf("%zu nodes, %zu links, %zu ranges: %zu placed, %zu converged, aligned RMSE %.3g m (max %.3g m)\n",
+                c.nodes, network.links.size(), ranges.size(), error.placed, error.converged, error.rmse_m,
+                error.max_m);
+    EXPECT_EQ(error.nodes, c.nodes);
+    EXPECT_EQ(error.placed, c.nodes);
+    EXPECT_EQ(error.converged, c.nodes);
+    EXPECT_LT(error.rmse_m, 0.01);
+    EXPECT_EQ(engine.counters().ranges_received, ranges.size());
+    EXPECT_EQ(engine.counters().rejected_self + engine.counters().rejected_value, 0U);
+}
+
+// 8 to 40 nodes, mean degree 6 to 10, with and without heights. The seeds are fixed (printed;
+// CDRO_TEST_SEED replays one); seeds that fail are listed below, not dropped.
+INSTANTIATE_TEST_SUITE_P(RandomNetworks, NoiseFreeRecovery,
+                         ::testing::Values(PropertyCase{1000, 8, 6.0, true}, PropertyCase{1001, 8, 6.0, false},
+                                           PropertyCase{1000, 12, 7.0, true}, PropertyCase{1000, 16, 8.0, true},
+                                           PropertyCase{1001, 16, 8.0, false}, PropertyCase{1000, 20, 10.0, true},
+                                           PropertyCase{1000, 25, 8.0, true}, PropertyCase{1000, 30, 9.0, true},
+                                           PropertyCase{1003, 30, 9.0, false}, PropertyCase{1000, 40, 10.0, true},
+                                           PropertyCase{1000, 40, 8.0, true}));
+
+// Known failures (engine as of 3646197), same generator and stream. Measured over seeds
+// 1000..1029 per configuration: 8 nodes/degree 6, 16/8: 0 of 30 fail; 12/7: 1; 20/10: 2; 25/8:
+// 2; 30/9: 1; 40/10: 3; 40/8: 14; 40/6: 28 of 30. Three kinds:
+//  - 1028 (12/7), 1014 (20/10): the map is exact (RMSE < 1e-6 m) but a node is not converged
+//    after settle(): settle stops once no position moves more than relax_threshold_m, while that
+//    node's convergence average (eq. 16) still lags its final position by over 10 cm (its step
+//    stays above threshold_m), and nothing updates it again until new ranges arrive.
+//  - 1026 (20/10), 1000 (40/6): a local minimum: the truth explains the links better than the
+//    engine's map (mapCost -127.8 against -125.5 nats, and -153.4 against -144.1), and neither
+//    the hypothesis switch nor the re-initialization finds it (RMSE 1.33 m and 0.38 m).
+//  - 1005 (40/8): RMSE 1.3 m though every link fits within 7 cm, and the engine's map costs
+//    less than the truth under its own likelihood (-205.96 against -204.53 nats): the NLOS
+//    term eps lambda exp(-lambda e) starts at e = 0+ with a jump (0.1 / m by default), so each
+//    slightly positive residual is 0.027 nats cheaper than an exact one; see
+//    RangeLikelihood.DISABLED_DensityIsContinuousAtZero. With sigma 0.1 m such near-flips are
+//    also statistically close.
+//  - 1001 (40/8): RMSE 3.2 cm: Gauss-Seidel along a soft mode stops at relax_threshold_m = 1 mm
+//    per update (with 1e-7 m it reaches 5e-6 m). A tolerance more than a bug.
+INSTANTIATE_TEST_SUITE_P(DISABLED_KnownFailures, NoiseFreeRecovery,
+                         ::testing::Values(PropertyCase{1028, 12, 7.0, true}, PropertyCase{1014, 20, 10.0, true},
+                                           PropertyCase{1026, 20, 10.0, true}, PropertyCase{1000, 40, 6.0, true},
+                                           PropertyCase{1005, 40, 8.0, false}, PropertyCase{1001, 40, 8.0, false}));
+
+TEST(NoiseFreeRecovery, TheGeneratorOnlyDrawsGloballyRigidNetworks)
+{
+    // The property needs networks whose ranges allow one map only; the check must tell.
+    Random random(1);
+    TestNetwork k4;
+    k4.truth_m = {Vector2(0, 0), Vector2(5, 0), Vector2(1, 4), Vector2(6, 5)};
+    k4.ids = {1, 2, 3, 4};
+    k4.links = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}};
+    EXPECT_TRUE(globallyRigid(k4, random));
+    TestNetwork hinge = k4; // a quadrilateral with one diagonal folds about it
+    hinge.links = {{0, 1}, {0, 2}, {1, 2}, {1, 3}, {2, 3}};
+    EXPECT_FALSE(globallyRigid(hinge, random));
+    TestNetwork square = k4; // a 4-cycle is not even rigid
+    square.links = {{0, 1}, {1, 3}, {3, 2}, {2, 0}};
+    EXPECT_FALSE(globallyRigid(square, random));
+    // Two K4s sharing two nodes: rigid, but one half can be reflected across the shared line.
+    TestNetwork hinged_k4s;
+    hinged_k4s.truth_m = {Vector2(0, 0), Vector2(5, 0), Vector2(1, 4), Vector2(4, 3), Vector2(2, -4), Vector2(4, -3)};
+    hinged_k4s.ids = {1, 2, 3, 4, 5, 6};
+    hinged_k4s.links = {{0, 1}, {0, 2}, {0, 3}, {1, 2}, {1, 3}, {2, 3}, {0, 4}, {0, 5}, {1, 4}, {1, 5}, {4, 5}};
+    EXPECT_FALSE(globallyRigid(hinged_k4s, random));
+    hinged_k4s.links.push_back({2, 4}); // one link across the hinge fixes it
+    EXPECT_TRUE(globallyRigid(hinged_k4s, random));
+}
+
+// ---- (b) determinism ---------------------------------------------------------------------------
+
+TEST(Engine, SameInputGivesBitIdenticalEstimates)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    const uint64_t seed = testSeed(3501);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, true);
+    const std::vector<TestRange> ranges = noisyRanges(network, random, 5);
+    Engine first;
+    Engine second;
+    // A trace sink is an observer: it must not change anything.
+    size_t messages = 0;
+    second.setTrace([&messages](const std::string &) { ++messages; });
+    feed(first, network, ranges);
+    feed(second, network, ranges);
+    EXPECT_TRUE(identical(first.estimates(), second.estimates()));
+    EXPECT_EQ(first.revision(), second.revision());
+    EXPECT_EQ(std::memcmp(&first.counters(), &second.counters(), sizeof(engine::EngineCounters)), 0);
+    const auto links_a = first.links();
+    const auto links_b = second.links();
+    ASSERT_EQ(links_a.size(), links_b.size());
+    for (size_t i = 0; i < links_a.size(); ++i) {
+        EXPECT_EQ(std::memcmp(&links_a[i].range_m, &links_b[i].range_m, sizeof(double)), 0);
+        EXPECT_EQ(std::memcmp(&links_a[i].inlier_probability, &links_b[i].inlier_probability, sizeof(double)), 0);
+    }
+    // And a different order is a different run (the comparison above can fail).
+    std::vector<TestRange> reordered = ranges;
+    std::swap(reordered[3], reordered[reordered.size() - 4]);
+    Engine third;
+    feed(third, network, reordered);
+    EXPECT_FALSE(identical(first.estimates(), third.estimates()));
+}
+
+// ---- (c) verdicts and counters ---------------------------------------------------------------
+
+bool sameLinks(const std::vector<engine::LinkOutput> &a, const std::vector<engine::LinkOutput> &b)
+{
+    if (a.size() != b.size()) {
+        return false;
+    }
+    for (size_t i = 0; i < a.size(); ++i) {
+        if (a[i].a != b[i].a || a[i].b != b[i].b || a[i].range_count != b[i].range_count ||
+            std::memcmp(&a[i].range_m, &b[i].range_m, sizeof(double)) != 0 ||
+            std::memcmp(&a[i].last_range_m, &b[i].last_range_m, sizeof(double)) != 0) {
+            return false;
+        }
+    }
+    return true;
+}
+
+TEST(Engine, BadRangesAreRefusedCountedAndNeverChangeTheMap)
+{
+    const uint64_t seed = testSeed(3502);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, false);
+    Engine engine;
+    feed(engine, network, roundRobin(network, random, 4, 0.0));
+    const std::vector<NodeOutput> before = engine.estimates();
+    const std::vector<engine::LinkOutput> links_before = engine.links();
+    const uint64_t revision = engine.revision();
+    const engine::EngineCounters counters = engine.counters();
+    const NodeId a = network.ids[0];
+    const NodeId b = network.ids[1];
+    const double max_m = engine.params().range.max_range_m;
+
+    EXPECT_EQ(engine.addRange(a, a, 5.0), RangeVerdict::RejectedSelf);
+    EXPECT_EQ(engine.addRange(b, b, std::numeric_limits<double>::quiet_NaN()), RangeVerdict::RejectedSelf);
+    const double bad_m[] = {std::numeric_limits<double>::quiet_NaN(),
+                            std::numeric_limits<double>::infinity(),
+                            -std::numeric_limits<double>::infinity(),
+                            -1.0,
+                            0.0,
+                            -0.0,
+                            std::nextafter(max_m, INFINITY),
+                            1e9};
+    for (double range_m : bad_m) {
+        EXPECT_EQ(engine.addRange(a, b, range_m), RangeVerdict::RejectedValue) << range_m;
+    }
+    // A refused range does not make its nodes known either.
+    EXPECT_EQ(engine.addRange(0xBEEF, a, -3.0), RangeVerdict::RejectedValue);
+    EXPECT_EQ(engine.addRange(0xBEEF, 0xBEEF, 3.0), RangeVerdict::RejectedSelf);
+
+    const size_t refused = 2 + std::size(bad_m) + 2;
+    EXPECT_TRUE(identical(before, engine.estimates()));
+    EXPECT_TRUE(sameLinks(links_before, engine.links()));
+    EXPECT_EQ(engine.revision(), revision);
+    EXPECT_FALSE(engine.estimate(0xBEEF).has_value());
+    const engine::EngineCounters &after = engine.counters();
+    EXPECT_EQ(after.ranges_received, counters.ranges_received + refused);
+    EXPECT_EQ(after.rejected_self, counters.rejected_self + 3);
+    EXPECT_EQ(after.rejected_value, counters.rejected_value + std::size(bad_m) + 1);
+    EXPECT_EQ(after.ranges_used, counters.ranges_used);
+    EXPECT_EQ(after.ranges_stored, counters.ranges_stored);
+
+    // The limit itself is a plausible range; a good range changes the map (so the checks above
+    // could have failed).
+    EXPECT_NE(engine.addRange(a, b, max_m), RangeVerdict::RejectedValue);
+    EXPECT_NE(engine.revision(), revision);
+    EXPECT_FALSE(sameLinks(links_before, engine.links()));
+}
+
+TEST(Engine, VerdictNamesAreDistinct)
+{
+    const RangeVerdict all[] = {RangeVerdict::Used, RangeVerdict::Stored, RangeVerdict::RejectedSelf,
+                                RangeVerdict::RejectedValue};
+    for (size_t i = 0; i < std::size(all); ++i) {
+        EXPECT_GT(std::strlen(engine::rangeVerdictName(all[i])), 0U);
+        for (size_t j = i + 1; j < std::size(all); ++j) {
+            EXPECT_STRNE(engine::rangeVerdictName(all[i]), engine::rangeVerdictName(all[j]));
+        }
+    }
+}
+
+TEST(Engine, RangesWaitOnTheirLinkUntilBothEndsArePlaced)
+{
+    Engine engine;
+    // Two nodes cannot be placed by one range: it is stored, not used.
+    EXPECT_EQ(engine.addRange(1, 2, 5.0), RangeVerdict::Stored);
+    EXPECT_EQ(engine.addRange(2, 1, 5.2), RangeVerdict::Stored);
+    const auto links = engine.links();
+    ASSERT_EQ(links.size(), 1U);
+    EXPECT_EQ(links[0].a, 1);
+    EXPECT_EQ(links[0].b, 2);
+    EXPECT_EQ(links[0].range_count, 2U);
+    EXPECT_DOUBLE_EQ(links[0].last_range_m, 5.2);
+    EXPECT_DOUBLE_EQ(links[0].range_m, 5.1); // median of the window
+    EXPECT_EQ(engine.counters().ranges_stored, 2U);
+    for (const NodeOutput &node : engine.estimates()) {
+        EXPECT_FALSE(node.placed);
+    }
+}
+
+// ---- (d) fixed nodes ---------------------------------------------------------------------------
+
+TestNetwork fixedTestNetwork(uint64_t seed)
+{
+    Random random(seed);
+    return randomNetwork(random, 8, 6.0, false);
+}
+
+TEST(Engine, TwoOrMoreFixedNodesStayExactlyWhereGivenAndDefineTheFrame)
+{
+    const uint64_t seed = testSeed(3503);
+    SCOPED_TRACE(seedTrace(seed));
+    const TestNetwork network = fixedTestNetwork(seed);
+    Random random(seed + 1);
+    Engine engine;
+    for (size_t i : {0U, 3U, 5U}) {
+        engine.setFixed(network.ids[i], network.truth_m[i]);
+    }
+    feed(engine, network, roundRobin(network, random, 5, 0.0));
+    const auto estimates = byId(engine.estimates());
+    for (size_t i : {0U, 3U, 5U}) {
+        const NodeOutput &node = estimates.at(network.ids[i]);
+        EXPECT_TRUE(node.fixed);
+        EXPECT_TRUE(node.placed);
+        EXPECT_EQ(node.position_m, network.truth_m[i]); // bit for bit
+        EXPECT_TRUE(node.covariance_m2.isZero(0.0));
+    }
+    // Their frame is the output frame: the others sit at their true coordinates, no alignment.
+    double worst_m = 0.0;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        const NodeOutput &node = estimates.at(network.ids[i]);
+        ASSERT_TRUE(node.placed) << node.id;
+        worst_m = std::max(worst_m, (node.position_m - network.truth_m[i]).norm());
+    }
+    std::printf("three fixed nodes: largest error without alignment %.3g m\n", worst_m);
+    EXPECT_LT(worst_m, 0.01);
+    const engine::RigidTransform transform = engine.outputTransform();
+    EXPECT_EQ(transform.rotation, Matrix2::Identity());
+    EXPECT_EQ(transform.translation_m, Vector2::Zero());
+    // The rings never describe a fixed node: its position is known.
+    for (size_t i : {0U, 3U, 5U}) {
+        EXPECT_TRUE(engine.ringsDescribing(network.ids[i]).empty());
+    }
+}
+
+// BUG (engine as of 3646197): with exactly two fixed nodes nothing else is ever placed. Every
+// node with two placed neighbours has two mirror-image candidates, and the MDS tie break that
+// would decide needs three placed nodes to align its layout (alignedMdsLayout returns nothing
+// for fewer); the re-initialization keeps the same placement. On PLANT with nodes 1 and 2 fixed
+// (`--fixed-csv` with their surveyed x, y) the output has those 2 nodes placed and 26 empty;
+// with 1, 2 and 3 fixed all 28 are placed. Two known points fix the frame up to the reflection
+// through them, and either image is a valid answer.
+TEST(Engine, DISABLED_TwoFixedNodesGiveTheFrameUpToTheMirrorThroughThem)
+{
+    const uint64_t seed = testSeed(3504);
+    SCOPED_TRACE(seedTrace(seed));
+    const TestNetwork network = fixedTestNetwork(seed);
+    Random random(seed + 1);
+    Engine engine;
+    engine.setFixed(network.ids[1], network.truth_m[1]);
+    engine.setFixed(network.ids[4], network.truth_m[4]);
+    feed(engine, network, roundRobin(network, random, 5, 0.0));
+    const auto estimates = byId(engine.estimates());
+    EXPECT_EQ(estimates.at(network.ids[1]).position_m, network.truth_m[1]);
+    EXPECT_EQ(estimates.at(network.ids[4]).position_m, network.truth_m[4]);
+    // Two points fix position and rotation; the reflection across their line is left open.
+    const Vector2 origin = network.truth_m[1];
+    const Vector2 along = (network.truth_m[4] - origin).normalized();
+    const auto mirrored = [&](const Vector2 &p) {
+        const Vector2 d = p - origin;
+        return Vector2(origin + 2.0 * d.dot(along) * along - d);
+    };
+    double direct_m = 0.0;
+    double mirror_m = 0.0;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        const NodeOutput &node = estimates.at(network.ids[i]);
+        ASSERT_TRUE(node.placed) << node.id;
+        direct_m = std::max(direct_m, (node.position_m - network.truth_m[i]).norm());
+        mirror_m = std::max(mirror_m, (node.position_m - mirrored(network.truth_m[i])).norm());
+    }
+    std::printf("two fixed nodes: largest error %.3g m as given, %.3g m mirrored\n", direct_m, mirror_m);
+    EXPECT_LT(std::min(direct_m, mirror_m), 0.01);
+}
+
+TEST(Engine, OneFixedNodeIsOutputAtItsCoordinates)
+{
+    const uint64_t seed = testSeed(3505);
+    SCOPED_TRACE(seedTrace(seed));
+    const TestNetwork network = fixedTestNetwork(seed);
+    Random random(seed + 1);
+    Engine engine;
+    const Vector2 known_m(100.25, -50.5); // anywhere: one node only says where the map sits
+    engine.setFixed(network.ids[2], known_m);
+    feed(engine, network, roundRobin(network, random, 5, 0.0));
+    const auto estimates = engine.estimates();
+    const auto by_id = byId(estimates);
+    const NodeOutput &fixed = by_id.at(network.ids[2]);
+    EXPECT_TRUE(fixed.fixed);
+    EXPECT_EQ(fixed.position_m, known_m);
+    // The rest is the map, shifted with it: the truth up to a rigid transform.
+    const AlignedError error = alignedError(estimates, network.ids, network.truth_m);
+    EXPECT_EQ(error.placed, network.ids.size());
+    EXPECT_LT(error.rmse_m, 0.01);
+    // And the distances from the fixed node are the true ones.
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        const double estimated = (by_id.at(network.ids[i]).position_m - known_m).norm();
+        EXPECT_NEAR(estimated, (network.truth_m[i] - network.truth_m[2]).norm(), 0.02) << network.ids[i];
+    }
+}
+
+TEST(Engine, FixedNodesMustComeBeforeTheFirstRange)
+{
+    Engine engine;
+    engine.setFixed(7, Vector2(1.0, 2.0));
+    engine.setFixed(7, Vector2(3.0, 4.0)); // before the first range: may be corrected
+    engine.addRange(7, 8, 5.0);
+    engine.addRange(8, 9, 5.0);
+    EXPECT_THROW(engine.setFixed(9, Vector2(0.0, 0.0)), std::logic_error);
+}
+
+// ---- (e) the named frame -----------------------------------------------------------------------
+
+void expectNamedFrame(const TestNetwork &network, size_t o, size_t x, size_t y)
+{
+    EngineParams params;
+    params.frame.origin = network.ids[o];
+    params.frame.x_axis = network.ids[x];
+    params.frame.positive_y = network.ids[y];
+    Random random(77);
+    Engine engine(params);
+    feed(engine, network, roundRobin(network, random, 5, 0.0));
+    const auto estimates = byId(engine.estimates());
+    const NodeOutput &origin = estimates.at(network.ids[o]);
+    const NodeOutput &axis = estimates.at(network.ids[x]);
+    const NodeOutput &third = estimates.at(network.ids[y]);
+    EXPECT_NEAR(origin.position_m.norm(), 0.0, 1e-9);
+    EXPECT_NEAR(axis.position_m.y(), 0.0, 1e-9);
+    EXPECT_GT(axis.position_m.x(), 0.0);
+    EXPECT_NEAR(axis.position_m.x(), (network.truth_m[x] - network.truth_m[o]).norm(), 0.01);
+    EXPECT_GT(third.position_m.y(), 0.0);
+    // Every node where the truth is in that frame (no alignment).
+    const Vector2 unit_x = (network.truth_m[x] - network.truth_m[o]).normalized();
+    Vector2 unit_y(-unit_x.y(), unit_x.x());
+    if ((network.truth_m[y] - network.truth_m[o]).dot(unit_y) < 0.0) {
+        unit_y = -unit_y;
+    }
+    double worst_m = 0.0;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        const Vector2 d = network.truth_m[i] - network.truth_m[o];
+        const Vector2 expected(d.dot(unit_x), d.dot(unit_y));
+        worst_m = std::max(worst_m, (estimates.at(network.ids[i]).position_m - expected).norm());
+    }
+    EXPECT_LT(worst_m, 0.01);
+}
+
+TEST(Engine, NamedFramePutsOriginXAxisAndPositiveYWhereAsked)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    const uint64_t seed = testSeed(3506);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, false);
+    // Three nodes that ranged to each other and span a triangle: the frame triangle itself.
+    bool found = false;
+    for (size_t l = 0; l < network.links.size() && !found; ++l) {
+        const auto [a, b] = network.links[l];
+        for (size_t c = 0; c < network.ids.size() && !found; ++c) {
+            const auto linked = [&](size_t p, size_t q) {
+                for (const auto &[u, v] : network.links) {
+                    if ((u == p && v == q) || (u == q && v == p)) {
+                        return true;
+                    }
+                }
+                return false;
+            };
+            const Vector2 ab = network.truth_m[b] - network.truth_m[a];
+            const Vector2 ac = network.truth_m[c] - network.truth_m[a];
+            const double height = std::abs(ab.x() * ac.y() - ab.y() * ac.x()) / std::max(ab.norm(), ac.norm());
+            if (c != a && c != b && linked(a, c) && linked(b, c) && height > 2.0) {
+                SCOPED_TRACE("linked triple");
+                expectNamedFrame(network, c, a, b);
+                found = true;
+            }
+        }
+    }
+    EXPECT_TRUE(found);
+}
+
+TEST(Engine, NamedFrameNeedNotBeLinked)
+{
+    const uint64_t seed = testSeed(3507);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 5.0, false);
+    // The two nodes farthest apart, and the node farthest from their line: they need not have
+    // ranged to each other.
+    size_t a = 0;
+    size_t b = 1;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        for (size_t j = i + 1; j < network.ids.size(); ++j) {
+            if ((network.truth_m[i] - network.truth_m[j]).norm() > (network.truth_m[a] - network.truth_m[b]).norm()) {
+                a = i;
+                b = j;
+            }
+        }
+    }
+    bool ab_linked = false;
+    for (const auto &[u, v] : network.links) {
+        ab_linked = ab_linked || (u == a && v == b) || (u == b && v == a);
+    }
+    ASSERT_FALSE(ab_linked) << "the farthest pair should be out of range";
+    size_t c = 0;
+    double best = -1.0;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        const Vector2 ab = network.truth_m[b] - network.truth_m[a];
+        const Vector2 ai = network.truth_m[i] - network.truth_m[a];
+        const double height = std::abs(ab.x() * ai.y() - ab.y() * ai.x());
+        if (height > best) {
+            best = height;
+            c = i;
+        }
+    }
+    expectNamedFrame(network, b, a, c);
+}
+
+// ---- (f) the ablation switches -----------------------------------------------------------------
+
+// The merged SoG of eq. 12-14 from the rings that describe a node (each of weight 1).
+Gaussian2 mergedRings(const Engine &engine, NodeId id)
+{
+    Vector2 first = Vector2::Zero();
+    Matrix2 second = Matrix2::Zero();
+    double total = 0.0;
+    for (const engine::RingOutput &ring : engine.ringsDescribing(id)) {
+        for (const engine::SogComponentState &c : ring.components) {
+            first += c.weight * c.mean_m;
+            second += c.weight * (c.covariance_m2 + c.mean_m * c.mean_m.transpose());
+            total += c.weight;
+        }
+    }
+    Gaussian2 merged;
+    merged.mean_m = first / total;
+    merged.covariance_m2 = second / total - merged.mean_m * merged.mean_m.transpose();
+    return merged;
+}
+
+TEST(Engine, AblationSwitchesChangeTheResult)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    const uint64_t seed = testSeed(3508);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, true);
+    const std::vector<TestRange> ranges = noisyRanges(network, random, 5);
+
+    struct Variant {
+        const char *name;
+        EngineParams params;
+    };
+    std::vector<Variant> variants(4, Variant{"", EngineParams{}});
+    variants[0].name = "default";
+    variants[1].name = "no weight transfer";
+    variants[1].params.sog.weight_transfer = false;
+    variants[2].name = "no cooperative";
+    variants[2].params.sog.cooperative = false;
+    variants[3].name = "no refinement";
+    variants[3].params.refinement.enabled = false;
+    std::vector<std::vector<NodeOutput>> results;
+    std::vector<engine::EngineCounters> counters;
+    for (const Variant &variant : variants) {
+        Engine engine(variant.params);
+        feed(engine, network, ranges);
+        const AlignedError error = alignedError(engine.estimates(), network.ids, network.truth_m);
+        std::printf("%-19s %zu placed, %zu converged, aligned RMSE %.3f m\n", variant.name, error.placed,
+                    error.converged, error.rmse_m);
+        EXPECT_EQ(error.placed, network.ids.size()) << variant.name;
+        EXPECT_LT(error.rmse_m, 1.0) << variant.name;
+        results.push_back(engine.estimates());
+        counters.push_back(engine.counters());
+    }
+    EXPECT_GT(counters[0].refinements, 0U);
+    EXPECT_GT(counters[0].weight_transfers, 0U);
+    EXPECT_EQ(counters[1].weight_transfers, 0U);
+    EXPECT_EQ(counters[3].refinements, 0U);
+    for (size_t i = 1; i < results.size(); ++i) {
+        EXPECT_FALSE(identical(results[0], results[i])) << variants[i].name;
+    }
+}
+
+// With refinement off the estimate is the merged SoG (eq. 12-14): checked on the node merged
+// last after a range (the `to` node; no neighbour updates afterwards, so no ring has moved since).
+double distanceOfLastMergedFromItsSog(bool refinement, double *covariance_difference_m2)
+{
+    Random random(3509);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, false);
+    const std::vector<TestRange> ranges = noisyRanges(network, random, 4);
+    EngineParams params;
+    params.refinement.enabled = refinement;
+    params.refinement.relax_per_range = 0;
+    params.refinement.settle_per_placed = 0;
+    Engine engine(params);
+    double worst_m = 0.0;
+    *covariance_difference_m2 = 0.0;
+    size_t checked = 0;
+    for (const TestRange &range : ranges) {
+        if (engine.addRange(range.from, range.to, range.range_m) != RangeVerdict::Used) {
+            continue;
+        }
+        const NodeOutput node = *engine.estimate(range.to);
+        const Gaussian2 merged = mergedRings(engine, range.to);
+        worst_m = std::max(worst_m, (node.position_m - merged.mean_m).norm());
+        *covariance_difference_m2 =
+            std::max(*covariance_difference_m2, (node.covariance_m2 - merged.covariance_m2).norm());
+        ++checked;
+    }
+    EXPECT_GT(checked, ranges.size() / 2);
+    return worst_m;
+}
+
+TEST(Engine, WithoutRefinementTheEstimateIsTheMergedSog)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    double covariance_m2 = 0.0;
+    const double without_m = distanceOfLastMergedFromItsSog(false, &covariance_m2);
+    EXPECT_LT(without_m, 1e-9);
+    EXPECT_LT(covariance_m2, 1e-6); // m^2: summed in another order, with means ~100 m from the origin
+    // With refinement the estimate is polished against the links instead: the check can fail.
+    double refined_covariance_m2 = 0.0;
+    const double with_m = distanceOfLastMergedFromItsSog(true, &refined_covariance_m2);
+    std::printf("estimate - merged SoG: %.3g m without refinement, %.3g m with\n", without_m, with_m);
+    EXPECT_GT(with_m, 0.01);
+}
+
+// ---- bugs found -----------------------------------------------------------------------------
+
+// BUG (engine as of 3646197): while the map is still sparse, the re-initialization's MDS-MAP
+// candidate is adopted and places nodes that have fewer than two placed neighbours (here node
+// 4434 with none at all). A node with a single placed link takes its one ring's merged mean,
+// and two such nodes linked to each other walk away together, about 11 m per range: after 8
+// ranges of a 25 m network the outputs are 700 m from the origin, after 14 ranges 2.6 km. The
+// aligned map is fine later on, but the output coordinates of a live run are absurd meanwhile,
+// and the convergence averages lag the walk (one cause of nodes left unconverged after settle).
+// The same 14 ranges through `cdro-hostd --ranges-csv F --out-csv O --trace-csv T
+// --trace-every 1 --no-settle` show it.
+TEST(Engine, DISABLED_OutputsStayNearTheNetworkWhileItIsBuilt)
+{
+    const TestRange ranges[] = {
+        {4138, 4804, 12.320}, {4286, 4656, 5.224},  {4175, 4286, 11.120}, {4323, 4397, 9.077},
+        {4434, 4286, 12.522}, {4434, 4508, 7.633},  {4656, 4582, 6.371},  {4730, 4656, 3.293},
+        {4693, 4619, 5.759},  {4249, 4730, 11.847}, {4175, 4138, 6.700},  {4471, 4434, 6.325},
+        {4323, 4212, 10.902}, {4656, 4397, 4.110},
+    };
+    Engine engine;
+    size_t count = 0;
+    for (const TestRange &range : ranges) {
+        engine.addRange(range.from, range.to, range.range_m);
+        ++count;
+        for (const NodeOutput &node : engine.estimates()) {
+            if (!node.placed) {
+                continue;
+            }
+            // Every range is shorter than 13 m, the network is 6 links across at most.
+            EXPECT_LT(node.position_m.norm(), 100.0) << "node " << node.id << " after " << count << " ranges";
+            uint32_t placed_neighbours = 0;
+            const engine::Network &network = engine.network();
+            const uint32_t index = network.findNode(node.id);
+            for (uint32_t link : network.nodes[index].links) {
+                placed_neighbours += network.nodes[network.otherNode(link, index)].placed ? 1U : 0U;
+            }
+            EXPECT_GE(placed_neighbours, 1U) << "node " << node.id << " after " << count << " ranges";
+        }
+    }
+}
+
+// BUG (engine as of 3646197): with refinement off (`--no-refinement`, the paper's filter alone)
+// the map never comes to rest. Each neighbour update re-weights and re-merges, nodes keep moving
+// by more than relax_threshold_m, settle() always spends its whole budget, and no node is ever
+// converged: on this network with exact ranges the whole map walks 97 m per 2000 updates
+// (aligned RMSE 1.16 m); with noisy ranges it cycles. On PLANT `cdro-hostd --no-refinement`
+// ends with 28 nodes placed and 0 converged (28 converged with refinement).
+TEST(Engine, DISABLED_WithoutRefinementTheMapComesToRest)
+{
+    Random random(3508);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, true);
+    Random stream(5);
+    EngineParams params;
+    params.refinement.enabled = false;
+    Engine engine(params);
+    feed(engine, network, roundRobin(network, stream, 5, 0.0));
+    const auto before = byId(engine.estimates());
+    const uint64_t updates = engine.settle(2000);
+    EXPECT_LT(updates, 2000U) << "settle() should stop once nothing moves";
+    double moved_m = 0.0;
+    size_t converged = 0;
+    for (const NodeOutput &node : engine.estimates()) {
+        moved_m = std::max(moved_m, (node.position_m - before.at(node.id).position_m).norm());
+        converged += node.converged ? 1U : 0U;
+    }
+    EXPECT_LT(moved_m, 0.01);
+    EXPECT_EQ(converged, network.ids.size());
+    EXPECT_LT(alignedError(engine.estimates(), network.ids, network.truth_m).rmse_m, 0.1);
+}
+
+// BUG (engine as of 3646197), with OutputsStayNearTheNetworkWhileItIsBuilt: engine.hpp says the
+// output frame is the named frame, else the frame triangle's (origin at (0, 0), x-axis node on
+// +x, third on +y). When the re-initialization adopts its MDS-MAP candidate before a frame
+// triangle was placed, frameNodes() stays empty for good and outputTransform() is the identity:
+// the outputs are in the engine's internal frame, wherever MDS and the refinement put it. In 7
+// of 12 eight-node networks (seeds 3500..3511) and on PLANT (no node is output at (0, 0)) there
+// is no frame triangle at the end.
+TEST(Engine, DISABLED_DefaultOutputFrameIsTheFrameTriangles)
+{
+    Random random(3506);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, false);
+    Engine engine;
+    feed(engine, network, roundRobin(network, random, 5, 0.0));
+    const auto frame = engine.frameNodes();
+    ASSERT_TRUE(frame.has_value());
+    const auto estimates = byId(engine.estimates());
+    EXPECT_NEAR(estimates.at((*frame)[0]).position_m.norm(), 0.0, 1e-9);
+    EXPECT_NEAR(estimates.at((*frame)[1]).position_m.y(), 0.0, 1e-9);
+    EXPECT_GT(estimates.at((*frame)[1]).position_m.x(), 0.0);
+    EXPECT_GT(estimates.at((*frame)[2]).position_m.y(), 0.0);
+}
+
+} // namespace
+} // namespace cdro::enginetest

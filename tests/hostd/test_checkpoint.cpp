@@ -1,0 +1,362 @@
+// Checkpoints of the engine through the adapter (snapshotOf / restoreFrom, encoded and decoded
+// in common/'s SoG layout as the service writes them): a restored engine holds the state rounded
+// to the layout's scales, and continues to within a measured tolerance of the original.
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <map>
+
+#include <gtest/gtest.h>
+
+#include "cdro/engine/alignment.hpp"
+#include "cdro/engine/engine.hpp"
+#include "cdro/hostd/engine_adapter.hpp"
+#include "cdro/service/checkpoint.hpp"
+#include "support.hpp"
+
+namespace cdro::enginetest {
+namespace {
+
+using engine::Engine;
+using engine::NodeOutput;
+
+constexpr double kPositionStepM = 0.5e-3;  // m: the layout stores millimetres (fixed.h)
+constexpr double kRounding = 1e-12;         // m: the conversions' own floating-point error
+
+// Through the bytes of a checkpoint file, as --resume reads it.
+service::SogSnapshot throughTheLayout(const service::SogSnapshot &snapshot)
+{
+    const std::vector<uint8_t> bytes = service::encodeSnapshot(snapshot);
+    return service::decodeSnapshot(bytes.data(), bytes.size(), "test checkpoint");
+}
+
+struct Difference {
+    double engine_frame_m = 0.0;  // largest position difference in the engine's frame
+    double output_m = 0.0;        // ... in the output frame (estimates())
+    double aligned_m = 0.0;       // ... after a rigid fit of one map onto the other
+    double covariance_m2 = 0.0;   // largest covariance element difference (output frame)
+};
+
+// How far rounding the positions to 0.5 mm can move a node's output: the output frame is
+// computed from the positions of its origin and x-axis nodes, so their rounding turns it by up
+// to (e_origin + e_axis) / baseline, which moves a node at distance d from the origin by d times
+// that. Without a frame (identity) it is the rounding alone.
+double outputRoundingBound(const Engine &engine, NodeId id)
+{
+    const double corner_m = std::sqrt(2.0) * kPositionStepM; // both coordinates rounded
+    const engine::RigidTransform transform = engine.outputTransform();
+    const auto frame = engine.frameNodes();
+    const engine::FrameParams &named = engine.params().frame;
+    std::optional<std::array<NodeId, 3>> ids;
+    if (named.origin != 0) {
+        ids = std::array<NodeId, 3>{named.origin, named.x_axis, named.positive_y};
+    } else if (frame) {
+        ids = frame;
+    }
+    if (!ids || transform.rotation == engine::Matrix2::Identity()) {
+        return corner_m + kRounding;
+    }
+    const auto position = [&](NodeId node) {
+        return engine.network().nodes[engine.network().findNode(node)].position_m;
+    };
+    const double baseline_m = (position((*ids)[1]) - position((*ids)[0])).norm();
+    const double distance_m = (position(id) - position((*ids)[0])).norm();
+    return 2.0 * corner_m + 2.0 * corner_m * distance_m / baseline_m + kRounding;
+}
+
+Difference compare(const Engine &a, const Engine &b, bool check_output_rounding = false)
+{
+    Difference d;
+    const auto &nodes_a = a.network().nodes;
+    const auto &nodes_b = b.network().nodes;
+    EXPECT_EQ(nodes_a.size(), nodes_b.size());
+    for (size_t i = 0; i < std::min(nodes_a.size(), nodes_b.size()); ++i) {
+        EXPECT_EQ(nodes_a[i].id, nodes_b[i].id);
+        EXPECT_EQ(nodes_a[i].placed, nodes_b[i].placed) << nodes_a[i].id;
+        if (nodes_a[i].placed && nodes_b[i].placed) {
+            const Vector2 delta = nodes_a[i].position_m - nodes_b[i].position_m;
+            d.engine_frame_m = std::max({d.engine_frame_m, std::abs(delta.x()), std::abs(delta.y())});
+        }
+    }
+    const std::vector<NodeOutput> out_a = a.estimates();
+    const std::vector<NodeOutput> out_b = b.estimates();
+    EXPECT_EQ(out_a.size(), out_b.size());
+    {
+        std::vector<Vector2> source;
+        std::vector<Vector2> target;
+        for (size_t i = 0; i < std::min(out_a.size(), out_b.size()); ++i) {
+            if (out_a[i].placed && out_b[i].placed) {
+                source.push_back(out_b[i].position_m);
+                target.push_back(out_a[i].position_m);
+            }
+        }
+        const engine::RigidTransform fit = engine::fitRigid(source, target, true);
+        for (size_t i = 0; i < source.size(); ++i) {
+            d.aligned_m = std::max(d.aligned_m, (fit.apply(source[i]) - target[i]).norm());
+        }
+    }
+    for (size_t i = 0; i < std::min(out_a.size(), out_b.size()); ++i) {
+        if (out_a[i].placed && out_b[i].placed) {
+            const Vector2 delta = out_a[i].position_m - out_b[i].position_m;
+            d.output_m = std::max({d.output_m, std::abs(delta.x()), std::abs(delta.y())});
+            if (check_output_rounding) {
+                EXPECT_LE(delta.norm(), outputRoundingBound(a, out_a[i].id)) << "node " << out_a[i].id;
+            }
+            d.covariance_m2 =
+                std::max(d.covariance_m2, (out_a[i].covariance_m2 - out_b[i].covariance_m2).cwiseAbs().maxCoeff());
+        }
+    }
+    return d;
+}
+
+void expectSameStructure(const Engine &original, const Engine &restored)
+{
+    const auto &a = original.network();
+    const auto &b = restored.network();
+    ASSERT_EQ(a.nodes.size(), b.nodes.size());
+    for (size_t i = 0; i < a.nodes.size(); ++i) {
+        const engine::NodeState &x = a.nodes[i];
+        const engine::NodeState &y = b.nodes[i];
+        EXPECT_EQ(x.id, y.id);
+        EXPECT_EQ(x.placed, y.placed) << x.id;
+        EXPECT_EQ(x.converged, y.converged) << x.id;
+        EXPECT_EQ(x.fixed, y.fixed) << x.id;
+        EXPECT_EQ(x.moving, y.moving) << x.id;
+        EXPECT_EQ(x.height_known, y.height_known) << x.id;
+        EXPECT_NEAR(x.height_m, y.height_m, kPositionStepM + kRounding) << x.id;
+        EXPECT_EQ(x.still_updates, y.still_updates) << x.id;
+        EXPECT_EQ(x.placements, y.placements) << x.id;
+        EXPECT_EQ(x.update_count, y.update_count) << x.id;
+        EXPECT_EQ(x.links.size(), y.links.size()) << x.id;
+        if (x.placed) {
+            EXPECT_LE((x.average_m - y.average_m).cwiseAbs().maxCoeff(), kPositionStepM + kRounding) << x.id;
+            // Standard deviations to 0.5 um and the correlation to 1.6e-5.
+            EXPECT_NEAR((x.covariance_m2 - y.covariance_m2).cwiseAbs().maxCoeff(), 0.0,
+                        2e-5 * x.covariance_m2.cwiseAbs().maxCoeff() + 1e-9)
+                << x.id;
+        }
+    }
+    const auto links_a = original.links();
+    const auto links_b = restored.links();
+    ASSERT_EQ(links_a.size(), links_b.size());
+    for (size_t i = 0; i < links_a.size(); ++i) {
+        EXPECT_EQ(links_a[i].a, links_b[i].a);
+        EXPECT_EQ(links_a[i].b, links_b[i].b);
+        EXPECT_EQ(links_a[i].range_count, links_b[i].range_count);
+        EXPECT_NEAR(links_a[i].last_range_m, links_b[i].last_range_m, kPositionStepM + kRounding);
+        EXPECT_NEAR(links_a[i].range_m, links_b[i].range_m, kPositionStepM + kRounding);
+        EXPECT_NEAR(links_a[i].inlier_probability, links_b[i].inlier_probability, 1e-5);
+    }
+    size_t rings_a = 0;
+    for (const engine::RingSog &ring : original.rings()) {
+        rings_a += ring.empty() ? 0U : 1U;
+    }
+    EXPECT_EQ(rings_a, restored.rings().size());
+    for (const NodeOutput &node : original.estimates()) {
+        const auto described_a = original.ringsDescribing(node.id);
+        const auto described_b = restored.ringsDescribing(node.id);
+        ASSERT_EQ(described_a.size(), described_b.size()) << node.id;
+        for (size_t r = 0; r < described_a.size(); ++r) {
+            ASSERT_EQ(described_a[r].components.size(), described_b[r].components.size());
+            EXPECT_EQ(described_a[r].center, described_b[r].center);
+            // Weights to 7.7e-6 each, then normalised again: the sum may be off by n times that.
+            const double n = static_cast<double>(described_a[r].components.size());
+            for (size_t k = 0; k < described_a[r].components.size(); ++k) {
+                const double w = described_a[r].components[k].weight;
+                EXPECT_NEAR(w, described_b[r].components[k].weight, 7.7e-6 * (1.0 + n * w) + 1e-12);
+            }
+        }
+    }
+    EXPECT_EQ(std::memcmp(&original.counters(), &restored.counters(), sizeof(engine::EngineCounters)), 0);
+    EXPECT_EQ(original.frameNodes(), restored.frameNodes());
+    EXPECT_EQ(original.reinitLinkCount(), restored.reinitLinkCount());
+    EXPECT_EQ(original.rangesSinceNewLink(), restored.rangesSinceNewLink());
+}
+
+struct RoundTrip {
+    Difference at_restore;
+    Difference after_continuing;
+};
+
+// Feeds `first`, checkpoints, restores into a fresh engine, feeds `second` to both, settles both.
+RoundTrip roundTrip(const engine::EngineParams &params, const std::vector<std::pair<NodeId, double>> &heights,
+                    const std::vector<TestRange> &first, const std::vector<TestRange> &second)
+{
+    Engine original(params);
+    for (const auto &[id, z_m] : heights) {
+        original.setHeight(id, z_m);
+    }
+    for (const TestRange &range : first) {
+        original.addRange(range.from, range.to, range.range_m);
+    }
+    const service::SogSnapshot snapshot = throughTheLayout(hostd::snapshotOf(original, 1234567));
+    EXPECT_EQ(snapshot.header.created_unix_us, 1234567);
+    EXPECT_EQ(snapshot.header.ranges_processed, first.size());
+    Engine restored(params);
+    hostd::restoreFrom(restored, snapshot);
+    expectSameStructure(original, restored);
+    RoundTrip result;
+    result.at_restore = compare(original, restored, true);
+    for (Engine *engine : {&original, &restored}) {
+        for (const TestRange &range : second) {
+            engine->addRange(range.from, range.to, range.range_m);
+        }
+        engine->settle(200ULL * engine->network().nodes.size() + 1000ULL);
+    }
+    result.after_continuing = compare(original, restored);
+    const std::vector<NodeOutput> a = original.estimates();
+    const std::vector<NodeOutput> b = restored.estimates();
+    for (size_t i = 0; i < std::min(a.size(), b.size()); ++i) {
+        EXPECT_EQ(a[i].placed, b[i].placed) << a[i].id;
+    }
+    return result;
+}
+
+void report(const char *what, const RoundTrip &trip)
+{
+    std::printf("%s: at restore %.3g m (engine frame), %.3g m (output frame), covariance %.3g m^2; "
+                "after continuing %.3g m (output frame), %.3g m aligned\n",
+                what, trip.at_restore.engine_frame_m, trip.at_restore.output_m, trip.at_restore.covariance_m2,
+                trip.after_continuing.output_m, trip.after_continuing.aligned_m);
+}
+
+// Measured (engine as of 3646197): the random network below ends 1.1 mm apart; PLANT resumed
+// after every 50th range ends at most 2.3 mm apart once the two maps are aligned (0.6 mm to
+// 2.3 mm), and in a named frame its outputs end at most 2.2 mm apart. Asserted: 1 cm.
+constexpr double kContinuedToleranceM = 0.01;
+
+TEST(Checkpoint, RestoredEngineMatchesToTheLayoutsResolutionAndContinuesClose)
+{
+    const uint64_t seed = testSeed(4001);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 8, 6.0, true);
+    std::vector<TestRange> ranges = roundRobin(network, random, 6, 0.10);
+    for (TestRange &range : ranges) {
+        if (random.uniform() < 0.08) {
+            range.range_m += random.uniform(0.5, 2.0); // NLOS
+        }
+    }
+    std::vector<std::pair<NodeId, double>> heights;
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        heights.emplace_back(network.ids[i], network.height_m[i]);
+    }
+    const long half = static_cast<long>(ranges.size() / 2);
+    const RoundTrip trip =
+        roundTrip(engine::EngineParams{}, heights, {ranges.begin(), ranges.begin() + half}, {ranges.begin() + half, ranges.end()});
+    report("random network", trip);
+    EXPECT_LE(trip.at_restore.engine_frame_m, kPositionStepM + kRounding);
+    EXPECT_LT(trip.after_continuing.output_m, kContinuedToleranceM);
+}
+
+struct PlantCheckpoints {
+    std::vector<std::pair<NodeId, double>> heights;
+    std::vector<TestRange> ranges;
+};
+
+std::optional<PlantCheckpoints> plantForCheckpoints(std::string *where)
+{
+    const std::optional<PlantData> plant = loadPlant(where);
+    if (!plant) {
+        return std::nullopt;
+    }
+    PlantCheckpoints out;
+    for (size_t i = 0; i < plant->ids.size(); ++i) {
+        out.heights.emplace_back(plant->ids[i], plant->height_m[i]);
+    }
+    out.ranges = plant->ranges;
+    return out;
+}
+
+// Resumes PLANT after every `step`-th range; returns the largest differences seen.
+RoundTrip resumedPlant(const PlantCheckpoints &plant, const engine::EngineParams &params, size_t step)
+{
+    RoundTrip worst;
+    for (size_t cut = step; cut < plant.ranges.size(); cut += step) {
+        SCOPED_TRACE(::testing::Message() << "checkpoint after " << cut << " ranges");
+        const long at = static_cast<long>(cut);
+        const RoundTrip trip = roundTrip(params, plant.heights, {plant.ranges.begin(), plant.ranges.begin() + at},
+                                         {plant.ranges.begin() + at, plant.ranges.end()});
+        report(("PLANT, checkpoint after " + std::to_string(cut) + " ranges").c_str(), trip);
+        EXPECT_LE(trip.at_restore.engine_frame_m, kPositionStepM + kRounding);
+        worst.at_restore.output_m = std::max(worst.at_restore.output_m, trip.at_restore.output_m);
+        worst.after_continuing.output_m = std::max(worst.after_continuing.output_m, trip.after_continuing.output_m);
+        worst.after_continuing.aligned_m = std::max(worst.after_continuing.aligned_m, trip.after_continuing.aligned_m);
+    }
+    return worst;
+}
+
+#define CDRO_NEED_PLANT(plant, where)                                                                 \
+    if (!(plant)) {                                                                                   \
+        GTEST_SKIP() << "PLANT data not found at " << (where)                                          \
+                     << " (set CDRO_DATA_DIR to the folder that holds plant/)";                        \
+    }
+
+TEST(Checkpoint, PlantResumedEndsWithTheSameMap)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    std::string where;
+    const auto plant = plantForCheckpoints(&where);
+    CDRO_NEED_PLANT(plant, where);
+    const RoundTrip worst = resumedPlant(*plant, engine::EngineParams{}, 150);
+    EXPECT_LT(worst.after_continuing.aligned_m, kContinuedToleranceM);
+}
+
+TEST(Checkpoint, PlantResumedInANamedFrameEndsWithTheSameOutputs)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    std::string where;
+    const auto plant = plantForCheckpoints(&where);
+    CDRO_NEED_PLANT(plant, where);
+    engine::EngineParams params;
+    params.frame.origin = 5;
+    params.frame.x_axis = 10;
+    params.frame.positive_y = 1;
+    const RoundTrip worst = resumedPlant(*plant, params, 150);
+    EXPECT_LT(worst.after_continuing.output_m, kContinuedToleranceM);
+}
+
+// BUG (engine as of 3646197), the default output frame again (see tests/engine,
+// Engine.DISABLED_DefaultOutputFrameIsTheFrameTriangles): on PLANT there is no frame triangle,
+// so the outputs are in the engine's internal frame. A run resumed from a checkpoint ends with
+// the same map (2.3 mm apart once aligned) but displaced as a whole: by 3.35 m when resumed
+// after 50 ranges, 4.93 m after 550, 0.73 m after 400, 0.17 m after 600. Whoever reads the
+// outputs sees the map jump by metres on a restart.
+TEST(Checkpoint, DISABLED_PlantResumedEndsWithTheSameOutputs)
+{
+    std::string where;
+    const auto plant = plantForCheckpoints(&where);
+    CDRO_NEED_PLANT(plant, where);
+    const RoundTrip worst = resumedPlant(*plant, engine::EngineParams{}, 50);
+    EXPECT_LT(worst.after_continuing.output_m, kContinuedToleranceM);
+}
+
+TEST(Checkpoint, ASnapshotWithoutTheEngineBlockIsRefused)
+{
+    Engine engine;
+    engine.addRange(1, 2, 5.0);
+    service::SogSnapshot snapshot = hostd::snapshotOf(engine, 0);
+    ASSERT_EQ(snapshot.extensions.size(), 1U);
+    EXPECT_EQ(snapshot.extensions[0].tag, hostd::kEngineExtensionTag);
+    service::SogSnapshot foreign = snapshot;
+    foreign.extensions.clear();
+    Engine target;
+    EXPECT_THROW(hostd::restoreFrom(target, foreign), service::CheckpointError);
+    // Cut short, a byte too many, another version: refused, never half loaded.
+    service::SogSnapshot cut = snapshot;
+    cut.extensions[0].bytes.pop_back();
+    EXPECT_THROW(hostd::restoreFrom(target, cut), service::CheckpointError);
+    service::SogSnapshot longer = snapshot;
+    longer.extensions[0].bytes.push_back(0);
+    EXPECT_THROW(hostd::restoreFrom(target, longer), service::CheckpointError);
+    service::SogSnapshot version = snapshot;
+    version.extensions[0].bytes[0] = 99;
+    EXPECT_THROW(hostd::restoreFrom(target, version), service::CheckpointError);
+    EXPECT_TRUE(target.estimates().empty());
+    // The untouched snapshot restores.
+    EXPECT_NO_THROW(hostd::restoreFrom(target, snapshot));
+    EXPECT_EQ(target.links().size(), 1U);
+}
+
+} // namespace
+} // namespace cdro::enginetest
