@@ -316,13 +316,13 @@ TEST(Checkpoint, PlantResumedInANamedFrameEndsWithTheSameOutputs)
     EXPECT_LT(worst.after_continuing.output_m, kContinuedToleranceM);
 }
 
-// BUG (engine as of 3646197), the default output frame again (see tests/engine,
-// Engine.DISABLED_DefaultOutputFrameIsTheFrameTriangles): on PLANT there is no frame triangle,
+// Regression test. Was a bug (engine as of 3646197, fixed since), the default output frame again (see tests/engine,
+// Engine.DefaultOutputFrameIsTheFrameTriangles): on PLANT there is no frame triangle,
 // so the outputs are in the engine's internal frame. A run resumed from a checkpoint ends with
 // the same map (2.3 mm apart once aligned) but displaced as a whole: by 3.35 m when resumed
 // after 50 ranges, 4.93 m after 550, 0.73 m after 400, 0.17 m after 600. Whoever reads the
 // outputs sees the map jump by metres on a restart.
-TEST(Checkpoint, DISABLED_PlantResumedEndsWithTheSameOutputs)
+TEST(Checkpoint, PlantResumedEndsWithTheSameOutputs)
 {
     std::string where;
     const auto plant = plantForCheckpoints(&where);

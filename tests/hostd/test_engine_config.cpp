@@ -80,6 +80,25 @@ engine::EngineParams unusual()
     p.convergence.threshold_m = 0.02;
     p.convergence.consecutive = 4;
     p.convergence.unconverge_factor = 8.0;
+    p.convergence.min_updates = 21;
+    p.ring.weight_floor = 2.5e-7;
+    p.sog.collapse_reset = false;
+    p.sog.rings_follow_center = false;
+    p.placement.patience_ranges = 77;
+    p.motion.reset = false;
+    p.motion.infer_from_ranges = false;
+    p.motion.inferred_residual_m = 0.625;
+    p.motion.inferred_window = 10;
+    p.motion.inferred_min_large = 5;
+    p.motion.inferred_min_links = 3;
+    p.motion.inferred_still_speed_mps = 0.3;
+    p.motion.inferred_still_m = 0.2;
+    p.motion.inferred_still_updates = 9;
+    p.motion.track = false;
+    p.motion.track_accel_sigma_mps2 = 0.75;
+    p.motion.track_speed_sigma_mps = 1.25;
+    p.motion.track_warmup = 4;
+    p.motion.track_max_speed_mps = 2.5;
     p.frame.origin = 0x6001;
     p.frame.x_axis = 0x6002;
     p.frame.positive_y = 65535;
@@ -134,7 +153,12 @@ TEST(EngineConfig, EveryParameterHasAKey)
             ++keys;
         }
     }
-    EXPECT_EQ(keys, 48U);
+    size_t listed = 0;
+    for (const std::string &name : configurationKeys()) {
+        listed += name.rfind("engine.", 0) == 0 ? 1U : 0U;
+    }
+    EXPECT_EQ(keys, listed);
+    EXPECT_GE(keys, 60U); // the table is not empty by accident
 }
 
 TEST(EngineConfig, AnUnknownKeyNamesFileLineKeyAndTheKnownKeys)

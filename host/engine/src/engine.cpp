@@ -276,6 +276,7 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
     refreshLinkRange(link);
     state.last_range_m = range_m;
     ++state.range_count;
+    ++revision_; // the links are part of the outputs (last range, count)
     // The map is only a reference for motion once both ends have converged on it.
     const NodeState &end_a = network_.nodes[a];
     const NodeState &end_b = network_.nodes[b];
@@ -442,6 +443,17 @@ void Engine::runPlacement()
                 }
             }
         }
+        if (!ambiguous.empty() && fixed_count_ == 2) {
+            // Two fixed nodes fix the frame up to the mirror image through them: the first node
+            // placed from them alone takes the side to the left of the first towards the second.
+            size_t placed = 0;
+            for (const NodeState &node : network_.nodes) {
+                placed += node.placed ? 1U : 0U;
+            }
+            if (placed == 2 && placeByHandedness(ambiguous)) {
+                continue;
+            }
+        }
         if (ambiguous.empty() || !params_.placement.mds_tie_break) {
             break;
         }
@@ -508,6 +520,38 @@ void Engine::runPlacement()
     if (any_placement_pending_) {
         runPlacement(); // nodes unplaced during that relaxation
     }
+}
+
+bool Engine::placeByHandedness(const std::vector<uint32_t> &candidates_nodes)
+{
+    std::vector<Vector2> fixed;
+    for (const NodeState &node : network_.nodes) {
+        if (node.fixed) {
+            fixed.push_back(node.position_m);
+        }
+    }
+    if (fixed.size() != 2) {
+        return false;
+    }
+    const Vector2 axis = fixed[1] - fixed[0];
+    for (uint32_t node : candidates_nodes) {
+        const std::vector<RangeConstraint> constraints = placedConstraints(network_, node);
+        if (constraints.size() < 2) {
+            continue;
+        }
+        for (const PlacementCandidate &candidate :
+             placementCandidates(constraints, likelihood_, solver_, params_.placement)) {
+            const Vector2 offset = candidate.position_m - fixed[0];
+            if (axis.x() * offset.y() - axis.y() * offset.x() > 0.0) {
+                trace("node " + std::to_string(network_.nodes[node].id) +
+                      " placed on the left of the two fixed nodes (the mirror image fits as well)");
+                placement_pending_[node] = false;
+                placeNode(node, candidate.position_m, candidate.covariance_m2);
+                return true;
+            }
+        }
+    }
+    return false;
 }
 
 std::optional<std::vector<Vector2>> Engine::alignedMdsLayout(std::vector<uint32_t> *members, double *error_m)
@@ -855,11 +899,13 @@ void Engine::updateNode(uint32_t node, bool after_range)
                       static_cast<double>(inconsistent) >
                           params_.refinement.inconsistent_fraction * static_cast<double>(constraints.size()) &&
                       state.placements < params_.refinement.max_placements;
-        } else if (ring_count > 0) {
+        } else if (ring_count >= 2) {
             position = merged.mean_m;
             covariance = merged.covariance_m2;
         }
-    } else if (ring_count > 0) {
+    } else if (ring_count >= 2) {
+        // One ring says only how far the node is from one neighbour, not where: its moments
+        // are the ring's centre, and following them would drag the node onto its neighbour.
         position = merged.mean_m;
         covariance = merged.covariance_m2;
     }
@@ -875,7 +921,7 @@ void Engine::updateNode(uint32_t node, bool after_range)
     state.position_m = position;
     state.covariance_m2 = covariance;
     // Rings are relative to their centre: they move with it.
-    if (delta.squaredNorm() > 0.0 && params_.sog.rings_follow_center) {
+    if (delta.squaredNorm() > 0.0 && ringsFollow()) {
         for (uint32_t link : state.links) {
             const uint32_t slot = ringSlot(link, node);
             if (slot != kNoIndex) {
@@ -986,6 +1032,20 @@ uint64_t Engine::settle(uint64_t max_updates)
     }
     relax(max_updates);
     checkAmbiguity();
+    // A quiet map is the evidence eq. 16's average waits for: nodes that are still catching up
+    // with a recent jump start their average again where they are, and a few more updates
+    // tell whether they stay there.
+    bool lagging = false;
+    for (NodeState &state : network_.nodes) {
+        if (state.placed && !state.fixed && !state.pinned && !state.moving && !state.converged && !state.ambiguous) {
+            state.average_m = state.position_m;
+            state.still_updates = 0;
+            lagging = true;
+        }
+    }
+    if (lagging && relax_queue_.empty()) {
+        updateAllNodes(std::max(params_.convergence.consecutive, params_.convergence.min_updates));
+    }
     return counters_.relaxations - before;
 }
 
@@ -1111,7 +1171,7 @@ void Engine::sweep(uint32_t sweeps, bool anneal)
             state.average_m = state.position_m;
             state.still_updates = 0;
         }
-        if (delta.squaredNorm() > 0.0 && params_.sog.rings_follow_center) {
+        if (delta.squaredNorm() > 0.0 && ringsFollow()) {
             for (uint32_t link : network_.nodes[node].links) {
                 const uint32_t slot = ringSlot(link, node);
                 if (slot != kNoIndex) {
@@ -1179,6 +1239,27 @@ uint32_t Engine::escapeLocalMinima()
     return moved;
 }
 
+void Engine::ensureFrameNodes()
+{
+    // The output frame needs three placed nodes that ranged to each other (a map adopted from
+    // MDS-MAP has no frame triangle of its own): pick them the way the first triangle is picked.
+    if (fixed_count_ >= 2) {
+        return;
+    }
+    if (frame_nodes_ && std::all_of(frame_nodes_->begin(), frame_nodes_->end(),
+                                    [&](uint32_t n) { return network_.nodes[n].placed; })) {
+        return;
+    }
+    std::vector<bool> eligible(network_.nodes.size(), false);
+    for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+        eligible[node] = network_.nodes[node].placed && !network_.nodes[node].moving;
+    }
+    const std::optional<FrameTriangle> triangle = chooseFrameTriangle(network_, params_.placement, eligible, std::nullopt);
+    if (triangle) {
+        frame_nodes_ = std::array<uint32_t, 3>{triangle->origin, triangle->x_axis, triangle->positive_y};
+    }
+}
+
 uint32_t Engine::checkAmbiguity()
 {
     // A node is ambiguous when a distinct position explains its links about as well as where it
@@ -1198,7 +1279,7 @@ uint32_t Engine::checkAmbiguity()
             for (const PlacementCandidate &candidate :
                  placementCandidates(constraints, likelihood_, refine_solver_, params_.placement)) {
                 if ((candidate.position_m - state.position_m).norm() > params_.placement.distinct_m &&
-                    candidate.cost < here + params_.placement.ambiguity_gap_nats / 2.0) {
+                    candidate.cost < here + params_.placement.ambiguity_gap_nats / 4.0) {
                     ambiguous = true;
                     break;
                 }
@@ -1315,6 +1396,7 @@ bool Engine::reinitialize()
     in_relax_queue_ = std::move(fresh.in_relax_queue_);
     mds_link_count_ = fresh.mds_link_count_;
     mds_node_count_ = fresh.mds_node_count_;
+    ensureFrameNodes();
     ++counters_.reinitializations_adopted;
     ++revision_;
     checkAmbiguity();

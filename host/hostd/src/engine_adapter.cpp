@@ -126,10 +126,10 @@ void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameCo
     }
 }
 
-void EngineAdapter::onOdometry(double t_s, const engine::OdometryStep &step)
+void EngineAdapter::onOdometry(const service::OdometryMessage &message)
 {
     if (movement_ != nullptr) {
-        movement_->addOdometry(t_s, step);
+        movement_->addOdometry(message.t_s, engine::OdometryStep{message.distance_m, message.dheading_rad});
     }
 }
 

@@ -1,6 +1,7 @@
 #include "cdro/hostd/engine_config.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <fstream>
 #include <sstream>
 
@@ -212,7 +213,6 @@ std::string emitKeys(const char *top, const std::vector<Key<Params>> &keys, cons
 {
     Params params = defaults;
     YAML::Emitter out;
-    out.SetDoublePrecision(12); // round trips every value, without 0.10000000000000001
     out << YAML::BeginMap << YAML::Key << top << YAML::Value << YAML::BeginMap;
     std::string open_group;
     bool in_group = false;
@@ -230,7 +230,13 @@ std::string emitKeys(const char *top, const std::vector<Key<Params>> &keys, cons
         }
         out << YAML::Key << key.name << YAML::Value;
         switch (key.kind) {
-        case Key<Params>::Kind::Real: out << *key.real(params); break;
+        case Key<Params>::Kind::Real: {
+            // The shortest text that reads back as the same double: 0.1, not 0.10000000000000001.
+            char text[32];
+            const std::to_chars_result written = std::to_chars(text, text + sizeof text, *key.real(params));
+            out << std::string(text, written.ptr);
+            break;
+        }
         case Key<Params>::Kind::Count: out << *key.count(params); break;
         case Key<Params>::Kind::Flag: out << (*key.flag(params) ? "true" : "false"); break;
         case Key<Params>::Kind::Id: out << *key.id(params); break;

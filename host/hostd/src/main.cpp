@@ -139,7 +139,7 @@ int main(int argc, char **argv)
         }
         cdro::hostd::EngineAdapter adapter(engine, stage.get());
         cdro::service::SystemClock clock;
-        cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter}, clock);
+        cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter, &adapter}, clock);
         service.start();
         if (!service.liveMapUrl().empty()) {
             std::fprintf(stderr, "cdro-hostd: live map: %s\n", service.liveMapUrl().c_str());

@@ -216,6 +216,11 @@ private:
     void updateAllNodes(uint32_t rounds);
     uint32_t escapeLocalMinima();
     uint32_t checkAmbiguity();
+    void ensureFrameNodes();
+    bool placeByHandedness(const std::vector<uint32_t> &nodes);
+    // Rings follow their centre's estimate only when the refinement sets it: with the merged SoG
+    // as the estimate, relative rings feed back into their own merge and the map drifts.
+    bool ringsFollow() const { return params_.sog.rings_follow_center && params_.refinement.enabled; }
     bool placeFrame();
     void placeNode(uint32_t node, const Vector2 &position_m, const Matrix2 &covariance_m2);
     void unplaceNode(uint32_t node);

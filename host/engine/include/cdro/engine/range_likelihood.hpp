@@ -8,7 +8,9 @@
 // is a mixture of the residual e = measured - predicted (m) with predictive variance S (m^2):
 //
 //     p(e) = (1 - eps) N(e; 0, S)                       line of sight
-//          + eps  lambda exp(-lambda e)   for e > 0     NLOS: reads long, excess ~ Exp(mean 1/lambda)
+//          + eps  lambda exp(-lambda e) min(e / sqrt(S), 1)   for e > 0
+//                                                   NLOS: reads long, excess ~ Exp(mean 1/lambda),
+//                                                   ramped in over one std (continuous at 0)
 //          + floor                                      gross errors of any sign, any size
 //
 // It is redescending: a residual far outside the Gaussian costs a bounded amount, so a bad
@@ -49,6 +51,8 @@ public:
     const RangeLikelihoodParams &params() const { return params_; }
 
 private:
+    double nlosDensity(double residual_m, double variance_m2) const;
+
     RangeLikelihoodParams params_;
     double nlos_rate_per_m_; // lambda, 1/m
 };

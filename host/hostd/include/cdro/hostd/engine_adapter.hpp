@@ -26,6 +26,7 @@
 #include "cdro/service/checkpoint.hpp"
 #include "cdro/service/consumer.hpp"
 #include "cdro/service/map_state.hpp"
+#include "cdro/service/odometry.hpp"
 
 namespace cdro::hostd {
 
@@ -33,14 +34,15 @@ constexpr uint16_t kEngineExtensionTag = 0x0001;
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,
-                            public service::CheckpointProvider {
+                            public service::CheckpointProvider,
+                            public service::OdometryConsumer {
 public:
     // movement: the movement stage over the same engine when a robot is configured, else null.
     explicit EngineAdapter(engine::Engine &engine, engine::MovementStage *movement = nullptr);
 
-    // Odometry from the robot (the service's odometry input): a step ending at t_s (s, the
-    // same clock as the frames' event time).
-    void onOdometry(double t_s, const engine::OdometryStep &step);
+    // OdometryConsumer: a step from the robot (UDP, MQTT, or a capture's odometry records), ending
+    // at message.t_s (the frames' clock); ignored without a movement stage.
+    void onOdometry(const service::OdometryMessage &message) override;
 
     // FrameConsumer
     void onRange(const cdro_range_t &range, const service::FrameContext &context) override;
