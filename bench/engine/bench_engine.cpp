@@ -45,6 +45,7 @@
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/engine.hpp"
+#include "plant_data.hpp"
 
 extern char **environ;
 
@@ -160,11 +161,8 @@ uint64_t mixSeed(uint64_t x)
 
 // ---- the workload ---------------------------------------------------------------------------
 
-struct Range {
-    NodeId from = 0;
-    NodeId to = 0;
-    double range_m = 0.0; // m, as measured (3D for PLANT, planar for the random networks)
-};
+// A range as measured: 3D for PLANT, planar for the random networks (bench/common/plant_data.hpp).
+using cdro::bench::Range;
 
 double median(std::vector<double> values)
 {
@@ -445,112 +443,10 @@ Json timedJson(const Timed &t)
 
 // ---- PLANT ----------------------------------------------------------------------------------
 
-std::vector<std::vector<std::string>> readCsv(const std::string &path, const std::vector<std::string> &header)
-{
-    std::ifstream in(path);
-    if (!in) {
-        throw std::runtime_error(path + ": cannot read");
-    }
-    std::string line;
-    std::vector<std::vector<std::string>> rows;
-    size_t number = 0;
-    while (std::getline(in, line)) {
-        ++number;
-        if (!line.empty() && line.back() == '\r') {
-            line.pop_back();
-        }
-        if (line.empty()) {
-            continue;
-        }
-        std::vector<std::string> fields;
-        std::stringstream split(line);
-        std::string field;
-        while (std::getline(split, field, ',')) {
-            fields.push_back(field);
-        }
-        if (number == 1) {
-            if (fields != header) {
-                throw std::runtime_error(path + ": header is not " + line);
-            }
-            continue;
-        }
-        if (fields.size() != header.size()) {
-            throw std::runtime_error(path + ":" + std::to_string(number) + ": expected " +
-                                     std::to_string(header.size()) + " fields");
-        }
-        rows.push_back(fields);
-    }
-    return rows;
-}
+using cdro::bench::loadPlant;
+using cdro::bench::Plant;
 
-double number(const std::string &text, const std::string &where)
-{
-    char *end = nullptr;
-    const double value = std::strtod(text.c_str(), &end);
-    if (end == text.c_str() || *end != '\0' || !std::isfinite(value)) {
-        throw std::runtime_error(where + ": not a number: " + text);
-    }
-    return value;
-}
-
-NodeId nodeId(const std::string &text, const std::string &where)
-{
-    const double value = number(text, where);
-    if (value < 1.0 || value > 65535.0 || value != std::floor(value)) {
-        throw std::runtime_error(where + ": not a node id: " + text);
-    }
-    return static_cast<NodeId>(value);
-}
-
-struct Plant {
-    std::string dir;
-    std::vector<Range> ranges;                 // file order
-    std::vector<std::pair<NodeId, double>> heights_m; // nodes.csv order, nodes that range only
-    std::map<NodeId, Vector2> truth_m;         // nodes that range only
-};
-
-Plant loadPlant(const std::string &dir)
-{
-    Plant plant;
-    plant.dir = dir;
-    for (const auto &row : readCsv(dir + "/ranges.csv", {"from", "to", "range_m"})) {
-        plant.ranges.push_back(Range{nodeId(row[0], "ranges.csv"), nodeId(row[1], "ranges.csv"),
-                                     number(row[2], "ranges.csv")});
-    }
-    std::map<NodeId, bool> ranging;
-    for (const Range &range : plant.ranges) {
-        ranging[range.from] = true;
-        ranging[range.to] = true;
-    }
-    // Only the nodes in the ranges: the other ten of nodes.csv would join the engine's node list
-    // with no link and no part in the figures.
-    for (const auto &row : readCsv(dir + "/nodes.csv", {"id", "x", "y", "z"})) {
-        const NodeId id = nodeId(row[0], "nodes.csv");
-        if (ranging.count(id) != 0) {
-            plant.heights_m.emplace_back(id, number(row[3], "nodes.csv"));
-            plant.truth_m[id] = Vector2(number(row[1], "nodes.csv"), number(row[2], "nodes.csv"));
-        }
-    }
-    if (plant.truth_m.size() != ranging.size()) {
-        throw std::runtime_error(dir + "/nodes.csv: some ranging nodes have no surveyed position");
-    }
-    return plant;
-}
-
-std::string findPlant(const std::string &option)
-{
-    // --data-dir and CDRO_DATA_DIR name the folder that holds plant/, as for the tests
-    // (tests/tools/test_eval_plant.py); a folder with ranges.csv itself is taken too.
-    std::string dir = option;
-    if (dir.empty()) {
-        const char *env = std::getenv("CDRO_DATA_DIR");
-        dir = env != nullptr && *env != '\0' ? env : std::string(CDRO_SOURCE_DIR) + "/../shared/data";
-    }
-    if (std::ifstream(dir + "/ranges.csv").good()) {
-        return dir;
-    }
-    return dir + "/plant";
-}
+std::string findPlant(const std::string &option) { return cdro::bench::findPlant(option, CDRO_SOURCE_DIR); }
 
 struct PlantRun {
     Timed first;                    // pass 1
