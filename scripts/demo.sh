@@ -4,6 +4,7 @@
 #   cdro-sim --scenario demo  (7 Pozyx nodes at known heights in a 12 m x 9 m room, one of them
 #                              carried 5.2 m halfway through, two NLOS links, outliers, dropouts)
 #     acts as the Pozyx tag on the Uno, on a pseudo-terminal;
+#   (the heights as measured with a tape: out/demo-heights.csv, written by cdro-sim)
 #   cdro-hostd reads that pseudo-terminal as its serial port: handshake, SET_NODES/SET_SCHEDULE/
 #     START, the SLAM engine, the live map over HTTP, JSON Lines, the capture, checkpoints.
 # At the end: out/map.png, out/rmse.png, out/estimates.jsonl, out/demo.cdrocap, and the aligned
@@ -21,7 +22,7 @@ port=$(.venv/bin/python -c 'import socket; s = socket.socket(); s.bind(("127.0.0
 
 # The simulated device, in real time (--speed 1): ~60 s.
 .venv/bin/cdro-sim --scenario demo --pty "$link" --speed 1 \
-  --truth-csv out/demo-truth.csv --tracks-csv out/demo-tracks.csv --motion-csv out/demo-motion.csv \
+  --truth-csv out/demo-truth.csv --heights-csv out/demo-heights.csv --tracks-csv out/demo-tracks.csv --motion-csv out/demo-motion.csv \
   > out/demo-sim.log 2>&1 &
 sim=$!
 hostd=""
@@ -34,7 +35,7 @@ for _ in $(seq 100); do [ -L "$link" ] && break; sleep 0.1; done
 [ -L "$link" ] || { cat out/demo-sim.log; echo "demo: the simulator did not make $link" >&2; exit 1; }
 
 echo "demo: simulated Pozyx network on $(readlink "$link"); cdro-hostd reads it as its serial port"
-build/bin/cdro-hostd --config config/demo.yaml --device "$link" --http-port "$port" --progress &
+build/bin/cdro-hostd --config config/demo.yaml --device "$link" --heights-csv out/demo-heights.csv --http-port "$port" --progress &
 hostd=$!
 # The live map's address comes from cdro-hostd itself (above); the simulator ends the scenario.
 wait "$sim" || true

@@ -1,5 +1,7 @@
 #include "cdro/hostd/csv_input.hpp"
 
+#include <cstdio>
+
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -249,6 +251,21 @@ CsvTable<MotionRow> readMotionCsv(const std::string &path)
                                     row.moving = moving == 1.0;
                                     return true;
                                 });
+}
+
+void reportCsvProblems(const std::string &path, const std::vector<CsvProblem> &problems, uint32_t limit,
+                       std::FILE *log)
+{
+    size_t shown = 0;
+    for (const CsvProblem &problem : problems) {
+        if (shown++ < limit) {
+            std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s\n", path.c_str(), problem.line, problem.message.c_str());
+        }
+    }
+    if (problems.size() > limit) {
+        std::fprintf(log, "cdro-hostd: %s: %zu more bad rows skipped (not shown)\n", path.c_str(),
+                     problems.size() - limit);
+    }
 }
 
 } // namespace cdro::hostd

@@ -15,6 +15,7 @@
 #include "cdro/engine/engine.hpp"
 #include "cdro/hostd/engine_adapter.hpp"
 #include "cdro/hostd/engine_config.hpp"
+#include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/offline.hpp"
 #include "cdro/hostd/progress.hpp"
 #include "cdro/service/config_cli.hpp"
@@ -79,8 +80,8 @@ int main(int argc, char **argv)
     cdro::hostd::OfflineOptions offline;
     auto *ranges_option = app.add_option("--ranges-csv", offline.ranges_csv,
                                          "offline: ranges [t,]from,to,range_m in file order (m)");
-    app.add_option("--heights-csv", offline.heights_csv, "offline: known heights id,z (m)")->needs(ranges_option);
-    app.add_option("--fixed-csv", offline.fixed_csv, "offline: known coordinates id,x,y (m)")->needs(ranges_option);
+    app.add_option("--heights-csv", offline.heights_csv, "known heights id,z (m) (map.heights_csv)");
+    app.add_option("--fixed-csv", offline.fixed_csv, "known coordinates id,x,y (m), fixed (map.fixed_csv)");
     app.add_option("--out-csv", offline.out_csv, "offline: estimates id,x,y,var_x,cov_xy,var_y,converged")
         ->needs(ranges_option);
     app.add_option("--trace-csv", offline.trace_csv, "offline: every node's estimate every --trace-every ranges")
@@ -116,7 +117,16 @@ int main(int argc, char **argv)
             std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
             return 0;
         }
+        cdro::hostd::KnownGeometry geometry = cdro::hostd::parseKnownGeometry(document.root, document.origin);
+        if (!offline.heights_csv.empty()) {
+            geometry.heights_csv = offline.heights_csv;
+        }
+        if (!offline.fixed_csv.empty()) {
+            geometry.fixed_csv = offline.fixed_csv;
+        }
         if (!offline.ranges_csv.empty()) {
+            offline.heights_csv = geometry.heights_csv;
+            offline.fixed_csv = geometry.fixed_csv;
             if (offline.out_csv.empty()) {
                 std::fprintf(stderr, "cdro-hostd: --ranges-csv needs --out-csv\n");
                 return 2;
@@ -132,6 +142,11 @@ int main(int argc, char **argv)
         cdro::service::setupLogging(config.logging);
         cdro::engine::Engine engine(params);
         engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
+        const cdro::hostd::KnownGeometryCounts known =
+            cdro::hostd::applyKnownGeometry(engine, geometry, 20, stderr);
+        if (known.heights + known.fixed > 0) {
+            cdro::service::log()->info("map: {} known heights, {} fixed nodes", known.heights, known.fixed);
+        }
         std::unique_ptr<cdro::engine::MovementStage> stage;
         if (movement.robot_id != 0) {
             stage = std::make_unique<cdro::engine::MovementStage>(engine, movement);

@@ -8,6 +8,7 @@
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
 #include "cdro/hostd/csv_input.hpp"
+#include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
 
 namespace cdro::hostd {
@@ -31,21 +32,6 @@ File openForWriting(const std::string &path, std::FILE *log)
         std::fprintf(log, "cdro-hostd: cannot write %s: %s\n", path.c_str(), std::strerror(errno));
     }
     return file;
-}
-
-template <typename Table>
-void reportProblems(const std::string &path, const Table &table, uint32_t limit, std::FILE *log)
-{
-    size_t shown = 0;
-    for (const CsvProblem &problem : table.problems) {
-        if (shown++ < limit) {
-            std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s\n", path.c_str(), problem.line, problem.message.c_str());
-        }
-    }
-    if (table.problems.size() > limit) {
-        std::fprintf(log, "cdro-hostd: %s: %zu more bad rows skipped (not shown)\n", path.c_str(),
-                     table.problems.size() - limit);
-    }
 }
 
 // Sorts rows by time (stable) and says how many were out of order.
@@ -82,11 +68,11 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
         }
     }
     CsvTable<OdometryRow> odometry = readOdometryCsv(options.odometry_csv);
-    reportProblems(options.odometry_csv, odometry, options.max_reported_rows, log);
+    reportCsvProblems(options.odometry_csv, odometry.problems, options.max_reported_rows, log);
     CsvTable<MotionRow> motion;
     if (!options.motion_csv.empty()) {
         motion = readMotionCsv(options.motion_csv);
-        reportProblems(options.motion_csv, motion, options.max_reported_rows, log);
+        reportCsvProblems(options.motion_csv, motion.problems, options.max_reported_rows, log);
     }
     sortByTime(ranges, options.ranges_csv, log);
     sortByTime(odometry.rows, options.odometry_csv, log);
@@ -184,22 +170,9 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         if (options.verbose) {
             engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
-        if (!options.heights_csv.empty()) {
-            const CsvTable<HeightRow> heights = readHeightsCsv(options.heights_csv);
-            reportProblems(options.heights_csv, heights, options.max_reported_rows, log);
-            for (const HeightRow &row : heights.rows) {
-                engine.setHeight(row.id, row.z_m);
-            }
-        }
-        if (!options.fixed_csv.empty()) {
-            const CsvTable<FixedRow> fixed = readFixedCsv(options.fixed_csv);
-            reportProblems(options.fixed_csv, fixed, options.max_reported_rows, log);
-            for (const FixedRow &row : fixed.rows) {
-                engine.setFixed(row.id, engine::Vector2(row.x_m, row.y_m));
-            }
-        }
+        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows, log);
         const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv);
-        reportProblems(options.ranges_csv, ranges, options.max_reported_rows, log);
+        reportCsvProblems(options.ranges_csv, ranges.problems, options.max_reported_rows, log);
 
         // Open the outputs before the work, so that an unwritable path fails at once.
         File out = openForWriting(options.out_csv, log);
@@ -237,7 +210,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         CsvTable<MotionRow> motion;
         if (!options.motion_csv.empty()) {
             motion = readMotionCsv(options.motion_csv);
-            reportProblems(options.motion_csv, motion, options.max_reported_rows, log);
+            reportCsvProblems(options.motion_csv, motion.problems, options.max_reported_rows, log);
             for (const RangeRow &row : ranges.rows) {
                 if (!row.has_time) {
                     std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n",

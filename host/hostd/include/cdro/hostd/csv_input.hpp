@@ -15,6 +15,7 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -86,5 +87,10 @@ CsvTable<MotionRow> readMotionCsv(const std::string &path);
 // "42" or "0x2A" -> 42 in 0..65535 (0 is not a Pozyx id, but datasets such as Plaza use it);
 // false otherwise.
 bool parseNodeId(const std::string &text, uint16_t *id);
+
+// Prints "cdro-hostd: PATH:LINE: skipped: WHY" for the first `limit` problems and a count of the
+// rest, on `log`.
+void reportCsvProblems(const std::string &path, const std::vector<CsvProblem> &problems, uint32_t limit,
+                       std::FILE *log);
 
 } // namespace cdro::hostd

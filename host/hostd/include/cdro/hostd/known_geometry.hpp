@@ -1,0 +1,48 @@
+// known_geometry.hpp: what the user knows about the nodes before any range: their heights (a
+// tape measure from the floor; ranges between two nodes of known height are projected to the
+// plane) and nodes with surveyed coordinates that stay fixed (they also name the frame).
+//
+// The same CSV files in every mode (csv_input.hpp): `id,z` (m) and `id,x,y` (m, output frame).
+// Live and replay runs take them from the configuration's `map:` section or the command line
+// (--heights-csv, --fixed-csv, which win); the offline mode from the command line.
+//
+//   map:
+//     heights_csv: site/heights.csv
+//     fixed_csv: site/fixed.csv
+#pragma once
+
+#include <cstdint>
+#include <cstdio>
+#include <string>
+
+namespace YAML {
+class Node;
+}
+
+namespace cdro::engine {
+class Engine;
+}
+
+namespace cdro::hostd {
+
+struct KnownGeometry {
+    std::string heights_csv; // "" = none
+    std::string fixed_csv;   // "" = none
+};
+
+// The `map:` section of a YAML document (root: the whole document); unknown keys are errors
+// naming file and line. Throws cdro::service::ConfigError.
+KnownGeometry parseKnownGeometry(const YAML::Node &root, const std::string &origin);
+
+// Reads the files and gives every good row to the engine (setHeight, setFixed); bad rows are
+// reported on `log` with their line numbers (the first `max_reported_rows` of each file one by
+// one) and skipped. Returns the rows used. Throws CsvError when a file cannot be used at all.
+struct KnownGeometryCounts {
+    size_t heights = 0;
+    size_t fixed = 0;
+    size_t skipped_rows = 0;
+};
+KnownGeometryCounts applyKnownGeometry(engine::Engine &engine, const KnownGeometry &geometry,
+                                       uint32_t max_reported_rows, std::FILE *log);
+
+} // namespace cdro::hostd
