@@ -245,15 +245,39 @@ TEST_F(Commands, StartWithoutNodesIsWrongState)
     expectNack(fwtest::makeFrame(CDRO_FRAME_START), CDRO_NACK_WRONG_STATE);
 }
 
-TEST_F(Commands, HelloRequestIsAnsweredWithHelloOnly)
+// A host that opens the link of a device already running (the host restarted, the device did
+// not) asks for HELLO; it has not seen the boot's node list either, so that follows, with the
+// list's own source; no ACK (HELLO is the answer).
+TEST_F(Commands, HelloRequestIsAnsweredWithHelloThenTheNodeList)
 {
-    const size_t from = bench.serial.frames.size();
+    size_t from = bench.serial.frames.size();
     bench.command(fwtest::makeFrame(CDRO_FRAME_HELLO_REQUEST));
     const auto hellos = bench.serial.ofType(CDRO_FRAME_HELLO, from);
     ASSERT_EQ(hellos.size(), 1U);
     EXPECT_NE(hellos[0].sequence, 0) << "the sequence goes on: not a reset";
     EXPECT_EQ(bench.serial.count(CDRO_FRAME_ACK, from), 0U);
     EXPECT_EQ(bench.serial.count(CDRO_FRAME_NACK, from), 0U);
+    auto lists = bench.serial.ofType(CDRO_FRAME_NODE_LIST, from);
+    ASSERT_EQ(lists.size(), 1U);
+    EXPECT_EQ(lists[0].as.node_list.source, CDRO_NODE_SOURCE_DISCOVERY);
+    EXPECT_EQ(lists[0].as.node_list.node_ids_count, bench.fw.node_count);
+    EXPECT_EQ(bench.serial.frames[from].frame.type, CDRO_FRAME_HELLO) << "HELLO first, then NODE_LIST";
+
+    expectAck(fwtest::setNodes({0x6A03}));
+    from = bench.serial.frames.size();
+    bench.command(fwtest::makeFrame(CDRO_FRAME_HELLO_REQUEST));
+    lists = bench.serial.ofType(CDRO_FRAME_NODE_LIST, from);
+    ASSERT_EQ(lists.size(), 1U);
+    EXPECT_EQ(lists[0].as.node_list.source, CDRO_NODE_SOURCE_HOST);
+    ASSERT_EQ(lists[0].as.node_list.node_ids_count, 1);
+    EXPECT_EQ(lists[0].as.node_list.node_ids[0], 0x6A03);
+
+    expectAck(fwtest::setNodes({}));
+    bench.runUntilUs(bench.bus.nowUs() + 100000U); // the UART drains (else HELLO is dropped, counted)
+    from = bench.serial.frames.size();
+    bench.command(fwtest::makeFrame(CDRO_FRAME_HELLO_REQUEST));
+    EXPECT_EQ(bench.serial.count(CDRO_FRAME_HELLO, from), 1U);
+    EXPECT_EQ(bench.serial.count(CDRO_FRAME_NODE_LIST, from), 0U) << "no nodes, no list";
 }
 
 TEST_F(Commands, MalformedFramesAreNackedWithTheirReason)

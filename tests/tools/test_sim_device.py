@@ -133,14 +133,29 @@ def test_that_start_without_nodes_is_nacked_wrong_state():
     assert not device.running
 
 
-def test_that_ping_echoes_the_nonce_and_hello_request_gets_hello_without_ack():
+def test_that_ping_echoes_the_nonce_and_hello_request_gets_hello_and_the_node_list_without_ack():
     device, sink = booted()
     sink.clear()
     command(device, "PING", {"nonce": 0xDEADBEEF}, sequence=5)
     command(device, "HELLO_REQUEST", sequence=6)
-    ack, hello = sink.frames()
+    ack, hello, node_list = sink.frames()
     assert ack.type == "ACK" and ack["value"] == 0xDEADBEEF and ack["acked_sequence"] == 5
     assert hello.type == "HELLO" and hello["reset_cause"] == C["CDRO_RESET_POWER_ON"]
+    # A host that opened the link of a running device learns the list it missed at boot.
+    assert node_list.type == "NODE_LIST" and node_list["node_ids"] == device.nodes
+    assert node_list["source"] == C["CDRO_NODE_SOURCE_DISCOVERY"]
+    sink.clear()
+    command(device, "SET_NODES", {"node_ids": device.nodes[:1]}, sequence=7)
+    command(device, "HELLO_REQUEST", sequence=8)
+    assert [f.type for f in sink.frames()] == ["ACK", "NODE_LIST", "HELLO", "NODE_LIST"]
+    assert sink.frames()[-1]["source"] == C["CDRO_NODE_SOURCE_HOST"] and sink.frames()[-1]["node_ids"] == device.nodes
+
+
+def test_that_hello_request_without_nodes_gets_hello_only():
+    device, sink = booted(scenario(device={"discovery": False}))
+    sink.clear()
+    command(device, "HELLO_REQUEST", sequence=3)
+    assert [f.type for f in sink.frames()] == ["HELLO"]
 
 
 def test_that_golden_rejections_get_the_documented_answers(golden_dir):

@@ -77,6 +77,7 @@ static void send_error(cdro_fw_t *fw, uint8_t code, uint16_t detail, uint16_t no
 
 static void send_node_list(cdro_fw_t *fw, uint8_t source)
 {
+    fw->node_source = source;
     cdro_frame_t frame;
     uint8_t i;
     frame_init(&frame, CDRO_FRAME_NODE_LIST);
@@ -343,7 +344,13 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
         send_ack(fw, in->type, in->sequence, in->as.ping.nonce);
         break;
     case CDRO_FRAME_HELLO_REQUEST:
+        /* A host that opens the link of a running device (it restarted; the device did not)
+         * has seen neither the boot HELLO nor the node list: send both, so that it can keep
+         * the discovered list instead of having to set one. */
         send_hello(fw, now_ms);
+        if (fw->node_count > 0U) {
+            send_node_list(fw, fw->node_source);
+        }
         break;
     case CDRO_FRAME_HELLO:
     case CDRO_FRAME_RANGE:

@@ -86,6 +86,11 @@ void Service::start()
         }
         const SogSnapshot snapshot = loadCheckpointFile(run_.resume_path);
         hooks_.checkpoint->restore(snapshot);
+        std::vector<uint16_t> mapped;
+        for (const cdro_sog_node_t &node : snapshot.nodes) {
+            mapped.push_back(node.id);
+        }
+        intake_.addKnownNodes(mapped);
         ServiceCheckpointInfo info;
         const SogSnapshot::Extension *own = snapshot.findExtension(kServiceExtensionTag);
         if (own != nullptr && decodeServiceInfo(own->bytes, &info)) {

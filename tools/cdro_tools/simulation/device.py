@@ -96,6 +96,7 @@ class SimDevice:
         self.longest_step_us = 0
         self.running = False
         self.nodes: list[int] = []
+        self.node_source = C["CDRO_NODE_SOURCE_DISCOVERY"]   # of the node list, sent again after HELLO_REQUEST
         self.schedule = Schedule()
         self.scheduler = Scheduler()
         self.scheduler.configure(self.schedule.mode, self.schedule.moving_boost)
@@ -163,11 +164,15 @@ class SimDevice:
                            if n.id != self.own_id and self.uwb.reachable(self.own_id, n.id, t_s))
             if found:
                 self._set_nodes(found[:self.spec.max_nodes])
-                self._send("NODE_LIST", {"source": C["CDRO_NODE_SOURCE_DISCOVERY"], "node_ids": self.nodes})
+                self._send_node_list(C["CDRO_NODE_SOURCE_DISCOVERY"])
             backlog, self.rx_backlog = bytes(self.rx_backlog), bytearray()
             self.receive(backlog)
 
     # ---- sending ---------------------------------------------------------------------------
+
+    def _send_node_list(self, source: int) -> None:
+        self.node_source = source
+        self._send("NODE_LIST", {"source": source, "node_ids": self.nodes})
 
     def _offer(self, data: bytes, frame: Frame | None) -> bool:
         return self.sink.offer(self.now_us, data, frame)
@@ -447,7 +452,7 @@ class SimDevice:
                 return self._nack(frame, "BAD_VALUE")
             self._ack(frame)
             self._set_nodes(f["node_ids"])
-            self._send("NODE_LIST", {"source": C["CDRO_NODE_SOURCE_HOST"], "node_ids": self.nodes})
+            self._send_node_list(C["CDRO_NODE_SOURCE_HOST"])
         elif frame.type == "SET_SCHEDULE":
             self._ack(frame)
             old_status_ms = self.schedule.status_period_ms
@@ -471,4 +476,8 @@ class SimDevice:
         elif frame.type == "PING":
             self._ack(frame, f["nonce"])
         elif frame.type == "HELLO_REQUEST":
+            # A host that opened the link of a running device has seen neither the boot HELLO
+            # nor the node list: both again (docs/protocol.md, "Commands").
             self._hello()
+            if self.nodes:
+                self._send_node_list(self.node_source)

@@ -95,6 +95,7 @@ typedef struct cdro_fw {
     uint8_t running;        /* 1 after START */
     uint8_t pozyx_ok;       /* identity and self-test passed */
     uint8_t node_count;     /* remote nodes */
+    uint8_t node_source;    /* CDRO_NODE_SOURCE_* of the node list (sent again after HELLO_REQUEST) */
     uint8_t reset_cause;
     uint8_t pozyx_firmware; /* FIRMWARE_VER, 0 = not read */
     uint8_t capabilities;   /* CDRO_CAP_* */

@@ -60,6 +60,10 @@ public:
     bool incompatible() const { return incompatible_; }
     const std::string &incompatibleMessage() const { return incompatible_message_; }
     const std::set<uint16_t> &knownNodes() const { return known_nodes_; }
+    // Nodes known from elsewhere: those of the map a run resumes from (they were accepted when
+    // it was built), so that `nodes.unknown: reject` does not drop them before the device lists
+    // them again.
+    void addKnownNodes(const std::vector<uint16_t> &ids) { known_nodes_.insert(ids.begin(), ids.end()); }
     uint16_t deviceNodeId() const { return device_node_id_; }
     uint16_t deviceFirmware() const { return device_firmware_; }
     int64_t lastEventUnixUs() const { return last_event_unix_us_; }
