@@ -3,7 +3,7 @@ test_fil_harness.py, with build/bin/cdro-hostd (the service with the real engine
 The map must converge to the scenario's truth (up to the rotation, translation and reflection
 a range-only map cannot know) and the carried node must be tracked.
 
-Skipped until cdro-hostd is built. Its engine settings, if it needs any for this scenario
+Skipped when cdro-hostd is not built. Its engine settings, if it needs any for this scenario
 (heights, noise), go into ENGINE_CONFIG as an `engine:` section of the generated config.
 """
 from __future__ import annotations

@@ -3,6 +3,7 @@
 // key; --set KEY=VALUE goes over the file and is checked the same way.
 #include <cstdio>
 #include <fstream>
+#include <iterator>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -159,6 +160,22 @@ TEST(EngineConfig, EveryParameterHasAKey)
     }
     EXPECT_EQ(keys, listed);
     EXPECT_GE(keys, 60U); // the table is not empty by accident
+}
+
+// docs/engine.md has a table row for every key a user can set (engine.* and movement.*), so a
+// parameter cannot be added without its default, unit and meaning written down.
+TEST(EngineConfig, EveryKeyHasARowInDocsEngineMd)
+{
+    const std::string path = std::string(CDRO_SOURCE_DIR) + "/docs/engine.md";
+    std::ifstream file(path);
+    ASSERT_TRUE(file.good()) << path;
+    const std::string doc((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+    size_t checked = 0;
+    for (const std::string &name : configurationKeys()) {
+        EXPECT_NE(doc.find("| `" + name + "` |"), std::string::npos) << name << " has no row in " << path;
+        ++checked;
+    }
+    EXPECT_GE(checked, 80U);
 }
 
 TEST(EngineConfig, AnUnknownKeyNamesFileLineKeyAndTheKnownKeys)

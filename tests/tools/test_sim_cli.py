@@ -99,7 +99,7 @@ def test_that_every_builtin_scenario_loads_and_runs(tmp_path):
     listing = sim("--list-scenarios").stdout
     for name in builtin_names():
         assert name in listing
-        sim("--scenario", name, "--duration", 5, "--ranges-csv", tmp_path / f"{name}.csv")
+        sim("--scenario", name, "--duration", 10, "--ranges-csv", tmp_path / f"{name}.csv")  # robot-corridor: most pairs out of range
         assert len(rows(tmp_path / f"{name}.csv")) > 20
 
 
