@@ -4,37 +4,69 @@
 // memory over a long run.
 //
 // A device thread plays the Pozyx tag on the PTY master: boot HELLO, ACKs for the handshake,
-// then RANGE frames among 1 + 7 nodes as fast as the PTY takes them. The service runs exactly
-// as cdro-hostd will (event loop, LibSerial link, intake, capture, JSON Lines to a file), with
-// a map source that changes on every range, so that every frame produces output. The engine
-// itself is not in this loop (part B adds it); this measures the I/O side's share.
+// then RANGE frames, as fast as the PTY takes them (or at --rate-hz). The service runs exactly
+// as cdro-hostd does (event loop, LibSerial link, intake, capture, JSON Lines to a file). Two
+// consumers:
 //
-//   cdro-bench-service [--frames N] [--soak-s S] [--jsonl on|off] [--capture on|off]
+//   --engine none   (default) a stand-in whose map changes on every range, so that every frame
+//                   produces output: the I/O side's share. The device ranges among 1 + 7 nodes.
+//   --engine plant  the real engine (cdro::engine::Engine, default EngineParams, PLANT's heights)
+//                   behind cdro-hostd's EngineAdapter, timed by a thin wrapper. The device
+//                   streams PLANT's 1205 ranges (../shared/data/plant/ranges.csv) pass after
+//                   pass, node id k as 0x6000 + k; at the end the map is scored against
+//                   PLANT's surveyed positions (rigid fit with reflection, as cdro-bench-engine).
+//
+// Figures only: nothing here passes or fails on a time. docs/bench.md has the figures.
+//
+// In a run, the JSON Lines file (in a temporary folder, removed at the end) is truncated each
+// time it passes 1 GiB, so that a soak does not fill the disk.
+//
+//   cdro-bench-service [--engine none|plant] [--frames N | --soak-s S] [--rate-hz R]
+//                      [--jsonl on|off] [--jsonl-path FILE] [--jsonl-rate-hz R] [--capture on|off]
+//                      [--checkpoint on|off] [--data-dir DIR]
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <map>
+#include <memory>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include <malloc.h>
 #include <poll.h>
+#include <sys/types.h>
 #include <pty.h>
+#include <sys/stat.h>
 #include <termios.h>
 #include <unistd.h>
 
+#include <CLI/CLI.hpp>
+
+#include "cdro/engine/alignment.hpp"
+#include "cdro/engine/engine.hpp"
+#include "cdro/hostd/engine_adapter.hpp"
+#include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
+#include "plant_data.hpp"
 
 using namespace cdro::service;
 
 namespace {
 
+// The I/O-only stand-in's network.
 constexpr uint16_t kOwnNode = 0x6000;
 constexpr uint16_t kRemoteNodes[] = {0x6069, 0x6A11, 0x6A2C, 0x6A3E, 0x6A4F, 0x6A5B, 0x6A60};
+// PLANT's node k is the Pozyx id 0x6000 + k on both sides (device and engine).
+constexpr uint16_t kPlantIdBase = 0x6000;
+uint16_t pozyxIdOfPlant(cdro::engine::NodeId plant_id) { return static_cast<uint16_t>(kPlantIdBase + plant_id); }
 
 long residentKiB()
 {
@@ -51,35 +83,128 @@ long residentKiB()
     return -1;
 }
 
-class BenchConsumer final : public FrameConsumer, public MapSource {
+// glibc mallinfo2: bytes allocated and not freed (RSS keeps freed memory the allocator holds).
+long heapInUseKiB()
+{
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 33))
+    const struct mallinfo2 heap = mallinfo2();
+    return static_cast<long>((heap.uordblks + heap.hblkhd) / 1024U);
+#else
+    return -1;
+#endif
+}
+
+int64_t steadyNs()
+{
+    return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+}
+
+// The latencies of a run, in 1 us bins, allocated and touched up front so that they do not show
+// up as memory growth in the soak.
+class LatencyHistogram {
 public:
-    // A histogram of 1 us bins, allocated and touched up front so that it does not show up as
-    // memory growth in the soak.
     static constexpr size_t kBins = 50'000; // us; longer latencies land in the last bin
-    explicit BenchConsumer(const Clock &clock) : clock_(clock), histogram_(kBins + 1, 0) {}
-    void onRange(const cdro_range_t &range, const FrameContext &context) override
+    LatencyHistogram() : bins_(kBins + 1, 0) {}
+    void add(int64_t latency_us)
+    {
+        ++bins_[std::min<size_t>(kBins, static_cast<size_t>(std::max<int64_t>(0, latency_us)))];
+        max_us_ = std::max(max_us_, latency_us);
+        ++samples_;
+    }
+    // The latency below which a fraction p of the samples lie (us).
+    int64_t percentileUs(double p) const
+    {
+        const auto wanted = static_cast<uint64_t>(p * static_cast<double>(samples_));
+        uint64_t seen = 0;
+        for (size_t bin = 0; bin <= kBins; ++bin) {
+            seen += bins_[bin];
+            if (seen > wanted) {
+                return static_cast<int64_t>(bin);
+            }
+        }
+        return static_cast<int64_t>(kBins);
+    }
+    int64_t maxUs() const { return max_us_; }
+    uint64_t samples() const { return samples_; }
+    void print(const char *label) const
+    {
+        std::printf("%-21s p50 %lld us, p99 %lld us, p99.9 %lld us, max %lld us (goal p99 < 2000 us; %llu samples)\n",
+                    label, static_cast<long long>(percentileUs(0.50)), static_cast<long long>(percentileUs(0.99)),
+                    static_cast<long long>(percentileUs(0.999)), static_cast<long long>(max_us_),
+                    static_cast<unsigned long long>(samples_));
+    }
+
+private:
+    std::vector<uint64_t> bins_;
+    uint64_t samples_ = 0;
+    int64_t max_us_ = 0;
+};
+
+// Frames taken, and the latency of each frame whose estimate went out: from its arrival
+// (FrameContext::host_unix_us, the read() that delivered it) to the first fill() after the
+// map's revision changed. Health timers read the map too, without a new frame: those reads are
+// not latencies. The samples of frames after the first warmup_frames are also kept apart.
+class FrameTimer {
+public:
+    FrameTimer(const Clock &clock, uint64_t warmup_frames) : clock_(clock), warmup_frames_(warmup_frames) {}
+
+    void onFrame(const FrameContext &context)
     {
         ++ranges_;
         last_arrival_unix_us_ = context.host_unix_us;
+        last_us_ = clock_.monotonicUs();
+        if (first_us_ == 0) {
+            first_us_ = last_us_;
+        }
+    }
+    // Called when the outputs have read the map of this revision.
+    void onFilled(uint64_t revision)
+    {
+        if (filled_revision_ == revision) {
+            return;
+        }
+        filled_revision_ = revision;
+        const int64_t latency_us = clock_.unixUs() - last_arrival_unix_us_;
+        all_.add(latency_us);
+        if (ranges_ > warmup_frames_) {
+            after_warmup_.add(latency_us);
+        }
+    }
+
+    uint64_t ranges() const { return ranges_; }
+    double seconds() const { return static_cast<double>(last_us_ - first_us_) * 1e-6; }
+    uint64_t warmupFrames() const { return warmup_frames_; }
+    const LatencyHistogram &all() const { return all_; }
+    const LatencyHistogram &afterWarmup() const { return after_warmup_; }
+
+private:
+    const Clock &clock_;
+    uint64_t warmup_frames_ = 0;
+    uint64_t ranges_ = 0;
+    int64_t last_arrival_unix_us_ = 0;
+    int64_t first_us_ = 0;
+    int64_t last_us_ = 0;
+    uint64_t filled_revision_ = 0;
+    LatencyHistogram all_;
+    LatencyHistogram after_warmup_;
+};
+
+// --engine none: a map source that changes on every range.
+class BenchConsumer final : public FrameConsumer, public MapSource {
+public:
+    explicit BenchConsumer(const Clock &clock) : timer_(clock, 0) {}
+    void onRange(const cdro_range_t &range, const FrameContext &context) override
+    {
+        timer_.onFrame(context);
         last_distance_mm_ = range.distance_mm;
         ++revision_;
-        if (first_us_ == 0) {
-            first_us_ = clock_.monotonicUs();
-        }
-        last_us_ = clock_.monotonicUs();
     }
     void onMotion(const cdro_motion_t &, const FrameContext &) override {}
     uint64_t revision() const override { return revision_; }
     void fill(MapState &map) const override
     {
-        // "Estimate out": the outputs read the map after the consumer took the frame (health
-        // timers read it too, without a new frame: those reads are not latencies).
-        if (filled_revision_ != revision_) {
-            filled_revision_ = revision_;
-            const int64_t latency_us = std::max<int64_t>(0, clock_.unixUs() - last_arrival_unix_us_);
-            ++histogram_[std::min<size_t>(kBins, static_cast<size_t>(latency_us))];
-            ++samples_;
-        }
+        timer_.onFilled(revision_);
         NodeEstimate node;
         node.id = kOwnNode;
         node.x_m = static_cast<double>(last_distance_mm_) * 1e-3;
@@ -87,36 +212,68 @@ public:
         map.nodes.push_back(node);
     }
     std::optional<NodeComponents> components(uint16_t) const override { return std::nullopt; }
-
-    uint64_t ranges() const { return ranges_; }
-    double seconds() const { return static_cast<double>(last_us_ - first_us_) * 1e-6; }
-    // The latency below which a fraction p of the samples lie (us).
-    int64_t percentileUs(double p) const
-    {
-        const auto wanted = static_cast<uint64_t>(p * static_cast<double>(samples_));
-        uint64_t seen = 0;
-        for (size_t bin = 0; bin <= kBins; ++bin) {
-            seen += histogram_[bin];
-            if (seen > wanted) {
-                return static_cast<int64_t>(bin);
-            }
-        }
-        return static_cast<int64_t>(kBins);
-    }
-    uint64_t samples() const { return samples_; }
+    const FrameTimer &timer() const { return timer_; }
 
 private:
-    const Clock &clock_;
-    uint64_t ranges_ = 0;
+    mutable FrameTimer timer_;
     uint64_t revision_ = 0;
-    int64_t last_arrival_unix_us_ = 0;
     uint32_t last_distance_mm_ = 0;
-    int64_t first_us_ = 0;
-    int64_t last_us_ = 0;
-    mutable uint64_t filled_revision_ = 0;
-    mutable std::vector<uint64_t> histogram_;
-    mutable uint64_t samples_ = 0;
 };
+
+// --engine plant: cdro-hostd's EngineAdapter, timed. The latency is taken when the adapter's
+// fill() returns (the estimates converted for the outputs); the time spent in the engine
+// (onRange) and in fill() is summed, to tell where the time per frame goes.
+class TimedEngine final : public FrameConsumer, public MapSource {
+public:
+    TimedEngine(const Clock &clock, cdro::hostd::EngineAdapter &adapter, uint64_t warmup_frames)
+        : timer_(clock, warmup_frames), adapter_(adapter)
+    {
+    }
+    void onRange(const cdro_range_t &range, const FrameContext &context) override
+    {
+        timer_.onFrame(context);
+        const int64_t begin_ns = steadyNs();
+        adapter_.onRange(range, context);
+        const int64_t spent_ns = steadyNs() - begin_ns;
+        engine_ns_ += spent_ns;
+        max_engine_ns_ = std::max(max_engine_ns_, spent_ns);
+        if (spent_ns > 1'000'000) {
+            ++engine_calls_over_1ms_;
+        }
+    }
+    void onMotion(const cdro_motion_t &motion, const FrameContext &context) override
+    {
+        adapter_.onMotion(motion, context);
+    }
+    uint64_t revision() const override { return adapter_.revision(); }
+    void fill(MapState &map) const override
+    {
+        const int64_t begin_ns = steadyNs();
+        adapter_.fill(map);
+        fill_ns_ += steadyNs() - begin_ns;
+        ++fills_;
+        timer_.onFilled(adapter_.revision());
+    }
+    std::optional<NodeComponents> components(uint16_t id) const override { return adapter_.components(id); }
+
+    const FrameTimer &timer() const { return timer_; }
+    double engineS() const { return static_cast<double>(engine_ns_) * 1e-9; }
+    double fillS() const { return static_cast<double>(fill_ns_) * 1e-9; }
+    uint64_t fills() const { return fills_; }
+    double maxEngineUs() const { return static_cast<double>(max_engine_ns_) * 1e-3; }
+    uint64_t engineCallsOver1ms() const { return engine_calls_over_1ms_; }
+
+private:
+    mutable FrameTimer timer_;
+    cdro::hostd::EngineAdapter &adapter_;
+    int64_t engine_ns_ = 0;
+    int64_t max_engine_ns_ = 0;
+    uint64_t engine_calls_over_1ms_ = 0;
+    mutable int64_t fill_ns_ = 0;
+    mutable uint64_t fills_ = 0;
+};
+
+// ---- the device -----------------------------------------------------------------------------
 
 void writeAll(int fd, const uint8_t *bytes, size_t len)
 {
@@ -136,15 +293,24 @@ void writeAll(int fd, const uint8_t *bytes, size_t len)
 
 size_t encode(const cdro_frame_t &frame, uint8_t *out) { return cdro_frame_encode(&frame, out, CDRO_MAX_ENCODED_FRAME); }
 
+struct DeviceScript {
+    uint16_t own_node = kOwnNode;
+    uint64_t frames = 0;   // 0 = until soak_s
+    double soak_s = 0.0;   // s; 0 = until frames
+    double rate_hz = 0.0;  // frames/s; 0 = as fast as the PTY takes them
+    // The i-th RANGE frame's payload (device time included).
+    std::function<void(uint64_t i, cdro_range_t &range)> range;
+};
+
 // The device: boot, answer SET_SCHEDULE and START, then stream ranges until told to stop.
-void device(int master, uint64_t frames, double soak_s, std::atomic<bool> &stop)
+void device(int master, const DeviceScript &script, std::atomic<bool> &stop)
 {
     uint16_t sequence = 0;
     uint8_t buffer[CDRO_MAX_ENCODED_FRAME];
     cdro_frame_t hello{};
     hello.type = CDRO_FRAME_HELLO;
     hello.sequence = sequence++;
-    hello.as.hello = {1, 0x0100, CDRO_PROTOCOL_VERSION, CDRO_LAYOUT_HASH, kOwnNode, 0x03, 0x12, 20, 1};
+    hello.as.hello = {1, 0x0100, CDRO_PROTOCOL_VERSION, CDRO_LAYOUT_HASH, script.own_node, 0x03, 0x12, 20, 1};
     const uint8_t zero = 0;
     writeAll(master, &zero, 1);
     writeAll(master, buffer, encode(hello, buffer));
@@ -177,21 +343,34 @@ void device(int master, uint64_t frames, double soak_s, std::atomic<bool> &stop)
         }
     }
     const auto begin = std::chrono::steady_clock::now();
+    const auto elapsedS = [&] {
+        return std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count();
+    };
     std::vector<uint8_t> batch;
-    uint32_t device_time_ms = 1000;
+    uint64_t due = 0; // paced: frames due by now
     for (uint64_t i = 0; !stop; ++i) {
-        if (frames > 0 && i >= frames) {
+        if (script.frames > 0 && i >= script.frames) {
             break;
         }
-        if (soak_s > 0.0 && (i & 1023U) == 0 &&
-            std::chrono::duration<double>(std::chrono::steady_clock::now() - begin).count() > soak_s) {
+        if (script.soak_s > 0.0 && (i & 1023U) == 0 && elapsedS() > script.soak_s) {
             break;
+        }
+        if (script.rate_hz > 0.0 && i >= due) {
+            // Paced: send what is due as one write, then wait for the next frame's time.
+            writeAll(master, batch.data(), batch.size());
+            batch.clear();
+            while (!stop) {
+                due = static_cast<uint64_t>(elapsedS() * script.rate_hz);
+                if (due > i) {
+                    break;
+                }
+                std::this_thread::sleep_for(std::chrono::microseconds(50));
+            }
         }
         cdro_frame_t range{};
         range.type = CDRO_FRAME_RANGE;
         range.sequence = sequence++;
-        device_time_ms += (i % 4 == 0) ? 1U : 0U;
-        range.as.range = {device_time_ms, kOwnNode, kRemoteNodes[i % 7], static_cast<uint32_t>(2000 + i % 5000), -80, 0};
+        script.range(i, range.as.range);
         const size_t n = encode(range, buffer);
         batch.insert(batch.end(), buffer, buffer + n);
         if (batch.size() >= 4096) { // a UART-sized burst
@@ -202,31 +381,193 @@ void device(int master, uint64_t frames, double soak_s, std::atomic<bool> &stop)
     writeAll(master, batch.data(), batch.size());
 }
 
+// ---- PLANT's map at the end -----------------------------------------------------------------
+
+struct MapScore {
+    size_t nodes = 0;      // with a surveyed position
+    size_t placed = 0;
+    size_t converged = 0;
+    double rmse_m = std::nan(""); // m, aligned (rotation, translation, reflection), placed nodes
+    double worst_m = std::nan("");
+};
+
+MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, cdro::engine::Vector2> &truth_m)
+{
+    MapScore score;
+    score.nodes = truth_m.size();
+    std::vector<cdro::engine::Vector2> estimated;
+    std::vector<cdro::engine::Vector2> truth;
+    for (const cdro::engine::NodeOutput &node : engine.estimates()) {
+        const auto known = truth_m.find(node.id);
+        if (known == truth_m.end() || !node.placed) {
+            continue;
+        }
+        ++score.placed;
+        score.converged += node.converged ? 1U : 0U;
+        if (node.position_m.allFinite()) {
+            estimated.push_back(node.position_m);
+            truth.push_back(known->second);
+        }
+    }
+    if (estimated.size() >= 2) {
+        const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(estimated, truth, true);
+        score.rmse_m = fit.rms_error_m;
+        score.worst_m = 0.0;
+        for (size_t i = 0; i < estimated.size(); ++i) {
+            score.worst_m = std::max(score.worst_m, (fit.apply(estimated[i]) - truth[i]).norm());
+        }
+    }
+    return score;
+}
+
+struct MemorySample {
+    long rss_kib = -1;
+    long heap_kib = -1;
+    uint64_t ranges = 0;
+};
+
+long fileBytes(const std::string &path)
+{
+    struct stat info {};
+    return ::stat(path.c_str(), &info) == 0 ? static_cast<long>(info.st_size) : -1;
+}
+
+std::string shortNumber(double value)
+{
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", value);
+    return text;
+}
+
+std::string loadAverage()
+{
+    std::ifstream in("/proc/loadavg");
+    std::string one, five, fifteen;
+    in >> one >> five >> fifteen;
+    return one + " " + five + " " + fifteen;
+}
+
+// Keeps the run's JSON Lines file under a size, so that a soak does not fill the disk (tens of
+// GB in 10 minutes with the engine): truncates it to 0 when it passes limit_bytes, from its own
+// thread (the service opened it O_APPEND, so its writes go on at the new end). Sums the bytes.
+class FileJanitor {
+public:
+    FileJanitor(std::string path, long limit_bytes) : path_(std::move(path)), limit_bytes_(limit_bytes)
+    {
+        thread_ = std::thread([this] {
+            while (!stop_) {
+                std::this_thread::sleep_for(std::chrono::milliseconds(250));
+                const long bytes = fileBytes(path_);
+                if (bytes > limit_bytes_ && ::truncate(path_.c_str(), 0) == 0) {
+                    truncated_bytes_ += bytes; // lines written between the stat and the truncate are not counted
+                    ++truncations_;
+                }
+            }
+        });
+    }
+    ~FileJanitor() { stopNow(); }
+    void stopNow()
+    {
+        stop_ = true;
+        if (thread_.joinable()) {
+            thread_.join();
+        }
+    }
+    long totalBytes() const { return truncated_bytes_ + std::max(0L, fileBytes(path_)); }
+    int truncations() const { return truncations_; }
+
+private:
+    std::string path_;
+    long limit_bytes_;
+    std::atomic<bool> stop_{false};
+    std::atomic<long> truncated_bytes_{0};
+    std::atomic<int> truncations_{0};
+    std::thread thread_;
+};
+
 } // namespace
 
 int main(int argc, char **argv)
 {
+    CLI::App app{"cdro-bench-service: frames/s the service sustains from a pseudo-terminal, the latency from a\n"
+                 "frame's arrival to its estimate going out (p50/p99/p99.9), and the resident memory over the run.\n"
+                 "Figures only; run on purpose (docs/bench.md).\n"};
+    std::string engine_mode = "none";
     uint64_t frames = 1'000'000;
     double soak_s = 0.0;
-    bool jsonl = true;
-    bool capture = true;
-    for (int i = 1; i + 1 < argc; i += 2) {
-        const std::string option = argv[i];
-        const std::string value = argv[i + 1];
-        if (option == "--frames") {
-            frames = std::strtoull(value.c_str(), nullptr, 10);
-        } else if (option == "--soak-s") {
-            soak_s = std::strtod(value.c_str(), nullptr);
-            frames = 0;
-        } else if (option == "--jsonl") {
-            jsonl = value == "on";
-        } else if (option == "--capture") {
-            capture = value == "on";
-        } else {
-            std::fprintf(stderr, "usage: %s [--frames N] [--soak-s S] [--jsonl on|off] [--capture on|off]\n", argv[0]);
+    double rate_hz = 0.0;
+    std::string jsonl_switch = "on";
+    std::string capture_switch = "on";
+    std::string checkpoint_switch = "off";
+    std::string data_dir;
+    std::string jsonl_path;
+    double jsonl_rate_hz = 0.0;
+    app.add_option("--engine", engine_mode,
+                   "the consumer: none = an I/O-only stand-in (a map that changes on every range, 1 + 7 nodes); "
+                   "plant = the engine behind cdro-hostd's adapter, the device streaming PLANT in a loop")
+        ->capture_default_str()
+        ->check(CLI::IsMember({"none", "plant"}));
+    auto *frames_option = app.add_option("--frames", frames, "RANGE frames the device sends")->capture_default_str();
+    app.add_option("--soak-s", soak_s, "s: stream for this long instead of --frames")
+        ->excludes(frames_option)
+        ->check(CLI::PositiveNumber);
+    app.add_option("--rate-hz", rate_hz, "frames/s the device sends at; 0 = as fast as the PTY takes them")
+        ->capture_default_str()
+        ->check(CLI::NonNegativeNumber);
+    app.add_option("--jsonl", jsonl_switch, "JSON Lines to a file (a line per node per update)")
+        ->capture_default_str()
+        ->check(CLI::IsMember({"on", "off"}));
+    app.add_option("--jsonl-path", jsonl_path,
+                   "with --jsonl on: write the lines here (e.g. /dev/null: serialization without the file) instead "
+                   "of a file in the run's temporary folder");
+    app.add_option("--jsonl-rate-hz", jsonl_rate_hz,
+                   "output.rate_hz: all nodes' lines at this rate (Hz of event time) instead of a line per node per "
+                   "update")
+        ->capture_default_str()
+        ->check(CLI::NonNegativeNumber);
+    app.add_option("--capture", capture_switch, "the capture file (rotated at 64 MiB, one kept)")
+        ->capture_default_str()
+        ->check(CLI::IsMember({"on", "off"}));
+    app.add_option("--checkpoint", checkpoint_switch, "--engine plant: checkpoints every 30 s, as cdro-hostd")
+        ->capture_default_str()
+        ->check(CLI::IsMember({"on", "off"}));
+    app.add_option("--data-dir", data_dir,
+                   "--engine plant: the folder that holds plant/ (default $CDRO_DATA_DIR, else ../shared/data from "
+                   "the repository root)");
+    CLI11_PARSE(app, argc, argv);
+    if (soak_s > 0.0) {
+        frames = 0;
+    }
+    const bool with_engine = engine_mode == "plant";
+    const bool jsonl = jsonl_switch == "on";
+    const bool capture = capture_switch == "on";
+    const bool checkpoint = with_engine && checkpoint_switch == "on";
+
+    cdro::bench::Plant plant;
+    if (with_engine) {
+        try {
+            plant = cdro::bench::loadPlant(cdro::bench::findPlant(data_dir, CDRO_SOURCE_DIR));
+        } catch (const std::exception &error) {
+            std::fprintf(stderr, "cdro-bench-service: %s\n", error.what());
             return 2;
         }
     }
+    const std::string run_text = soak_s > 0.0 ? shortNumber(soak_s) + " s soak"
+                                              : std::to_string(frames) + " frames";
+    const std::string rate_text = rate_hz > 0.0 ? shortNumber(rate_hz) + " frames/s" : "flood";
+    const std::string jsonl_text = !jsonl                ? "off"
+                                   : jsonl_rate_hz > 0.0 ? "on, all nodes at " + shortNumber(jsonl_rate_hz) + " Hz"
+                                                         : "on, a line per node per update";
+    std::printf("cdro-bench-service (%s build, %ld cores): engine %s, %s, rate %s, JSON Lines %s, capture %s%s\n",
+                CDRO_BUILD_TYPE, sysconf(_SC_NPROCESSORS_ONLN), engine_mode.c_str(), run_text.c_str(),
+                rate_text.c_str(), jsonl_text.c_str(), capture_switch.c_str(),
+                checkpoint ? ", checkpoints every 30 s" : "");
+    if (with_engine) {
+        std::printf("PLANT (%s): %zu nodes, %zu ranges a pass, ids 0x%04X + k\n", plant.dir.c_str(),
+                    plant.truth_m.size(), plant.ranges.size(), kPlantIdBase);
+    }
+    std::fflush(stdout);
+
     char dir_pattern[] = "/tmp/cdro-bench-XXXXXX";
     const std::string dir = mkdtemp(dir_pattern);
     int master = -1, slave = -1;
@@ -247,23 +588,78 @@ int main(int argc, char **argv)
     config.capture.path = capture ? dir + "/bench.cdrocap" : "";
     config.capture.rotate_mib = 64;
     config.capture.keep = 1;
-    config.output.jsonl = jsonl ? dir + "/bench.jsonl" : "";
+    config.output.jsonl = !jsonl ? "" : !jsonl_path.empty() ? jsonl_path : dir + "/bench.jsonl";
+    config.output.rate_hz = jsonl_rate_hz;
     config.output.health_period_s = 1.0;
     config.http.port = 0;
-    config.checkpoint.path = "";
+    config.checkpoint.path = checkpoint ? dir + "/bench.cdrosog" : "";
+    config.checkpoint.period_s = 30.0;
     config.logging.level = "warn";
     setupLogging(config.logging);
 
     SystemClock clock;
-    BenchConsumer consumer(clock);
-    Service service(config, RunOptions{}, {&consumer, &consumer, nullptr}, clock);
+    // The engine, as cdro-hostd builds it (default parameters, the heights known before start).
+    cdro::engine::Engine engine;
+    engine.setTrace([](const std::string &message) { log()->debug("engine: {}", message); });
+    std::map<uint16_t, cdro::engine::Vector2> truth_m; // by Pozyx id
+    for (const auto &[id, height_m] : plant.heights_m) {
+        engine.setHeight(pozyxIdOfPlant(id), height_m);
+    }
+    for (const auto &[id, position_m] : plant.truth_m) {
+        truth_m[pozyxIdOfPlant(id)] = position_m;
+    }
+    cdro::hostd::EngineAdapter adapter(engine);
+    // The first two passes build the map (placements, re-initializations): the warm-up.
+    TimedEngine timed(clock, adapter, 2 * plant.ranges.size());
+    BenchConsumer stand_in(clock);
+    const FrameTimer &timer = with_engine ? timed.timer() : stand_in.timer();
+    ServiceHooks hooks = with_engine ? ServiceHooks{&timed, &timed, checkpoint ? &adapter : nullptr, &adapter}
+                                     : ServiceHooks{&stand_in, &stand_in, nullptr, nullptr};
+    Service service(config, RunOptions{}, hooks, clock);
     service.start();
+
+    DeviceScript script;
+    script.frames = frames;
+    script.soak_s = soak_s;
+    script.rate_hz = rate_hz;
+    std::vector<cdro_range_t> plant_frames; // one pass, without the device time
+    if (with_engine) {
+        script.own_node = pozyxIdOfPlant(plant.ranges.front().from);
+        for (const cdro::bench::Range &r : plant.ranges) {
+            cdro_range_t range{};
+            range.from_id = pozyxIdOfPlant(r.from);
+            range.to_id = pozyxIdOfPlant(r.to);
+            range.distance_mm = static_cast<uint32_t>(std::lround(r.range_m * 1000.0));
+            range.rss_dbm = -80;
+            const bool remote = range.from_id != script.own_node && range.to_id != script.own_node;
+            range.flags = remote ? CDRO_RANGE_FLAG_REMOTE : 0;
+            plant_frames.push_back(range);
+        }
+        // Pass after pass, 1 ms of device time a frame.
+        script.range = [&plant_frames](uint64_t i, cdro_range_t &range) {
+            range = plant_frames[i % plant_frames.size()];
+            range.device_time_ms = static_cast<uint32_t>(1000U + i);
+        };
+    } else {
+        script.range = [](uint64_t i, cdro_range_t &range) {
+            range = {static_cast<uint32_t>(1001U + i / 4U), kOwnNode, kRemoteNodes[i % 7],
+                     static_cast<uint32_t>(2000 + i % 5000), -80, 0};
+        };
+    }
+
+    std::unique_ptr<FileJanitor> janitor;
+    if (jsonl && jsonl_path.empty()) {
+        janitor = std::make_unique<FileJanitor>(config.output.jsonl, 1L << 30);
+    }
+    const std::string load_start = loadAverage();
     const long rss_start_kib = residentKiB();
+    const long heap_start_kib = heapInUseKiB();
     std::atomic<bool> stop{false};
-    std::thread device_thread(device, master, frames, soak_s, std::ref(stop));
+    std::thread device_thread(device, master, std::cref(script), std::ref(stop));
 
     // Sample memory every second; stop when the device is done and everything arrived.
-    std::vector<long> rss_samples_kib;
+    std::vector<MemorySample> samples;
+    samples.reserve(static_cast<size_t>(soak_s) + 4096);
     std::atomic<bool> device_done{false};
     std::thread watcher([&] {
         device_thread.join();
@@ -272,8 +668,8 @@ int main(int argc, char **argv)
     uint64_t last_ranges = 0;
     int quiet_ticks = 0;
     std::function<void()> tick = [&] {
-        rss_samples_kib.push_back(residentKiB());
-        const uint64_t ranges = consumer.ranges();
+        const uint64_t ranges = timer.ranges();
+        samples.push_back({residentKiB(), heapInUseKiB(), ranges});
         quiet_ticks = (device_done && ranges == last_ranges) ? quiet_ticks + 1 : 0;
         last_ranges = ranges;
         if (quiet_ticks >= 2) {
@@ -286,25 +682,90 @@ int main(int argc, char **argv)
     service.run();
     stop = true;
     watcher.join();
+    const long rss_end_kib = residentKiB();
+    const long heap_end_kib = heapInUseKiB();
+    const std::string load_end = loadAverage();
+    if (janitor) {
+        janitor->stopNow();
+    }
 
     const ServiceCounters &c = service.counters();
+    const uint64_t ranges = timer.ranges();
+    const double seconds = std::max(1e-9, timer.seconds());
     std::printf("frames delivered      %llu, rejected chunks %llu, frames lost %llu\n",
-                static_cast<unsigned long long>(consumer.ranges()), static_cast<unsigned long long>(c.chunks_rejected),
+                static_cast<unsigned long long>(ranges), static_cast<unsigned long long>(c.chunks_rejected),
                 static_cast<unsigned long long>(c.frames_lost));
-    std::printf("throughput            %.0f frames/s over %.2f s (goal > 20000)\n",
-                static_cast<double>(consumer.ranges()) / std::max(1e-9, consumer.seconds()), consumer.seconds());
-    std::printf("arrival -> output     p50 %lld us, p99 %lld us, p99.9 %lld us (goal p99 < 2000 us; %llu samples)\n",
-                static_cast<long long>(consumer.percentileUs(0.50)), static_cast<long long>(consumer.percentileUs(0.99)),
-                static_cast<long long>(consumer.percentileUs(0.999)), static_cast<unsigned long long>(consumer.samples()));
+    std::printf("throughput            %.0f frames/s over %.2f s (goal > 20000)\n", static_cast<double>(ranges) / seconds,
+                timer.seconds());
+    timer.all().print("arrival -> output");
+    if (with_engine) {
+        timer.afterWarmup().print("  from pass 3 on");
+    }
     std::printf("capture               %llu records, %llu bytes, %llu rotations\n",
                 static_cast<unsigned long long>(c.capture_records), static_cast<unsigned long long>(c.capture_bytes),
                 static_cast<unsigned long long>(c.capture_rotations));
-    std::printf("JSON lines            %llu\n", static_cast<unsigned long long>(c.jsonl_lines));
-    std::printf("resident memory       start %ld KiB", rss_start_kib);
-    for (size_t i = 0; i < rss_samples_kib.size(); i += std::max<size_t>(1, rss_samples_kib.size() / 10)) {
-        std::printf(", %zus %ld", i + 1, rss_samples_kib[i]);
+    const long jsonl_bytes = janitor ? janitor->totalBytes() : jsonl ? std::max(0L, fileBytes(config.output.jsonl)) : 0;
+    std::printf("JSON lines            %llu (%.2f a frame), %.1f MiB in %s%s\n",
+                static_cast<unsigned long long>(c.jsonl_lines),
+                static_cast<double>(c.jsonl_lines) / static_cast<double>(std::max<uint64_t>(1, ranges)),
+                static_cast<double>(jsonl_bytes) / 1048576.0, jsonl ? config.output.jsonl.c_str() : "-",
+                janitor && janitor->truncations() > 0
+                    ? (" (truncated " + std::to_string(janitor->truncations()) + " times at 1 GiB)").c_str()
+                    : "");
+    if (checkpoint) {
+        std::printf("checkpoints           %s, %ld bytes\n", config.checkpoint.path.c_str(),
+                    fileBytes(config.checkpoint.path));
     }
-    std::printf(", end %ld KiB\n", residentKiB());
+    // Memory: every sample (1 s apart) in a short run up to 10 of them, in a soak every 30 s.
+    std::printf("resident memory       start %ld KiB", rss_start_kib);
+    const size_t step = soak_s > 0.0 ? 30 : std::max<size_t>(1, samples.size() / 10);
+    for (size_t i = step - 1; i < samples.size(); i += step) {
+        std::printf(", %zus %ld", i + 1, samples[i].rss_kib);
+    }
+    std::printf(", end %ld KiB\n", rss_end_kib);
+    if (soak_s > 0.0) {
+        std::printf("soak, every 30 s      t_s rss_kib heap_kib frames/s\n");
+        for (size_t i = step - 1; i < samples.size(); i += step) {
+            const uint64_t before = i >= step ? samples[i - step].ranges : 0;
+            std::printf("                      %4zu %7ld %8ld %8.0f\n", i + 1, samples[i].rss_kib, samples[i].heap_kib,
+                        static_cast<double>(samples[i].ranges - before) / static_cast<double>(step));
+        }
+    }
+    if (samples.size() >= 60) {
+        std::printf("memory growth         from 60 s (%ld KiB resident, %ld KiB heap) to the end: %+ld KiB resident, "
+                    "%+ld KiB heap\n",
+                    samples[59].rss_kib, samples[59].heap_kib, rss_end_kib - samples[59].rss_kib,
+                    heap_end_kib - samples[59].heap_kib);
+    } else {
+        std::printf("heap in use           start %ld KiB, end %ld KiB\n", heap_start_kib, heap_end_kib);
+    }
+    std::printf("load average          %s at the start, %s at the end\n", load_start.c_str(), load_end.c_str());
+    if (with_engine) {
+        const cdro::engine::EngineCounters &e = engine.counters();
+        std::printf("engine ranges         received %llu, used %llu, stored %llu, refused %llu (self %llu, value %llu)\n",
+                    static_cast<unsigned long long>(e.ranges_received), static_cast<unsigned long long>(e.ranges_used),
+                    static_cast<unsigned long long>(e.ranges_stored),
+                    static_cast<unsigned long long>(adapter.rangesRefused()),
+                    static_cast<unsigned long long>(e.rejected_self), static_cast<unsigned long long>(e.rejected_value));
+        std::printf("engine events         %llu re-initializations (%llu adopted), %llu placements, %llu motion starts "
+                    "(%llu inferred), %llu track updates\n",
+                    static_cast<unsigned long long>(e.reinitializations),
+                    static_cast<unsigned long long>(e.reinitializations_adopted),
+                    static_cast<unsigned long long>(e.placements), static_cast<unsigned long long>(e.motion_starts),
+                    static_cast<unsigned long long>(e.motion_inferred), static_cast<unsigned long long>(e.track_updates));
+        const double wall_us_per_frame = seconds * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
+        const double engine_us = timed.engineS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
+        const double fill_us = timed.fillS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
+        std::printf("time a frame          %.2f us wall: engine %.2f us (max %.0f us, %llu calls over 1 ms), adapter "
+                    "fill %.2f us (%llu fills), the rest %.2f us (intake, capture, JSON Lines, loop, idle)\n",
+                    wall_us_per_frame, engine_us, timed.maxEngineUs(),
+                    static_cast<unsigned long long>(timed.engineCallsOver1ms()), fill_us,
+                    static_cast<unsigned long long>(timed.fills()), wall_us_per_frame - engine_us - fill_us);
+        const MapScore score = scoreMap(engine, truth_m);
+        std::printf("map at the end        %zu of %zu nodes placed, %zu converged; aligned RMSE %.3f m (worst node %.3f "
+                    "m; live, not settled)\n",
+                    score.placed, score.nodes, score.converged, score.rmse_m, score.worst_m);
+    }
     ::close(master);
     ::close(slave);
     const std::string cleanup = "rm -rf '" + dir + "'";
