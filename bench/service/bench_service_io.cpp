@@ -421,6 +421,7 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
 }
 
 struct MemorySample {
+    double t_s = 0.0; // s since the start
     long rss_kib = -1;
     long heap_kib = -1;
     uint64_t ranges = 0;
@@ -667,18 +668,24 @@ int main(int argc, char **argv)
     });
     uint64_t last_ranges = 0;
     int quiet_ticks = 0;
+    const int64_t start_us = clock.monotonicUs();
+    int64_t next_tick_us = start_us + 1'000'000; // on a grid of 1 s (a busy loop fires timers late)
     std::function<void()> tick = [&] {
         const uint64_t ranges = timer.ranges();
-        samples.push_back({residentKiB(), heapInUseKiB(), ranges});
+        const int64_t now_us = clock.monotonicUs();
+        samples.push_back({static_cast<double>(now_us - start_us) * 1e-6, residentKiB(), heapInUseKiB(), ranges});
         quiet_ticks = (device_done && ranges == last_ranges) ? quiet_ticks + 1 : 0;
         last_ranges = ranges;
         if (quiet_ticks >= 2) {
             service.requestStop();
             return;
         }
-        service.loop().addTimerAfter(1'000'000, tick);
+        while (next_tick_us <= now_us) {
+            next_tick_us += 1'000'000;
+        }
+        service.loop().addTimerAfter(next_tick_us - now_us, tick);
     };
-    service.loop().addTimerAfter(1'000'000, tick);
+    service.loop().addTimerAfter(next_tick_us - start_us, tick);
     service.run();
     stop = true;
     watcher.join();
@@ -716,26 +723,36 @@ int main(int argc, char **argv)
         std::printf("checkpoints           %s, %ld bytes\n", config.checkpoint.path.c_str(),
                     fileBytes(config.checkpoint.path));
     }
-    // Memory: every sample (1 s apart) in a short run up to 10 of them, in a soak every 30 s.
+    // Memory (sampled every second): in a soak the first sample from each 30 s on, else up to 10.
+    std::vector<MemorySample> shown;
+    const double every_s = soak_s > 0.0 ? 30.0 : std::max(1.0, std::ceil(static_cast<double>(samples.size()) / 10.0));
+    for (const MemorySample &sample : samples) {
+        if (sample.t_s >= every_s * static_cast<double>(shown.size() + 1) - 0.5) {
+            shown.push_back(sample);
+        }
+    }
     std::printf("resident memory       start %ld KiB", rss_start_kib);
-    const size_t step = soak_s > 0.0 ? 30 : std::max<size_t>(1, samples.size() / 10);
-    for (size_t i = step - 1; i < samples.size(); i += step) {
-        std::printf(", %zus %ld", i + 1, samples[i].rss_kib);
+    for (const MemorySample &sample : shown) {
+        std::printf(", %.0fs %ld", sample.t_s, sample.rss_kib);
     }
     std::printf(", end %ld KiB\n", rss_end_kib);
     if (soak_s > 0.0) {
-        std::printf("soak, every 30 s      t_s rss_kib heap_kib frames/s\n");
-        for (size_t i = step - 1; i < samples.size(); i += step) {
-            const uint64_t before = i >= step ? samples[i - step].ranges : 0;
-            std::printf("                      %4zu %7ld %8ld %8.0f\n", i + 1, samples[i].rss_kib, samples[i].heap_kib,
-                        static_cast<double>(samples[i].ranges - before) / static_cast<double>(step));
+        std::printf("soak                  t_s  rss_kib  heap_kib  frames/s (since the row before)\n");
+        std::printf("                      %5.0f %8ld %9ld\n", 0.0, rss_start_kib, heap_start_kib);
+        MemorySample before;
+        for (const MemorySample &sample : shown) {
+            std::printf("                      %5.0f %8ld %9ld %9.0f\n", sample.t_s, sample.rss_kib, sample.heap_kib,
+                        static_cast<double>(sample.ranges - before.ranges) / std::max(1e-9, sample.t_s - before.t_s));
+            before = sample;
         }
+        std::printf("                      end   %8ld %9ld\n", rss_end_kib, heap_end_kib);
     }
-    if (samples.size() >= 60) {
-        std::printf("memory growth         from 60 s (%ld KiB resident, %ld KiB heap) to the end: %+ld KiB resident, "
+    const auto minute = std::find_if(samples.begin(), samples.end(), [](const MemorySample &x) { return x.t_s >= 59.5; });
+    if (minute != samples.end()) {
+        std::printf("memory growth         from %.0f s (%ld KiB resident, %ld KiB heap) to the end: %+ld KiB resident, "
                     "%+ld KiB heap\n",
-                    samples[59].rss_kib, samples[59].heap_kib, rss_end_kib - samples[59].rss_kib,
-                    heap_end_kib - samples[59].heap_kib);
+                    minute->t_s, minute->rss_kib, minute->heap_kib, rss_end_kib - minute->rss_kib,
+                    heap_end_kib - minute->heap_kib);
     } else {
         std::printf("heap in use           start %ld KiB, end %ld KiB\n", heap_start_kib, heap_end_kib);
     }
