@@ -327,17 +327,18 @@ void MovementStage::normaliseHypotheses()
     }
 }
 
-void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, double height_difference_m)
+void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2,
+                                    bool from_robot, double range_m, double height_difference_m)
 {
     const RobotFilter &filter = best();
-    const Pose2 robot = filter.pose();
-    const Vector2 robot_m(robot.x_m, robot.y_m);
-    const Matrix2 robot_covariance = filter.poseCovariance().topLeftCorner<2, 2>();
     const double scale = filter.scale();
     const double offset = filter.offset();
     const double noise = rangeSigma() * rangeSigma() + filter.scaleSigma() * filter.scaleSigma() * range_m * range_m +
                          filter.offsetSigma() * filter.offsetSigma();
     if (sog.components.empty()) {
+        if (!from_robot) {
+            return; // rings start around the robot; the map's nodes then help decide between them
+        }
         // A ring around the robot, of the range corrected by the current calibration.
         const double radius = std::sqrt(std::max(std::pow((range_m - offset) / scale, 2.0) -
                                                      height_difference_m * height_difference_m,
@@ -351,29 +352,31 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, d
             const Vector2 radial(std::cos(angle), std::sin(angle));
             const Vector2 across(-radial.y(), radial.x());
             BeaconComponent component;
-            component.mean_m = robot_m + radius * radial;
+            component.mean_m = centre_m + radius * radial;
             component.covariance_m2 = noise * radial * radial.transpose() +
-                                      tangential * tangential * across * across.transpose() + robot_covariance;
+                                      tangential * tangential * across * across.transpose() + centre_covariance_m2;
             component.weight = 1.0 / count;
             sog.components.push_back(component);
         }
-        sog.first_robot_m = robot_m;
+        sog.first_robot_m = centre_m;
         sog.ranges = 1;
         ++counters_.beacon_sogs;
         return;
     }
     ++sog.ranges;
-    sog.baseline_m = std::max(sog.baseline_m, (robot_m - sog.first_robot_m).norm());
+    // The spread of the places it was ranged from (the robot's, or a map node's): what tells a
+    // ring's modes apart.
+    sog.baseline_m = std::max(sog.baseline_m, (centre_m - sog.first_robot_m).norm());
     double best_weight = 0.0;
     for (BeaconComponent &component : sog.components) {
         const ScaledRangePrediction prediction =
-            predictScaledRange(component.mean_m, robot_m, height_difference_m, scale, offset);
+            predictScaledRange(component.mean_m, centre_m, height_difference_m, scale, offset);
         if (prediction.singular) {
             continue;
         }
         const Eigen::RowVector2d h = prediction.jacobian_a;
         const double variance = (h * component.covariance_m2 * h.transpose()).value() +
-                                (h * robot_covariance * h.transpose()).value() + noise;
+                                (h * centre_covariance_m2 * h.transpose()).value() + noise;
         const double innovation = range_m - prediction.range_m;
         component.weight *= likelihood_.density(innovation, variance);
         const Eigen::Vector2d gain = component.covariance_m2 * h.transpose() / variance;
@@ -400,6 +403,36 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, d
     }
     sog.components = std::move(kept);
     (void)id;
+}
+
+void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2, bool from_robot,
+                                 double range_m, double height_difference_m)
+{
+    BeaconSog &sog = beacons_[id];
+    updateBeaconSog(id, sog, centre_m, centre_covariance_m2, from_robot, range_m, height_difference_m);
+    if (sog.components.empty()) {
+        beacons_.erase(id);
+        return;
+    }
+    Gaussian2 merged;
+    for (const BeaconComponent &c : sog.components) {
+        merged.mean_m += c.weight * c.mean_m;
+    }
+    for (const BeaconComponent &c : sog.components) {
+        const Vector2 spread = c.mean_m - merged.mean_m;
+        merged.covariance_m2 += c.weight * (c.covariance_m2 + spread * spread.transpose());
+    }
+    const double largest_variance =
+        merged.covariance_m2.trace() - minEigenvalue(merged.covariance_m2); // the larger eigenvalue
+    if (sog.ranges >= params_.beacon_min_ranges && sog.baseline_m >= params_.beacon_min_baseline_m &&
+        largest_variance <= params_.beacon_insert_std_m * params_.beacon_insert_std_m) {
+        for (Hypothesis &hypothesis : hypotheses_) {
+            hypothesis.filter.insertNode(id, merged.mean_m, merged.covariance_m2);
+        }
+        ++counters_.nodes_inserted;
+        engine_.pinNode(id, merged.mean_m, merged.covariance_m2);
+        beacons_.erase(id);
+    }
 }
 
 RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double range_m)
@@ -434,30 +467,10 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
             if (hypotheses_.size() != 1) {
                 return verdict;
             }
-            BeaconSog &sog = beacons_[other];
-            updateBeaconSog(other, sog, range_m, dz);
-            const Gaussian2 merged = [&] {
-                Gaussian2 g;
-                for (const BeaconComponent &c : sog.components) {
-                    g.mean_m += c.weight * c.mean_m;
-                }
-                for (const BeaconComponent &c : sog.components) {
-                    const Vector2 spread = c.mean_m - g.mean_m;
-                    g.covariance_m2 += c.weight * (c.covariance_m2 + spread * spread.transpose());
-                }
-                return g;
-            }();
-            const double largest_variance =
-                merged.covariance_m2.trace() - minEigenvalue(merged.covariance_m2); // the larger eigenvalue
-            if (sog.ranges >= params_.beacon_min_ranges && sog.baseline_m >= params_.beacon_min_baseline_m &&
-                largest_variance <= params_.beacon_insert_std_m * params_.beacon_insert_std_m) {
-                for (Hypothesis &hypothesis : hypotheses_) {
-                    hypothesis.filter.insertNode(other, merged.mean_m, merged.covariance_m2);
-                }
-                ++counters_.nodes_inserted;
-                engine_.pinNode(other, merged.mean_m, merged.covariance_m2);
-                beacons_.erase(other);
-            }
+            const RobotFilter &filter = best();
+            const Pose2 pose = filter.pose();
+            updateBeacon(other, Vector2(pose.x_m, pose.y_m), filter.poseCovariance().topLeftCorner<2, 2>(), true, range_m,
+                         dz);
             return verdict;
         }
         if (hypotheses_.size() == 1 &&
@@ -489,6 +502,18 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
     }
     if (!filter.hasNode(to)) {
         insertNode(to);
+    }
+    // A node the EKF holds ranging one that has a SoG around the robot: one more place it is
+    // ranged from (the robot alone, driving a straight line, cannot tell a ring's mirror modes
+    // apart; a map node off that line can).
+    if (hypotheses_.size() == 1 && filter.hasNode(from) != filter.hasNode(to)) {
+        const NodeId known = filter.hasNode(from) ? from : to;
+        const NodeId other = known == from ? to : from;
+        if (beacons_.count(other) != 0 && (moving_.count(other) == 0 || !moving_.at(other))) {
+            updateBeacon(other, filter.nodePosition(known), filter.nodeCovariance(known), false, range_m,
+                         heightDifference(known, other));
+            return verdict;
+        }
     }
     if (filter.hasNode(from) && filter.hasNode(to)) {
         // A link the initialization found NLOS (it reads long, persistently) would pull the EKF a

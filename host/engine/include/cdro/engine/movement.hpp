@@ -126,8 +126,8 @@ private:
     struct BeaconSog {
         std::vector<BeaconComponent> components;
         uint32_t ranges = 0;
-        Vector2 first_robot_m = Vector2::Zero();
-        double baseline_m = 0.0; // m, farthest robot position from the first one
+        Vector2 first_robot_m = Vector2::Zero(); // m, the robot when the ring started
+        double baseline_m = 0.0; // m, farthest place it was ranged from (robot or map node) from there
     };
     struct Hypothesis {
         RobotFilter filter;
@@ -137,7 +137,13 @@ private:
     void start(double t_s);
     void insertConvergedNodes();
     bool insertNode(NodeId id);
-    void updateBeaconSog(NodeId id, BeaconSog &sog, double range_m, double height_difference_m);
+    // A range to a node that has a SoG (or gets one: only a range from the robot starts a ring)
+    // from a known centre, the robot's or a map node's; the node enters the EKF once its SoG has
+    // one concentrated mode.
+    void updateBeacon(NodeId id, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2, bool from_robot,
+                      double range_m, double height_difference_m);
+    void updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2,
+                         bool from_robot, double range_m, double height_difference_m);
     void pinNodes();
     double heightDifference(NodeId a, NodeId b) const;
     double rangeSigma() const;
