@@ -432,8 +432,8 @@ CalibrationRun driveWithLongRanges(uint64_t seed, bool estimate)
             std::sqrt((Vector2(truth.x_m, truth.y_m) - nodes_m[i]).squaredNorm() + dz_m * dz_m);
         const double range_m = true_scale * distance_m + noise_m * random.normal();
         run.filter.updateRobotRange(static_cast<NodeId>(10 + i), range_m, dz_m, noise_m, 5.0, likelihood);
-        run.worst_position_error_m = std::max(
-            run.worst_position_error_m, std::hypot(run.filter.pose().x_m - truth.x_m, run.filter.pose().y_m - truth.y_m));
+        const double error_m = std::hypot(run.filter.pose().x_m - truth.x_m, run.filter.pose().y_m - truth.y_m);
+        run.worst_position_error_m = std::max(run.worst_position_error_m, error_m);
     }
     return run;
 }
