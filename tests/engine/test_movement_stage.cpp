@@ -708,6 +708,72 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_EQ(robot->pose.y_m, node->position_m.y());
 }
 
+// BUG (host/engine/src/movement.cpp, MovementStage::updateBeacon): a beacon whose SoG around
+// the robot has become one mode is "inserted" without checking that the EKF has room
+// (RobotFilter::insertNode returns false once it holds kMaxNodes = 120): it is counted in
+// nodes_inserted, pinned in stage 1 at its SoG's mean and its SoG dropped, but the EKF does not
+// hold it. Its next robot range starts a new ring, which is "inserted" again, and so on. With
+// 124 beacons (seed 5109): 124 pinned in stage 1 for 120 in the EKF, nodes_inserted 129,
+// beacon_sogs 133; the 4 left out are up to 2.61 m off (the EKF's at most 0.44 m).
+// MovementStage::insertNode (the map's nodes) checks full() first; updateBeacon should too (and
+// leave the beacon a SoG). Enable this test with the fix.
+TEST(MovementStage, DISABLED_ABeaconThatFindsTheEkfFullIsNotPinnedOutsideIt)
+{
+    const uint64_t seed = testSeed(5109);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const size_t beacons = engine::RobotFilter::kMaxNodes + 4;
+    std::vector<Vector2> truth_m;
+    for (size_t i = 0; i < beacons; ++i) { // a 13 x 10 grid, 6 m apart, around the robot's path
+        truth_m.emplace_back(-27.0 + 6.0 * static_cast<double>(i % 13), -27.0 + 6.0 * static_cast<double>(i / 13));
+    }
+    Engine engine;
+    MovementParams params;
+    params.robot_id = 1000;
+    MovementStage stage(engine, params);
+    Pose2 truth{0.0, 0.0, 0.0};
+    size_t next = 0;
+    for (int k = 0; k < 1500; ++k) { // 150 s: 10 s straight, 30 s turning left (a wobbly loop), ...
+        const double t_s = static_cast<double>(k + 1) * kTickS;
+        const OdometryStep step{0.1, (k % 400) < 100 ? 0.0 : 0.0157};
+        truth = predictOdometry(truth, step).pose;
+        stage.addOdometry(t_s, step);
+        for (int r = 0; r < 8; ++r) { // 8 ranges a tick, round robin over the beacons
+            const size_t i = next;
+            next = (next + 1) % beacons;
+            const double range_m = (truth_m[i] - Vector2(truth.x_m, truth.y_m)).norm() + 0.1 * random.normal();
+            stage.addRange(t_s + 0.01 * (r + 1), 1000, static_cast<NodeId>(1 + i), range_m);
+        }
+    }
+    size_t pinned = 0;
+    for (const engine::NodeState &node : engine.network().nodes) {
+        pinned += node.pinned ? 1U : 0U;
+    }
+    double worst_held_m = 0.0;  // beacons the EKF holds (reported converged)
+    double worst_other_m = 0.0; // the others
+    size_t others = 0;
+    for (const NodeOutput &node : stage.estimates()) {
+        if (node.id == params.robot_id) {
+            continue;
+        }
+        const double error_m = (node.position_m - truth_m[node.id - 1U]).norm(); // the odometry frame is the world's
+        if (node.converged) {
+            worst_held_m = std::max(worst_held_m, error_m);
+        } else {
+            worst_other_m = std::max(worst_other_m, error_m);
+            ++others;
+        }
+    }
+    std::printf("capacity: %zu beacons, %llu inserted, %llu beacon SoGs, %zu pinned in stage 1; the EKF's at most "
+                "%.2f m off, the %zu others at most %.2f m\n",
+                beacons, static_cast<unsigned long long>(stage.counters().nodes_inserted),
+                static_cast<unsigned long long>(stage.counters().beacon_sogs), pinned, worst_held_m, others,
+                worst_other_m);
+    EXPECT_LE(stage.counters().nodes_inserted, engine::RobotFilter::kMaxNodes);
+    EXPECT_LE(pinned, engine::RobotFilter::kMaxNodes); // stage 1 pins what the EKF holds, no more
+    EXPECT_EQ(stage.counters().beacon_sogs, beacons);  // each beacon's ring starts once
+}
+
 // ---------------------------------------------------------------------------------------------
 // (e) Determinism: the same inputs give the same outputs, bit for bit
 
