@@ -51,7 +51,7 @@ double numericalRangeDerivative(const RangeArguments &at, int which)
 {
     // Truncation ~ step^2 |h'''| / 6, rounding ~ eps |h| / step: 1e-6 keeps both near 1e-10 for
     // the distances used (0.1 .. 60 m).
-    const double step = 1e-6;
+    const double step = 1e-6; // m for the positions and the offset, 1 for the scale
     RangeArguments plus = at;
     RangeArguments minus = at;
     auto nudge = [which](RangeArguments &arguments, double delta) {
@@ -210,7 +210,7 @@ TEST(OdometryModel, JacobiansMatchCentralDifferences)
     const uint64_t seed = testSeed(4102);
     SCOPED_TRACE(seedTrace(seed));
     Random random(seed);
-    const double step_size = 1e-6;
+    const double step_size = 1e-6; // m for x, y and the distance, rad for the headings
     double worst = 0.0;
     for (int trial = 0; trial < 300; ++trial) {
         const Pose2 pose{random.uniform(-50.0, 50.0), random.uniform(-50.0, 50.0), random.uniform(-kPi, kPi)};
