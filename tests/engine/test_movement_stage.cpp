@@ -708,16 +708,13 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_EQ(robot->pose.y_m, node->position_m.y());
 }
 
-// BUG (host/engine/src/movement.cpp, MovementStage::updateBeacon): a beacon whose SoG around
-// the robot has become one mode is "inserted" without checking that the EKF has room
-// (RobotFilter::insertNode returns false once it holds kMaxNodes = 120): it is counted in
-// nodes_inserted, pinned in stage 1 at its SoG's mean and its SoG dropped, but the EKF does not
-// hold it. Its next robot range starts a new ring, which is "inserted" again, and so on. With
-// 124 beacons (seed 5109): 124 pinned in stage 1 for 120 in the EKF, nodes_inserted 129,
-// beacon_sogs 133; the 4 left out are up to 2.61 m off (the EKF's at most 0.44 m).
-// MovementStage::insertNode (the map's nodes) checks full() first; updateBeacon should too (and
-// leave the beacon a SoG). Enable this test with the fix.
-TEST(MovementStage, DISABLED_ABeaconThatFindsTheEkfFullIsNotPinnedOutsideIt)
+// A regression test: a beacon whose SoG around the robot has become one mode when the EKF is
+// full (RobotFilter::kMaxNodes = 120) stays a SoG. Before the fix it was counted in
+// nodes_inserted, pinned in stage 1 at its SoG's mean and its SoG dropped although the EKF did not
+// hold it; the next robot range started a ring again, and so on. With 124 beacons (seed 5109):
+// 124 pinned for 120 in the EKF, nodes_inserted 129, beacon_sogs 133, the 4 left out up to
+// 2.61 m off (the EKF's at most 0.44 m).
+TEST(MovementStage, ABeaconThatFindsTheEkfFullIsNotPinnedOutsideIt)
 {
     const uint64_t seed = testSeed(5109);
     SCOPED_TRACE(seedTrace(seed));

@@ -424,8 +424,10 @@ void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matri
     }
     const double largest_variance =
         merged.covariance_m2.trace() - minEigenvalue(merged.covariance_m2); // the larger eigenvalue
+    // A full EKF leaves it a SoG (the map's nodes wait the same way in insertNode).
     if (sog.ranges >= params_.beacon_min_ranges && sog.baseline_m >= params_.beacon_min_baseline_m &&
-        largest_variance <= params_.beacon_insert_std_m * params_.beacon_insert_std_m) {
+        largest_variance <= params_.beacon_insert_std_m * params_.beacon_insert_std_m &&
+        !hypotheses_.front().filter.full()) {
         for (Hypothesis &hypothesis : hypotheses_) {
             hypothesis.filter.insertNode(id, merged.mean_m, merged.covariance_m2);
         }

@@ -103,7 +103,12 @@ int main(int argc, char **argv)
     app.add_flag("--print-config", print_config, "print the engine settings in effect (YAML) and exit");
     bool progress = false;
     app.add_flag("--progress", progress, "a progress line on stderr every second (link, frames, map)");
-    CLI11_PARSE(app, argc, argv);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError &error) {
+        // --help and --version exit 0; every usage error exits 2, like every other bad input.
+        return app.exit(error) == 0 ? 0 : 2;
+    }
 
     try {
         const ConfigDocument document = loadDocument(service_overrides.config_path, engine_overrides.sets);
