@@ -16,7 +16,7 @@ import yaml
 
 GUARD_S = 60
 HEADER = "id,x,y,var_x,cov_xy,var_y,converged"
-TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged"
+TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,t"
 
 # Six nodes (m) that all range to each other: every one of them can be placed.
 NODES = {1: (0.0, 0.0), 2: (8.0, 1.0), 3: (3.0, 7.0), 4: (10.0, 9.0), 5: (-2.0, 5.0), 6: (6.0, -4.0)}
@@ -85,7 +85,7 @@ def test_that_bad_rows_are_reported_with_their_line_numbers_counted_and_skipped(
     bad = {
         3: "1,2,abc",          # not a number
         6: "1,2",              # too few fields
-        9: "0,2,3.0",          # id 0 is not a node id
+        9: "-1,2,3.0",         # not a node id (0..65535; 0 is allowed: Plaza uses it)
         12: "70000,2,3.0",     # beyond 16 bits
         15: "x,2,3.0",         # not an id at all
         18: "1,2,nan",         # not finite
@@ -259,10 +259,11 @@ def test_that_the_trace_holds_a_snapshot_every_n_ranges_and_the_final_estimates(
             assert all(r[k] != "" for k in ("x", "y", "var_x", "cov_xy", "var_y"))
             assert float(r["var_x"]) >= 0 and float(r["var_y"]) >= 0
             assert r["converged"] in ("0", "1")
-    # The last snapshot (after settling) is the output, to the digit.
+    # The last snapshot (after settling) is the output, to the digit; t is empty (no t column).
     final = [r for r in trace if int(r["ranges"]) == total][-len(NODES):]
+    assert all(r["t"] == "" for r in trace)
     out = read_rows(tmp_path / "out.csv")
-    assert [{k: v for k, v in r.items() if k != "ranges"} for r in final] == out
+    assert [{k: v for k, v in r.items() if k not in ("ranges", "t")} for r in final] == out
     # Every number as printf's %.17g writes it: the CSV gives back the doubles, bit for bit.
     for r in out:
         for key in ("x", "y", "var_x", "cov_xy", "var_y"):
@@ -335,8 +336,8 @@ def test_that_print_config_fed_back_as_config_gives_the_same_settings(hostd, tmp
     assert (settings["frame"]["origin"], settings["frame"]["x_axis"], settings["frame"]["positive_y"]) == (3, 1, 2)
     groups = yaml.safe_load(defaults)["engine"]
     assert set(groups) == {"range", "likelihood", "sog", "placement", "refinement", "reinitialization",
-                           "convergence", "frame"}
-    assert sum(len(keys) for keys in groups.values()) == 48
+                           "motion", "convergence", "frame"}
+    assert sum(len(keys) for keys in groups.values()) == 66  # docs/engine.md has a row for each
 
 
 def test_that_an_unknown_engine_key_names_file_line_key_and_known_keys(hostd, tmp_path):
