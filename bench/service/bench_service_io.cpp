@@ -66,6 +66,10 @@ constexpr uint16_t kOwnNode = 0x6000;
 constexpr uint16_t kRemoteNodes[] = {0x6069, 0x6A11, 0x6A2C, 0x6A3E, 0x6A4F, 0x6A5B, 0x6A60};
 // PLANT's node k is the Pozyx id 0x6000 + k on both sides (device and engine).
 constexpr uint16_t kPlantIdBase = 0x6000;
+// The run's JSON Lines file is truncated when it passes this (bytes). Each truncation frees
+// the file's pages while holding its lock against the service's writes: it shows in the
+// latency tail of a soak with JSON Lines (docs/bench.md).
+constexpr long kJsonlLimitBytes = 1L << 30;
 uint16_t pozyxIdOfPlant(cdro::engine::NodeId plant_id) { return static_cast<uint16_t>(kPlantIdBase + plant_id); }
 
 long residentKiB()
@@ -650,7 +654,7 @@ int main(int argc, char **argv)
 
     std::unique_ptr<FileJanitor> janitor;
     if (jsonl && jsonl_path.empty()) {
-        janitor = std::make_unique<FileJanitor>(config.output.jsonl, 1L << 30);
+        janitor = std::make_unique<FileJanitor>(config.output.jsonl, kJsonlLimitBytes);
     }
     const std::string load_start = loadAverage();
     const long rss_start_kib = residentKiB();
