@@ -436,6 +436,30 @@ def test_that_bad_rows_are_reported_by_line_and_skipped(tmp_path):
     assert report["methods"]["lsq-huber"]["rmse_m"] == pytest.approx(0.0, abs=1e-6)
 
 
+def test_that_a_node_the_engine_has_not_placed_is_reported_as_such_not_as_a_bad_row(tmp_path):
+    # Fixture: cdro-hostd's --out-csv writes an empty row for a node it has ranges of but has not
+    # placed; node 4 here. Node 5's row is damaged (x empty, y given): that one is a bad row.
+    square = {1: (0.0, 0.0), 2: (10.0, 0.0), 3: (10.0, 10.0), 4: (0.0, 10.0)}
+    (tmp_path / "truth.csv").write_text("id,x,y\n" + "".join(f"{i},{x},{y}\n" for i, (x, y) in square.items()))
+    (tmp_path / "est.csv").write_text("id,x,y,var_x,cov_xy,var_y,converged\n1,0,0,0.01,0,0.01,1\n"
+                                      "2,10,0,0.01,0,0.01,1\n3,10,10,0.01,0,0.01,1\n4,,,,,,0\n5,,3,0.01,0,0.01,0\n")
+
+    # Test
+    result = run_eval("--truth", tmp_path / "truth.csv", "--estimates", tmp_path / "est.csv", "--no-baselines",
+                      "--json", tmp_path / "eval.json")
+
+    # Assert
+    assert result.returncode == 0, result.stderr
+    report = json.loads((tmp_path / "eval.json").read_text())
+    engine = report["methods"]["engine"]
+    assert engine["unplaced"] == [4]
+    assert engine["nodes"] == 3 and engine["rmse_m"] == pytest.approx(0.0, abs=1e-9)
+    assert "1 not placed (4)" in engine["notes"]
+    reasons = {b["line"]: b["reason"] for b in report["bad_rows"]["rows"]}
+    assert reasons == {6: "x is empty"}
+    assert "1 not placed (4)" in result.stdout
+
+
 def test_that_unusable_input_is_a_clear_error(tmp_path):
     (tmp_path / "truth.csv").write_text("id,x,y,z\n1,0,0,0\n2,10,0,0\n3,0,10,0\n")
     (tmp_path / "flat.csv").write_text("id,x,y\n1,0,0\n2,10,0\n3,0,10\n")

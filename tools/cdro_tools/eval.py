@@ -200,7 +200,8 @@ def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
     ranged = set(ranges.node_ids) if ranges is not None else set()
 
     if args.estimates:
-        estimates = read_estimates(args.estimates, bad)
+        unplaced: list[int] = []
+        estimates = read_estimates(args.estimates, bad, unplaced)
         if not estimates:
             raise InputError(f"{args.estimates}: no usable estimate row")
         if not any(i in truth_xy for i in estimates):
@@ -213,10 +214,14 @@ def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
         engine.update(estimates=len(estimates), converged=len(converged),
                       rmse_converged_m=_finite_or_none(converged_alignment.rmse_m) if len(converged) >= 3 else None,
                       nodes_without_truth=sorted(i for i in estimates if i not in truth_xy),
-                      ranged_nodes_without_estimate=sorted(ranged - set(estimates)))
+                      unplaced=sorted(unplaced),
+                      ranged_nodes_without_estimate=sorted(ranged - set(estimates) - set(unplaced)))
         notes = [f"{len(converged)}/{len(estimates)} converged"]
         if engine["rmse_converged_m"] is not None and len(converged) < len(estimates):
             notes.append(f"converged nodes alone {_fmt(engine['rmse_converged_m'])} m")
+        if unplaced:
+            shown = ", ".join(map(str, sorted(unplaced)[:5])) + (", ..." if len(unplaced) > 5 else "")
+            notes.append(f"{len(unplaced)} not placed ({shown})")
         if engine["nodes_without_truth"]:
             notes.append(f"{len(engine['nodes_without_truth'])} without truth")
         if engine["ranged_nodes_without_estimate"]:

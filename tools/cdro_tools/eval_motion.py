@@ -76,9 +76,11 @@ def main(argv: list[str] | None = None) -> int:
             if not (args.nodes and args.beacon_truth):
                 raise InputError("--nodes and --beacon-truth go together")
             excluded = {_id(x) for x in args.exclude}
-            estimates = {i: e.xy_m for i, e in read_estimates(args.nodes, bad).items() if i not in excluded}
+            unplaced: list[int] = []
+            estimates = {i: e.xy_m for i, e in read_estimates(args.nodes, bad, unplaced).items() if i not in excluded}
             truth, _ = read_truth(args.beacon_truth, bad)
             report["beacons"] = evaluate_beacons(estimates, truth, path_fit)
+            report["beacons"]["not_placed"] = sorted(i for i in unplaced if i not in excluded)
         if args.trace or args.tracks or args.node:
             if not (args.trace and args.tracks and args.truth and args.motion and args.node):
                 raise InputError("tracking needs --trace, --tracks, --truth, --motion and --node")

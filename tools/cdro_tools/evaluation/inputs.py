@@ -205,15 +205,25 @@ def _estimate_from_row(row: dict) -> NodeEstimate:
 ESTIMATE_COLUMNS = ["id", "x", "y", "var_x", "cov_xy", "var_y", "converged"]
 
 
-def read_estimates(path: str, bad: list[BadRow]) -> dict[int, NodeEstimate]:
-    """The engine's nodes CSV `id,x,y,var_x,cov_xy,var_y,converged` (m, m^2, 0/1)."""
+def read_estimates(path: str, bad: list[BadRow], unplaced: list[int] | None = None) -> dict[int, NodeEstimate]:
+    """The engine's nodes CSV `id,x,y,var_x,cov_xy,var_y,converged` (m, m^2, 0/1).
+
+    cdro-hostd writes a row with empty x, y and covariance for a node it has ranges of but has
+    not placed (yet): that is an answer, not a damaged row, so its id goes to `unplaced` (when
+    given) instead of `bad`."""
     out: dict[int, NodeEstimate] = {}
+    seen: set[int] = set()
     for line, row in csv_rows(path, ESTIMATE_COLUMNS):
         try:
             node_id = parse_id(row["id"])
-            if node_id in out:
+            if node_id in seen:
                 raise RowError(f"id {node_id} repeated (the first row is kept)")
+            if unplaced is not None and all(not (row[c] or "").strip() for c in ESTIMATE_COLUMNS[1:6]):
+                seen.add(node_id)
+                unplaced.append(node_id)
+                continue
             out[node_id] = _estimate_from_row(row)
+            seen.add(node_id)
         except RowError as error:
             bad.append(BadRow(path, line, str(error)))
     return out
