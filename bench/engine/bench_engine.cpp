@@ -181,6 +181,11 @@ struct Accuracy {
     size_t total = 0;              // nodes with a truth position
     bool finite = true;            // no NaN or infinity in any estimate
     size_t over_1m = 0;            // placed nodes more than 1 m off after the alignment
+    // The same over the nodes the engine calls converged, fitted on them alone: how far the
+    // engine's own claim can be trusted (a node a network cannot decide, e.g. with two links,
+    // is placed but not converged, and moves the RMSE over all placed nodes).
+    double converged_rmse_m = std::nan(""); // m
+    size_t converged_over_1m = 0;  // converged nodes more than 1 m off after that fit
     // How well the map explains its own links (placed ends): a map far from the truth that
     // explains every link is a real ambiguity of the network (a flip about a hinge), one that
     // leaves links unexplained is a local minimum of the engine.
@@ -215,6 +220,22 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
         }
         estimated.push_back(node.position_m);
         truth.push_back(known->second);
+    }
+    std::vector<Vector2> converged_estimated;
+    std::vector<Vector2> converged_truth;
+    for (const cdro::engine::NodeOutput &node : engine.estimates()) {
+        const auto known = truth_m.find(node.id);
+        if (known != truth_m.end() && node.placed && node.converged && node.position_m.allFinite()) {
+            converged_estimated.push_back(node.position_m);
+            converged_truth.push_back(known->second);
+        }
+    }
+    if (converged_estimated.size() >= 2) {
+        const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(converged_estimated, converged_truth, true);
+        result.converged_rmse_m = fit.rms_error_m;
+        for (size_t i = 0; i < converged_estimated.size(); ++i) {
+            result.converged_over_1m += (fit.apply(converged_estimated[i]) - converged_truth[i]).norm() > 1.0 ? 1U : 0U;
+        }
     }
     if (estimated.size() >= 2) {
         const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(estimated, truth, true);
@@ -274,6 +295,8 @@ Json accuracyJson(const Accuracy &a)
                 {"finite", a.finite},
                 {"median_error_m", std::isfinite(a.median_error_m) ? Json(a.median_error_m) : Json(nullptr)},
                 {"nodes_over_1m", a.over_1m},
+                {"converged_rmse_m", std::isfinite(a.converged_rmse_m) ? Json(a.converged_rmse_m) : Json(nullptr)},
+                {"converged_over_1m", a.converged_over_1m},
                 {"links_checked", a.links_checked},
                 {"links_residual_over_0_5m", a.links_over_0_5m},
                 {"link_residual_rms_m",
@@ -969,9 +992,10 @@ void printNetworks(const Json &networks)
 {
     std::printf("\nRandom geometric networks (a fresh process per draw; Gaussian range noise; every link once a\n"
                 "sweep, in a seeded random order)\n");
-    std::printf("%5s %5s %6s %6s %6s %6s | %9s %9s | %8s %8s %7s | %8s %8s %9s | %8s %8s %9s\n", "nodes", "seed",
-                "links", "degree", "radio", "sweeps", "ranges/s", "per_cpu_s", "map_rng", "map_s", "placed", "rmse_m",
-                "median_m", "bad_links", "peak_MiB", "heap_MiB", "state_MiB");
+    std::printf("%5s %5s %6s %6s %6s %6s | %9s %9s | %8s %8s %7s | %8s %8s %9s | %7s %8s %6s | %8s %8s %9s\n",
+                "nodes", "seed", "links", "degree", "radio", "sweeps", "ranges/s", "per_cpu_s", "map_rng", "map_s",
+                "placed", "rmse_m", "median_m", "bad_links", "conv", "conv_rms", "conv>1", "peak_MiB", "heap_MiB",
+                "state_MiB");
     for (const Json &size : networks) {
         for (const Json &n : size["draws"]) {
             if (n.contains("error")) {
@@ -993,13 +1017,18 @@ void printNetworks(const Json &networks)
             char bad_links[32];
             std::snprintf(bad_links, sizeof bad_links, "%d/%d", a["links_residual_over_0_5m"].get<int>(),
                           a["links_checked"].get<int>());
-            std::printf("%5d %5llu %6d %6.1f %6.1f %6d | %9.0f %9.0f | %8s %8s %7s | %8s %8.3f %9s | %8.1f %8.2f "
-                        "%9.2f%s\n",
+            char converged_rmse[32] = "n/a";
+            if (!a["converged_rmse_m"].is_null()) {
+                std::snprintf(converged_rmse, sizeof converged_rmse, "%.3f", a["converged_rmse_m"].get<double>());
+            }
+            std::printf("%5d %5llu %6d %6.1f %6.1f %6d | %9.0f %9.0f | %8s %8s %7s | %8s %8.3f %9s | %7d %8s %6d | "
+                        "%8.1f %8.2f %9.2f%s\n",
                         n["nodes"].get<int>(), n["seed"].get<unsigned long long>(), n["links"].get<int>(),
                         n["mean_degree"].get<double>(), n["radius_m"].get<double>(), n["sweeps"].get<int>(),
                         n["steady"]["ranges_per_s"].get<double>(), n["steady"]["ranges_per_cpu_s"].get<double>(),
                         map_ranges, map_s, placed, formatRmse(a).c_str(), a["median_error_m"].get<double>(),
-                        bad_links, static_cast<double>(n["memory_after"]["vm_hwm_kib"].get<long>()) / 1024.0,
+                        bad_links, a["converged"].get<int>(), converged_rmse, a["converged_over_1m"].get<int>(),
+                        static_cast<double>(n["memory_after"]["vm_hwm_kib"].get<long>()) / 1024.0,
                         static_cast<double>(n["memory_after"]["heap_in_use_kib"].get<long>() -
                                             n["memory_before"]["heap_in_use_kib"].get<long>()) /
                             1024.0,
@@ -1012,9 +1041,12 @@ void printNetworks(const Json &networks)
         "  ranges fed and seconds spent feeding them until every node was first placed (* = some never were:\n"
         "  until the final number of placed nodes was first reached). placed: at the end. rmse_m: aligned RMSE\n"
         "  over the placed nodes at the end; median_m: the median node's error; bad_links: links the map itself\n"
-        "  misses by more than 0.5 m (5 sigma). peak_MiB: peak resident memory of that process (VmHWM; its\n"
-        "  resident memory before the engine existed is given below; the peak includes the copies of the engine\n"
-        "  that re-initialization makes, and freed memory that the allocator keeps); heap_MiB: heap in use at\n"
+        "  misses by more than 0.5 m (5 sigma). conv, conv_rms, conv>1: the nodes the engine calls converged,\n"
+        "  the aligned RMSE over them alone (fitted on them), and how many of them are more than 1 m off: how\n"
+        "  far the engine's own claim holds (nodes the links cannot decide are placed, not converged).\n"
+        "  peak_MiB: peak resident memory of that process (VmHWM; its resident memory before the engine existed\n"
+        "  is given below; the peak includes the copies of the engine that re-initialization makes, and freed\n"
+        "  memory that the allocator keeps); heap_MiB: heap in use at\n"
         "  the end less that before the engine (glibc mallinfo2): the engine's live state; state_MiB: the\n"
         "  engine's state as estimated from its parts (ring components x 68 B + node, link and ring records).\n");
     for (const Json &size : networks) {
