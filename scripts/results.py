@@ -132,6 +132,20 @@ def fig3(summary: dict) -> None:
         print(f"  {name:36s} steady-state RMSE {statistics.mean(values):.3f} m (mean of {len(values)} seeds)")
 
 
+def fig3_batch(summary: dict) -> None:
+    """The paper's Algorithm 1 as written (batch), on the same setting: 30 draws, 100 iterations."""
+    print("== Paper Fig. 3, the paper's Algorithm 1 as written (cdro_tools.evaluation.paper_algorithm1)")
+    table = {}
+    for name, extra in (("rings 1 m apart", []), ("rings of 16 components", ["--components", "16"]),
+                        ("rings 1 m apart, 300 iterations", ["--iterations", "300"])):
+        text = run([BIN / "python", "-m", "cdro_tools.evaluation.paper_algorithm1", "--seeds", "30", *extra])
+        means = [float(line.split("mean ")[1].split(" m;")[0]) for line in text.splitlines() if "mean " in line]
+        table[name] = {"with_transfer_m": means[0], "without_transfer_m": means[1]}
+        print(f"  {name:34s} steady-state RMSE with transfer {means[0]:.3f} m, without {means[1]:.3f} m "
+              "(mean of 30 draws)")
+    summary["fig3_batch"] = table
+
+
 def plaza(summary: dict) -> None:
     print("== Plaza1 / Plaza2 (real robot, odometry, 4 beacons, no inter-beacon ranges)")
     summary["plaza"] = {}
@@ -229,7 +243,7 @@ def main() -> int:
     if not DATA.is_dir():
         raise SystemExit(f"results: no data at {DATA} (set CDRO_DATA_DIR)")
     summary: dict = {"seeds": SEEDS}
-    for step in (plant, fig3, plaza, cooperative_robot, carried_node):
+    for step in (plant, fig3, fig3_batch, plaza, cooperative_robot, carried_node):
         step(summary)
     with open(OUT / "summary.json", "w") as f:
         json.dump(summary, f, indent=2, sort_keys=True)
