@@ -288,6 +288,31 @@ def test_that_fixed_nodes_are_output_where_given(hostd, tmp_path):
         assert math.dist((float(out[i]["x"]), float(out[i]["y"])), NODES[i]) < 0.01
 
 
+def test_that_a_part_hanging_on_two_nodes_is_placed_named_and_not_converged(hostd, tmp_path):
+    # Fixture: the six nodes, all linked, and three more (7, 8, 9) linked to each other and to
+    # nodes 3 and 4 only: that part can be reflected across the line 3-4 without changing a range.
+    part = {7: (4.0, 14.0), 8: (9.0, 15.0), 9: (7.0, 19.0)}
+    everything = {**NODES, **part}
+    links = [(a, b) for a in NODES for b in NODES if a < b]
+    links += [(7, 8), (7, 9), (8, 9)] + [(p, h) for p in part for h in (3, 4)]
+    rows = [f"{a},{b},{math.dist(everything[a], everything[b]):.4f}" for _ in range(40) for a, b in links]
+    ranges = write(tmp_path / "ranges.csv", ["from,to,range_m", *rows])
+
+    # Act
+    result = run(hostd, "--ranges-csv", ranges, "--out-csv", tmp_path / "out.csv")
+
+    # Assert
+    assert result.returncode == 0, result.stderr
+    out = {int(r["id"]): r for r in read_rows(tmp_path / "out.csv")}
+    assert sorted(out) == sorted(everything)
+    for i in NODES:
+        assert out[i]["converged"] == "1", (i, result.stderr)
+    for i in part:
+        assert out[i]["x"] != "" and out[i]["converged"] == "0", (i, result.stderr)
+        assert f"node {i} hangs on nodes 3 and 4: its part of the network can fold over them" in result.stderr
+    assert result.stderr.count("hangs on") == 3
+
+
 def test_that_the_same_input_gives_the_same_bytes(hostd, tmp_path):
     # Fixture
     seed = seed_of(61)

@@ -1450,8 +1450,47 @@ RigidTransform Engine::outputTransform() const
     return transform;
 }
 
+const Foldable &Engine::foldableParts() const
+{
+    // The key: the links, and which nodes are placed, still and fixed (splitmix64 of each index
+    // with its state, summed): cheap next to the O(V (V + E)) search it saves.
+    uint64_t key = 0x9E3779B97F4A7C15ULL * (network_.links.size() + 1);
+    for (uint32_t node = 0; node < network_.nodes.size(); ++node) {
+        const NodeState &state = network_.nodes[node];
+        const uint64_t flags = (state.placed ? 1U : 0U) | (state.moving ? 2U : 0U) | (state.fixed ? 4U : 0U);
+        uint64_t mixed = (static_cast<uint64_t>(node) << 3U | flags) + 0x9E3779B97F4A7C15ULL;
+        mixed = (mixed ^ (mixed >> 30U)) * 0xBF58476D1CE4E5B9ULL;
+        mixed = (mixed ^ (mixed >> 27U)) * 0x94D049BB133111EBULL;
+        key += mixed ^ (mixed >> 31U);
+    }
+    if (foldable_valid_ && key == foldable_key_) {
+        return foldable_;
+    }
+    const size_t count = network_.nodes.size();
+    std::vector<uint8_t> active(count, 0);
+    std::vector<uint8_t> anchored(count, 0);
+    for (uint32_t node = 0; node < count; ++node) {
+        const NodeState &state = network_.nodes[node];
+        // A moving node's ranges hold nothing in place while it moves.
+        active[node] = state.placed && !state.moving ? 1 : 0;
+        anchored[node] = state.fixed ? 1 : 0;
+    }
+    std::vector<std::pair<uint32_t, uint32_t>> edges;
+    edges.reserve(network_.links.size());
+    for (const LinkState &link : network_.links) {
+        edges.emplace_back(link.node_a, link.node_b);
+    }
+    foldable_ = findFoldable(static_cast<uint32_t>(count), edges, active, anchored);
+    foldable_key_ = key;
+    foldable_valid_ = true;
+    return foldable_;
+}
+
+uint32_t Engine::foldableCount() const { return foldableParts().count; }
+
 std::vector<NodeOutput> Engine::estimates() const
 {
+    const Foldable &folds = foldableParts();
     const RigidTransform transform = outputTransform();
     std::vector<NodeOutput> out;
     out.reserve(network_.nodes.size());
@@ -1463,6 +1502,19 @@ std::vector<NodeOutput> Engine::estimates() const
         node.moving = state.moving;
         node.fixed = state.fixed;
         node.ambiguous = state.placed && state.ambiguous;
+        const uint32_t index = static_cast<uint32_t>(out.size());
+        if (state.placed && index < folds.foldable.size() && folds.foldable[index] != 0) {
+            node.foldable = true;
+            node.converged = false;
+            for (uint32_t hinge : folds.hinge[index]) {
+                if (hinge != kNoHinge) {
+                    node.hinge[node.hinge_nodes++] = network_.nodes[hinge].id;
+                }
+            }
+            if (node.hinge_nodes == 2 && node.hinge[1] < node.hinge[0]) {
+                std::swap(node.hinge[0], node.hinge[1]); // by id, as the output lists nodes
+            }
+        }
         node.height_known = state.height_known;
         node.height_m = state.height_m;
         node.link_count = static_cast<uint32_t>(state.links.size());

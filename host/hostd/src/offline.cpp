@@ -4,6 +4,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <string>
 
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
@@ -268,6 +269,23 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
                 std::fprintf(log, "cdro-hostd: node %u is ambiguous: another position fits its %u links about as well "
                                   "(add a link to a node off the line of its neighbours)\n",
                              static_cast<unsigned>(node.id), node.link_count);
+            }
+            if (node.foldable) {
+                if (node.hinge_nodes == 0) {
+                    std::fprintf(log, "cdro-hostd: node %u is not connected to the largest part of the network: its place "
+                                      "relative to it is unknown (not converged)\n",
+                                 static_cast<unsigned>(node.id));
+                } else {
+                    std::string hinge = std::to_string(node.hinge[0]);
+                    if (node.hinge_nodes == 2) {
+                        hinge += " and " + std::to_string(node.hinge[1]);
+                    }
+                    std::fprintf(log, "cdro-hostd: node %u hangs on node%s %s: its part of the network can %s without "
+                                      "changing a range, so the ranges cannot tell its side (not converged; add a link from "
+                                      "it to another node)\n",
+                                 static_cast<unsigned>(node.id), node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
+                                 node.hinge_nodes == 2 ? "fold over them" : "turn about it");
+                }
             }
             if (node.link_count > 0 || node.fixed) {
                 writeNodeRow(out.get(), node);

@@ -30,6 +30,7 @@
 #include <vector>
 
 #include "cdro/engine/alignment.hpp"
+#include "cdro/engine/foldable.hpp"
 #include "cdro/engine/network.hpp"
 #include "cdro/engine/params.hpp"
 #include "cdro/engine/point_solver.hpp"
@@ -90,6 +91,11 @@ struct NodeOutput {
     bool moving = false;
     bool fixed = false;
     bool ambiguous = false;                        // its links fit another position about as well
+    // In a part of the network that hangs on at most two other nodes (foldable.hpp): the part
+    // can fold over them without changing a range, so the node is not called converged.
+    bool foldable = false;
+    std::array<NodeId, 2> hinge{};                 // the nodes it hangs on (hinge_nodes of them, by id)
+    uint8_t hinge_nodes = 0;
     bool height_known = false;
     double height_m = 0.0;                         // m
     uint32_t link_count = 0;                       // links to other nodes
@@ -157,6 +163,7 @@ public:
     // Outputs, in the output frame (see outputTransform()).
     std::vector<NodeOutput> estimates() const;                 // every known node, by id
     std::optional<NodeOutput> estimate(NodeId id) const;
+    uint32_t foldableCount() const;                            // placed nodes that can fold
     std::vector<LinkOutput> links() const;                     // by (a, b)
     std::vector<RingOutput> ringsDescribing(NodeId id) const;  // SoG_ij for every neighbour i
     // Engine frame -> output frame: the named frame (params.frame), else the frame triangle's
@@ -263,6 +270,12 @@ private:
     EngineCounters counters_;
     uint64_t revision_ = 0;
     std::vector<RangeWitness> scratch_witnesses_;
+    // The foldable parts of the placed, still nodes' link graph, recomputed when the links or
+    // the placed set change (the key below), not on every output.
+    const Foldable &foldableParts() const;
+    mutable Foldable foldable_;
+    mutable uint64_t foldable_key_ = 0;
+    mutable bool foldable_valid_ = false;
     std::function<void(const std::string &)> trace_;
     void trace(const std::string &message) const
     {

@@ -1,0 +1,37 @@
+// foldable.hpp: the parts of a range network whose place the ranges cannot decide, from the
+// link graph alone.
+//
+// A part that hangs on one node can turn about it, and a part that hangs on two nodes can be
+// reflected across the line through them, without changing a single range: however well the
+// map explains its links, such a part may be on the wrong side (a unique planar map needs a
+// 3-connected graph; 3-connectivity is necessary, not sufficient). The per-node ambiguity check
+// of the engine sees a single node with a mirror position, not a group of nodes that folds.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+namespace cdro::engine {
+
+constexpr uint32_t kNoHinge = 0xFFFFFFFFU;
+
+struct Foldable {
+    // Per node: true when it lies in a part that the removal of at most two other nodes (its
+    // hinge) cuts off from the largest part, or outside the largest connected component.
+    std::vector<uint8_t> foldable;  // 0/1 (not vector<bool>: GCC 12 -O3 warns on it here)
+    // Per foldable node: the hinge of the first cut found (node indices; kNoHinge where fewer
+    // than two, both kNoHinge for a node outside the largest component).
+    std::vector<std::array<uint32_t, 2>> hinge;
+    uint32_t count = 0;
+};
+
+// node_count nodes; edges between active nodes (others are ignored, duplicates allowed);
+// active (0/1): the nodes of the graph (e.g. the placed ones); anchored (0/1): nodes whose position is known
+// (fixed): a cut-off part holding one is not marked. Deterministic; O(V (V + E)) for graphs
+// with few cut nodes. The largest part (ties: the one with the smallest node index) stays.
+Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                      const std::vector<uint8_t> &active, const std::vector<uint8_t> &anchored);
+
+} // namespace cdro::engine

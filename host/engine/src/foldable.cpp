@@ -1,0 +1,198 @@
+// foldable.cpp: cuts of one and two nodes in the link graph (see foldable.hpp).
+//
+// For every node u, the articulation points v of the graph without u give the cuts {u, v}
+// (Hopcroft-Tarjan, iterative so that a long chain of nodes cannot overflow the stack); the
+// parts that such a cut separates from the largest part can fold.
+#include "cdro/engine/foldable.hpp"
+
+#include <algorithm>
+
+namespace cdro::engine {
+namespace {
+
+using Adjacency = std::vector<std::vector<uint32_t>>;
+
+// The connected components of the nodes with inside[i] != 0, each listed in increasing order
+// of discovery from its smallest node (components come in order of their smallest node).
+std::vector<std::vector<uint32_t>> components(const Adjacency &adjacency, const std::vector<char> &inside)
+{
+    const size_t count = adjacency.size();
+    std::vector<char> seen(count, 0);
+    std::vector<std::vector<uint32_t>> out;
+    std::vector<uint32_t> stack;
+    for (uint32_t root = 0; root < count; ++root) {
+        if (!inside[root] || seen[root]) {
+            continue;
+        }
+        out.emplace_back();
+        seen[root] = 1;
+        stack.push_back(root);
+        while (!stack.empty()) {
+            const uint32_t node = stack.back();
+            stack.pop_back();
+            out.back().push_back(node);
+            for (uint32_t next : adjacency[node]) {
+                if (inside[next] && !seen[next]) {
+                    seen[next] = 1;
+                    stack.push_back(next);
+                }
+            }
+        }
+    }
+    return out;
+}
+
+// The articulation points of the graph on the nodes with inside[i] != 0.
+std::vector<uint32_t> articulationPoints(const Adjacency &adjacency, const std::vector<char> &inside)
+{
+    const size_t count = adjacency.size();
+    std::vector<uint32_t> discovered(count, 0); // 0: not yet; else the discovery time
+    std::vector<uint32_t> low(count, 0);
+    std::vector<uint32_t> parent(count, kNoHinge);
+    std::vector<uint32_t> children(count, 0);
+    std::vector<size_t> next_edge(count, 0);
+    std::vector<char> is_cut(count, 0);
+    std::vector<uint32_t> stack;
+    uint32_t time = 0;
+    for (uint32_t root = 0; root < count; ++root) {
+        if (!inside[root] || discovered[root] != 0) {
+            continue;
+        }
+        discovered[root] = low[root] = ++time;
+        stack.push_back(root);
+        while (!stack.empty()) {
+            const uint32_t node = stack.back();
+            if (next_edge[node] < adjacency[node].size()) {
+                const uint32_t next = adjacency[node][next_edge[node]++];
+                if (!inside[next]) {
+                    continue;
+                }
+                if (discovered[next] == 0) {
+                    parent[next] = node;
+                    ++children[node];
+                    discovered[next] = low[next] = ++time;
+                    stack.push_back(next);
+                } else if (next != parent[node]) {
+                    low[node] = std::min(low[node], discovered[next]);
+                }
+                continue;
+            }
+            stack.pop_back();
+            const uint32_t up = parent[node];
+            if (up != kNoHinge) {
+                low[up] = std::min(low[up], low[node]);
+                if (parent[up] != kNoHinge && low[node] >= discovered[up]) {
+                    is_cut[up] = 1;
+                }
+            }
+        }
+        if (children[root] > 1) {
+            is_cut[root] = 1;
+        }
+    }
+    std::vector<uint32_t> out;
+    for (uint32_t node = 0; node < count; ++node) {
+        if (is_cut[node]) {
+            out.push_back(node);
+        }
+    }
+    return out;
+}
+
+// Every part but the largest (the first of the largest: the one with the smallest node) is
+// marked, unless it holds an anchored node.
+void markAllButLargest(const std::vector<std::vector<uint32_t>> &parts, const std::vector<uint8_t> &anchored,
+                       std::array<uint32_t, 2> hinge, Foldable &out)
+{
+    if (parts.size() < 2) {
+        return;
+    }
+    size_t largest = 0;
+    for (size_t i = 1; i < parts.size(); ++i) {
+        if (parts[i].size() > parts[largest].size()) {
+            largest = i;
+        }
+    }
+    for (size_t i = 0; i < parts.size(); ++i) {
+        if (i == largest ||
+            std::any_of(parts[i].begin(), parts[i].end(), [&](uint32_t node) { return anchored[node] != 0; })) {
+            continue;
+        }
+        for (uint32_t node : parts[i]) {
+            if (out.foldable[node] == 0) {
+                out.foldable[node] = 1;
+                out.hinge[node] = hinge;
+                ++out.count;
+            }
+        }
+    }
+}
+
+} // namespace
+
+Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                      const std::vector<uint8_t> &active, const std::vector<uint8_t> &anchored)
+{
+    Foldable out;
+    out.foldable.assign(node_count, 0);
+    out.hinge.assign(node_count, {kNoHinge, kNoHinge});
+    std::vector<uint8_t> anchor(node_count, 0);
+    for (uint32_t node = 0; node < node_count && node < anchored.size(); ++node) {
+        anchor[node] = anchored[node] != 0 ? 1 : 0;
+    }
+    std::vector<char> inside(node_count, 0);
+    for (uint32_t node = 0; node < node_count && node < active.size(); ++node) {
+        inside[node] = active[node] != 0 ? 1 : 0;
+    }
+    Adjacency adjacency(node_count);
+    for (const auto &[a, b] : edges) {
+        if (a < node_count && b < node_count && a != b && inside[a] && inside[b]) {
+            adjacency[a].push_back(b);
+            adjacency[b].push_back(a);
+        }
+    }
+    for (std::vector<uint32_t> &neighbours : adjacency) {
+        std::sort(neighbours.begin(), neighbours.end());
+        neighbours.erase(std::unique(neighbours.begin(), neighbours.end()), neighbours.end());
+    }
+
+    // Nodes outside the largest component cannot be placed relative to it at all.
+    const std::vector<std::vector<uint32_t>> whole = components(adjacency, inside);
+    markAllButLargest(whole, anchor, {kNoHinge, kNoHinge}, out);
+    std::fill(inside.begin(), inside.end(), 0);
+    if (whole.empty()) {
+        return out;
+    }
+    const std::vector<uint32_t> *main_part = &whole.front();
+    for (const std::vector<uint32_t> &part : whole) {
+        if (part.size() > main_part->size()) {
+            main_part = &part;
+        }
+    }
+    for (uint32_t node : *main_part) {
+        inside[node] = 1;
+    }
+
+    // Cuts of one node: a part turns about it.
+    for (uint32_t cut : articulationPoints(adjacency, inside)) {
+        inside[cut] = 0;
+        markAllButLargest(components(adjacency, inside), anchor, {cut, kNoHinge}, out);
+        inside[cut] = 1;
+    }
+    // Cuts of two nodes: a part is reflected across the line through them.
+    std::vector<uint32_t> members = *main_part;
+    std::sort(members.begin(), members.end());
+    for (uint32_t first : members) {
+        inside[first] = 0;
+        for (uint32_t second : articulationPoints(adjacency, inside)) {
+            inside[second] = 0;
+            markAllButLargest(components(adjacency, inside), anchor,
+                              {std::min(first, second), std::max(first, second)}, out);
+            inside[second] = 1;
+        }
+        inside[first] = 1;
+    }
+    return out;
+}
+
+} // namespace cdro::engine
