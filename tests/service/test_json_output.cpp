@@ -31,10 +31,15 @@ MapState twoNodes(double x0)
 
 TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
 {
-    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true};
+    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false};
     EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, 12.5)),
               R"({"type":"node","t_s":12.5,"id":24577,"x_m":3.214,"y_m":-0.502,"var_x_m2":0.0041,)"
-              R"("cov_xy_m2":-0.0003,"var_y_m2":0.0052,"converged":true,"moving":false,"placed":true})");
+              R"("cov_xy_m2":-0.0003,"var_y_m2":0.0052,"converged":true,"moving":false,"placed":true,)"
+              R"("foldable":false})");
+    node.converged = false;
+    node.foldable = true;
+    EXPECT_NE(JsonLinesWriter::line(nodeJson(node, 12.5)).find(R"("converged":false,"moving":false,"placed":true,"foldable":true})"),
+              std::string::npos);
     RobotPose robot{24600, 1.5, 2.5, 0.25, 0.01, 0.0, 0.02};
     EXPECT_EQ(JsonLinesWriter::line(robotJson(robot, 1.0)),
               R"({"type":"robot","t_s":1.0,"id":24600,"x_m":1.5,"y_m":2.5,"heading_rad":0.25,)"

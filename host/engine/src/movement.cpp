@@ -607,6 +607,14 @@ std::vector<NodeOutput> MovementStage::estimates() const
     const RigidTransform transform = engine_.outputTransform();
     const RobotFilter &filter = best();
     for (NodeOutput &node : out) {
+        const bool held = node.id == params_.robot_id || filter.hasNode(node.id) ||
+                          (beacons_.count(node.id) != 0 && !beacons_.at(node.id).components.empty());
+        if (held) {
+            // Placed by the robot's ranges from many poses, not by the link graph alone: the
+            // graph's folds (foldable.hpp) say nothing about it.
+            node.foldable = false;
+            node.hinge_nodes = 0;
+        }
         if (node.id == params_.robot_id) {
             const Pose2 pose = filter.pose();
             node.placed = true;

@@ -146,6 +146,7 @@ void EngineAdapter::fill(service::MapState &map) const
         out.placed = node.placed;
         out.converged = node.converged;
         out.moving = node.moving;
+        out.foldable = node.foldable;
         if (node.placed) {
             out.x_m = node.position_m.x();
             out.y_m = node.position_m.y();

@@ -26,7 +26,7 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
 {
     return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.var_x_m2, b.var_x_m2) &&
            sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.converged == b.converged &&
-           a.moving == b.moving && a.placed == b.placed;
+           a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable;
 }
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)
@@ -50,6 +50,7 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &n, double t_s)
     j["converged"] = n.converged;
     j["moving"] = n.moving;
     j["placed"] = n.placed;
+    j["foldable"] = n.foldable;
     return j;
 }
 

@@ -102,11 +102,13 @@ function render(map) {
     const cls = ['node'];
     if (n.converged) cls.push('converged');
     if (n.moving) cls.push('moving');
+    if (n.foldable) cls.push('foldable');
     if (n.id === selectedId) cls.push('selected');
     const g = el('g', { class: cls.join(' '), 'data-id': n.id }, nodes);
     el('circle', { cx: view.x(n.x_m), cy: view.y(n.y_m), r: 7 }, g);
     el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = hexId(n.id);
-    el('title', {}, g).textContent = `${hexId(n.id)} (${n.id}): x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m`;
+    el('title', {}, g).textContent = `${hexId(n.id)} (${n.id}): x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
+      (n.foldable ? ' (its part of the network hangs on one or two nodes: its side is undecided)' : '');
     g.addEventListener('click', () => selectNode(n.id));
   }
   const list = document.getElementById('unplaced');

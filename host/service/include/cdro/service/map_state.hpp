@@ -33,6 +33,7 @@ struct NodeEstimate {
     bool converged = false;
     bool moving = false;
     bool placed = false;      // has an estimate at all; x/y are meaningless otherwise
+    bool foldable = false;    // placed in a part that hangs on one or two nodes: its side is undecided
 };
 
 struct RobotPose {
