@@ -1,8 +1,16 @@
 // SerialLink on real pseudo-terminals: raw 8N1, bytes both ways, a vanished device is noticed,
 // retried with exponential backoff, and resumed when it comes back at the same path.
+#include <pty.h>
+#include <sys/ioctl.h>
 #include <termios.h>
+#include <unistd.h>
+
+#include <cstdint>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <libserial/SerialPort.h>
 
 #include "cdro/service/serial_link.hpp"
 #include "support.hpp"
@@ -107,4 +115,49 @@ TEST_F(SerialLinkTest, UnsupportedBaudIsAConfigError)
     EventLoop loop(clock);
     config.baud = 12345;
     EXPECT_THROW(SerialLink(loop, config, listener, counters), ConfigError);
+}
+
+// A device that streams from the moment the port opens: what arrives while the port is being
+// configured is kept. (LibSerial's SetFlowControl() discards the input; the configuration used
+// it once, and firmware-in-the-loop runs then lost the first frame's bytes, seen as a COBS
+// error and fewer bytes received than the UART sent.)
+TEST(LibSerialConfiguration, BytesThatArriveWhileThePortIsConfiguredAreKept)
+{
+    int master = -1;
+    int slave = -1;
+    char name[256] = {};
+    ASSERT_EQ(openpty(&master, &slave, name, nullptr, nullptr), 0);
+    ::close(slave);
+    LibSerial::SerialPort port;
+    port.Open(name);
+    const uint8_t sent[] = {0x00, 0x11, 0x13, 0x0d, 0x0a, 0x7f, 0x03, 0x1c, 0xff, 0x00};
+    ASSERT_EQ(::write(master, sent, sizeof sent), static_cast<ssize_t>(sizeof sent));
+    // The pty layer hands the bytes to the slave's queue asynchronously: wait until all are
+    // there (a deadlock guard of 5 s, not a speed assumption).
+    int queued = 0;
+    for (int i = 0; i < 500 && queued < static_cast<int>(sizeof sent); ++i) {
+        ASSERT_EQ(::ioctl(port.GetFileDescriptor(), FIONREAD, &queued), 0);
+        if (queued < static_cast<int>(sizeof sent)) {
+            ::usleep(10000);
+        }
+    }
+    ASSERT_EQ(queued, static_cast<int>(sizeof sent));
+
+    std::string error;
+    const int fd = configureLibSerialPort(port, 115200, &error);
+    ASSERT_GE(fd, 0) << error;
+
+    std::vector<uint8_t> received(64);
+    const ssize_t n = ::read(fd, received.data(), received.size());
+    ASSERT_EQ(n, static_cast<ssize_t>(sizeof sent)) << "bytes discarded by the configuration";
+    received.resize(static_cast<size_t>(n));
+    EXPECT_EQ(received, std::vector<uint8_t>(std::begin(sent), std::end(sent)));
+    termios tio{};
+    ASSERT_EQ(tcgetattr(fd, &tio), 0);
+    EXPECT_EQ(tio.c_iflag & (IXON | IXOFF | ICRNL | ISTRIP), 0U);
+    EXPECT_EQ(tio.c_cflag & CRTSCTS, 0U);
+    EXPECT_EQ(configureLibSerialPort(port, 12345, &error), -1);
+    EXPECT_NE(error.find("unsupported baud 12345"), std::string::npos) << error;
+    port.Close();
+    ::close(master);
 }

@@ -38,18 +38,9 @@ public:
     int open(const std::string &path, uint32_t baud, std::string *error) override
     {
         close();
-        const BaudEntry *entry = std::find_if(std::begin(kBauds), std::end(kBauds),
-                                              [baud](const BaudEntry &e) { return e.baud == baud; });
         try {
             port_ = std::make_unique<LibSerial::SerialPort>();
             port_->Open(path);
-            port_->SetBaudRate(entry->rate);
-            port_->SetCharacterSize(LibSerial::CharacterSize::CHAR_SIZE_8);
-            port_->SetParity(LibSerial::Parity::PARITY_NONE);
-            port_->SetStopBits(LibSerial::StopBits::STOP_BITS_1);
-            port_->SetFlowControl(LibSerial::FlowControl::FLOW_CONTROL_NONE);
-            port_->SetVMin(0);
-            port_->SetVTime(0);
         } catch (const std::exception &e) {
             if (error != nullptr) {
                 // LibSerial's messages can be vague ("Bad file descriptor" for a missing
@@ -60,24 +51,9 @@ public:
             close();
             return -1;
         }
-        const int fd = port_->GetFileDescriptor();
-        // Raw mode in full (LibSerial's defaults are raw already; this makes sure that no
-        // byte is translated, echoed or taken as a signal), and non-blocking for the loop.
-        termios tio{};
-        if (tcgetattr(fd, &tio) == 0) {
-            cfmakeraw(&tio);
-            tio.c_cflag |= CLOCAL | CREAD;
-            tio.c_cc[VMIN] = 0;
-            tio.c_cc[VTIME] = 0;
-            tcsetattr(fd, TCSANOW, &tio);
-        }
-        const int flags = fcntl(fd, F_GETFL);
-        if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) != 0) {
-            if (error != nullptr) {
-                *error = std::string("cannot make the port non-blocking: ") + std::strerror(errno);
-            }
+        const int fd = configureLibSerialPort(*port_, baud, error);
+        if (fd < 0) {
             close();
-            return -1;
         }
         return fd;
     }
@@ -128,6 +104,54 @@ private:
 } // namespace
 
 std::unique_ptr<SerialDevice> makeLibSerialDevice() { return std::make_unique<LibSerialDevice>(); }
+
+int configureLibSerialPort(LibSerial::SerialPort &port, uint32_t baud, std::string *error)
+{
+    const BaudEntry *entry = std::find_if(std::begin(kBauds), std::end(kBauds),
+                                          [baud](const BaudEntry &e) { return e.baud == baud; });
+    if (entry == std::end(kBauds)) {
+        if (error != nullptr) {
+            *error = "unsupported baud " + std::to_string(baud);
+        }
+        return -1;
+    }
+    try {
+        port.SetBaudRate(entry->rate);
+        port.SetCharacterSize(LibSerial::CharacterSize::CHAR_SIZE_8);
+        port.SetParity(LibSerial::Parity::PARITY_NONE);
+        port.SetStopBits(LibSerial::StopBits::STOP_BITS_1);
+        // Not SetFlowControl(): it discards the input that has arrived (see the header).
+        port.SetVMin(0);
+        port.SetVTime(0);
+    } catch (const std::exception &e) {
+        if (error != nullptr) {
+            *error = e.what();
+        }
+        return -1;
+    }
+    const int fd = port.GetFileDescriptor();
+    // Raw mode in full (LibSerial's defaults are raw already; this makes sure that no byte is
+    // translated, echoed or taken as a signal or as XON/XOFF), no hardware flow control, and
+    // non-blocking for the loop. TCSANOW: nothing that has arrived is dropped.
+    termios tio{};
+    if (tcgetattr(fd, &tio) == 0) {
+        cfmakeraw(&tio);
+        tio.c_iflag &= ~static_cast<tcflag_t>(IXON | IXOFF | IXANY);
+        tio.c_cflag &= ~static_cast<tcflag_t>(CRTSCTS);
+        tio.c_cflag |= CLOCAL | CREAD;
+        tio.c_cc[VMIN] = 0;
+        tio.c_cc[VTIME] = 0;
+        tcsetattr(fd, TCSANOW, &tio);
+    }
+    const int flags = fcntl(fd, F_GETFL);
+    if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) != 0) {
+        if (error != nullptr) {
+            *error = std::string("cannot make the port non-blocking: ") + std::strerror(errno);
+        }
+        return -1;
+    }
+    return fd;
+}
 
 bool isSupportedBaud(uint32_t baud)
 {

@@ -21,6 +21,10 @@
 #include "cdro/service/counters.hpp"
 #include "cdro/service/event_loop.hpp"
 
+namespace LibSerial {
+class SerialPort;
+}
+
 namespace cdro::service {
 
 // The hardware seam: opens a serial device and hands back its descriptor. The real one uses
@@ -34,6 +38,13 @@ public:
 };
 
 std::unique_ptr<SerialDevice> makeLibSerialDevice();
+
+// The configuration makeLibSerialDevice's open() applies to a port LibSerial has opened: baud,
+// 8N1, raw, no flow control, VMIN/VTIME 0, non-blocking. Returns the descriptor, or -1 with
+// *error set. It never discards what has arrived since the port was opened: LibSerial's
+// SetFlowControl() does (it flushes the input), which cut the first frame a device sent while
+// the port was being configured; flow control is switched off in the termios settings instead.
+int configureLibSerialPort(LibSerial::SerialPort &port, uint32_t baud, std::string *error);
 bool isSupportedBaud(uint32_t baud);
 
 class SerialLink {
