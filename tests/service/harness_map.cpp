@@ -139,6 +139,13 @@ void HarnessEngine::position(uint16_t id, double *x_m, double *y_m) const
 
 void HarnessEngine::fill(MapState &map) const
 {
+    // The stand-in's fold rule: a node linked to a single other node hangs on it (the engine's
+    // rule, foldable.hpp, for that simplest case), so the outputs and the live map show one.
+    std::map<uint16_t, int> neighbours;
+    for (const auto &[pair, link] : links_) {
+        ++neighbours[pair.first];
+        ++neighbours[pair.second];
+    }
     for (const auto &[id, node] : nodes_) {
         NodeEstimate estimate;
         estimate.id = id;
@@ -150,6 +157,8 @@ void HarnessEngine::fill(MapState &map) const
         estimate.converged = node.ranges >= 10;
         estimate.moving = node.moving;
         estimate.placed = true;
+        const auto linked = neighbours.find(id);
+        estimate.foldable = nodes_.size() > 2 && linked != neighbours.end() && linked->second == 1;
         map.nodes.push_back(estimate);
     }
     for (const auto &[pair, link] : links_) {

@@ -125,6 +125,13 @@ def test_live_map_renders_and_follows_updates(build_dir, tmp_path, browser):
         device.range_frame(OWN, NODES[2], 2500 + i)
     browser.wait("return document.querySelectorAll('#nodes g.node').length === 4", "the fourth node via SSE")
     assert int(browser.run("return document.getElementById('update-count').textContent")) > updates_before
+    # It has one link (to the own node): it hangs on it, and the map says so (dashed, tooltip).
+    foldable = browser.run("return [...document.querySelectorAll('#nodes g.node.foldable')].map(g => +g.dataset.id)")
+    assert foldable == [NODES[2]]
+    tooltip = browser.run(f"return document.querySelector('#nodes g.node[data-id=\"{NODES[2]}\"] title').textContent")
+    assert "side is undecided" in tooltip
+    assert browser.run(f"return getComputedStyle(document.querySelector('#nodes g.node[data-id=\"{NODES[2]}\"] "
+                       "circle')).strokeDasharray") not in ("", "none")
 
     # A click fetches the node's SoG components and draws them.
     browser.run(f"document.querySelector('#nodes g.node[data-id=\"{NODES[0]}\"]')"
