@@ -2,9 +2,9 @@
 (written with the Python codec, behaving as docs/protocol.md's "Device behaviour" says), and
 the cdro-service-harness process with its outputs.
 
-The real network simulator (cdro-sim --pty) will replace FakeDevice in the full-system tests;
-these tests need exact control over what goes on the wire (garbage, cut frames, absurd values,
-resets), which a scripted device gives.
+The real network simulator (cdro-sim --pty) drives the full-system tests
+(tests/hostd/test_hostd_live.py); these tests need exact control over what goes on the wire
+(garbage, cut frames, absurd values, resets), which a scripted device gives.
 """
 from __future__ import annotations
 
@@ -28,6 +28,9 @@ from cdro_tools.codec.frames import LAYOUT_HASH, PROTOCOL_VERSION, Result, pack_
 from cdro_tools.codec.layout import FRAME_TYPES
 
 DEADLOCK_GUARD_S = 30.0  # s; only ever reached when something is broken
+
+OWN = 0x6000                        # the scripted device's own node (FakeDevice's default)
+NODES = [0x6069, 0x6A11, 0x6A2C]    # the remote nodes the tests range to
 
 
 def wait_until(predicate, what: str, timeout_s: float = DEADLOCK_GUARD_S, poll_s: float = 0.02):
@@ -304,3 +307,13 @@ logging: {{level: debug, drop_log_per_s: 1000}}
         if getattr(self, "process", None) and self.process.poll() is None:
             self.process.kill()
             self.process.wait()
+
+
+def start_running(build_dir, tmp_path, name="run", **harness_options):
+    """A FakeDevice on tmp_path/ttyPOZYX, booted, and the harness on it once it is connected."""
+    link = tmp_path / "ttyPOZYX"
+    device = FakeDevice(link)
+    harness = Harness(build_dir, tmp_path, device=link, name=name, **harness_options)
+    device.boot()
+    harness.wait_connected()
+    return device, harness

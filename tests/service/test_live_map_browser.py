@@ -12,16 +12,13 @@ import pathlib
 import shutil
 import subprocess
 import tempfile
-import time
 import urllib.error
 import urllib.request
 
 import pytest
 
-from service_support import DEADLOCK_GUARD_S, FakeDevice, Harness, free_port, wait_until
+from service_support import DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_port, wait_until
 
-NODES = [0x6069, 0x6A11, 0x6A2C]
-OWN = 0x6000
 
 
 class WebDriver:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import random
 import shutil
-import signal
 import socket
 import subprocess
 import sys
@@ -21,27 +20,10 @@ import pytest
 
 from cdro_tools.codec import read_capture
 
-from service_support import DEADLOCK_GUARD_S, FakeDevice, Harness, free_port, free_udp_port, wait_until
-
-NODES = [0x6069, 0x6A11, 0x6A2C]
-OWN = 0x6000
+from service_support import (DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_port, free_udp_port,
+                             start_running, wait_until)
 
 
-@pytest.fixture
-def harness_bin(build_dir):
-    binary = build_dir / "bin" / "cdro-service-harness"
-    if not binary.exists():
-        pytest.fail(f"{binary} missing: build the native tree first (cmake --build build)")
-    return build_dir
-
-
-def start_running(build_dir, tmp_path, extra_config: str, name="live"):
-    link = tmp_path / "ttyPOZYX"
-    device = FakeDevice(link)
-    harness = Harness(build_dir, tmp_path, device=link, name=name, extra_config=extra_config)
-    device.boot()
-    harness.wait_connected()
-    return device, harness
 
 
 def stream_ranges(device: FakeDevice, count: int, seed: int) -> threading.Thread:
@@ -70,7 +52,8 @@ def odometry_lines(lines):
 
 def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_bin, tmp_path):
     port = free_udp_port()
-    device, harness = start_running(harness_bin, tmp_path, f"odometry: {{udp_port: {port}}}\n")
+    device, harness = start_running(harness_bin, tmp_path, name="live",
+                                    extra_config=f"odometry: {{udp_port: {port}}}\n")
     steps = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)      # the drive software: steps
     velocities = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # another sender: velocities
     target = ("127.0.0.1", port)
@@ -174,7 +157,8 @@ def test_odometry_over_mqtt_reaches_the_consumer_and_the_capture(harness_bin, tm
                 return False
         wait_until(accepting, "mosquitto listening")
         device, harness = start_running(
-            harness_bin, tmp_path, f"mqtt: {{url: 'mqtt://127.0.0.1:{broker_port}', topic_prefix: lab}}\n")
+            harness_bin, tmp_path, name="live",
+            extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{broker_port}', topic_prefix: lab}}\n")
         wait_until(lambda: "mqtt: subscribed to 'lab/odometry'" in harness.log(), "the odometry subscription")
         streaming = stream_ranges(device, 100, seed=3)
         base = time.time() + 600.0

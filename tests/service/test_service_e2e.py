@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 import random
 import signal
-import subprocess
 
 import pytest
 
@@ -17,18 +16,8 @@ from cdro_tools.codec import Frame, StreamDecoder, decode_sog, encode_frame, rea
 from cdro_tools.codec.capture_file import FLAG_TO_DEVICE, RECORD_OVERHEAD
 from cdro_tools.codec.frames import Result
 
-from service_support import FakeDevice, Harness, wait_until
+from service_support import NODES, OWN, FakeDevice, Harness, start_running, wait_until
 
-NODES = [0x6069, 0x6A11, 0x6A2C]
-OWN = 0x6000
-
-
-@pytest.fixture
-def harness_bin(build_dir):
-    binary = build_dir / "bin" / "cdro-service-harness"
-    if not binary.exists():
-        pytest.fail(f"{binary} missing: build the native tree first (cmake --build build)")
-    return build_dir
 
 
 def seed_for(name: str) -> int:
@@ -36,14 +25,6 @@ def seed_for(name: str) -> int:
     print(f"{name}: seed {seed} (replay with CDRO_TEST_SEED={seed})")
     return seed
 
-
-def start_running(build_dir, tmp_path, name="run", **kwargs):
-    link = tmp_path / "ttyPOZYX"
-    device = FakeDevice(link)
-    harness = Harness(build_dir, tmp_path, device=link, name=name, **kwargs)
-    device.boot()
-    harness.wait_connected()
-    return device, harness
 
 
 def send_ranges(device: FakeDevice, count: int, rng: random.Random | None = None) -> list[bytes]:
