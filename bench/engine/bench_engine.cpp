@@ -205,9 +205,12 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
 {
     Accuracy result;
     result.total = truth_m.size();
+    const std::vector<cdro::engine::NodeOutput> estimates = engine.estimates();
     std::vector<Vector2> estimated;
     std::vector<Vector2> truth;
-    for (const cdro::engine::NodeOutput &node : engine.estimates()) {
+    std::vector<Vector2> converged_estimated;
+    std::vector<Vector2> converged_truth;
+    for (const cdro::engine::NodeOutput &node : estimates) {
         const auto known = truth_m.find(node.id);
         if (known == truth_m.end() || !node.placed) {
             continue;
@@ -220,12 +223,7 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
         }
         estimated.push_back(node.position_m);
         truth.push_back(known->second);
-    }
-    std::vector<Vector2> converged_estimated;
-    std::vector<Vector2> converged_truth;
-    for (const cdro::engine::NodeOutput &node : engine.estimates()) {
-        const auto known = truth_m.find(node.id);
-        if (known != truth_m.end() && node.placed && node.converged && node.position_m.allFinite()) {
+        if (node.converged) {
             converged_estimated.push_back(node.position_m);
             converged_truth.push_back(known->second);
         }
@@ -241,7 +239,7 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
         const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(estimated, truth, true);
         result.rmse_m = fit.rms_error_m;
         std::vector<Accuracy::Worst> errors;
-        for (const cdro::engine::NodeOutput &node : engine.estimates()) {
+        for (const cdro::engine::NodeOutput &node : estimates) {
             const auto known = truth_m.find(node.id);
             if (known != truth_m.end() && node.placed && node.position_m.allFinite()) {
                 errors.push_back({(fit.apply(node.position_m) - known->second).norm(), node.id, node.link_count});
@@ -259,7 +257,7 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
         result.worst = errors;
     }
     std::map<NodeId, Vector2> placed_m;
-    for (const cdro::engine::NodeOutput &node : engine.estimates()) {
+    for (const cdro::engine::NodeOutput &node : estimates) {
         if (node.placed) {
             placed_m[node.id] = node.position_m;
         }
