@@ -134,15 +134,18 @@ def fig3(summary: dict) -> None:
 
 def fig3_batch(summary: dict) -> None:
     """The paper's Algorithm 1 as written (batch), on the same setting: 30 draws, 100 iterations."""
+    from cdro_tools.evaluation import paper_algorithm1 as paper  # numpy: the venv this script runs in
+
     print("== Paper Fig. 3, the paper's Algorithm 1 as written (cdro_tools.evaluation.paper_algorithm1)")
+    seeds = list(range(1, 31))
     table = {}
-    for name, extra in (("rings 1 m apart", []), ("rings of 16 components", ["--components", "16"]),
-                        ("rings 1 m apart, 300 iterations", ["--iterations", "300"])):
-        text = run([BIN / "python", "-m", "cdro_tools.evaluation.paper_algorithm1", "--seeds", "30", *extra])
-        means = [float(line.split("mean ")[1].split(" m;")[0]) for line in text.splitlines() if "mean " in line]
-        table[name] = {"with_transfer_m": means[0], "without_transfer_m": means[1]}
-        print(f"  {name:34s} steady-state RMSE with transfer {means[0]:.3f} m, without {means[1]:.3f} m "
-              "(mean of 30 draws)")
+    for name, options in (("rings 1 m apart", {}), ("rings of 16 components", {"components": 16}),
+                          ("rings 1 m apart, 300 iterations", {"iterations": 300})):
+        means = {transfer: statistics.mean(paper.steady_state_m(h) for h in histories)
+                 for transfer, histories in paper.compare(seeds, **options).items()}
+        table[name] = {"with_transfer_m": means[True], "without_transfer_m": means[False]}
+        print(f"  {name:34s} steady-state RMSE with transfer {means[True]:.3f} m, without {means[False]:.3f} m "
+              f"(mean of {len(seeds)} draws)")
     summary["fig3_batch"] = table
 
 

@@ -166,6 +166,13 @@ def steady_state_m(history: np.ndarray) -> float:
     return float(history[len(history) // 2:].mean())
 
 
+def compare(seeds: list[int], iterations: int = 100, components: int | None = None, arc_spacing_m: float = 1.0,
+            range_noise_m: float | None = None) -> dict[bool, list[np.ndarray]]:
+    """The RMSE histories of every seed, with (True) and without (False) weight transfer."""
+    return {transfer: [run(seed, transfer, iterations, components, arc_spacing_m, range_noise_m) for seed in seeds]
+            for transfer in (True, False)}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m cdro_tools.evaluation.paper_algorithm1",
@@ -188,14 +195,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"paper's Algorithm 1, {NODES} nodes in {SIDE_M:g} m x {SIDE_M:g} m, {args.iterations} iterations, "
           f"seeds {seeds[0]}..{seeds[-1]}")
     curves = {}
-    for transfer in (True, False):
+    for transfer, histories in compare(seeds, args.iterations, args.components, args.arc_spacing_m,
+                                       args.range_noise_m).items():
         label = "with weight transfer" if transfer else "without weight transfer"
-        figures = []
-        for seed in seeds:
-            history = run(seed, transfer, args.iterations, args.components, args.arc_spacing_m, args.range_noise_m)
-            figures.append(steady_state_m(history))
-            if seed == seeds[0]:
-                curves[label] = history
+        figures = [steady_state_m(history) for history in histories]
+        curves[label] = histories[0]
         print(f"  {label:24s} steady-state RMSE mean {np.mean(figures):.3f} m; per seed "
               + " ".join(f"{f:.2f}" for f in figures))
     if args.png:
