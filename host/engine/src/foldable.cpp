@@ -99,20 +99,27 @@ std::vector<uint32_t> articulationPoints(const Adjacency &adjacency, const std::
     return out;
 }
 
-// Every part but the largest (the first of the largest: the one with the smallest node) is
-// marked, unless it holds an anchored node.
-void markAllButLargest(const std::vector<std::vector<uint32_t>> &parts, const std::vector<uint8_t> &anchored,
-                       std::array<uint32_t, 2> hinge, Foldable &out)
+// The largest part; of equal ones the first, i.e. the one with the smallest node (components()
+// lists them in that order). parts must not be empty.
+size_t largestPart(const std::vector<std::vector<uint32_t>> &parts)
 {
-    if (parts.size() < 2) {
-        return;
-    }
     size_t largest = 0;
     for (size_t i = 1; i < parts.size(); ++i) {
         if (parts[i].size() > parts[largest].size()) {
             largest = i;
         }
     }
+    return largest;
+}
+
+// Every part but the largest is marked, unless it holds an anchored node.
+void markAllButLargest(const std::vector<std::vector<uint32_t>> &parts, const std::vector<uint8_t> &anchored,
+                       std::array<uint32_t, 2> hinge, Foldable &out)
+{
+    if (parts.size() < 2) {
+        return;
+    }
+    const size_t largest = largestPart(parts);
     for (size_t i = 0; i < parts.size(); ++i) {
         if (i == largest ||
             std::any_of(parts[i].begin(), parts[i].end(), [&](uint32_t node) { return anchored[node] != 0; })) {
@@ -163,12 +170,7 @@ Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t,
     if (whole.empty()) {
         return out;
     }
-    const std::vector<uint32_t> *main_part = &whole.front();
-    for (const std::vector<uint32_t> &part : whole) {
-        if (part.size() > main_part->size()) {
-            main_part = &part;
-        }
-    }
+    const std::vector<uint32_t> *main_part = &whole[largestPart(whole)];
     for (uint32_t node : *main_part) {
         inside[node] = 1;
     }
