@@ -28,7 +28,7 @@ def test_that_the_multilateration_of_eqs_1_to_4_recovers_exact_ranges():
 
 def test_that_the_weight_transfer_of_eq_15_is_a_gaussian_of_the_distance_to_the_heaviest_component():
     # Fixture: a ring of 40 components, the weight piled on component 7
-    ring = paper._ring(np.array([1.0, 2.0]), 6.0, 40, 1.0)
+    ring = paper._ring(np.array([1.0, 2.0]), 6.0, paper.Reading(components=40))
     ring.weights = np.full(40, 0.1 / 39)
     ring.weights[7] = 0.9
 
@@ -43,8 +43,8 @@ def test_that_the_weight_transfer_of_eq_15_is_a_gaussian_of_the_distance_to_the_
 
 
 def test_that_the_ekf_update_moves_every_component_towards_the_measured_radius():
-    ring = paper._ring(np.array([0.0, 0.0]), 5.0, 16, 1.0)
-    paper._ekf_update(ring, 6.0)
+    ring = paper._ring(np.array([0.0, 0.0]), 5.0, paper.Reading(components=16))
+    paper._ekf_update(ring, 6.0, 0.75)
     radius_m = np.linalg.norm(ring.means_m, axis=1)
     assert np.all(radius_m > 5.0) and np.all(radius_m < 6.0)
     assert np.all(np.linalg.eigvalsh(ring.covariances_m2) > 0.0)
@@ -53,11 +53,14 @@ def test_that_the_ekf_update_moves_every_component_towards_the_measured_radius()
 def test_that_the_algorithm_converges_on_exact_ranges_with_and_without_weight_transfer():
     # Measured: 0.08-0.12 m for seeds 1-5 (the rings' 1 m spacing and the filter's sigma of
     # 0.75 m set the floor); a broken update, merge or transfer ends metres off.
-    for seed in range(1, 6):
-        for transfer in (True, False):
-            history = paper.run(seed, transfer, iterations=40, range_noise_m=0.0)
-            print(f"seed {seed} transfer {transfer}: {paper.steady_state_m(history):.3f} m")
-            assert paper.steady_state_m(history) < 0.2
+    # The same with the other reading of the ring's centre (the merged position).
+    for ring_centre in paper.RING_CENTRES:
+        for seed in range(1, 6):
+            for transfer in (True, False):
+                reading = paper.Reading(range_noise_m=0.0, ring_centre=ring_centre)
+                history = paper.run(seed, transfer, iterations=40, reading=reading)
+                print(f"{ring_centre} seed {seed} transfer {transfer}: {paper.steady_state_m(history):.3f} m")
+                assert paper.steady_state_m(history) < 0.2
 
 
 def test_that_a_run_depends_on_its_seed_and_switch_only():
@@ -65,6 +68,20 @@ def test_that_a_run_depends_on_its_seed_and_switch_only():
     assert np.array_equal(first, paper.run(3, True, iterations=10))
     assert not np.array_equal(first, paper.run(3, False, iterations=10))
     assert not np.array_equal(first, paper.run(4, True, iterations=10))
+
+
+def test_that_the_reading_changes_the_run():
+    # Each of the paper's open choices must reach the algorithm, or the sweep measures nothing.
+    base = paper.run(3, True, iterations=10)
+    for reading in (paper.Reading(filter_sigma_m=0.3), paper.Reading(side_m=10.0),
+                    paper.Reading(ring_centre="merged"), paper.Reading(components=16)):
+        assert not np.array_equal(base, paper.run(3, True, iterations=10, reading=reading)), reading
+
+
+def test_the_comparison_counts_draws_where_transfer_is_better_and_worse():
+    result = paper.Comparison(with_transfer_m=[0.1, 0.5, 0.3, 0.2], without_transfer_m=[0.3, 0.2, 0.305, 0.2])
+    assert result.draws_where_transfer(better=True) == 1
+    assert result.draws_where_transfer(better=False) == 1
 
 
 def test_the_command_line(tmp_path):
@@ -76,3 +93,9 @@ def test_the_command_line(tmp_path):
     assert "seeds 1..2" in result.stdout and (tmp_path / "c.png").stat().st_size > 0
     bad = subprocess.run(command + ["--iterations", "1"], capture_output=True, text=True)
     assert bad.returncode == 2 and "--iterations >= 2" in bad.stderr
+    swept = subprocess.run(command + ["--sweep", "--seeds", "1", "--iterations", "2"], capture_output=True, text=True)
+    assert swept.returncode == 0, swept.stderr
+    assert "EKF from the merged position" in swept.stdout and "filter sigma 0.1 m" in swept.stdout
+    other = subprocess.run(command + ["--seeds", "1", "--iterations", "2", "--side-m", "10", "--ring-centre", "merged"],
+                           capture_output=True, text=True)
+    assert other.returncode == 0 and "10 m x 10 m" in other.stdout, other.stderr
