@@ -10,8 +10,8 @@ own algorithm, this module runs that algorithm and nothing else, on the paper's 
      every later node from nodes 0 and 1, its sign from its range to node 2);
   2. a ring SoG per ordered pair (i, j) around p_i describing node j, eqs. 5-7: N components
      on the circle of radius r_ij, radial std sigma, tangential std arc / 2.5, weights 1/N;
-  3. each iteration: a new range for every pair; every component's EKF update to r_ij (the
-     ring's centre stays where it was generated); the cooperative weight update with every
+  3. each iteration: a new range for every pair; every component's EKF update to r_ij (by
+     default from the ring's centre where it was generated); the cooperative weight update with every
      other node m, eqs. 8-11; the merge, eqs. 12-13; the weight transfer, eq. 15 (switchable);
   4. the aligned RMSE (rotation, translation, reflection) of the merged positions after every
      iteration.
