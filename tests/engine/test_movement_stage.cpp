@@ -36,6 +36,7 @@ using engine::NodeOutput;
 using engine::OdometryStep;
 using engine::Pose2;
 using engine::predictOdometry;
+using engine::RobotFrame;
 using engine::RobotOutput;
 
 constexpr double kPi = 3.14159265358979323846;
@@ -666,6 +667,7 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_FALSE(stage.started());
     EXPECT_FALSE(stage.robot()->localized);
     EXPECT_TRUE(stage.robot()->placed);
+    EXPECT_EQ(stage.robot()->frame, RobotFrame::Odometry);
     EXPECT_EQ(stage.robot()->pose.x_m, expected.x_m);
     EXPECT_EQ(stage.robot()->pose.y_m, expected.y_m);
     EXPECT_EQ(stage.robot()->pose.heading_rad, expected.heading_rad);
@@ -674,6 +676,7 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_TRUE(stage.started());
     EXPECT_TRUE(stage.robot()->localized);
     EXPECT_EQ(stage.robot()->hypotheses, 1U);
+    EXPECT_EQ(stage.robot()->frame, RobotFrame::Odometry); // no map appeared: the odometry's frame stays
     EXPECT_NEAR(stage.robot()->pose.x_m, expected.x_m + 0.04 * std::cos(0.1), 1e-12);
 
     // A map: standing, the robot is a node of stage 1, placed with an unknown heading.
@@ -686,12 +689,17 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     MovementParams map_params;
     map_params.robot_id = world.spec.robot_id;
     MovementStage standing(mapped, map_params);
+    std::vector<RobotFrame> frames; // after each odometry step, while the map appears
     for (const Event &event : world.events) {
         if (event.t_s > world.spec.stand_s) {
             break;
         }
         if (event.kind == Event::Kind::Odometry) {
             standing.addOdometry(event.t_s, event.step);
+            const std::optional<RobotOutput> now = standing.robot();
+            if (now && now->placed) {
+                frames.push_back(now->frame);
+            }
         } else if (event.kind == Event::Kind::Range) {
             standing.addRange(event.t_s, event.from, event.to, event.range_m);
         }
@@ -702,6 +710,14 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_FALSE(robot->localized);
     EXPECT_TRUE(robot->placed);
     EXPECT_NEAR(robot->covariance(2, 2), 4.0 * kPi * kPi / 12.0, 1e-12); // uniform over the circle
+    EXPECT_EQ(robot->frame, RobotFrame::Map);
+    // Before stage 1 placed any node the pose was dead reckoning in the odometry's frame; once,
+    // and for good, it switched to the map's (the rows before are not comparable with the rest).
+    ASSERT_FALSE(frames.empty());
+    EXPECT_EQ(frames.front(), RobotFrame::Odometry);
+    const auto first_map = std::find(frames.begin(), frames.end(), RobotFrame::Map);
+    ASSERT_NE(first_map, frames.end());
+    EXPECT_TRUE(std::all_of(first_map, frames.end(), [](RobotFrame f) { return f == RobotFrame::Map; }));
     const std::optional<NodeOutput> node = mapped.estimate(world.spec.robot_id);
     ASSERT_TRUE(node.has_value());
     EXPECT_EQ(robot->pose.x_m, node->position_m.x());
@@ -778,7 +794,7 @@ bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 
 bool sameRobot(const RobotOutput &a, const RobotOutput &b)
 {
-    bool same = a.id == b.id && a.localized == b.localized && a.placed == b.placed && a.hypotheses == b.hypotheses &&
+    bool same = a.id == b.id && a.localized == b.localized && a.placed == b.placed && a.frame == b.frame && a.hypotheses == b.hypotheses &&
                 sameBits(a.t_s, b.t_s) && sameBits(a.pose.x_m, b.pose.x_m) && sameBits(a.pose.y_m, b.pose.y_m) &&
                 sameBits(a.pose.heading_rad, b.pose.heading_rad) && sameBits(a.range_scale, b.range_scale) &&
                 sameBits(a.range_scale_sigma, b.range_scale_sigma) && sameBits(a.range_offset_m, b.range_offset_m) &&

@@ -29,7 +29,7 @@ from cdro_tools.evaluation.inputs import read_estimates, read_truth
 from cdro_tools.evaluation.movement import evaluate_beacons, evaluate_path, read_path
 
 GUARD_S = 60
-TRAJECTORY_HEADER = "t,x,y,heading_rad,var_x,cov_xy,var_y"
+TRAJECTORY_HEADER = "t,x,y,heading_rad,var_x,cov_xy,var_y,frame"
 CORRIDOR_ROBOT = 0x6001
 CORRIDOR_STANDING_S = 15.0  # the robot of robot-corridor stands this long before it drives
 # The product goals (docs/results.md): aligned RMSE of the causal path and of the beacons.
@@ -91,18 +91,26 @@ def data_rows(path):
         return list(csv.reader(f))[1:]
 
 
-def check_trajectory(path, odometry_times_s):
+def check_trajectory(path, odometry_times_s, frames=None):
     """The documented columns; numbers; t non-decreasing and each an odometry row's time; a
-    heading in [-pi, pi]; a covariance that is one. Returns the rows (floats)."""
+    heading in [-pi, pi]; a covariance that is one; a frame, and at most one switch, from the
+    odometry's to the map's. Returns the rows (floats, without the frame); `frames` gets each
+    row's frame."""
     lines = pathlib.Path(path).read_text().splitlines()
     assert lines[0] == TRAJECTORY_HEADER
-    rows = []
+    rows, row_frames = [], []
     for number, line in enumerate(lines[1:], start=2):
         fields = line.split(",")
-        assert len(fields) == 7, f"{path}:{number}: {line!r}"
-        values = [float(x) for x in fields]
+        assert len(fields) == 8, f"{path}:{number}: {line!r}"
+        values = [float(x) for x in fields[:7]]
         assert all(math.isfinite(v) for v in values), f"{path}:{number}: {line!r}"
+        assert fields[7] in ("odometry", "map"), f"{path}:{number}: {line!r}"
         rows.append(values)
+        row_frames.append(fields[7])
+    switches = [(a, b) for a, b in zip(row_frames, row_frames[1:]) if a != b]
+    assert switches in ([], [("odometry", "map")]), switches
+    if frames is not None:
+        frames.extend(row_frames)
     assert rows, f"{path}: no trajectory rows"
     times = [r[0] for r in rows]
     assert all(a <= b for a, b in zip(times, times[1:])), "t decreases"
@@ -154,8 +162,10 @@ def test_that_plaza_meets_the_product_goals(hostd, data_dir, tmp_path, name):
     # engine learns it from the ranges alone (measured 1.0637 / 1.0647).
     assert 1.05 < scale < 1.08
     # No map to join: the odometry frame from the first step, one trajectory row per odometry row.
-    rows = check_trajectory(trajectory, odometry_times(folder / "odometry.csv"))
+    frames = []
+    rows = check_trajectory(trajectory, odometry_times(folder / "odometry.csv"), frames)
     assert len(rows) == len(data_rows(folder / "odometry.csv"))
+    assert set(frames) == {"odometry"} and report["path"]["other_frame_points"] == 0
     assert len(rows) == report["path"]["points"]
     if name == "plaza1":
         # The data's README: plaza1's ranges have two blocks out of time order.
@@ -242,9 +252,12 @@ def test_that_the_robot_makes_the_corridor_map_better_than_the_initialization_al
     print(f"corridor: map {before['own_fit_rmse_m']:.3f} m after the initialization alone, "
           f"{after['beacons']['own_fit_rmse_m']:.3f} m with the robot driving; robot path "
           f"{after['path']['rmse_m']:.3f} m (its second half {later_half_m:.3f} m)")
-    # Measured: 0.462 m -> 0.020 m (8 anchors); path 1.21 m, its second half 0.21 m (the first
-    # seconds are in the frames before the map settled, and the heading bank before it decided).
+    # Measured: 0.462 m -> 0.023 m (8 anchors); path 0.216 m, its second half 0.199 m. (Before
+    # the trajectory said its frame and left out the robot's ambiguous positions, and with 12
+    # heading hypotheses: path 1.21 m, nearly all of it the dead reckoning of the first 2.5 s
+    # taken as the map's frame, the 9 m-off ambiguous fix after it, and the bank while undecided.)
     assert before["nodes"] == 8 and after["beacons"]["nodes"] == 8
+    assert after["path"]["rmse_m"] < 0.5
     assert before["own_fit_rmse_m"] > 0.3
     assert after["beacons"]["own_fit_rmse_m"] < 0.1
     assert after["beacons"]["own_fit_rmse_m"] < 0.25 * before["own_fit_rmse_m"]
@@ -254,9 +267,23 @@ def test_that_the_robot_makes_the_corridor_map_better_than_the_initialization_al
 
 
 def test_that_the_trajectory_has_the_documented_columns_and_time_order(corridor, corridor_run):
-    rows = check_trajectory(corridor_run["trajectory"], odometry_times(corridor["odometry"]))
+    frames = []
+    rows = check_trajectory(corridor_run["trajectory"], odometry_times(corridor["odometry"]), frames)
     assert len(rows) <= len(data_rows(corridor["odometry"]))
     assert rows[-1][0] == odometry_times(corridor["odometry"])[-1]
+    # The robot stood while the map formed: dead reckoning in the odometry's frame until the map
+    # existed, then (after a gap while its own position was ambiguous) the map's, said on stderr.
+    assert frames[0] == "odometry" and frames[-1] == "map"
+    switch = frames.index("map")
+    match = re.search(r"trajectory: the rows up to t = ([0-9.]+) s are in the odometry frame, from t = ([0-9.]+) s "
+                      r"in the map frame", corridor_run["stderr"])
+    assert match, corridor_run["stderr"]
+    assert float(match.group(1)) == pytest.approx(rows[switch - 1][0], abs=5e-4)
+    assert float(match.group(2)) == pytest.approx(rows[switch][0], abs=5e-4)
+    # cdro-eval-motion evaluates the map's rows only and counts the others.
+    path = figures(corridor_run["trajectory"], corridor["robot-truth"])["path"]
+    assert path["frame"] == "map" and path["other_frame_points"] == switch
+    assert path["frame_from_s"] == rows[switch][0]
 
 
 def test_that_odometry_rows_out_of_time_order_are_reported_counted_and_sorted(hostd, corridor, corridor_run, tmp_path):

@@ -7,8 +7,8 @@ A carried node (the initialization stage's Fig. 4 tracking):
   cdro-eval-motion --trace trace.csv --tracks tracks.csv --truth truth.csv \\
                    --motion motion.csv --node 0x6006 [--track-png track.png]
 
-The trajectory is cdro-hostd's --out-trajectory (t,x,y,heading_rad,var_x,cov_xy,var_y: the
-causal estimate after each odometry step); the robot truth t,x,y[,heading_rad]; nodes the
+The trajectory is cdro-hostd's --out-trajectory (t,x,y,heading_rad,var_x,cov_xy,var_y,frame: the
+causal estimate after each odometry step; only the rows in the last row's frame are evaluated); the robot truth t,x,y[,heading_rad]; nodes the
 --out-csv; beacon truth id,x,y. The trace is cdro-hostd's --trace-csv (with --trace-every 1
 for tracking), tracks the simulator's t,id,x,y, truth its id,x,y,z start positions, motion its
 t,id,moving. All fits are rigid (rotation, translation, reflection allowed, no scale). The
@@ -104,6 +104,10 @@ def main(argv: list[str] | None = None) -> int:
         p = report["path"]
         print(f"robot path: aligned RMSE {_fmt(p['rmse_m'])} m, p95 {_fmt(p['p95_m'])} m, max {_fmt(p['max_m'])} m "
               f"({p['points']} poses)", file=out)
+        if p["other_frame_points"]:
+            print(f"robot path: {p['other_frame_points']} earlier poses are in another frame (dead reckoning before "
+                  f"the map appeared) and not evaluated; the {p['frame']} frame starts at t = "
+                  f"{p['frame_from_s']:.3f} s", file=out)
     if "beacons" in report:
         b = report["beacons"]
         print(f"beacons: aligned RMSE {_fmt(b['own_fit_rmse_m'])} m (own fit, {b['nodes']} nodes)"

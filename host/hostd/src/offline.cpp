@@ -4,6 +4,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "cdro/engine/engine.hpp"
@@ -52,8 +53,9 @@ void sortByTime(std::vector<Row> &rows, const std::string &path, std::FILE *log)
 
 void writeTrajectoryRow(std::FILE *out, double t_s, const engine::RobotOutput &robot)
 {
-    std::fprintf(out, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", t_s, robot.pose.x_m, robot.pose.y_m,
-                 robot.pose.heading_rad, robot.covariance(0, 0), robot.covariance(0, 1), robot.covariance(1, 1));
+    std::fprintf(out, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%s\n", t_s, robot.pose.x_m, robot.pose.y_m,
+                 robot.pose.heading_rad, robot.covariance(0, 0), robot.covariance(0, 1), robot.covariance(1, 1),
+                 engine::robotFrameName(robot.frame));
 }
 
 int runMovement(const OfflineOptions &options, const engine::EngineParams &params,
@@ -82,7 +84,7 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     if (!trajectory) {
         return 2;
     }
-    std::fputs("t,x,y,heading_rad,var_x,cov_xy,var_y\n", trajectory.get());
+    std::fputs("t,x,y,heading_rad,var_x,cov_xy,var_y,frame\n", trajectory.get());
 
     engine::MovementStage stage(engine, movement_params);
     if (options.verbose) {
@@ -94,6 +96,8 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     size_t m = 0;
     size_t r = 0;
     uint64_t refused = 0;
+    std::optional<engine::RobotFrame> last_frame; // of the last trajectory row
+    double last_row_t_s = 0.0;                    // s
     while (o < odometry.rows.size() || m < motion.rows.size() || r < ranges.size()) {
         const double inf = std::numeric_limits<double>::infinity();
         const double to = o < odometry.rows.size() ? odometry.rows[o].t_s : inf;
@@ -105,6 +109,15 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
             // Only once the robot has a position in the map's frame: before that there is none.
             const std::optional<engine::RobotOutput> robot = stage.robot();
             if (robot && robot->placed) {
+                if (last_frame && *last_frame != robot->frame) {
+                    std::fprintf(log, "cdro-hostd: trajectory: the rows up to t = %.3f s are in the %s frame, from "
+                                      "t = %.3f s in the %s frame (the map appeared while the robot stood): compare "
+                                      "only rows of one frame\n",
+                                 last_row_t_s, engine::robotFrameName(*last_frame), row.t_s,
+                                 engine::robotFrameName(robot->frame));
+                }
+                last_frame = robot->frame;
+                last_row_t_s = row.t_s;
                 writeTrajectoryRow(trajectory.get(), row.t_s, *robot);
             }
         } else if (tm <= tr) {

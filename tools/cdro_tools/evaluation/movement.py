@@ -1,9 +1,12 @@
 """Evaluation of the movement stage: the robot's causal path, the beacons, and the track of a
 node that was carried (cdro-eval-motion; docs/tools.md).
 
-- Path: the trajectory CSV `t,x,y,heading_rad,var_x,cov_xy,var_y` (the online estimate after
-  each odometry step) against a truth `t,x,y[,heading_rad]`, matched by time (nearest truth row
-  within `max_dt_s`), rigidly fitted (reflection allowed, no scale) over the whole path.
+- Path: the trajectory CSV `t,x,y,heading_rad,var_x,cov_xy,var_y,frame` (the online estimate
+  after each odometry step) against a truth `t,x,y[,heading_rad]`, matched by time (nearest truth
+  row within `max_dt_s`), rigidly fitted (reflection allowed, no scale) over the whole path. When
+  the map appeared while the robot stood, its first rows are dead reckoning in the odometry's
+  frame and the rest in the map's (`frame`): only the rows in the frame of the last row are
+  evaluated, and the others are counted (a trajectory without the column is one frame).
 - Beacons: the final node estimates against their truth, fitted on their own, and also seen
   through the path's fit (one frame for both: the stricter figure).
 - Track: the engine's trace `ranges,id,x,y,...,converged,t` of a node that moved, against its
@@ -22,22 +25,44 @@ from .alignment import align, rigid_fit
 from .inputs import BadRow, RowError, csv_rows, parse_flag, parse_id, parse_number
 
 
+FRAMES = ("odometry", "map")  # cdro-hostd's trajectory `frame` values (RobotFrame in movement.hpp)
+
+
 @dataclasses.dataclass
 class PathSeries:
     t_s: np.ndarray     # (n,)
     xy_m: np.ndarray    # (n, 2)
+    frames: list[str] | None = None  # (n,) each row's frame, when the file has the column
 
 
 def read_path(path: str, bad: list[BadRow]) -> PathSeries:
-    """`t,x,y,...` rows (a trajectory or a ground truth), in file order."""
-    times, points = [], []
+    """`t,x,y,...[,frame]` rows (a trajectory or a ground truth), in file order."""
+    times, points, frames = [], [], []
+    has_frame = False
     for line, row in csv_rows(path, ["t", "x", "y"]):
+        has_frame = has_frame or "frame" in row
         try:
-            times.append(parse_number(row["t"], "t"))
-            points.append((parse_number(row["x"], "x"), parse_number(row["y"], "y")))
+            t_s = parse_number(row["t"], "t")
+            xy_m = (parse_number(row["x"], "x"), parse_number(row["y"], "y"))
+            frame = row.get("frame")
+            if has_frame and frame not in FRAMES:
+                raise RowError(f"frame {frame!r} is not one of {', '.join(FRAMES)}")
         except RowError as error:
             bad.append(BadRow(path, line, str(error)))
-    return PathSeries(np.array(times), np.array(points, dtype=float).reshape(-1, 2))
+            continue
+        times.append(t_s)
+        points.append(xy_m)
+        frames.append(frame)
+    return PathSeries(np.array(times), np.array(points, dtype=float).reshape(-1, 2), frames if has_frame else None)
+
+
+def last_frame_rows(series: PathSeries) -> tuple[PathSeries, int]:
+    """The rows in the frame of the last row, and how many rows were in another frame."""
+    if not series.frames:
+        return series, 0
+    keep = np.array([frame == series.frames[-1] for frame in series.frames])
+    kept = PathSeries(series.t_s[keep], series.xy_m[keep], [f for f, k in zip(series.frames, keep) if k])
+    return kept, int(len(keep) - keep.sum())
 
 
 def read_tracks(path: str, bad: list[BadRow]) -> dict[int, PathSeries]:
@@ -99,7 +124,8 @@ def _stats(errors: np.ndarray) -> dict:
 
 
 def evaluate_path(estimate: PathSeries, truth: PathSeries, max_dt_s: float = 0.06) -> dict:
-    """Aligned errors of a causal path: one rigid fit over the whole path."""
+    """Aligned errors of a causal path: one rigid fit over the rows in its final frame."""
+    estimate, other_frame_points = last_frame_rows(estimate)
     order = np.argsort(truth.t_s)
     truth_t, truth_xy = truth.t_s[order], truth.xy_m[order]
     pairs_est, pairs_true, times = [], [], []
@@ -120,6 +146,9 @@ def evaluate_path(estimate: PathSeries, truth: PathSeries, max_dt_s: float = 0.0
     report["by_tenth_m"] = [float(np.sqrt(np.mean(errors[k * tenth:(k + 1) * tenth] ** 2))) for k in range(10)
                             if len(errors[k * tenth:(k + 1) * tenth])]
     report["reflected"] = bool(np.linalg.det(rotation) < 0)
+    report["frame"] = estimate.frames[-1] if estimate.frames else None
+    report["other_frame_points"] = other_frame_points
+    report["frame_from_s"] = float(estimate.t_s[0]) if other_frame_points else None  # s, its first row
     return {"report": report, "rotation": rotation, "translation": translation, "t_s": np.array(times),
             "aligned_m": source @ rotation.T + translation, "truth_m": target}
 

@@ -51,7 +51,8 @@ struct MovementParams {
     double offset_sigma_m = 0.3;          // m, prior std of b around 0
     double gate_sigma = 5.0;              // innovations beyond this many std (and NLOS-looking) are refused
     double motion_start_m = 0.05;         // m travelled before the robot counts as moving
-    uint32_t heading_hypotheses = 12;     // the heading bank (with a map to start from)
+    uint32_t heading_hypotheses = 24;     // the heading bank (with a map to start from); 15 deg apart:
+                                          // at 30 deg (12) the corridor path was 0.8 m off while undecided
     double heading_collapse_weight = 0.99; // one hypothesis with this weight wins
     double heading_prune_weight = 1e-4;   // hypotheses below this weight are dropped
     double heading_merge_m = 0.3;         // m, hypotheses this close ...
@@ -71,14 +72,24 @@ struct MovementParams {
     double nlos_sigmas = 3.0;
 };
 
+// The frame a robot pose is in. Before the robot moves and while no node is placed, its pose is
+// dead reckoning from where it started (Odometry); the EKF keeps that frame when no map appears
+// before the robot moves (beacons that never range each other). Once stage 1 has placed nodes,
+// the pose is in the map's frame (Map); a run whose map appears while the robot stands switches
+// from Odometry to Map, and the poses before the switch are not comparable with those after it.
+enum class RobotFrame : uint8_t { Odometry, Map };
+const char *robotFrameName(RobotFrame frame);
+
 struct RobotOutput {
     NodeId id = 0;
     double t_s = 0.0;                        // s, time of the last input
     Pose2 pose;                              // output frame
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero(); // (m^2, m^2 rad, rad^2)
     bool localized = false;                  // the EKF runs (false: dead reckoning before it starts)
-    bool placed = false;                     // has a position in the map's frame (the EKF runs, or the
-                                             // initialization placed the robot's node while it stood)
+    bool placed = false;                     // has a position: the EKF runs, or the initialization
+                                             // placed the robot's node while it stood (and it is not
+                                             // ambiguous), or no map exists (dead reckoning, Odometry)
+    RobotFrame frame = RobotFrame::Odometry; // the frame `pose` is in (see RobotFrame)
     uint32_t hypotheses = 0;                 // heading hypotheses alive (1 once decided)
     double range_scale = 1.0;
     double range_scale_sigma = 0.0;

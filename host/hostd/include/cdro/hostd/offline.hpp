@@ -34,7 +34,8 @@ namespace cdro::hostd {
 struct OfflineOptions {
     std::string ranges_csv;
     // The movement stage (all three, or none): odometry t,distance_m,dheading_rad, the robot's
-    // node id, and the robot's causal trajectory t,x,y,heading_rad,var_x,cov_xy,var_y.
+    // node id, and the robot's causal trajectory t,x,y,heading_rad,var_x,cov_xy,var_y,frame
+    // (frame: odometry or map, RobotFrame in movement.hpp).
     std::string odometry_csv;
     int robot_id = -1;            // -1 = none
     std::string out_trajectory;
