@@ -724,6 +724,61 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
     EXPECT_EQ(robot->pose.y_m, node->position_m.y());
 }
 
+TEST(MovementStage, AStandingRobotWhoseStageOnePositionIsAmbiguousHasNoPositionYet)
+{
+    // Fixture: four nodes that all range each other; the robot (standing) ranges two of them, so
+    // its mirror image across their line fits as well, until it ranges a third.
+    const std::vector<Vector2> truth_m = {{0.0, 0.0}, {10.0, 0.0}, {10.0, 8.0}, {0.0, 8.0}};
+    const Vector2 robot_m(3.0, 3.0);
+    const NodeId robot_id = 100;
+    Engine engine;
+    MovementParams params;
+    params.robot_id = robot_id;
+    MovementStage stage(engine, params);
+    double t_s = 0.0;
+    auto round = [&](size_t robot_links) {
+        for (size_t a = 0; a < truth_m.size(); ++a) {
+            for (size_t b = a + 1; b < truth_m.size(); ++b) {
+                stage.addRange(t_s += 0.01, static_cast<NodeId>(a + 1), static_cast<NodeId>(b + 1),
+                               (truth_m[a] - truth_m[b]).norm());
+            }
+        }
+        for (size_t a = 0; a < robot_links; ++a) {
+            stage.addRange(t_s += 0.01, robot_id, static_cast<NodeId>(a + 1), (truth_m[a] - robot_m).norm());
+        }
+        stage.addOdometry(t_s += 0.01, OdometryStep{0.0, 0.0});
+    };
+
+    // Test and assert: with two links, once stage 1 has placed the robot's node (ambiguous).
+    for (int k = 0; k < 200 && !(engine.estimate(robot_id) && engine.estimate(robot_id)->placed); ++k) {
+        round(2);
+    }
+    const std::optional<NodeOutput> two = engine.estimate(robot_id);
+    ASSERT_TRUE(two.has_value() && two->placed);
+    EXPECT_TRUE(two->ambiguous);
+    ASSERT_TRUE(stage.robot().has_value());
+    EXPECT_FALSE(stage.robot()->placed); // no trajectory row, no position to publish
+    EXPECT_FALSE(stage.started());
+
+    // With a third link the position is one: placed, in the map's frame, where it is.
+    for (int k = 0; k < 50; ++k) {
+        round(3);
+    }
+    const std::optional<NodeOutput> three = engine.estimate(robot_id);
+    ASSERT_TRUE(three.has_value() && three->placed);
+    EXPECT_FALSE(three->ambiguous);
+    const std::optional<RobotOutput> robot = stage.robot();
+    ASSERT_TRUE(robot.has_value());
+    EXPECT_TRUE(robot->placed);
+    EXPECT_EQ(robot->frame, RobotFrame::Map);
+    for (size_t a = 0; a < 3; ++a) {
+        const std::optional<NodeOutput> node = engine.estimate(static_cast<NodeId>(a + 1));
+        ASSERT_TRUE(node.has_value());
+        EXPECT_NEAR((Vector2(robot->pose.x_m, robot->pose.y_m) - node->position_m).norm(),
+                    (truth_m[a] - robot_m).norm(), 0.05);
+    }
+}
+
 // A regression test: a beacon whose SoG around the robot has become one mode when the EKF is
 // full (RobotFilter::kMaxNodes = 120) stays a SoG. Before the fix it was counted in
 // nodes_inserted, pinned in stage 1 at its SoG's mean and its SoG dropped although the EKF did not

@@ -1,0 +1,107 @@
+"""cdro-eval-motion's path figures (cdro_tools.evaluation.movement): the trajectory's `frame`
+column, which says whether a row is dead reckoning in the odometry's frame (before a map
+existed) or in the map's, and which rows the rigid fit takes."""
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from cdro_tools.evaluation.movement import evaluate_path, last_frame_rows, read_path
+
+HEADER = "t,x,y,heading_rad,var_x,cov_xy,var_y,frame"
+
+
+def write_truth(path, times_s):
+    """A robot driving along y = 2 at 1 m/s from x = 0."""
+    path.write_text("t,x,y,heading_rad\n" + "".join(f"{t:.1f},{t:.4f},2.0,0.0\n" for t in times_s))
+
+
+def trajectory_rows(times_s, frame, offset_m=(0.0, 0.0), noise_m=0.0):
+    """Rows on the truth of write_truth, in the map's frame shifted by offset_m, with an
+    alternating lateral error of noise_m."""
+    rows = []
+    for k, t in enumerate(times_s):
+        y = 2.0 + offset_m[1] + (noise_m if k % 2 else -noise_m)
+        rows.append(f"{t:.1f},{t + offset_m[0]:.4f},{y:.4f},0.0,0.01,0.0,0.01,{frame}")
+    return rows
+
+
+def test_that_only_the_rows_in_the_final_frame_are_fitted(tmp_path):
+    # Fixture: 20 rows of dead reckoning at the odometry's origin (the map's frame is 7 m away),
+    # then 80 rows in the map's frame, 5 cm off the truth.
+    times_s = [0.1 * k for k in range(100)]
+    truth = tmp_path / "truth.csv"
+    write_truth(truth, times_s)
+    standing = [f"{t:.1f},0.0,0.0,0.0,0.0,0.0,0.0,odometry" for t in times_s[:20]]
+    trajectory = tmp_path / "trajectory.csv"
+    trajectory.write_text("\n".join([HEADER] + standing + trajectory_rows(times_s[20:], "map", noise_m=0.05)) + "\n")
+    bad = []
+
+    # Test
+    estimate = read_path(str(trajectory), bad)
+    kept, dropped = last_frame_rows(estimate)
+    report = evaluate_path(estimate, read_path(str(truth), bad))["report"]
+
+    # Assert
+    assert not bad
+    assert estimate.frames[:20] == ["odometry"] * 20 and estimate.frames[20:] == ["map"] * 80
+    assert dropped == 20 and len(kept.t_s) == 80 and kept.t_s[0] == pytest.approx(2.0)
+    assert report["points"] == 80 and report["other_frame_points"] == 20
+    assert report["frame"] == "map" and report["frame_from_s"] == pytest.approx(2.0)
+    assert report["rmse_m"] == pytest.approx(0.05, abs=0.005)
+
+
+def test_that_all_rows_count_when_the_trajectory_has_one_frame_or_no_frame_column(tmp_path):
+    times_s = [0.1 * k for k in range(50)]
+    truth = tmp_path / "truth.csv"
+    write_truth(truth, times_s)
+    for name, header, rows in (("one-frame", HEADER, trajectory_rows(times_s, "odometry", offset_m=(3.0, -1.0))),
+                               ("old-format", HEADER.rsplit(",", 1)[0],
+                                [r.rsplit(",", 1)[0] for r in trajectory_rows(times_s, "map", offset_m=(3.0, -1.0))])):
+        trajectory = tmp_path / f"{name}.csv"
+        trajectory.write_text("\n".join([header] + rows) + "\n")
+        bad = []
+        report = evaluate_path(read_path(str(trajectory), bad), read_path(str(truth), bad))["report"]
+        assert not bad, name
+        assert report["points"] == 50 and report["other_frame_points"] == 0, name
+        assert report["frame_from_s"] is None, name
+        assert report["rmse_m"] < 1e-6, name  # a pure translation: the fit takes it out
+    assert report["frame"] is None  # the old format says no frame
+
+
+def test_that_a_row_with_an_unknown_frame_is_a_bad_row(tmp_path):
+    times_s = [0.1 * k for k in range(10)]
+    rows = trajectory_rows(times_s, "map")
+    rows[4] = rows[4].rsplit(",", 1)[0] + ",world"
+    trajectory = tmp_path / "trajectory.csv"
+    trajectory.write_text("\n".join([HEADER] + rows) + "\n")
+    bad = []
+
+    estimate = read_path(str(trajectory), bad)
+
+    assert len(estimate.t_s) == 9 and len(estimate.frames) == 9
+    assert len(bad) == 1 and bad[0].line == 6 and "frame 'world' is not one of odometry, map" in bad[0].reason
+
+
+def test_the_command_line_names_the_rows_left_out(tmp_path):
+    times_s = [0.1 * k for k in range(60)]
+    truth = tmp_path / "truth.csv"
+    write_truth(truth, times_s)
+    standing = [f"{t:.1f},0.0,0.0,0.0,0.0,0.0,0.0,odometry" for t in times_s[:15]]
+    trajectory = tmp_path / "trajectory.csv"
+    trajectory.write_text("\n".join([HEADER] + standing + trajectory_rows(times_s[15:], "map", noise_m=0.1)) + "\n")
+    report_path = tmp_path / "report.json"
+
+    result = subprocess.run([sys.executable, "-m", "cdro_tools.eval_motion", "--trajectory", str(trajectory),
+                             "--robot-truth", str(truth), "--json", str(report_path)],
+                            capture_output=True, text=True)
+
+    assert result.returncode == 0, result.stderr
+    assert "15 earlier poses are in another frame" in result.stdout, result.stdout
+    assert "the map frame starts at t = 1.500 s" in result.stdout, result.stdout
+    path = json.loads(report_path.read_text())["path"]
+    assert path["points"] == 45 and path["other_frame_points"] == 15
+    assert math.isclose(path["rmse_m"], 0.1, abs_tol=0.01)
