@@ -152,6 +152,17 @@ def test_that_an_offline_nodes_csv_and_trajectory_give_a_robot_error(tmp_path):
     assert numbers["rmse_m"] < 0.1
     assert_png(tmp_path / "rmse.png", 800, 400)
 
+    # The same trajectory with a frame column, after rows of dead reckoning in the odometry's
+    # frame (the robot stood while the map formed): those are left out, and said so.
+    framed = (["t,x,y,heading_rad,var_x,cov_xy,var_y,frame"] + [f"{t - 5},-40,-40,0,0,0,0,odometry" for t in range(5)]
+              + [f"{t},{t},{2.3},0,0.01,0,0.01,map" for t in range(11)])
+    (tmp_path / "framed.csv").write_text("\n".join(framed) + "\n")
+    result = plot(tmp_path / "nodes.csv", "--trajectory", tmp_path / "framed.csv", "--robot-id", "0x6010",
+                  "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv", "--map", tmp_path / "map2.png")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["robot_rmse_m"] == pytest.approx(numbers["robot_rmse_m"])
+    assert "dropped 5 line(s):" in result.stderr and "trajectory row in the odometry frame" in result.stderr
+
 
 def test_that_unusable_input_is_a_clear_error(tmp_path):
     (tmp_path / "empty.jsonl").write_text('{"type": "health", "t_s": 0}\n')

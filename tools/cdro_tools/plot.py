@@ -2,9 +2,9 @@
 
 Estimates: the JSON Lines of cdro-hostd (docs/outputs.md: `node` and `robot` lines over time),
 or the offline nodes CSV (id,x,y,var_x,cov_xy,var_y,converged), optionally with a robot
-trajectory CSV (t,x,y,heading_rad,var_x,cov_xy,var_y). Truth from cdro-sim (or a dataset):
-nodes id,x,y,z (start positions), tracks t,id,x,y of everything that moves, ranges
-t,from,to,range_m (to draw links).
+trajectory CSV (t,x,y,heading_rad,var_x,cov_xy,var_y[,frame]; only the rows in the last row's
+frame are drawn). Truth from cdro-sim (or a dataset): nodes id,x,y,z (start positions), tracks
+t,id,x,y of everything that moves, ranges t,from,to,range_m (to draw links).
 
 Estimates live in the engine's own frame. They are aligned to the truth with a rigid fit
 (rotation and translation, reflection allowed, no scale) over the nodes, at the end for the
@@ -103,7 +103,10 @@ def read_json_lines(path: str) -> Estimates:
     return out
 
 
-def _csv_rows(path: str, required: list[str], dropped: collections.Counter | None = None) -> list[dict]:
+def _csv_rows(path: str, required: list[str], dropped: collections.Counter | None = None,
+              text: tuple[str, ...] = ()) -> list[dict]:
+    """The required columns as numbers; the `text` columns as they are (None when the file has not
+    got them)."""
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
         missing = [c for c in required if c not in (reader.fieldnames or [])]
@@ -112,7 +115,7 @@ def _csv_rows(path: str, required: list[str], dropped: collections.Counter | Non
         rows = []
         for number, row in enumerate(reader, start=2):
             try:
-                rows.append({c: float(row[c]) for c in required})
+                rows.append({**{c: float(row[c]) for c in required}, **{c: row.get(c) for c in text}})
             except (TypeError, ValueError):
                 if dropped is None:
                     raise InputError(f"{path}:{number}: not a number in {row}") from None
@@ -126,7 +129,14 @@ def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> E
         out.nodes[int(row["id"])].append(Estimate(0.0, row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"]),
                                                   bool(row["converged"])))
     if trajectory:
-        for row in _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped):
+        rows = _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped, ("frame",))
+        # A robot that stood while the map formed starts in the odometry's frame: only the rows in
+        # the frame of the last row share the nodes' frame.
+        final_frame = rows[-1]["frame"] if rows else None
+        for row in rows:
+            if row["frame"] != final_frame:
+                out.dropped[f"{trajectory}: trajectory row in the {row['frame']} frame (before the map)"] += 1
+                continue
             out.robot[robot_id if robot_id is not None else 0].append(
                 Estimate(row["t"], row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"])))
     return out
