@@ -2,6 +2,7 @@
 user starts it and a host talks to it through pyserial. Timeouts are deadlock guards only."""
 import collections
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -263,3 +264,21 @@ def test_that_the_live_transmit_buffer_refuses_a_frame_that_does_not_fit():
     # Assert: 7 frames fit in 100 bytes, whole; the rest is refused, nothing is written
     assert accepted == [True] * 7 + [False] * 3
     assert transport.queued_bytes == 7 * len(frame) and transport.stats.bytes_delivered == 0
+
+
+def test_that_a_device_that_goes_away_is_one_serial_error_for_the_host():
+    # Fixture: a pseudo-terminal whose device side (the master) closes under an open host. Seen in
+    # CI: pyserial's in_waiting let the ioctl's EIO through as a bare OSError, which the faults
+    # test's reconnecting host did not take for a vanished link.
+    master, slave = os.openpty()
+    host = HostLink(os.ttyname(slave))
+    os.close(slave)
+    os.write(master, b"\x00")
+    host.poll()
+    os.close(master)
+
+    # Test and assert: every poll after that is a SerialException, never a bare OSError.
+    with pytest.raises(serial.SerialException):
+        for _ in range(20):
+            host.poll()
+    host.close()

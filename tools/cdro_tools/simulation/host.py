@@ -51,7 +51,12 @@ class HostLink:
         """Reads what is there; returns the number of new events."""
         # read only what is there (or wait for one byte): pyserial's read(n) collects until n bytes
         # or the timeout, and loses what it collected when the port hangs up meanwhile
-        waiting = self.port.in_waiting
+        try:
+            waiting = self.port.in_waiting
+        except OSError as error:
+            # pyserial's in_waiting lets the ioctl's EIO through as it is when the device side of a
+            # pseudo-terminal has gone, where read() says SerialException: one error for one event
+            raise serial.SerialException(f"{self.port.port}: the device went away ({error})") from error
         data = self.port.read(waiting) if waiting else self.port.read(1)
         self.received += data
         before = len(self.events)
