@@ -106,7 +106,8 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
         if (to <= tm && to <= tr) {
             const OdometryRow &row = odometry.rows[o++];
             stage.addOdometry(row.t_s, engine::OdometryStep{row.distance_m, row.dheading_rad});
-            // Only once the robot has a position in the map's frame: before that there is none.
+            // Only when the robot has a position (RobotOutput::placed): dead reckoning while no map
+            // exists, the map's once it does; none while its own stage-1 position is ambiguous.
             const std::optional<engine::RobotOutput> robot = stage.robot();
             if (robot && robot->placed) {
                 if (last_frame && *last_frame != robot->frame) {
