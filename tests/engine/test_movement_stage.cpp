@@ -618,6 +618,46 @@ TEST(MovementStage, TheRangeNoiseIsLearntFromTheInnovations)
     EXPECT_EQ(MovementStage(other, fixed).rangeSigmaInUse(), 0.25);
 }
 
+TEST(MovementStage, ARangeNoiseBelowTheFloorIsLearntAsTheFloorNotAsTheInitialGuess)
+{
+    // Fixture: ranges far more exact than the engine's floor (range.sigma_m = 0.1 m), so that what
+    // the state still does not know explains the innovations' whole spread and the learnt value
+    // is 0. Before the fix a learnt 0 read as "not learnt" and the EKF ran on the initial 1 m
+    // (cdro-sim robot-corridor seed 4 reported "range noise 1.000 m").
+    const uint64_t seed = testSeed(5110);
+    SCOPED_TRACE(seedTrace(seed));
+    WorldSpec spec = loopAmongBeacons();
+    spec.range_noise_m = 0.005;
+    const World world = simulate(spec, seed);
+    Engine engine;
+    MovementParams params;
+    params.robot_id = spec.robot_id;
+    MovementStage stage(engine, params);
+    std::vector<double> in_use_m; // once a second over the second half of the run
+    const double half_s = world.events.back().t_s / 2.0;
+    double next_sample_s = half_s;
+
+    // Test
+    for (const Event &event : world.events) {
+        if (event.kind == Event::Kind::Odometry) {
+            stage.addOdometry(event.t_s, event.step);
+            if (event.t_s >= next_sample_s) {
+                in_use_m.push_back(stage.rangeSigmaInUse());
+                next_sample_s += 1.0;
+            }
+        } else if (event.kind == Event::Kind::Range) {
+            stage.addRange(event.t_s, event.from, event.to, event.range_m);
+        }
+    }
+
+    // Assert: at the floor or a little above it, never the initial 1 m.
+    ASSERT_FALSE(in_use_m.empty());
+    std::sort(in_use_m.begin(), in_use_m.end());
+    std::printf("noise in use: %.3f-%.3f m (floor 0.1 m, true 0.005 m)\n", in_use_m.front(), in_use_m.back());
+    EXPECT_EQ(in_use_m.front(), engine.params().range.sigma_m);
+    EXPECT_LT(in_use_m.back(), 0.3);
+}
+
 TEST(MovementStage, ALinkThatReadsLongPersistentlyIsLeftOutOfTheEkf)
 {
     const uint64_t seed = testSeed(5107);

@@ -29,7 +29,9 @@ double MovementStage::rangeSigma() const
         return params_.range_sigma_m;
     }
     const double floor_m = engine_.params().range.sigma_m;
-    return std::max(adaptive_sigma_m_ > 0.0 ? adaptive_sigma_m_ : params_.adaptive_initial_sigma_m, floor_m);
+    // A learnt 0 (the state's uncertainty explains the innovations' whole spread) means the
+    // floor, not the initial guess: that read 0 as "not learnt" and ran on 1 m.
+    return std::max(adaptive_sigma_m_.value_or(params_.adaptive_initial_sigma_m), floor_m);
 }
 
 bool MovementStage::linkExcluded(NodeId a, NodeId b, double innovation_m)

@@ -186,7 +186,7 @@ private:
     std::vector<double> innovations_m_;      // recent robot-range innovations (m), a ring
     std::vector<double> prior_variances_m2_; // their predicted variances without the noise (m^2)
     size_t innovation_next_ = 0;
-    double adaptive_sigma_m_ = 0.0;          // m, 0 until learned
+    std::optional<double> adaptive_sigma_m_; // m, once learned (0 when the state explains the spread)
     MovementCounters counters_;
     uint64_t revision_ = 0;
     std::function<void(const std::string &)> trace_;
