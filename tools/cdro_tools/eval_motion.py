@@ -9,9 +9,9 @@ A carried node (the initialization stage's Fig. 4 tracking):
 
 The trajectory is cdro-hostd's --out-trajectory (t,x,y,heading_rad,var_x,cov_xy,var_y,frame: the
 causal estimate after each odometry step; only the rows in the last row's frame are evaluated);
-the robot truth t,x,y[,heading_rad]; nodes the --out-csv; beacon truth id,x,y. The trace is cdro-hostd's --trace-csv (with --trace-every 1
-for tracking), tracks the simulator's t,id,x,y, truth its id,x,y,z start positions, motion its
-t,id,moving. All fits are rigid (rotation, translation, reflection allowed, no scale). The
+the robot truth t,x,y[,heading_rad]; nodes the --out-csv; beacon truth id,x,y. The trace is
+cdro-hostd's --trace-csv (with --trace-every 1 for tracking), tracks the simulator's t,id,x,y,
+truth its id,x,y,z start positions, motion its t,id,moving. All fits are rigid (rotation, translation, reflection allowed, no scale). The
 figures go to stdout as a table and to --json; exit 2 on unusable input.
 """
 from __future__ import annotations
