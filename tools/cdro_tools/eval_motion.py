@@ -11,8 +11,9 @@ The trajectory is cdro-hostd's --out-trajectory (t,x,y,heading_rad,var_x,cov_xy,
 causal estimate after each odometry step; only the rows in the last row's frame are evaluated);
 the robot truth t,x,y[,heading_rad]; nodes the --out-csv; beacon truth id,x,y. The trace is
 cdro-hostd's --trace-csv (with --trace-every 1 for tracking), tracks the simulator's t,id,x,y,
-truth its id,x,y,z start positions, motion its t,id,moving. All fits are rigid (rotation, translation, reflection allowed, no scale). The
-figures go to stdout as a table and to --json; exit 2 on unusable input.
+truth its id,x,y,z start positions, motion its t,id,moving. All fits are rigid (rotation,
+translation, reflection allowed, no scale). The figures go to stdout as a table and to --json;
+exit 2 on unusable input.
 """
 from __future__ import annotations
 
