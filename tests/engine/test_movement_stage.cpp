@@ -574,6 +574,27 @@ TEST(MovementStage, ACarriedNodeLeavesTheEkfAndRejoinsAfterItStops)
 // ---------------------------------------------------------------------------------------------
 // The range noise is learnt; an NLOS link is left out; the robot output before the EKF runs
 
+// Feeds the world's odometry and ranges to the stage; the range noise it uses, once a second
+// over the second half of the run, sorted.
+std::vector<double> noiseInUseOverTheSecondHalf(MovementStage &stage, const World &world)
+{
+    std::vector<double> in_use_m;
+    double next_sample_s = world.events.back().t_s / 2.0;
+    for (const Event &event : world.events) {
+        if (event.kind == Event::Kind::Odometry) {
+            stage.addOdometry(event.t_s, event.step);
+            if (event.t_s >= next_sample_s) {
+                in_use_m.push_back(stage.rangeSigmaInUse());
+                next_sample_s += 1.0;
+            }
+        } else if (event.kind == Event::Kind::Range) {
+            stage.addRange(event.t_s, event.from, event.to, event.range_m);
+        }
+    }
+    std::sort(in_use_m.begin(), in_use_m.end());
+    return in_use_m;
+}
+
 TEST(MovementStage, TheRangeNoiseIsLearntFromTheInnovations)
 {
     const uint64_t seed = testSeed(5106);
@@ -586,23 +607,8 @@ TEST(MovementStage, TheRangeNoiseIsLearntFromTheInnovations)
     params.robot_id = spec.robot_id;
     MovementStage stage(engine, params);
     EXPECT_EQ(stage.rangeSigmaInUse(), params.adaptive_initial_sigma_m); // 1 m until learnt
-    // The noise in use once a second over the second half of the run (the learnt value follows
-    // the last 60 innovations: it wanders).
-    std::vector<double> learnt_m;
-    const double half_s = world.events.back().t_s / 2.0;
-    double next_sample_s = half_s;
-    for (const Event &event : world.events) {
-        if (event.kind == Event::Kind::Odometry) {
-            stage.addOdometry(event.t_s, event.step);
-            if (event.t_s >= next_sample_s) {
-                learnt_m.push_back(stage.rangeSigmaInUse());
-                next_sample_s += 1.0;
-            }
-        } else if (event.kind == Event::Kind::Range) {
-            stage.addRange(event.t_s, event.from, event.to, event.range_m);
-        }
-    }
-    std::sort(learnt_m.begin(), learnt_m.end());
+    // The learnt value follows the last 60 innovations: it wanders.
+    const std::vector<double> learnt_m = noiseInUseOverTheSecondHalf(stage, world);
     const double median_m = learnt_m[learnt_m.size() / 2];
     std::printf("noise: learnt %.3f m (median over the second half; %.3f-%.3f m; true 0.4 m)\n", median_m,
                 learnt_m.front(), learnt_m.back());
@@ -633,26 +639,12 @@ TEST(MovementStage, ARangeNoiseBelowTheFloorIsLearntAsTheFloorNotAsTheInitialGue
     MovementParams params;
     params.robot_id = spec.robot_id;
     MovementStage stage(engine, params);
-    std::vector<double> in_use_m; // once a second over the second half of the run
-    const double half_s = world.events.back().t_s / 2.0;
-    double next_sample_s = half_s;
 
     // Test
-    for (const Event &event : world.events) {
-        if (event.kind == Event::Kind::Odometry) {
-            stage.addOdometry(event.t_s, event.step);
-            if (event.t_s >= next_sample_s) {
-                in_use_m.push_back(stage.rangeSigmaInUse());
-                next_sample_s += 1.0;
-            }
-        } else if (event.kind == Event::Kind::Range) {
-            stage.addRange(event.t_s, event.from, event.to, event.range_m);
-        }
-    }
+    const std::vector<double> in_use_m = noiseInUseOverTheSecondHalf(stage, world);
 
     // Assert: at the floor or a little above it, never the initial 1 m.
     ASSERT_FALSE(in_use_m.empty());
-    std::sort(in_use_m.begin(), in_use_m.end());
     std::printf("noise in use: %.3f-%.3f m (floor 0.1 m, true 0.005 m)\n", in_use_m.front(), in_use_m.back());
     EXPECT_EQ(in_use_m.front(), engine.params().range.sigma_m);
     EXPECT_LT(in_use_m.back(), 0.3);
