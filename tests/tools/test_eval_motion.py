@@ -29,15 +29,22 @@ def trajectory_rows(times_s, frame, offset_m=(0.0, 0.0), noise_m=0.0):
     return rows
 
 
-def test_that_only_the_rows_in_the_final_frame_are_fitted(tmp_path):
-    # Fixture: 20 rows of dead reckoning at the odometry's origin (the map's frame is 7 m away),
-    # then 80 rows in the map's frame, 5 cm off the truth.
-    times_s = [0.1 * k for k in range(100)]
-    truth = tmp_path / "truth.csv"
+def stood_then_drove(tmp_path, rows, standing, noise_m):
+    """A truth of `rows` times, and a trajectory whose first `standing` rows are dead reckoning at
+    the odometry's origin (the map's frame is 7 m away), the rest in the map's frame, noise_m off
+    the truth. Returns (truth, trajectory)."""
+    times_s = [0.1 * k for k in range(rows)]
+    truth, trajectory = tmp_path / "truth.csv", tmp_path / "trajectory.csv"
     write_truth(truth, times_s)
-    standing = [f"{t:.1f},0.0,0.0,0.0,0.0,0.0,0.0,odometry" for t in times_s[:20]]
-    trajectory = tmp_path / "trajectory.csv"
-    trajectory.write_text("\n".join([HEADER] + standing + trajectory_rows(times_s[20:], "map", noise_m=0.05)) + "\n")
+    odometry = [f"{t:.1f},0.0,0.0,0.0,0.0,0.0,0.0,odometry" for t in times_s[:standing]]
+    map_rows = trajectory_rows(times_s[standing:], "map", noise_m=noise_m)
+    trajectory.write_text("\n".join([HEADER] + odometry + map_rows) + "\n")
+    return truth, trajectory
+
+
+def test_that_only_the_rows_in_the_final_frame_are_fitted(tmp_path):
+    # Fixture: 20 rows of dead reckoning, then 80 rows in the map's frame, 5 cm off the truth.
+    truth, trajectory = stood_then_drove(tmp_path, 100, 20, noise_m=0.05)
     bad = []
 
     # Test
@@ -87,12 +94,7 @@ def test_that_a_row_with_an_unknown_frame_is_a_bad_row(tmp_path):
 
 
 def test_the_command_line_names_the_rows_left_out(tmp_path):
-    times_s = [0.1 * k for k in range(60)]
-    truth = tmp_path / "truth.csv"
-    write_truth(truth, times_s)
-    standing = [f"{t:.1f},0.0,0.0,0.0,0.0,0.0,0.0,odometry" for t in times_s[:15]]
-    trajectory = tmp_path / "trajectory.csv"
-    trajectory.write_text("\n".join([HEADER] + standing + trajectory_rows(times_s[15:], "map", noise_m=0.1)) + "\n")
+    truth, trajectory = stood_then_drove(tmp_path, 60, 15, noise_m=0.1)
     report_path = tmp_path / "report.json"
 
     result = subprocess.run([sys.executable, "-m", "cdro_tools.eval_motion", "--trajectory", str(trajectory),
