@@ -78,9 +78,9 @@ TEST(Foldable, ANodeWithTwoLinksHangsOnThem)
     EXPECT_EQ(folds.count, 1U);
 }
 
-TEST(Foldable, AGroupOnTwoNodesFoldsAndTheLargerPartStays)
+// A: 0..5 complete; B: 6, 7, 8 complete, each linked to 4 and 5 only (both link directions).
+Edges groupOnTwoNodes()
 {
-    // A: 0..5 complete; B: 6, 7, 8 complete, each linked to 4 and 5 only.
     Edges edges;
     addClique(edges, {0, 1, 2, 3, 4, 5});
     addClique(edges, {6, 7, 8});
@@ -88,6 +88,12 @@ TEST(Foldable, AGroupOnTwoNodesFoldsAndTheLargerPartStays)
         edges.emplace_back(b, 4);
         edges.emplace_back(5, b);
     }
+    return edges;
+}
+
+TEST(Foldable, AGroupOnTwoNodesFoldsAndTheLargerPartStays)
+{
+    Edges edges = groupOnTwoNodes();
     const Foldable folds = foldableOf(9, edges);
     EXPECT_EQ(marked(folds), (std::set<uint32_t>{6, 7, 8}));
     for (uint32_t b : {6U, 7U, 8U}) {
@@ -129,16 +135,9 @@ TEST(Foldable, NodesOutsideTheLargestComponentAndInactiveNodes)
 
 TEST(Foldable, APartHoldingAFixedNodeIsNotMarked)
 {
-    Edges edges;
-    addClique(edges, {0, 1, 2, 3, 4, 5});
-    addClique(edges, {6, 7, 8});
-    for (uint32_t b : {6U, 7U, 8U}) {
-        edges.emplace_back(b, 4);
-        edges.emplace_back(b, 5);
-    }
     std::vector<uint8_t> anchored(9, 0);
     anchored[7] = 1;
-    EXPECT_EQ(foldableOf(9, edges, anchored).count, 0U);
+    EXPECT_EQ(foldableOf(9, groupOnTwoNodes(), anchored).count, 0U);
 }
 
 TEST(Foldable, ATriangleStripFoldsAlongItsLength)
