@@ -26,7 +26,7 @@ import sys
 import pytest
 
 from cdro_tools.evaluation.inputs import read_estimates, read_truth
-from cdro_tools.evaluation.movement import evaluate_beacons, evaluate_path, read_path
+from cdro_tools.evaluation.movement import FRAMES, evaluate_beacons, evaluate_path, read_path
 
 GUARD_S = 60
 TRAJECTORY_HEADER = "t,x,y,heading_rad,var_x,cov_xy,var_y,frame"
@@ -91,11 +91,10 @@ def data_rows(path):
         return list(csv.reader(f))[1:]
 
 
-def check_trajectory(path, odometry_times_s, frames=None):
+def check_trajectory(path, odometry_times_s):
     """The documented columns; numbers; t non-decreasing and each an odometry row's time; a
     heading in [-pi, pi]; a covariance that is one; a frame, and at most one switch, from the
-    odometry's to the map's. Returns the rows (floats, without the frame); `frames` gets each
-    row's frame."""
+    odometry's to the map's. Returns the rows (floats, without the frame) and each row's frame."""
     lines = pathlib.Path(path).read_text().splitlines()
     assert lines[0] == TRAJECTORY_HEADER
     rows, row_frames = [], []
@@ -104,13 +103,11 @@ def check_trajectory(path, odometry_times_s, frames=None):
         assert len(fields) == 8, f"{path}:{number}: {line!r}"
         values = [float(x) for x in fields[:7]]
         assert all(math.isfinite(v) for v in values), f"{path}:{number}: {line!r}"
-        assert fields[7] in ("odometry", "map"), f"{path}:{number}: {line!r}"
+        assert fields[7] in FRAMES, f"{path}:{number}: {line!r}"
         rows.append(values)
         row_frames.append(fields[7])
     switches = [(a, b) for a, b in zip(row_frames, row_frames[1:]) if a != b]
     assert switches in ([], [("odometry", "map")]), switches
-    if frames is not None:
-        frames.extend(row_frames)
     assert rows, f"{path}: no trajectory rows"
     times = [r[0] for r in rows]
     assert all(a <= b for a, b in zip(times, times[1:])), "t decreases"
@@ -119,7 +116,7 @@ def check_trajectory(path, odometry_times_s, frames=None):
     for t, _, _, heading, var_x, cov_xy, var_y in rows:
         assert -math.pi - 1e-12 <= heading <= math.pi + 1e-12, (t, heading)
         assert var_x >= 0.0 and var_y >= 0.0 and cov_xy * cov_xy <= var_x * var_y * (1 + 1e-9) + 1e-18, t
-    return rows
+    return rows, row_frames
 
 
 def odometry_times(path):
@@ -162,8 +159,7 @@ def test_that_plaza_meets_the_product_goals(hostd, data_dir, tmp_path, name):
     # engine learns it from the ranges alone (measured 1.0640 / 1.0648).
     assert 1.05 < scale < 1.08
     # No map to join: the odometry frame from the first step, one trajectory row per odometry row.
-    frames = []
-    rows = check_trajectory(trajectory, odometry_times(folder / "odometry.csv"), frames)
+    rows, frames = check_trajectory(trajectory, odometry_times(folder / "odometry.csv"))
     assert len(rows) == len(data_rows(folder / "odometry.csv"))
     assert set(frames) == {"odometry"} and report["path"]["other_frame_points"] == 0
     assert len(rows) == report["path"]["points"]
@@ -267,8 +263,7 @@ def test_that_the_robot_makes_the_corridor_map_better_than_the_initialization_al
 
 
 def test_that_the_trajectory_has_the_documented_columns_and_time_order(corridor, corridor_run):
-    frames = []
-    rows = check_trajectory(corridor_run["trajectory"], odometry_times(corridor["odometry"]), frames)
+    rows, frames = check_trajectory(corridor_run["trajectory"], odometry_times(corridor["odometry"]))
     assert len(rows) <= len(data_rows(corridor["odometry"]))
     assert rows[-1][0] == odometry_times(corridor["odometry"])[-1]
     # The robot stood while the map formed: dead reckoning in the odometry's frame until the map
