@@ -1,0 +1,268 @@
+#include "cdro/engine/global_solve.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "cdro/engine/alignment.hpp"
+#include "cdro/engine/map_mds.hpp"
+#include "cdro/engine/map_patches.hpp"
+#include "cdro/engine/placement.hpp"
+#include "cdro/engine/point_solver.hpp"
+
+namespace cdro::engine {
+
+uint32_t escapeNodeMinima(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
+                          const MapGrowthParams &growth, double gap_nats)
+{
+    PointSolverParams solver;
+    solver.range_sigma_m = problem.sigma_m;
+    solver.max_iterations = 8;
+    PlacementParams placement;
+    placement.min_baseline_m = growth.min_baseline_m;
+    placement.distinct_m = growth.distinct_m;
+    uint32_t moved = 0;
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (estimate.placed[node] == 0 || problem.fixed[node] != 0) {
+            continue;
+        }
+        std::vector<RangeConstraint> constraints;
+        for (uint32_t link : problem.node_links[node]) {
+            const uint32_t other = problem.other(link, node);
+            if (estimate.placed[other] != 0) {
+                RangeConstraint constraint;
+                constraint.anchor_m = estimate.position_m[other];
+                constraint.range_m = problem.links[link].range_m;
+                constraints.push_back(constraint);
+            }
+        }
+        if (constraints.size() < 3) {
+            continue;
+        }
+        const Vector2 here = estimate.position_m[node];
+        const double here_cost = nodeCost(problem, estimate, likelihood, node, here);
+        Vector2 best = here;
+        double best_cost = here_cost;
+        for (const PlacementCandidate &candidate : placementCandidates(constraints, likelihood, solver, placement)) {
+            if ((candidate.position_m - here).norm() < growth.distinct_m) {
+                continue;
+            }
+            const double cost = nodeCost(problem, estimate, likelihood, node, candidate.position_m);
+            if (cost + gap_nats < best_cost) {
+                best = candidate.position_m;
+                best_cost = cost;
+            }
+        }
+        if (best != here) {
+            estimate.position_m[node] = best;
+            ++moved;
+        }
+    }
+    return moved;
+}
+
+RangeLikelihoodParams learnNlosModel(const MapProblem &problem, const MapEstimate &estimate,
+                                     const RangeLikelihood &likelihood)
+{
+    RangeLikelihoodParams params = likelihood.params();
+    const double variance = problem.sigma_m * problem.sigma_m;
+    for (int iteration = 0; iteration < 5; ++iteration) {
+        const RangeLikelihood current(params);
+        double nlos = 0.0;
+        double excess = 0.0;
+        double links = 0.0;
+        for (const MapLink &link : problem.links) {
+            if (estimate.placed[link.a] == 0 || estimate.placed[link.b] == 0) {
+                continue;
+            }
+            const double residual = link.range_m - (estimate.position_m[link.a] - estimate.position_m[link.b]).norm();
+            const ResidualEvaluation at = current.evaluate(residual, variance);
+            // The NLOS responsibility (all that is not line of sight; the short term is tiny).
+            const double p_nlos = std::max(1.0 - at.inlier_probability, 0.0);
+            nlos += p_nlos;
+            excess += p_nlos * std::max(residual, 0.0);
+            links += 1.0;
+        }
+        if (links < 10.0 || nlos < 0.5) {
+            break;
+        }
+        params.nlos_fraction = std::clamp(nlos / links, 0.02, 0.6);
+        params.nlos_mean_excess_m = std::clamp(excess / nlos, 0.1, 3.0);
+    }
+    return params;
+}
+
+namespace {
+
+// The largest discrepancy per node between two maps, after the rigid fit of one onto the other.
+std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference, const std::vector<uint32_t> &part)
+{
+    std::vector<Vector2> source;
+    std::vector<Vector2> target;
+    for (uint32_t node : part) {
+        if (map.placed[node] != 0 && reference.placed[node] != 0) {
+            source.push_back(map.position_m[node]);
+            target.push_back(reference.position_m[node]);
+        }
+    }
+    std::vector<double> out(map.placed.size(), 0.0);
+    if (source.size() < 2) {
+        return out;
+    }
+    const RigidTransform fit = fitRigid(source, target, true);
+    for (uint32_t node : part) {
+        if (map.placed[node] != 0 && reference.placed[node] != 0) {
+            out[node] = (fit.apply(map.position_m[node]) - reference.position_m[node]).norm();
+        } else if (map.placed[node] != reference.placed[node]) {
+            out[node] = INFINITY;
+        }
+    }
+    return out;
+}
+
+} // namespace
+
+GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood &likelihood,
+                                const GlobalSolveParams &params, const MapEstimate *current)
+{
+    GlobalSolveResult result;
+    result.disputed.assign(problem.nodeCount(), 0);
+    const std::vector<std::vector<uint32_t>> parts = mapComponents(problem);
+    result.best.estimate = MapEstimate::unplaced(problem.nodeCount());
+    if (parts.empty() || parts.front().size() < 3) {
+        return result;
+    }
+    result.part = parts.front();
+    const std::vector<uint32_t> &part = result.part;
+    std::vector<MapHypothesis> hypotheses;
+    auto finish = [&](MapHypothesis hypothesis, bool lifted_mds = false) {
+        ++result.counters.starts;
+        MapRefineResult refined = params.lift || lifted_mds
+                                      ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
+                                      : refineMap(problem, hypothesis.estimate, likelihood, params.refine);
+        result.counters.refine_iterations += refined.iterations;
+        for (uint32_t round = 0; round < params.escape_rounds; ++round) {
+            const uint32_t moved = escapeNodeMinima(problem, hypothesis.estimate, likelihood, params.growth,
+                                                    params.escape_gap_nats);
+            result.counters.escapes += moved;
+            if (moved == 0) {
+                break;
+            }
+            MapRefineParams again = params.refine;
+            again.stages = {RefineStage{}};
+            refined = refineMap(problem, hypothesis.estimate, likelihood, again);
+            result.counters.refine_iterations += refined.iterations;
+        }
+        hypothesis.cost = mapCost(problem, hypothesis.estimate, likelihood);
+        hypotheses.push_back(std::move(hypothesis));
+    };
+    if (current != nullptr) {
+        MapHypothesis start;
+        start.estimate = MapEstimate::unplaced(problem.nodeCount());
+        for (uint32_t node : part) {
+            start.estimate.placed[node] = current->placed[node];
+            start.estimate.position_m[node] = current->position_m[node];
+        }
+        if (start.estimate.placedCount() >= 3) {
+            start.origin = "current";
+            finish(std::move(start));
+        }
+    }
+    for (const auto &seed : seedTriangles(problem, part, params.growth, params.growth_seeds)) {
+        MapHypothesis start;
+        start.estimate = growMap(problem, part, seed, likelihood, params.growth);
+        std::ostringstream origin;
+        origin << "grown from " << problem.ids[seed[0]] << "," << problem.ids[seed[1]] << "," << problem.ids[seed[2]];
+        start.origin = origin.str();
+        finish(std::move(start));
+    }
+    if (params.patch_start) {
+        MapHypothesis start;
+        start.estimate = patchMap(problem, part, likelihood);
+        start.origin = "patches";
+        if (start.estimate.placedCount() >= 3) {
+            finish(std::move(start));
+        }
+    }
+    if (params.mds_start && problem.fixedCount() < 2) {
+        if (std::optional<MapEstimate> layout = mdsMap(problem, part)) {
+            MapHypothesis start;
+            start.estimate = std::move(*layout);
+            start.origin = "MDS-MAP";
+            finish(std::move(start));
+        }
+    }
+    if (params.lifted_mds_start && problem.fixedCount() < 2) {
+        MapHypothesis start;
+        start.estimate = MapEstimate::unplaced(problem.nodeCount());
+        for (uint32_t node : part) {
+            start.estimate.placed[node] = 1;
+        }
+        start.origin = "MDS-MAP in " + std::to_string(params.lifting.dimensions) + "D";
+        finish(std::move(start), true);
+    }
+    if (hypotheses.empty()) {
+        return result;
+    }
+    // The best map places the most nodes, then costs the least.
+    // A map that leaves a node unplaced has not explained its links: each is priced a little
+    // above a perfect fit, so that leaving a node out is never cheaper than placing it well.
+    const double unexplained = -likelihood.logDensity(0.0, problem.sigma_m * problem.sigma_m) + 2.0;
+    auto comparable = [&](const MapHypothesis &h) {
+        uint32_t open = 0;
+        for (const MapLink &link : problem.links) {
+            const bool a = h.estimate.placed[link.a] != 0;
+            const bool b = h.estimate.placed[link.b] != 0;
+            open += (a != b || (!a && !b && std::binary_search(part.begin(), part.end(), link.a))) ? 1U : 0U;
+        }
+        return h.cost + unexplained * static_cast<double>(open);
+    };
+    auto rank = [&]() {
+        std::stable_sort(hypotheses.begin(), hypotheses.end(), [&](const MapHypothesis &x, const MapHypothesis &y) {
+            return comparable(x) < comparable(y);
+        });
+    };
+    rank();
+    // Each map is judged under the NLOS model that suits it best (a profile likelihood): a map
+    // that bends to fit long readings exactly must not win only because the prior thought long
+    // readings rare.
+    if (params.learn_rounds > 0) {
+        for (MapHypothesis &hypothesis : hypotheses) {
+            RangeLikelihood own = likelihood;
+            for (uint32_t round = 0; round < params.learn_rounds; ++round) {
+                own = RangeLikelihood(learnNlosModel(problem, hypothesis.estimate, own));
+                MapRefineParams again = params.refine;
+                again.stages = {RefineStage{}};
+                refineMap(problem, hypothesis.estimate, own, again);
+            }
+            hypothesis.cost = mapCost(problem, hypothesis.estimate, own);
+            hypothesis.nlos_fraction = own.params().nlos_fraction;
+            hypothesis.nlos_mean_excess_m = own.params().nlos_mean_excess_m;
+        }
+        rank();
+        result.learnt_nlos_fraction = hypotheses.front().nlos_fraction;
+        result.learnt_nlos_mean_excess_m = hypotheses.front().nlos_mean_excess_m;
+    }
+    result.best = hypotheses.front();
+    result.all = hypotheses;
+    for (size_t i = 1; i < hypotheses.size(); ++i) {
+        const MapHypothesis &rival = hypotheses[i];
+        if (comparable(rival) > comparable(result.best) + params.rival_gap_nats) {
+            continue;
+        }
+        const std::vector<double> apart = discrepancyM(rival.estimate, result.best.estimate, part);
+        bool distinct = false;
+        for (uint32_t node : part) {
+            if (apart[node] >= params.disputed_m) {
+                result.disputed[node] = 1;
+                distinct = true;
+            }
+        }
+        if (distinct) {
+            result.rivals.push_back(rival);
+        }
+    }
+    return result;
+}
+
+} // namespace cdro::engine

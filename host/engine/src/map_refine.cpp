@@ -1,0 +1,527 @@
+#include "cdro/engine/map_refine.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+#include <Eigen/Dense>
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
+
+namespace cdro::engine {
+
+namespace {
+
+using SparseMatrix = Eigen::SparseMatrix<double>;
+using Triplet = Eigen::Triplet<double>;
+
+// The unknowns: placed, not fixed nodes with links (-1: not an unknown), numbered in order.
+std::vector<int> freeNumbers(const MapProblem &problem, const std::vector<uint8_t> &placed, uint32_t *count)
+{
+    std::vector<int> number(problem.nodeCount(), -1);
+    uint32_t next = 0;
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (placed[node] != 0 && problem.fixed[node] == 0 && !problem.node_links[node].empty()) {
+            number[node] = static_cast<int>(next++);
+        }
+    }
+    *count = next;
+    return number;
+}
+
+// Normal equations of the links at `positions` (one row per node, D columns): information (IRLS
+// weights, or the line-of-sight Fisher weights) and the descent direction b = -d cost / dx.
+void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
+                     const RangeLikelihood &likelihood, const std::vector<int> &number, Eigen::Index unknowns,
+                     double variance, bool fisher, std::vector<Triplet> &triplets, Eigen::VectorXd &descent)
+{
+    const auto dims = positions.cols();
+    const Eigen::Index size = unknowns * dims;
+    triplets.clear();
+    descent.setZero(size);
+    for (Eigen::Index i = 0; i < size; ++i) {
+        triplets.emplace_back(static_cast<int>(i), static_cast<int>(i), 0.0);
+    }
+    for (const MapLink &link : problem.links) {
+        const int na = number[link.a];
+        const int nb = number[link.b];
+        if (placed[link.a] == 0 || placed[link.b] == 0 || (na < 0 && nb < 0)) {
+            continue;
+        }
+        const Eigen::VectorXd delta = (positions.row(link.a) - positions.row(link.b)).transpose();
+        const double distance = delta.norm();
+        if (distance < 1e-9) {
+            continue;
+        }
+        const Eigen::VectorXd u = delta / distance; // d distance / d p_a
+        const double residual = link.range_m - distance;
+        const ResidualEvaluation at = likelihood.evaluate(residual, variance);
+        const double weight = fisher ? at.inlier_probability / variance : likelihood.irlsWeight(residual, variance);
+        // cost = -log p(e), e = r - |p_a - p_b|: d cost / d p_a = slope * u.
+        const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
+        const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
+        for (Eigen::Index i = 0; i < dims; ++i) {
+            for (Eigen::Index j = 0; j < dims; ++j) {
+                const double value = weight * u(i) * u(j);
+                const int ii = static_cast<int>(i);
+                const int jj = static_cast<int>(j);
+                if (ca >= 0) {
+                    triplets.emplace_back(ca + ii, ca + jj, value);
+                }
+                if (cb >= 0) {
+                    triplets.emplace_back(cb + ii, cb + jj, value);
+                }
+                if (ca >= 0 && cb >= 0) {
+                    triplets.emplace_back(ca + ii, cb + jj, -value);
+                    triplets.emplace_back(cb + ii, ca + jj, -value);
+                }
+            }
+        }
+        if (ca >= 0) {
+            descent.segment(ca, dims) -= at.slope_per_m * u;
+        }
+        if (cb >= 0) {
+            descent.segment(cb, dims) += at.slope_per_m * u;
+        }
+    }
+    if (fisher || problem.unheard_radius_m <= 0.0) {
+        return; // the unheard pairs are a soft prior, not information from ranges
+    }
+    // cost k (1 - d/R)^2 = 1/2 w (R - d)^2 with w = 2 k / R^2, for d < R.
+    const double radius = problem.unheard_radius_m;
+    const double weight = 2.0 * problem.unheard_cost_nats / (radius * radius);
+    forEachCloseUnheardPair(problem, placed, positions, [&](uint32_t a, uint32_t b, double distance) {
+        const int na = number[a];
+        const int nb = number[b];
+        if (distance < 1e-9 || (na < 0 && nb < 0)) {
+            return;
+        }
+        const Eigen::VectorXd u = (positions.row(a) - positions.row(b)).transpose() / distance;
+        const double push = weight * (radius - distance); // -d cost / d distance
+        const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
+        const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
+        for (Eigen::Index i = 0; i < dims; ++i) {
+            for (Eigen::Index j = 0; j < dims; ++j) {
+                const double value = weight * u(i) * u(j);
+                const int ii = static_cast<int>(i);
+                const int jj = static_cast<int>(j);
+                if (ca >= 0) {
+                    triplets.emplace_back(ca + ii, ca + jj, value);
+                }
+                if (cb >= 0) {
+                    triplets.emplace_back(cb + ii, cb + jj, value);
+                }
+                if (ca >= 0 && cb >= 0) {
+                    triplets.emplace_back(ca + ii, cb + jj, -value);
+                    triplets.emplace_back(cb + ii, ca + jj, -value);
+                }
+            }
+        }
+        if (ca >= 0) {
+            descent.segment(ca, dims) += push * u;
+        }
+        if (cb >= 0) {
+            descent.segment(cb, dims) -= push * u;
+        }
+    });
+}
+
+double embeddingCost(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
+                     const RangeLikelihood &likelihood, double variance, double squeeze_per_m2)
+{
+    double cost = 0.0;
+    for (const MapLink &link : problem.links) {
+        if (placed[link.a] != 0 && placed[link.b] != 0) {
+            const double distance = (positions.row(link.a) - positions.row(link.b)).norm();
+            cost -= likelihood.logDensity(link.range_m - distance, variance);
+        }
+    }
+    forEachCloseUnheardPair(problem, placed, positions,
+                            [&](uint32_t, uint32_t, double distance) { cost += problem.unheardCost(distance); });
+    if (squeeze_per_m2 > 0.0 && positions.cols() > 2) {
+        for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+            if (placed[node] != 0) {
+                cost += squeeze_per_m2 * positions.row(node).tail(positions.cols() - 2).squaredNorm();
+            }
+        }
+    }
+    return cost;
+}
+
+} // namespace
+
+MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uint8_t> &placed,
+                                Eigen::MatrixXd &positions, const RangeLikelihood &base_likelihood,
+                                const std::vector<RefineStage> &stages, uint32_t iterations_per_stage,
+                                double squeeze_per_m2, const MapRefineParams &params)
+{
+    MapRefineResult result;
+    uint32_t free_count = 0;
+    const std::vector<int> number = freeNumbers(problem, placed, &free_count);
+    const Eigen::Index dims = positions.cols();
+    if (free_count == 0) {
+        return result;
+    }
+    const auto unknowns = static_cast<Eigen::Index>(free_count);
+    const Eigen::Index size = unknowns * dims;
+    std::vector<uint32_t> free_nodes;
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (number[node] >= 0) {
+            free_nodes.push_back(node);
+        }
+    }
+    Eigen::SimplicialLDLT<SparseMatrix> solver;
+    bool analysed = false;
+    std::vector<Triplet> triplets;
+    Eigen::VectorXd descent;
+    Eigen::MatrixXd saved;
+    for (const RefineStage &stage : stages) {
+        RangeLikelihoodParams stage_params = base_likelihood.params();
+        if (stage.nlos_fraction >= 0.0) {
+            stage_params.nlos_fraction = stage.nlos_fraction;
+        }
+        if (stage.nlos_mean_excess_m > 0.0) {
+            stage_params.nlos_mean_excess_m = stage.nlos_mean_excess_m;
+        }
+        const RangeLikelihood likelihood(stage_params);
+        const double sigma = problem.sigma_m * stage.sigma_scale;
+        const double variance = sigma * sigma;
+        double damping = params.initial_damping;
+        double cost = embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2);
+        for (uint32_t iteration = 0; iteration < iterations_per_stage; ++iteration) {
+            normalEquations(problem, placed, positions, likelihood, number, unknowns, variance, false, triplets, descent);
+            if (squeeze_per_m2 > 0.0 && dims > 2) {
+                for (Eigen::Index i = 0; i < unknowns; ++i) {
+                    const uint32_t node = free_nodes[static_cast<size_t>(i)];
+                    for (Eigen::Index d = 2; d < dims; ++d) {
+                        const int row = static_cast<int>(i * dims + d);
+                        triplets.emplace_back(row, row, 2.0 * squeeze_per_m2);
+                        descent(row) -= 2.0 * squeeze_per_m2 * positions(node, d);
+                    }
+                }
+            }
+            SparseMatrix normal(size, size);
+            normal.setFromTriplets(triplets.begin(), triplets.end());
+            const Eigen::VectorXd diagonal = normal.diagonal();
+            const double mean_diagonal = std::max(diagonal.sum() / static_cast<double>(size), 1e-12);
+            // The unheard pairs that are close change the pattern between iterations.
+            if (!analysed || problem.unheard_radius_m > 0.0) {
+                solver.analyzePattern(normal);
+                analysed = true;
+            }
+            bool accepted = false;
+            for (int attempt = 0; attempt < 10 && !accepted; ++attempt) {
+                SparseMatrix damped = normal;
+                for (Eigen::Index i = 0; i < size; ++i) {
+                    damped.coeffRef(i, i) += damping * (diagonal(i) + 1e-3 * mean_diagonal);
+                }
+                solver.factorize(damped);
+                if (solver.info() != Eigen::Success) {
+                    damping *= 10.0;
+                    continue;
+                }
+                const Eigen::VectorXd step = solver.solve(descent);
+                if (!step.allFinite()) {
+                    damping *= 10.0;
+                    continue;
+                }
+                saved = positions;
+                double longest = 0.0;
+                for (Eigen::Index i = 0; i < unknowns; ++i) {
+                    const auto node = static_cast<Eigen::Index>(free_nodes[static_cast<size_t>(i)]);
+                    positions.row(node) += step.segment(i * dims, dims).transpose();
+                    longest = std::max(longest, step.segment(i * dims, dims).norm());
+                }
+                const double trial = embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2);
+                if (trial <= cost) {
+                    accepted = true;
+                    ++result.iterations;
+                    damping = std::max(damping / 3.0, 1e-9);
+                    const bool settled =
+                        longest < params.step_tolerance_m || cost - trial < 1e-9 * (1.0 + std::abs(cost));
+                    cost = trial;
+                    if (settled) {
+                        iteration = iterations_per_stage; // this stage has converged
+                    }
+                } else {
+                    positions = saved;
+                    damping *= 10.0;
+                    ++result.refused;
+                }
+            }
+            if (!accepted) {
+                break;
+            }
+        }
+    }
+    result.cost = embeddingCost(problem, placed, positions, base_likelihood, problem.sigma_m * problem.sigma_m, 0.0);
+    return result;
+}
+
+MapRefineResult refineMap(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
+                          const MapRefineParams &params)
+{
+    Eigen::MatrixXd positions(problem.nodeCount(), 2);
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        positions.row(node) = estimate.position_m[node].transpose();
+    }
+    MapRefineResult result;
+    for (size_t stage = 0; stage < params.stages.size(); ++stage) {
+        const bool last = stage + 1 == params.stages.size();
+        const MapRefineResult part = refineEmbedding(problem, estimate.placed, positions, likelihood, {params.stages[stage]},
+                                                     params.iterations_per_stage * (last ? 3U : 1U), 0.0, params);
+        result.iterations += part.iterations;
+        result.refused += part.refused;
+    }
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        estimate.position_m[node] = positions.row(node).transpose();
+    }
+    result.cost = mapCost(problem, estimate, likelihood);
+    return result;
+}
+
+MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood)
+{
+    MapCovariance out;
+    out.covariance_m2.assign(problem.nodeCount(), Matrix2::Zero());
+    uint32_t free_count = 0;
+    const std::vector<int> number = freeNumbers(problem, estimate.placed, &free_count);
+    if (free_count == 0) {
+        return out;
+    }
+    const auto size = static_cast<Eigen::Index>(2 * free_count);
+    const double variance = problem.sigma_m * problem.sigma_m;
+    Eigen::MatrixXd positions(problem.nodeCount(), 2);
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        positions.row(node) = estimate.position_m[node].transpose();
+    }
+    std::vector<Triplet> triplets;
+    Eigen::VectorXd descent;
+    normalEquations(problem, estimate.placed, positions, likelihood, number, static_cast<Eigen::Index>(free_count),
+                    variance, true, triplets, descent);
+    SparseMatrix information(size, size);
+    information.setFromTriplets(triplets.begin(), triplets.end());
+    // The variance factor: weighted squared residuals of the line-of-sight links over their
+    // degrees of freedom.
+    double weighted = 0.0;
+    double inliers = 0.0;
+    for (const MapLink &link : problem.links) {
+        if (estimate.placed[link.a] == 0 || estimate.placed[link.b] == 0) {
+            continue;
+        }
+        const double residual = link.range_m - (estimate.position_m[link.a] - estimate.position_m[link.b]).norm();
+        const double p = likelihood.evaluate(residual, variance).inlier_probability;
+        weighted += p * residual * residual / variance;
+        inliers += p;
+    }
+    out.gauge_free = problem.fixedCount() < 2;
+    const double unknowns = static_cast<double>(size) - (out.gauge_free ? 3.0 : 0.0);
+    const double degrees_of_freedom = inliers - unknowns;
+    out.variance_factor = degrees_of_freedom >= 1.0 ? std::max(weighted / degrees_of_freedom, 1.0) : 1.0;
+    // Inverse of the information: with a free gauge its null space (translations, rotation) is
+    // lifted by a tiny regulariser and projected out again (the pseudo-inverse), so the result is
+    // the shape's uncertainty, as a rigid fit to the truth measures it.
+    const Eigen::VectorXd information_diagonal = information.diagonal();
+    const double mean_diagonal = std::max(information_diagonal.sum() / static_cast<double>(size), 1e-12);
+    const double regulariser = out.gauge_free ? 1e-7 * mean_diagonal : 1e-12 * mean_diagonal;
+    SparseMatrix regular = information;
+    for (Eigen::Index i = 0; i < size; ++i) {
+        regular.coeffRef(i, i) += regulariser;
+    }
+    Eigen::SimplicialLDLT<SparseMatrix> solver(regular);
+    if (solver.info() != Eigen::Success) {
+        return out;
+    }
+    std::vector<uint32_t> free_nodes;
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (number[node] >= 0) {
+            free_nodes.push_back(node);
+        }
+    }
+    // The whole inverse (the reliabilities need its off-diagonal blocks), then, with a free
+    // gauge, P X P with P = I - G G^T: G spans x, y translation and the rotation about the
+    // centroid (orthonormalised), the pseudo-inverse.
+    Eigen::MatrixXd inverse = solver.solve(Eigen::MatrixXd::Identity(size, size));
+    Eigen::MatrixXd gauge = Eigen::MatrixXd::Zero(size, 3);
+    {
+        Vector2 centroid = Vector2::Zero();
+        for (uint32_t node : free_nodes) {
+            centroid += estimate.position_m[node];
+        }
+        centroid /= static_cast<double>(free_nodes.size());
+        for (size_t i = 0; i < free_nodes.size(); ++i) {
+            const Vector2 r = estimate.position_m[free_nodes[i]] - centroid;
+            const auto row = static_cast<Eigen::Index>(2 * i);
+            gauge(row, 0) = 1.0;
+            gauge(row + 1, 1) = 1.0;
+            gauge(row, 2) = -r.y();
+            gauge(row + 1, 2) = r.x();
+        }
+    }
+    if (out.gauge_free) {
+        Eigen::HouseholderQR<Eigen::MatrixXd> qr(gauge);
+        const Eigen::MatrixXd basis = qr.householderQ() * Eigen::MatrixXd::Identity(size, 3);
+        const Eigen::MatrixXd xg = inverse * basis;           // X G
+        const Eigen::Matrix3d gxg = basis.transpose() * xg;   // G^T X G
+        inverse = inverse - basis * xg.transpose() - xg * basis.transpose() + basis * gxg * basis.transpose();
+    }
+    inverse = 0.5 * (inverse + inverse.transpose());
+    // Redundancy of each link (Baarda): r = 1 - w j^T X j, the share of an error in the link that its
+    // own residual shows (0: no other link checks it). Gauge-invariant.
+    struct LinkJacobian {
+        int na = -1;
+        int nb = -1;
+        Vector2 u = Vector2::Zero();
+        double weight = 0.0;
+    };
+    std::vector<LinkJacobian> jacobians(problem.links.size());
+    out.link_redundancy.assign(problem.links.size(), -1.0);
+    auto effectOf = [&](const LinkJacobian &j) {
+        Eigen::VectorXd effect = Eigen::VectorXd::Zero(size); // X j
+        if (j.na >= 0) {
+            effect += inverse.middleCols<2>(2 * j.na) * j.u;
+        }
+        if (j.nb >= 0) {
+            effect -= inverse.middleCols<2>(2 * j.nb) * j.u;
+        }
+        return effect;
+    };
+    for (uint32_t index = 0; index < problem.links.size(); ++index) {
+        const MapLink &link = problem.links[index];
+        if (estimate.placed[link.a] == 0 || estimate.placed[link.b] == 0) {
+            continue;
+        }
+        LinkJacobian &j = jacobians[index];
+        j.na = number[link.a];
+        j.nb = number[link.b];
+        const Vector2 delta = estimate.position_m[link.a] - estimate.position_m[link.b];
+        const double distance = delta.norm();
+        if ((j.na < 0 && j.nb < 0) || distance < 1e-9) {
+            continue;
+        }
+        j.u = delta / distance;
+        j.weight = likelihood.evaluate(link.range_m - distance, variance).inlier_probability / variance;
+        const Eigen::VectorXd effect = effectOf(j);
+        double leverage = 0.0;
+        if (j.na >= 0) {
+            leverage += j.u.dot(effect.segment<2>(2 * j.na));
+        }
+        if (j.nb >= 0) {
+            leverage -= j.u.dot(effect.segment<2>(2 * j.nb));
+        }
+        out.link_redundancy[index] = std::clamp(1.0 - j.weight * leverage, 0.0, 1.0);
+    }
+    // The main part: the largest group of nodes joined by links that other links check (and
+    // that are line of sight). Its placement defines the frame the covariances are given in
+    // (an S-transformation): what hangs on it by weak links is uncertain relative to it, and the
+    // main part is not made uncertain by what hangs on it.
+    std::vector<uint32_t> group(problem.nodeCount(), UINT32_MAX);
+    std::vector<uint32_t> group_size;
+    for (uint32_t start : free_nodes) {
+        if (group[start] != UINT32_MAX) {
+            continue;
+        }
+        const auto id = static_cast<uint32_t>(group_size.size());
+        group_size.push_back(0);
+        std::vector<uint32_t> stack{start};
+        group[start] = id;
+        while (!stack.empty()) {
+            const uint32_t node = stack.back();
+            stack.pop_back();
+            ++group_size[id];
+            for (uint32_t link : problem.node_links[node]) {
+                const uint32_t other = problem.other(link, node);
+                if (group[other] == UINT32_MAX && number[other] >= 0 &&
+                    out.link_redundancy[link] >= kCheckedRedundancy && jacobians[link].weight * variance > 0.5) {
+                    group[other] = id;
+                    stack.push_back(other);
+                }
+            }
+        }
+    }
+    const auto main_group = static_cast<uint32_t>(
+        std::max_element(group_size.begin(), group_size.end()) - group_size.begin());
+    out.main_part.assign(problem.nodeCount(), 0);
+    for (uint32_t node : free_nodes) {
+        out.main_part[node] = group[node] == main_group ? 1 : 0;
+    }
+    const double scale = std::sqrt(out.variance_factor);
+    // The frame is the main part's; then, if some of its nodes turn out to hang on weakly checked
+    // links, the frame is that of its reliable core instead (twice at most), so that a wing joined
+    // by a few links does not share its uncertainty with the part it hangs on.
+    // The first frame: the main part's nodes none of whose links is weakly checked.
+    std::vector<uint8_t> datum = out.main_part;
+    {
+        std::vector<uint8_t> interior = out.main_part;
+        uint32_t interior_size = 0;
+        for (uint32_t node : free_nodes) {
+            for (uint32_t link : problem.node_links[node]) {
+                if (out.link_redundancy[link] >= 0.0 && out.link_redundancy[link] < 0.1) {
+                    interior[node] = 0;
+                }
+            }
+            interior_size += interior[node];
+        }
+        if (interior_size >= 3) {
+            datum = interior;
+        }
+    }
+    for (int pass = 0; pass < 4; ++pass) {
+        Eigen::MatrixXd transform = Eigen::MatrixXd::Identity(size, size); // S
+        if (out.gauge_free) {
+            // S = I - G (G^T E G)^-1 G^T E, E selecting the datum's coordinates.
+            Eigen::MatrixXd selected = Eigen::MatrixXd::Zero(size, 3); // E G
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                if (datum[free_nodes[i]] != 0) {
+                    selected.middleRows<2>(static_cast<Eigen::Index>(2 * i)) =
+                        gauge.middleRows<2>(static_cast<Eigen::Index>(2 * i));
+                }
+            }
+            const Eigen::Matrix3d normal_main = gauge.transpose() * selected;
+            transform -= gauge * normal_main.ldlt().solve(selected.transpose());
+        }
+        const Eigen::MatrixXd covariance = transform * inverse * transform.transpose();
+        for (size_t i = 0; i < free_nodes.size(); ++i) {
+            const auto row = static_cast<Eigen::Index>(2 * i);
+            const Matrix2 block = covariance.block<2, 2>(row, row);
+            out.covariance_m2[free_nodes[i]] = out.variance_factor * 0.5 * (block + block.transpose());
+        }
+        // Reliability: the largest error in one link that could go unnoticed, delta0 sigma / sqrt(r),
+        // and what it would do to every node (S X j w error).
+        out.reliability_m.assign(problem.nodeCount(), 0.0);
+        for (uint32_t index = 0; index < problem.links.size(); ++index) {
+            const LinkJacobian &j = jacobians[index];
+            if (j.weight <= 0.0 || out.link_redundancy[index] < 0.0) {
+                continue;
+            }
+            const Eigen::VectorXd effect = transform * effectOf(j);
+            const double checked = out.link_redundancy[index];
+            // A link nothing checks: its possible error is bounded by nothing but the floor.
+            const double blunder_times_weight =
+                kReliabilityDelta * scale * std::sqrt(j.weight) / std::sqrt(std::max(checked, 1e-6));
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                const double moved = blunder_times_weight * effect.segment<2>(static_cast<Eigen::Index>(2 * i)).norm();
+                out.reliability_m[free_nodes[i]] = std::max(out.reliability_m[free_nodes[i]], moved);
+            }
+        }
+        if (!out.gauge_free) {
+            break;
+        }
+        std::vector<uint8_t> core(problem.nodeCount(), 0);
+        uint32_t core_size = 0;
+        for (uint32_t node : free_nodes) {
+            if (datum[node] != 0 && out.reliability_m[node] < kReliableCoreM) {
+                core[node] = 1;
+                ++core_size;
+            }
+        }
+        if (core_size < 3 || core == datum || pass == 3) {
+            break;
+        }
+        datum = core;
+    }
+    return out;
+}
+
+} // namespace cdro::engine
