@@ -212,18 +212,18 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
     std::vector<Vector2> converged_truth;
     for (const cdro::engine::NodeOutput &node : estimates) {
         const auto known = truth_m.find(node.id);
-        if (known == truth_m.end() || !node.placed) {
+        if (known == truth_m.end() || !node.placed()) {
             continue;
         }
         ++result.placed;
-        result.converged += node.converged ? 1U : 0U;
+        result.converged += node.converged() ? 1U : 0U;
         if (!node.position_m.allFinite() || !node.covariance_m2.allFinite()) {
             result.finite = false;
             continue;
         }
         estimated.push_back(node.position_m);
         truth.push_back(known->second);
-        if (node.converged) {
+        if (node.converged()) {
             converged_estimated.push_back(node.position_m);
             converged_truth.push_back(known->second);
         }
@@ -241,7 +241,7 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
         std::vector<Accuracy::Worst> errors;
         for (const cdro::engine::NodeOutput &node : estimates) {
             const auto known = truth_m.find(node.id);
-            if (known != truth_m.end() && node.placed && node.position_m.allFinite()) {
+            if (known != truth_m.end() && node.placed() && node.position_m.allFinite()) {
                 errors.push_back({(fit.apply(node.position_m) - known->second).norm(), node.id, node.link_count});
             }
         }
@@ -258,7 +258,7 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
     }
     std::map<NodeId, Vector2> placed_m;
     for (const cdro::engine::NodeOutput &node : estimates) {
-        if (node.placed) {
+        if (node.placed()) {
             placed_m[node.id] = node.position_m;
         }
     }
@@ -321,17 +321,17 @@ StateSize stateSize(const Engine &engine)
     constexpr size_t kPerComponentBytes =
         sizeof(cdro::engine::SogComponentState) + sizeof(double) + sizeof(uint32_t);
     StateSize size;
-    size.nodes = engine.network().nodes.size();
-    size.links = engine.network().links.size();
+    size.nodes = engine.map().nodes.size();
+    size.links = engine.map().links.size();
     size_t adjacency = 0;
-    for (const cdro::engine::NodeState &node : engine.network().nodes) {
+    for (const cdro::engine::NodeState &node : engine.map().nodes) {
         adjacency += node.links.size();
     }
-    for (const cdro::engine::RingSog &ring : engine.rings()) {
+    for (const cdro::engine::RingSog &ring : engine.map().rings) {
         size.rings += ring.empty() ? 0U : 1U;
         size.components += ring.size();
     }
-    size.bytes = size.components * kPerComponentBytes + engine.rings().size() * sizeof(cdro::engine::RingSog) +
+    size.bytes = size.components * kPerComponentBytes + engine.map().rings.size() * sizeof(cdro::engine::RingSog) +
                  size.links * sizeof(cdro::engine::LinkState) + size.nodes * sizeof(cdro::engine::NodeState) +
                  adjacency * sizeof(uint32_t) + (size.links + size.nodes) * kHashEntryBytes;
     return size;
@@ -356,15 +356,15 @@ public:
     // wall_s: the time spent feeding ranges so far (what happens between passes is not counted).
     void check(const Engine &engine, uint64_t ranges_fed, double wall_s)
     {
-        const EngineCounters &c = engine.counters();
-        const uint64_t signature = c.placements + c.replacements + c.reinitializations_adopted;
+        const EngineCounters c = engine.counters();
+        const uint64_t signature = c.placement.placements + c.placement.replacements + c.solve.solves;
         if (signature == signature_) {
             return;
         }
         signature_ = signature;
         size_t placed = 0;
-        for (const cdro::engine::NodeState &node : engine.network().nodes) {
-            placed += node.placed ? 1U : 0U;
+        for (const cdro::engine::NodeState &node : engine.map().nodes) {
+            placed += node.placed() ? 1U : 0U;
         }
         if (events_.empty() || events_.back().placed != placed) {
             events_.push_back(Event{ranges_fed, wall_s, placed});
@@ -449,7 +449,7 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
 }
 
 // cdro-hostd's offline default: enough neighbour updates for every node to move many times.
-uint64_t settleBudget(const Engine &engine) { return 200ULL * engine.network().nodes.size() + 1000ULL; }
+uint64_t settleBudget(const Engine &engine) { return 200ULL * engine.map().nodes.size() + 1000ULL; }
 
 
 Json timedJson(const Timed &t)
@@ -497,7 +497,7 @@ PlantRun runPlant(const Plant &plant, uint32_t passes)
     uint64_t fed = 0;
     double fed_wall_s = 0.0;
     run.first = feed(engine, plant.ranges, &timeline, &fed, &fed_wall_s);
-    run.reinit_first = engine.counters().reinitializations;
+    run.reinit_first = engine.counters().solve.solves;
     run.after_first = accuracy(engine, plant.truth_m);
     {
         Engine settled = engine;
@@ -508,7 +508,7 @@ PlantRun runPlant(const Plant &plant, uint32_t passes)
         run.steady.push_back(feed(engine, plant.ranges, &timeline, &fed, &fed_wall_s));
         run.steady_total += run.steady.back();
     }
-    run.reinit_steady = engine.counters().reinitializations - run.reinit_first;
+    run.reinit_steady = engine.counters().solve.solves - run.reinit_first;
     run.end = accuracy(engine, plant.truth_m);
     run.first_map = firstMapJson(timeline, plant.truth_m.size(), run.end.placed, plant.ranges.size());
     run.state = stateSize(engine);
@@ -758,7 +758,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
         if (warming) {
             warmup += timed;
             warmup_sweep_s.push_back(timed.wall_s);
-            reinit_warmup = engine.counters().reinitializations;
+            reinit_warmup = engine.counters().solve.solves;
         } else {
             steady += timed;
             sweep_rates.push_back(timed.rate());
@@ -767,17 +767,17 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     if (ranges_csv != nullptr) {
         std::fclose(ranges_csv);
     }
-    const uint64_t reinit_steady = engine.counters().reinitializations - reinit_warmup;
+    const uint64_t reinit_steady = engine.counters().solve.solves - reinit_warmup;
     const Accuracy end = accuracy(engine, net.truth_m);
     // Which nodes the map left out, with their links: a node with one link cannot be placed, one
     // with two has two mirror positions that its ranges cannot tell apart.
     Json unplaced = Json::array();
-    const cdro::engine::Network &graph = engine.network();
+    const cdro::engine::MapState &graph = engine.map();
     for (const cdro::engine::NodeState &node : graph.nodes) {
-        if (!node.placed) {
+        if (!node.placed()) {
             uint32_t placed_neighbours = 0;
             for (uint32_t link : node.links) {
-                placed_neighbours += graph.nodes[graph.otherNode(link, graph.findNode(node.id))].placed ? 1U : 0U;
+                placed_neighbours += graph.nodes[graph.otherNode(link, graph.findNode(node.id))].placed() ? 1U : 0U;
             }
             unplaced.push_back(Json{{"id", node.id},
                                     {"links", node.links.size()},
@@ -828,11 +828,12 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
         {"memory_after", memoryJson(after)},
         {"counters", Json{{"ranges_used", c.ranges_used},
                           {"ranges_stored", c.ranges_stored},
-                          {"placements", c.placements},
-                          {"replacements", c.replacements},
-                          {"reinitializations_adopted", c.reinitializations_adopted},
-                          {"ekf_gated", c.ekf_gated},
-                          {"weight_collapses", c.weight_collapses}}},
+                          {"placements", c.placement.placements},
+                          {"replacements", c.placement.replacements},
+                          {"global_solves", c.solve.solves},
+                          {"global_solves_adopted", c.solve.solves_adopted},
+                          {"ekf_gated", c.sogs.ekf_gated},
+                          {"weight_collapses", c.sogs.weight_collapses}}},
     };
 }
 

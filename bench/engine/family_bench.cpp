@@ -181,7 +181,52 @@ int main(int argc, char **argv)
             }
             disputed += solved.disputed[node];
         }
-        const Fit fit = fitToTruth(est, tru);
+        Fit fit = fitToTruth(est, tru);
+        if (std::getenv("CDRO_BENCH_OFFSET") != nullptr) {
+            // Alternate: the common range offset given the map, then the map given the offset.
+            engine::MapProblem shifted = problem;
+            engine::MapEstimate map = solved.best.estimate;
+            double offset = 0.0;
+            for (int round = 0; round < 6; ++round) {
+                // Newton on c with the robust cost (numerical derivatives), prior N(0, 0.5^2).
+                auto cost_at = [&](double c) {
+                    engine::MapProblem p2 = problem;
+                    for (engine::MapLink &l : p2.links) {
+                        l.range_m -= c;
+                    }
+                    return engine::mapCost(p2, map, likelihood) + 0.5 * c * c / 0.25;
+                };
+                for (int it = 0; it < 20; ++it) {
+                    const double h = 1e-3;
+                    const double f0 = cost_at(offset);
+                    const double fp = cost_at(offset + h);
+                    const double fm = cost_at(offset - h);
+                    const double g = (fp - fm) / (2 * h);
+                    const double H = std::max((fp - 2 * f0 + fm) / (h * h), 1e-3);
+                    const double step = std::clamp(-g / H, -0.2, 0.2);
+                    offset += step;
+                    if (std::abs(step) < 1e-5) {
+                        break;
+                    }
+                }
+                shifted = problem;
+                for (engine::MapLink &l : shifted.links) {
+                    l.range_m -= offset;
+                }
+                engine::MapRefineParams rp;
+                rp.stages = {engine::RefineStage{}};
+                engine::refineMap(shifted, map, likelihood, rp);
+            }
+            std::vector<Vector2> oe;
+            std::vector<Vector2> ot;
+            for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                if (map.placed[node] != 0) {
+                    oe.push_back(map.position_m[node]);
+                    ot.push_back(truth[node]);
+                }
+            }
+            std::printf("      offset %.3f m: rmse %.3f (was %.3f)\n", offset, fitToTruth(oe, ot).rmse_m, fit.rmse_m);
+        }
         engine::MapEstimate reference = engine::MapEstimate::unplaced(problem.nodeCount());
         for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
             reference.placed[node] = problem.node_links[node].empty() ? 0 : 1;
@@ -292,7 +337,46 @@ int main(int argc, char **argv)
         }
         // Honesty: which nodes the solve would call converged, and are they right?
         {
-            const engine::MapCovariance confidence = engine::mapCovariance(problem, solved.best.estimate, likelihood);
+            const engine::MapModelError model_error{};
+            engine::MapModelError with_prior = model_error;
+            if (const char *prior = std::getenv("CDRO_BENCH_SCALE_PRIOR")) {
+                with_prior.scale_sigma = std::max(with_prior.scale_sigma, std::atof(prior));
+            }
+            engine::MapCovariance confidence =
+                engine::mapCovariance(problem, solved.best.estimate, likelihood, with_prior);
+            // Model sensitivity: the best map refined under other NLOS models.
+            std::vector<double> model_spread(problem.nodeCount(), 0.0);
+            if (std::getenv("CDRO_BENCH_MODELS") != nullptr) {
+                const double variants[][2] = {{0.05, 0.5}, {0.3, 0.5}, {0.5, 0.3}, {0.6, 1.0}};
+                for (const auto &v : variants) {
+                    engine::RangeLikelihoodParams vp = likelihood_params;
+                    vp.nlos_fraction = v[0];
+                    vp.nlos_mean_excess_m = v[1];
+                    const engine::RangeLikelihood variant = engine::mapLikelihood(vp);
+                    engine::MapEstimate again = solved.best.estimate;
+                    engine::MapRefineParams rp;
+                    rp.stages = {engine::RefineStage{}};
+                    engine::refineMap(problem, again, variant, rp);
+                    std::vector<Vector2> src;
+                    std::vector<Vector2> dst;
+                    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                        if (solved.best.estimate.placed[node] != 0 && confidence.main_part[node] != 0) {
+                            src.push_back(again.position_m[node]);
+                            dst.push_back(solved.best.estimate.position_m[node]);
+                        }
+                    }
+                    const engine::RigidTransform back = engine::fitRigid(src, dst, false);
+                    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                        if (solved.best.estimate.placed[node] != 0) {
+                            model_spread[node] = std::max(model_spread[node],
+                                (back.apply(again.position_m[node]) - solved.best.estimate.position_m[node]).norm());
+                        }
+                    }
+                }
+                for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                    confidence.covariance_m2[node] += 0.25 * model_spread[node] * model_spread[node] * engine::Matrix2::Identity();
+                }
+            }
             std::vector<std::pair<uint32_t, uint32_t>> edges;
             for (const engine::MapLink &link : problem.links) {
                 edges.emplace_back(link.a, link.b);
@@ -350,7 +434,10 @@ int main(int argc, char **argv)
                 const bool links_ok = problem.node_links[node].size() >= 3;
                 const bool fold_ok = folds.foldable[node] == 0;
                 const bool dispute_ok = solved.disputed[node] == 0;
-                const bool reliable = confidence.reliability_m[node] < threshold && confidence.main_part[node] != 0;
+                const double big = 2.0 * std::sqrt(std::max(confidence.covariance_m2[node].trace() -
+                                                                engine::minEigenvalue(confidence.covariance_m2[node]), 0.0));
+                const bool reliable = confidence.reliability_m[node] < threshold && confidence.main_part[node] != 0 &&
+                                      big < 1.0;
                 why_links += links_ok ? 0U : 1U;
                 why_fold += fold_ok ? 0U : 1U;
                 why_disputed += dispute_ok ? 0U : 1U;
@@ -442,10 +529,10 @@ int main(int argc, char **argv)
             std::vector<Vector2> ce;
             std::vector<Vector2> ct;
             for (const engine::NodeOutput &out : streaming.estimates()) {
-                if (out.placed) {
+                if (out.placed()) {
                     e.push_back(out.position_m);
                     t.push_back(truth[number[out.id]]);
-                    if (out.converged) {
+                    if (out.converged()) {
                         ce.push_back(out.position_m);
                         ct.push_back(truth[number[out.id]]);
                     }

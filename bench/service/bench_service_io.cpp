@@ -403,11 +403,11 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
     std::vector<cdro::engine::Vector2> truth;
     for (const cdro::engine::NodeOutput &node : engine.estimates()) {
         const auto known = truth_m.find(node.id);
-        if (known == truth_m.end() || !node.placed) {
+        if (known == truth_m.end() || !node.placed()) {
             continue;
         }
         ++score.placed;
-        score.converged += node.converged ? 1U : 0U;
+        score.converged += node.converged() ? 1U : 0U;
         if (node.position_m.allFinite()) {
             estimated.push_back(node.position_m);
             truth.push_back(known->second);
@@ -762,18 +762,20 @@ int main(int argc, char **argv)
     }
     std::printf("load average          %s at the start, %s at the end\n", load_start.c_str(), load_end.c_str());
     if (with_engine) {
-        const cdro::engine::EngineCounters &e = engine.counters();
+        const cdro::engine::EngineCounters e = engine.counters();
         std::printf("engine ranges         received %llu, used %llu, stored %llu, refused %llu (self %llu, value %llu)\n",
-                    static_cast<unsigned long long>(e.ranges_received), static_cast<unsigned long long>(e.ranges_used),
+                    static_cast<unsigned long long>(e.intake.ranges_received), static_cast<unsigned long long>(e.ranges_used),
                     static_cast<unsigned long long>(e.ranges_stored),
                     static_cast<unsigned long long>(adapter.rangesRefused()),
-                    static_cast<unsigned long long>(e.rejected_self), static_cast<unsigned long long>(e.rejected_value));
-        std::printf("engine events         %llu re-initializations (%llu adopted), %llu placements, %llu motion starts "
+                    static_cast<unsigned long long>(e.intake.rejected_self), static_cast<unsigned long long>(e.intake.rejected_value));
+        std::printf("engine events         %llu global solves (%llu maps adopted), %llu placements, %llu motion starts "
                     "(%llu inferred), %llu track updates\n",
-                    static_cast<unsigned long long>(e.reinitializations),
-                    static_cast<unsigned long long>(e.reinitializations_adopted),
-                    static_cast<unsigned long long>(e.placements), static_cast<unsigned long long>(e.motion_starts),
-                    static_cast<unsigned long long>(e.motion_inferred), static_cast<unsigned long long>(e.track_updates));
+                    static_cast<unsigned long long>(e.solve.solves),
+                    static_cast<unsigned long long>(e.solve.solves_adopted),
+                    static_cast<unsigned long long>(e.placement.placements),
+                    static_cast<unsigned long long>(e.motion.motion_starts),
+                    static_cast<unsigned long long>(e.motion.motion_inferred),
+                    static_cast<unsigned long long>(e.motion.track_updates));
         const double wall_us_per_frame = seconds * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
         const double engine_us = timed.engineS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
         const double fill_us = timed.fillS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));

@@ -242,7 +242,7 @@ void feed(engine::Engine &engine, const TestNetwork &network, const std::vector<
     }
     if (settle) {
         // The offline mode's budget (host/hostd/src/offline.cpp).
-        engine.settle(200ULL * engine.network().nodes.size() + 1000ULL);
+        engine.settle(200ULL * engine.map().nodes.size() + 1000ULL);
     }
 }
 
@@ -257,12 +257,12 @@ AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, cons
     std::vector<Vector2> source;
     std::vector<Vector2> target;
     for (const engine::NodeOutput &node : estimates) {
-        if (node.link_count == 0 && !node.fixed) {
+        if (node.link_count == 0 && !node.fixed()) {
             continue;
         }
         ++error.nodes;
-        error.converged += node.converged ? 1U : 0U;
-        if (!node.placed || truth.count(node.id) == 0) {
+        error.converged += node.converged() ? 1U : 0U;
+        if (!node.placed() || truth.count(node.id) == 0) {
             continue;
         }
         ++error.placed;
@@ -301,8 +301,9 @@ bool identical(const std::vector<engine::NodeOutput> &a, const std::vector<engin
     for (size_t i = 0; i < a.size(); ++i) {
         const engine::NodeOutput &x = a[i];
         const engine::NodeOutput &y = b[i];
-        if (x.id != y.id || x.placed != y.placed || x.converged != y.converged || x.moving != y.moving ||
-            x.fixed != y.fixed || x.height_known != y.height_known || !sameBytes(x.height_m, y.height_m) ||
+        if (x.id != y.id || x.role != y.role || x.lifecycle != y.lifecycle || x.doubt != y.doubt ||
+            x.hinge != y.hinge || x.hinge_nodes != y.hinge_nodes || x.height_known != y.height_known ||
+            !sameBytes(x.height_m, y.height_m) ||
             x.link_count != y.link_count || !sameBytes(x.position_m.x(), y.position_m.x()) ||
             !sameBytes(x.position_m.y(), y.position_m.y()) || !sameBytes(x.covariance_m2, y.covariance_m2)) {
             return false;

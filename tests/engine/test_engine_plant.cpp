@@ -1,8 +1,9 @@
 // The engine on real data: PLANT (shared/data/README.md: 28 nodes over ~3000 m^2 of an
 // industrial plant, heights known, 5 % NLOS ranges, 7 links off by over 1 m). In file order
-// and in 10 seeded shuffles of the ranges, every node must be placed and converged after
-// settle and the aligned RMSE at most 0.40 m (the goal; the reference least squares
-// after dropping bad links reaches 0.39 m, the Cramer-Rao bound is 0.16 m).
+// and in 10 seeded shuffles of the ranges, every node must be placed after settle, the aligned
+// RMSE at most 0.23 m (robust least squares after dropping bad links: 0.39 m; the Cramer-Rao bound
+// 0.16 m), and every node called converged within convergence.reliable_m of the truth when the
+// converged nodes are fitted on their own (what "converged" promises).
 #include <cstdio>
 
 #include <gtest/gtest.h>
@@ -14,10 +15,11 @@ namespace cdro::enginetest {
 namespace {
 
 constexpr size_t kPlantNodes = 28;   // nodes that appear in the ranges
-constexpr double kGoalRmseM = 0.40;  // m
+constexpr double kGoalRmseM = 0.23;  // m
 
 struct PlantRun {
     AlignedError error;
+    AlignedError converged; // the converged nodes fitted on their own
     engine::EngineCounters counters;
 };
 
@@ -31,14 +33,21 @@ PlantRun runPlant(const PlantData &plant, const std::vector<TestRange> &ranges)
     for (const TestRange &range : ranges) {
         engine.addRange(range.from, range.to, range.range_m);
     }
-    engine.settle(200ULL * engine.network().nodes.size() + 1000ULL);
-    return {alignedError(engine.estimates(), plant.ids, plant.truth_m), engine.counters()};
+    engine.settle(200ULL * engine.map().nodes.size() + 1000ULL);
+    std::vector<engine::NodeOutput> converged;
+    for (const engine::NodeOutput &node : engine.estimates()) {
+        if (node.converged()) {
+            converged.push_back(node);
+        }
+    }
+    return {alignedError(engine.estimates(), plant.ids, plant.truth_m), alignedError(converged, plant.ids, plant.truth_m),
+            engine.counters()};
 }
 
 // 0: file order; k > 0: the ranges shuffled with seed 5000 + k.
 class Plant : public ::testing::TestWithParam<int> {};
 
-TEST_P(Plant, EveryNodePlacedAndConvergedWithinTheGoal)
+TEST_P(Plant, EveryNodePlacedWithinTheGoalAndConvergedNodesWithinTheirPromise)
 {
     CDRO_SKIP_WHEN_SANITIZED(); // 25 to 60 s per order there
     std::string where;
@@ -57,18 +66,21 @@ TEST_P(Plant, EveryNodePlacedAndConvergedWithinTheGoal)
         order = "shuffled, seed " + std::to_string(seed);
     }
     const PlantRun run = runPlant(*plant, ranges);
-    std::printf("PLANT %s: %zu of %zu nodes placed, %zu converged, aligned RMSE %.4f m (max %.3f m), "
-                "%llu re-placements, %llu initializations (%llu adopted)\n",
+    std::printf("PLANT %s: %zu of %zu nodes placed, %zu converged, aligned RMSE %.4f m (max %.3f m; converged "
+                "alone max %.3f m), %llu re-placements, %llu global solves (%llu maps adopted)\n",
                 order.c_str(), run.error.placed, run.error.nodes, run.error.converged, run.error.rmse_m,
-                run.error.max_m, static_cast<unsigned long long>(run.counters.replacements),
-                static_cast<unsigned long long>(run.counters.reinitializations),
-                static_cast<unsigned long long>(run.counters.reinitializations_adopted));
+                run.error.max_m, run.converged.max_m,
+                static_cast<unsigned long long>(run.counters.placement.replacements),
+                static_cast<unsigned long long>(run.counters.solve.solves),
+                static_cast<unsigned long long>(run.counters.solve.solves_adopted));
     EXPECT_EQ(run.error.nodes, kPlantNodes);
     EXPECT_EQ(run.error.placed, kPlantNodes);
-    EXPECT_EQ(run.error.converged, kPlantNodes);
     EXPECT_LE(run.error.rmse_m, kGoalRmseM);
-    EXPECT_EQ(run.counters.ranges_received, 1205U);
-    EXPECT_EQ(run.counters.rejected_self + run.counters.rejected_value, 0U);
+    if (run.converged.placed >= 2) {
+        EXPECT_LE(run.converged.max_m, engine::ConvergenceParams{}.reliable_m);
+    }
+    EXPECT_EQ(run.counters.intake.ranges_received, 1205U);
+    EXPECT_EQ(run.counters.intake.rejected_self + run.counters.intake.rejected_value, 0U);
 }
 
 INSTANTIATE_TEST_SUITE_P(Orders, Plant, ::testing::Range(0, 11), [](const ::testing::TestParamInfo<int> &order_info) {

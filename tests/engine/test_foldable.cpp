@@ -224,21 +224,21 @@ TEST(Foldable, TheEngineDoesNotCallAFoldablePartConverged)
 
     size_t foldable = 0;
     for (const NodeOutput &node : engine.estimates()) {
-        ASSERT_TRUE(node.placed) << node.id;
+        ASSERT_TRUE(node.placed()) << node.id;
         const bool in_b = node.id >= 0x106;
-        EXPECT_EQ(node.foldable, in_b) << node.id;
+        EXPECT_EQ(node.doubt == cdro::engine::NodeDoubt::Foldable, in_b) << node.id;
         if (in_b) {
-            EXPECT_FALSE(node.converged) << node.id;
+            EXPECT_FALSE(node.converged()) << node.id;
             ASSERT_EQ(node.hinge_nodes, 2) << node.id;
             EXPECT_EQ(node.hinge[0], 0x104);
             EXPECT_EQ(node.hinge[1], 0x105);
             ++foldable;
         } else {
-            EXPECT_TRUE(node.converged) << node.id;
+            EXPECT_TRUE(node.converged()) << node.id;
         }
     }
     EXPECT_EQ(foldable, 3U);
-    EXPECT_EQ(engine.foldableCount(), 3U);
+    EXPECT_EQ(engine.counters().convergence.foldable_nodes, 3U);
 }
 
 } // namespace

@@ -1,5 +1,6 @@
 // placement: candidates and decisions for two versus three or more constraints, the mirror
-// ambiguity of collinear neighbours, the hint's tie break, and the frame triangle.
+// ambiguity of collinear neighbours (which the global solve, not placement, decides), and the
+// frame triangle.
 #include <cmath>
 
 #include <gtest/gtest.h>
@@ -12,10 +13,9 @@ namespace {
 
 using engine::chooseFrameTriangle;
 using engine::choosePlacement;
-using engine::Network;
+using engine::MapState;
 using engine::PlacementCandidate;
 using engine::PlacementDecision;
-using engine::PlacementHint;
 using engine::PlacementParams;
 using engine::placementCandidates;
 using engine::PointSolverParams;
@@ -58,7 +58,7 @@ TEST(Placement, TwoConstraintsGiveTwoMirrorCandidatesAndNoDecision)
     EXPECT_TRUE(hasCandidateNear(candidates, truth_m, 1e-6));
     EXPECT_TRUE(hasCandidateNear(candidates, Vector2(2.0, -3.0), 1e-6));
     EXPECT_NEAR(candidates[0].cost, candidates[1].cost, 1e-9);
-    const auto choice = choosePlacement(candidates, constraints.size(), PlacementParams{}, nullptr);
+    const auto choice = choosePlacement(candidates, constraints.size(), PlacementParams{});
     EXPECT_EQ(choice.decision, PlacementDecision::Ambiguous);
 }
 
@@ -73,15 +73,14 @@ TEST(Placement, ThreeNonCollinearConstraintsDecide)
         EXPECT_GE(candidates[i].cost, candidates[i - 1].cost); // best first
         EXPECT_GE((candidates[i].position_m - candidates[0].position_m).norm(), PlacementParams{}.distinct_m);
     }
-    const auto choice = choosePlacement(candidates, constraints.size(), PlacementParams{}, nullptr);
+    const auto choice = choosePlacement(candidates, constraints.size(), PlacementParams{});
     EXPECT_EQ(choice.decision, PlacementDecision::Placed);
-    EXPECT_FALSE(choice.by_tie_break);
     EXPECT_LT((choice.chosen.position_m - truth_m).norm(), 1e-6);
     // A rival within the ambiguity gap would have stopped it: the gap is what decides.
     PlacementParams demanding;
     demanding.ambiguity_gap_nats = 1e6;
     if (candidates.size() > 1) {
-        EXPECT_EQ(choosePlacement(candidates, constraints.size(), demanding, nullptr).decision,
+        EXPECT_EQ(choosePlacement(candidates, constraints.size(), demanding).decision,
                   PlacementDecision::Ambiguous);
     }
 }
@@ -96,57 +95,16 @@ TEST(Placement, CollinearNeighboursLeaveTheMirrorImageAmbiguous)
     EXPECT_TRUE(hasCandidateNear(candidates, truth_m, 1e-6));
     EXPECT_TRUE(hasCandidateNear(candidates, mirror_m, 1e-6));
     const PlacementParams params;
-    EXPECT_EQ(choosePlacement(candidates, constraints.size(), params, nullptr).decision, PlacementDecision::Ambiguous);
-    // The coarse layout says which: it picks the mirror image if that is where it puts the node.
-    const PlacementHint toward_mirror{Vector2(3.5, -3.0), 0.3};
-    const auto choice = choosePlacement(candidates, constraints.size(), params, &toward_mirror);
-    EXPECT_EQ(choice.decision, PlacementDecision::Placed);
-    EXPECT_TRUE(choice.by_tie_break);
-    EXPECT_LT((choice.chosen.position_m - mirror_m).norm(), 1e-6);
+    EXPECT_EQ(choosePlacement(candidates, constraints.size(), params).decision, PlacementDecision::Ambiguous);
 }
 
-TEST(Placement, HintBreaksTiesOnlyWhenClearlyNearer)
-{
-    const Vector2 truth_m(2.0, 3.0);
-    const auto constraints = exactConstraints(truth_m, {Vector2(0.0, 0.0), Vector2(6.0, 0.0)});
-    const auto candidates = candidatesFor(constraints);
-    ASSERT_EQ(candidates.size(), 2U);
-    const PlacementParams params;
-
-    const PlacementHint near_truth{Vector2(2.0, 2.5), 0.1};
-    const auto choice = choosePlacement(candidates, 2, params, &near_truth);
-    EXPECT_EQ(choice.decision, PlacementDecision::Placed);
-    EXPECT_TRUE(choice.by_tie_break);
-    EXPECT_LT((choice.chosen.position_m - truth_m).norm(), 1e-6);
-    // Confidence: the margin (5.5 m - 0.5 m) in units of the layout's error.
-    EXPECT_NEAR(choice.confidence, 5.0 / 0.1, 1e-4);
-
-    // On the baseline the hint is as near to both: no decision.
-    const PlacementHint undecided{Vector2(2.0, 0.0), 0.1};
-    EXPECT_EQ(choosePlacement(candidates, 2, params, &undecided).decision, PlacementDecision::Ambiguous);
-    // Nearer, but not by a fraction of the distance to the second (ratio 0.5).
-    const PlacementHint barely{Vector2(2.0, 0.7), 0.01};
-    EXPECT_EQ(choosePlacement(candidates, 2, params, &barely).decision, PlacementDecision::Ambiguous);
-    // Nearer, but the layout's own error is larger than the margin / 3.
-    const PlacementHint vague{Vector2(2.0, 2.5), 2.0};
-    EXPECT_EQ(choosePlacement(candidates, 2, params, &vague).decision, PlacementDecision::Ambiguous);
-}
-
-TEST(Placement, TangentCirclesGiveOneCandidateThatOnlyAnAgreeingHintPlaces)
+TEST(Placement, TangentCirclesGiveOneCandidateAndNoDecision)
 {
     const auto constraints = exactConstraints(Vector2(2.0, 0.0), {Vector2(0.0, 0.0), Vector2(4.0, 0.0)});
     const auto candidates = candidatesFor(constraints);
     ASSERT_EQ(candidates.size(), 1U);
     EXPECT_LT((candidates[0].position_m - Vector2(2.0, 0.0)).norm(), 1e-9);
-    const PlacementParams params;
-    EXPECT_EQ(choosePlacement(candidates, 2, params, nullptr).decision, PlacementDecision::Ambiguous);
-    const PlacementHint agreeing{Vector2(2.0, 0.2), 0.1};
-    const auto choice = choosePlacement(candidates, 2, params, &agreeing);
-    EXPECT_EQ(choice.decision, PlacementDecision::Placed);
-    EXPECT_TRUE(choice.by_tie_break);
-    EXPECT_EQ(choice.confidence, 1.0);
-    const PlacementHint elsewhere{Vector2(2.0, 5.0), 0.1};
-    EXPECT_EQ(choosePlacement(candidates, 2, params, &elsewhere).decision, PlacementDecision::Ambiguous);
+    EXPECT_EQ(choosePlacement(candidates, 2, PlacementParams{}).decision, PlacementDecision::Ambiguous);
 }
 
 TEST(Placement, NoUsableBaselineGivesNoCandidate)
@@ -155,16 +113,14 @@ TEST(Placement, NoUsableBaselineGivesNoCandidate)
     const auto constraints = exactConstraints(Vector2(3.0, 4.0), {Vector2(0.0, 0.0), Vector2(0.5, 0.0)});
     const auto candidates = candidatesFor(constraints);
     EXPECT_TRUE(candidates.empty());
-    EXPECT_EQ(choosePlacement(candidates, 2, PlacementParams{}, nullptr).decision, PlacementDecision::NoCandidate);
-    const PlacementHint hint{Vector2(3.0, 4.0), 0.1};
-    EXPECT_EQ(choosePlacement(candidates, 2, PlacementParams{}, &hint).decision, PlacementDecision::NoCandidate);
+    EXPECT_EQ(choosePlacement(candidates, 2, PlacementParams{}).decision, PlacementDecision::NoCandidate);
     EXPECT_TRUE(candidatesFor({}).empty());
 }
 
 // ---- the frame triangle -------------------------------------------------------------------
 
 struct FrameFixture {
-    Network network;
+    MapState network;
     std::vector<Vector2> truth_m;
     void link(uint32_t a, uint32_t b)
     {

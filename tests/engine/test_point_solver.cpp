@@ -190,16 +190,16 @@ TEST(PointSolver, DegenerateGeometryIsNotWellPosed)
 
 TEST(PointSolver, PlacedConstraintsListOnlyPlacedNeighbours)
 {
-    engine::Network network;
+    engine::MapState network;
     const uint32_t node = network.addNode(10);
     const uint32_t placed = network.addNode(20);
     const uint32_t unplaced = network.addNode(30);
     const uint32_t fixed = network.addNode(40);
-    network.nodes[placed].placed = true;
+    network.nodes[placed].lifecycle = engine::NodeLifecycle::Placed;
     network.nodes[placed].position_m = Vector2(1.0, 2.0);
     network.nodes[placed].covariance_m2 = 0.04 * Matrix2::Identity();
-    network.nodes[fixed].placed = true;
-    network.nodes[fixed].fixed = true;
+    network.nodes[fixed].lifecycle = engine::NodeLifecycle::Converged;
+    network.nodes[fixed].role = engine::NodeRole::Fixed;
     network.nodes[fixed].position_m = Vector2(-3.0, 0.5);
     network.nodes[fixed].covariance_m2 = Matrix2::Identity(); // ignored: a fixed node is certain
     const uint32_t link_placed = network.addLink(node, placed, 15);

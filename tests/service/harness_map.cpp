@@ -159,6 +159,19 @@ void HarnessEngine::fill(MapState &map) const
         estimate.placed = true;
         const auto linked = neighbours.find(id);
         estimate.foldable = nodes_.size() > 2 && linked != neighbours.end() && linked->second == 1;
+        if (estimate.foldable) {
+            estimate.converged = false;
+            estimate.reason = "foldable";
+            for (const auto &[pair, link] : links_) {
+                if (pair.first == id || pair.second == id) {
+                    estimate.hinge.push_back(pair.first == id ? pair.second : pair.first);
+                }
+            }
+        }
+        estimate.status = estimate.moving ? "moving" : (estimate.converged ? "converged" : "placed");
+        if (!estimate.converged && !estimate.moving && estimate.reason.empty()) {
+            estimate.reason = "unsettled";
+        }
         map.nodes.push_back(estimate);
     }
     for (const auto &[pair, link] : links_) {

@@ -23,22 +23,27 @@ std::vector<nlohmann::json> readLines(const std::string &path)
 MapState twoNodes(double x0)
 {
     MapState map;
-    map.nodes.push_back({24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true});
-    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true});
+    map.nodes.push_back({24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}});
+    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}});
     return map;
 }
 } // namespace
 
 TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
 {
-    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false};
+    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}};
     EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, 12.5)),
               R"({"type":"node","t_s":12.5,"id":24577,"x_m":3.214,"y_m":-0.502,"var_x_m2":0.0041,)"
               R"("cov_xy_m2":-0.0003,"var_y_m2":0.0052,"converged":true,"moving":false,"placed":true,)"
-              R"("foldable":false})");
+              R"("foldable":false,"status":"converged","reason":"","hinge":[]})");
     node.converged = false;
     node.foldable = true;
-    EXPECT_NE(JsonLinesWriter::line(nodeJson(node, 12.5)).find(R"("converged":false,"moving":false,"placed":true,"foldable":true})"),
+    node.status = "placed";
+    node.reason = "foldable";
+    node.hinge = {24580, 24581};
+    EXPECT_NE(JsonLinesWriter::line(nodeJson(node, 12.5))
+                  .find(R"("converged":false,"moving":false,"placed":true,"foldable":true,"status":"placed",)"
+                        R"("reason":"foldable","hinge":[24580,24581]})"),
               std::string::npos);
     RobotPose robot{24600, 1.5, 2.5, 0.25, 0.01, 0.0, 0.02};
     EXPECT_EQ(JsonLinesWriter::line(robotJson(robot, 1.0)),

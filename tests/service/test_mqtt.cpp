@@ -70,8 +70,8 @@ MapState mapWith(double x)
 {
     MapState map;
     map.t_s = 4.5;
-    map.nodes.push_back({24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true});
-    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true});
+    map.nodes.push_back({24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true, false, "converged", "", {}});
+    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true, false, "moving", "", {}});
     map.robot = RobotPose{24600, 0.5, 0.25, 1.0, 0.01, 0.0, 0.01};
     return map;
 }

@@ -87,12 +87,43 @@ RangeLikelihoodParams learnNlosModel(const MapProblem &problem, const MapEstimat
             break;
         }
         params.nlos_fraction = std::clamp(nlos / links, 0.02, 0.6);
-        params.nlos_mean_excess_m = std::clamp(excess / nlos, 0.1, 3.0);
+        // The NLOS term is an excess the noise cannot explain: at least three of its sigmas.
+        params.nlos_mean_excess_m = std::clamp(excess / nlos, 3.0 * problem.sigma_m, 3.0);
     }
     return params;
 }
 
 namespace {
+
+// A start made in a frame of its own (MDS-MAP, patches) is brought onto the fixed nodes' one: the
+// rigid fit of its fixed nodes onto their coordinates (a shift for a single one), then those
+// nodes exactly where they are known.
+void anchorToFixed(const MapProblem &problem, MapEstimate &estimate)
+{
+    std::vector<Vector2> source;
+    std::vector<Vector2> target;
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (problem.fixed[node] != 0 && estimate.placed[node] != 0) {
+            source.push_back(estimate.position_m[node]);
+            target.push_back(problem.fixed_position_m[node]);
+        }
+    }
+    if (source.empty()) {
+        return;
+    }
+    RigidTransform transform;
+    if (source.size() == 1) {
+        transform.translation_m = target.front() - source.front();
+    } else {
+        transform = fitRigid(source, target, true);
+    }
+    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+        if (estimate.placed[node] != 0) {
+            estimate.position_m[node] =
+                problem.fixed[node] != 0 ? problem.fixed_position_m[node] : transform.apply(estimate.position_m[node]);
+        }
+    }
+}
 
 // The largest discrepancy per node between two maps, after the rigid fit of one onto the other.
 std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference, const std::vector<uint32_t> &part)
@@ -137,6 +168,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     std::vector<MapHypothesis> hypotheses;
     auto finish = [&](MapHypothesis hypothesis, bool lifted_mds = false) {
         ++result.counters.starts;
+        anchorToFixed(problem, hypothesis.estimate);
         MapRefineResult refined = params.lift || lifted_mds
                                       ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
                                       : refineMap(problem, hypothesis.estimate, likelihood, params.refine);

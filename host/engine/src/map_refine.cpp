@@ -281,7 +281,8 @@ MapRefineResult refineMap(const MapProblem &problem, MapEstimate &estimate, cons
     return result;
 }
 
-MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood)
+MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood,
+                            const MapModelError &model_error)
 {
     MapCovariance out;
     out.covariance_m2.assign(problem.nodeCount(), Matrix2::Zero());
@@ -481,7 +482,26 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             const Eigen::Matrix3d normal_main = gauge.transpose() * selected;
             transform -= gauge * normal_main.ldlt().solve(selected.transpose());
         }
-        const Eigen::MatrixXd covariance = transform * inverse * transform.transpose();
+        Eigen::MatrixXd covariance = transform * inverse * transform.transpose();
+        if (model_error.scale_sigma > 0.0 && out.gauge_free) {
+            // NLOS makes every link read long, so the whole map may be too large by a share no
+            // range can tell: the scale mode, relative to the frame's centroid.
+            Eigen::VectorXd mode = Eigen::VectorXd::Zero(size);
+            Vector2 centre = Vector2::Zero();
+            double weight = 0.0;
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                if (datum[free_nodes[i]] != 0) {
+                    centre += estimate.position_m[free_nodes[i]];
+                    weight += 1.0;
+                }
+            }
+            centre /= std::max(weight, 1.0);
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                mode.segment<2>(static_cast<Eigen::Index>(2 * i)) = estimate.position_m[free_nodes[i]] - centre;
+            }
+            covariance += model_error.scale_sigma * model_error.scale_sigma * mode * mode.transpose() /
+                          std::max(out.variance_factor, 1.0);
+        }
         for (size_t i = 0; i < free_nodes.size(); ++i) {
             const auto row = static_cast<Eigen::Index>(2 * i);
             const Matrix2 block = covariance.block<2, 2>(row, row);

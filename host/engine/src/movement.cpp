@@ -101,13 +101,13 @@ void MovementStage::learnNoise(const RangeUpdateOutcome &outcome, double sigma_m
 
 double MovementStage::heightDifference(NodeId a, NodeId b) const
 {
-    const Network &network = engine_.network();
-    const uint32_t ia = network.findNode(a);
-    const uint32_t ib = network.findNode(b);
-    if (ia == kNoIndex || ib == kNoIndex || !network.nodes[ia].height_known || !network.nodes[ib].height_known) {
+    const MapState &map = engine_.map();
+    const uint32_t ia = map.findNode(a);
+    const uint32_t ib = map.findNode(b);
+    if (ia == kNoIndex || ib == kNoIndex || !map.nodes[ia].height_m || !map.nodes[ib].height_m) {
         return 0.0;
     }
-    return network.nodes[ia].height_m - network.nodes[ib].height_m;
+    return *map.nodes[ia].height_m - *map.nodes[ib].height_m;
 }
 
 const RobotFilter &MovementStage::best() const
@@ -157,10 +157,10 @@ void MovementStage::start(double t_s)
 {
     (void)t_s;
     const NodeId robot = params_.robot_id;
-    const Network &network = engine_.network();
+    const MapState &network = engine_.map();
     bool map = false;
     for (const NodeState &node : network.nodes) {
-        map = map || (node.placed && node.id != robot);
+        map = map || (node.placed() && node.id != robot);
     }
     const uint32_t robot_node = network.findNode(robot);
     const double scale_sigma = params_.estimate_scale ? params_.scale_sigma : 0.0;
@@ -178,7 +178,7 @@ void MovementStage::start(double t_s)
         return;
     }
     engine_.setMoving(robot, true);
-    if (robot_node == kNoIndex || !network.nodes[robot_node].placed) {
+    if (robot_node == kNoIndex || !network.nodes[robot_node].placed()) {
         // The map exists but does not hold the robot yet: the initialization stage tracks it
         // (it is moving) until it is placed, then the EKF starts from there.
         waiting_for_fix_ = true;
@@ -210,7 +210,7 @@ void MovementStage::start(double t_s)
 
 void MovementStage::insertConvergedNodes()
 {
-    for (const NodeState &node : engine_.network().nodes) {
+    for (const NodeState &node : engine_.map().nodes) {
         if (node.id != params_.robot_id && !hypotheses_.front().filter.hasNode(node.id)) {
             insertNode(node.id);
         }
@@ -219,21 +219,21 @@ void MovementStage::insertConvergedNodes()
 
 bool MovementStage::insertNode(NodeId id)
 {
-    const Network &network = engine_.network();
+    const MapState &network = engine_.map();
     const uint32_t index = network.findNode(id);
     if (index == kNoIndex || id == params_.robot_id || hypotheses_.empty()) {
         return false;
     }
     const NodeState &node = network.nodes[index];
     const bool moving = moving_.count(id) != 0 && moving_.at(id);
-    if (!node.placed || node.moving || moving || node.pinned || !(node.converged || node.fixed)) {
+    if (!node.placed() || node.moving() || moving || node.pinned() || !(node.converged() || node.fixed())) {
         return false;
     }
     // Never more certain than one range could make it: the initialization's covariances
     // ignore its neighbours' correlations.
     const double floor_m2 = rangeSigma() * rangeSigma();
-    Matrix2 covariance = node.fixed ? Matrix2::Identity() * 1e-8 : node.covariance_m2;
-    if (!node.fixed && minEigenvalue(covariance) < floor_m2) {
+    Matrix2 covariance = node.fixed() ? Matrix2::Identity() * 1e-8 : node.covariance_m2;
+    if (!node.fixed() && minEigenvalue(covariance) < floor_m2) {
         covariance += floor_m2 * Matrix2::Identity();
     }
     if (hypotheses_.front().filter.full()) {
@@ -449,8 +449,8 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
     ++revision_;
     if (!started_) {
         if (waiting_for_fix_) {
-            const uint32_t robot = engine_.network().findNode(params_.robot_id);
-            if (robot != kNoIndex && engine_.network().nodes[robot].placed) {
+            const uint32_t robot = engine_.map().findNode(params_.robot_id);
+            if (robot != kNoIndex && engine_.map().nodes[robot].placed()) {
                 start(t_s);
             }
         }
@@ -573,10 +573,12 @@ std::optional<RobotOutput> MovementStage::robot() const
     const RigidTransform transform = engine_.outputTransform();
     if (!started_ || hypotheses_.empty()) {
         const std::optional<NodeOutput> node = engine_.estimate(params_.robot_id);
-        // An ambiguous node's links fit another position about as well (a mirror image while the
-        // map forms): that is no position yet. Measured on the simulated runs: those estimates
+        // A node whose links fit another position about as well (too few links, a mirror image
+        // while the map forms, a part that can fold): that is no position yet. Measured on the simulated runs: those estimates
         // are 5-13 m off, the first unambiguous one 0.1 m.
-        if (node && node->placed && !node->ambiguous) {
+        const bool undecided = node && (node->doubt == NodeDoubt::Ambiguous || node->doubt == NodeDoubt::TooFewLinks ||
+                                        node->doubt == NodeDoubt::Foldable);
+        if (node && node->placed() && !undecided) {
             out.placed = true;
             out.frame = RobotFrame::Map;
             out.pose = Pose2{node->position_m.x(), node->position_m.y(), 0.0};
@@ -586,8 +588,8 @@ std::optional<RobotOutput> MovementStage::robot() const
             // Without a map yet, the odometry's frame is the one the EKF will start in.
             out.pose = dead_reckoning_;
             bool map = false;
-            for (const NodeState &state : engine_.network().nodes) {
-                map = map || state.placed;
+            for (const NodeState &state : engine_.map().nodes) {
+                map = map || state.placed();
             }
             out.placed = !map && !waiting_for_fix_;
         }
@@ -621,22 +623,21 @@ std::vector<NodeOutput> MovementStage::estimates() const
     for (NodeOutput &node : out) {
         const bool held = node.id == params_.robot_id || filter.hasNode(node.id) ||
                           (beacons_.count(node.id) != 0 && !beacons_.at(node.id).components.empty());
-        if (held) {
+        if (held && node.doubt == NodeDoubt::Foldable) {
             // Placed by the robot's ranges from many poses, not by the link graph alone: the
             // graph's folds (foldable.hpp) say nothing about it.
-            node.foldable = false;
+            node.doubt = NodeDoubt::None;
             node.hinge_nodes = 0;
         }
         if (node.id == params_.robot_id) {
             const Pose2 pose = filter.pose();
-            node.placed = true;
-            node.moving = true;
-            node.converged = hypotheses_.size() == 1;
+            node.lifecycle = NodeLifecycle::Moving;
+            node.doubt = hypotheses_.size() == 1 ? NodeDoubt::None : NodeDoubt::Ambiguous; // heading undecided
             node.position_m = transform.apply(Vector2(pose.x_m, pose.y_m));
             node.covariance_m2 = transform.applyToCovariance(filter.poseCovariance().topLeftCorner<2, 2>());
         } else if (filter.hasNode(node.id)) {
-            node.placed = true;
-            node.converged = true;
+            node.lifecycle = NodeLifecycle::Converged;
+            node.doubt = NodeDoubt::None;
             node.position_m = transform.apply(filter.nodePosition(node.id));
             node.covariance_m2 = transform.applyToCovariance(filter.nodeCovariance(node.id));
         } else {
@@ -652,8 +653,8 @@ std::vector<NodeOutput> MovementStage::estimates() const
                     const Vector2 spread = c.mean_m - mean;
                     covariance += c.weight * (c.covariance_m2 + spread * spread.transpose());
                 }
-                node.placed = true;
-                node.converged = false;
+                node.lifecycle = NodeLifecycle::Placed;
+                node.doubt = NodeDoubt::Unsettled;
                 node.position_m = transform.apply(mean);
                 node.covariance_m2 = transform.applyToCovariance(covariance);
             }

@@ -55,7 +55,7 @@ std::vector<PlacementCandidate> placementCandidates(const std::vector<RangeConst
 }
 
 PlacementChoice choosePlacement(const std::vector<PlacementCandidate> &candidates, size_t constraint_count,
-                                const PlacementParams &params, const PlacementHint *hint)
+                                const PlacementParams &params)
 {
     PlacementChoice choice;
     if (candidates.empty()) {
@@ -64,52 +64,16 @@ PlacementChoice choosePlacement(const std::vector<PlacementCandidate> &candidate
     // Two neighbours never decide by themselves (two mirror images fit exactly, or, tangent,
     // one that the next range may move to either side). Three or more decide when every seed
     // led to one solution, or the best beats every rival clearly.
+    choice.decision = PlacementDecision::Ambiguous;
     if (constraint_count >= 3 &&
         (candidates.size() == 1 || candidates[1].cost - candidates[0].cost >= params.ambiguity_gap_nats)) {
         choice.decision = PlacementDecision::Placed;
         choice.chosen = candidates[0];
-        return choice;
-    }
-    choice.decision = PlacementDecision::Ambiguous;
-    if (hint == nullptr) {
-        return choice;
-    }
-    const Vector2 &hint_m = hint->position_m;
-    // Among the candidates that are not clearly worse than the best, take the one nearest to
-    // the hint if it is clearly the nearest.
-    std::vector<const PlacementCandidate *> plausible;
-    for (const PlacementCandidate &candidate : candidates) {
-        if (candidate.cost - candidates[0].cost < params.ambiguity_gap_nats) {
-            plausible.push_back(&candidate);
-        }
-    }
-    std::stable_sort(plausible.begin(), plausible.end(), [&](const PlacementCandidate *x, const PlacementCandidate *y) {
-        return (x->position_m - hint_m).norm() < (y->position_m - hint_m).norm();
-    });
-    const double nearest = (plausible[0]->position_m - hint_m).norm();
-    const double error_m = std::max(hint->error_m, 1e-3);
-    if (plausible.size() == 1) {
-        // One plausible position (tangent circles): take it if the layout agrees.
-        if (nearest <= params.mds_margin_sigmas * error_m) {
-            choice.decision = PlacementDecision::Placed;
-            choice.chosen = *plausible[0];
-            choice.by_tie_break = true;
-            choice.confidence = 1.0;
-        }
-        return choice;
-    }
-    const double second = (plausible[1]->position_m - hint_m).norm();
-    const double margin = second - nearest;
-    if (nearest <= params.mds_decisive_ratio * second && margin >= params.mds_margin_sigmas * error_m) {
-        choice.decision = PlacementDecision::Placed;
-        choice.chosen = *plausible[0];
-        choice.by_tie_break = true;
-        choice.confidence = margin / error_m;
     }
     return choice;
 }
 
-std::optional<FrameTriangle> chooseFrameTriangle(const Network &network, const PlacementParams &params,
+std::optional<FrameTriangle> chooseFrameTriangle(const MapState &network, const PlacementParams &params,
                                                  const std::vector<bool> &eligible,
                                                  const std::optional<std::array<uint32_t, 3>> &preferred)
 {

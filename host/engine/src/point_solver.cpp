@@ -7,21 +7,21 @@
 
 namespace cdro::engine {
 
-std::vector<RangeConstraint> placedConstraints(const Network &network, uint32_t node)
+std::vector<RangeConstraint> placedConstraints(const MapState &map, uint32_t node)
 {
     std::vector<RangeConstraint> constraints;
-    const NodeState &state = network.nodes[node];
+    const NodeState &state = map.nodes[node];
     constraints.reserve(state.links.size());
     for (uint32_t link : state.links) {
-        const NodeState &other = network.nodes[network.otherNode(link, node)];
+        const NodeState &other = map.nodes[map.otherNode(link, node)];
         // A moving node is tracked by the others, never an anchor for them.
-        if (!other.placed || other.moving) {
+        if (!other.placed() || other.moving()) {
             continue;
         }
         RangeConstraint constraint;
         constraint.anchor_m = other.position_m;
-        constraint.anchor_covariance_m2 = other.fixed ? Matrix2::Zero() : other.covariance_m2;
-        constraint.range_m = network.links[link].representative_m;
+        constraint.anchor_covariance_m2 = other.fixed() ? Matrix2::Zero() : other.covariance_m2;
+        constraint.range_m = map.links[link].representative_m;
         constraint.link = link;
         constraints.push_back(constraint);
     }

@@ -57,7 +57,9 @@ private:
     size_t position_ = 0;
 };
 
-constexpr uint8_t kEngineBlockVersion = 1;
+// 2: roles, lifecycles and doubts as enums; the motion memory, the solve's view of each node and
+// the solve schedule; the counters of every step.
+constexpr uint8_t kEngineBlockVersion = 2;
 
 uint32_t mmOfRange(double metres)
 {
@@ -70,14 +72,41 @@ uint16_t saturate16(uint64_t value) { return value > 0xFFFFU ? 0xFFFFU : static_
 // The counters, in one fixed order (append only).
 std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
 {
-    return {&c.ranges_received, &c.ranges_used, &c.ranges_stored, &c.rejected_self, &c.rejected_value,
-            &c.projection_clamped, &c.ekf_component_updates, &c.ekf_gated, &c.weight_terms,
-            &c.weight_terms_downweighted, &c.weight_collapses, &c.weight_transfers, &c.placements,
-            &c.placements_by_tie_break, &c.placement_ambiguous, &c.mds_layouts, &c.replacements, &c.refinements,
-            &c.refinement_links_downweighted, &c.hypothesis_switches, &c.node_updates, &c.relaxations,
-            &c.reinitializations, &c.reinitializations_adopted, &c.motion_starts, &c.motion_stops,
-            &c.motion_inferred, &c.motion_resets, &c.track_updates, &c.track_refused,
-            &c.placements_forced, &c.joint_solves, &c.ambiguous_nodes};
+    return {&c.intake.ranges_received, &c.ranges_used, &c.ranges_stored, &c.intake.rejected_self,
+            &c.intake.rejected_value, &c.intake.projection_clamped, &c.sogs.ekf_component_updates, &c.sogs.ekf_gated,
+            &c.sogs.weight_terms, &c.sogs.weight_terms_downweighted, &c.sogs.weight_collapses,
+            &c.sogs.weight_transfers, &c.sogs.motion_resets, &c.placement.placements,
+            &c.placement.placement_ambiguous, &c.placement.placements_forced, &c.placement.replacements,
+            &c.refinement.refinements, &c.refinement.links_downweighted, &c.refinement.hypothesis_switches,
+            &c.node_updates, &c.relaxations, &c.solve.solves, &c.solve.solves_adopted, &c.solve.solve_starts,
+            &c.solve.solve_escapes, &c.solve.solve_placed, &c.convergence.assessments,
+            &c.convergence.ambiguous_nodes, &c.convergence.foldable_nodes, &c.convergence.flexible_nodes,
+            &c.motion.motion_starts, &c.motion.motion_stops, &c.motion.motion_inferred, &c.motion.track_updates,
+            &c.motion.track_refused};
+}
+
+// Doubles through the block: their bits, exactly.
+uint64_t bitsOf(double value)
+{
+    uint64_t bits = 0;
+    std::memcpy(&bits, &value, sizeof bits);
+    return bits;
+}
+
+double doubleOf(uint64_t bits)
+{
+    double value = 0.0;
+    std::memcpy(&value, &bits, sizeof value);
+    return value;
+}
+
+template <typename Enum> Enum enumOf(uint8_t value, uint8_t last, const char *what)
+{
+    if (value > last) {
+        throw CheckpointError(std::string("the checkpoint's engine block has an unknown ") + what + " " +
+                              std::to_string(value));
+    }
+    return static_cast<Enum>(value);
 }
 
 engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)
@@ -138,16 +167,21 @@ void EngineAdapter::fill(service::MapState &map) const
     map.nodes.clear();
     const std::vector<engine::NodeOutput> estimates = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
     for (const engine::NodeOutput &node : estimates) {
-        if (node.link_count == 0 && !node.fixed) {
+        if (node.link_count == 0 && !node.fixed()) {
             continue;
         }
         service::NodeEstimate out;
         out.id = node.id;
-        out.placed = node.placed;
-        out.converged = node.converged;
-        out.moving = node.moving;
-        out.foldable = node.foldable;
-        if (node.placed) {
+        out.placed = node.placed();
+        out.converged = node.converged();
+        out.moving = node.moving();
+        out.foldable = node.doubt == engine::NodeDoubt::Foldable;
+        out.status = engine::nodeLifecycleName(node.lifecycle);
+        out.reason = engine::nodeDoubtName(node.doubt);
+        for (uint8_t k = 0; k < node.hinge_nodes; ++k) {
+            out.hinge.push_back(node.hinge[k]);
+        }
+        if (node.placed()) {
             out.x_m = node.position_m.x();
             out.y_m = node.position_m.y();
             out.var_x_m2 = node.covariance_m2(0, 0);
@@ -211,10 +245,11 @@ void EngineAdapter::restore(const service::SogSnapshot &snapshot) { restoreFrom(
 
 service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_unix_us)
 {
-    const engine::Network &network = engine.network();
+    const engine::MapState &network = engine.map();
     service::SogSnapshot snapshot;
     snapshot.header.created_unix_us = created_unix_us;
-    snapshot.header.ranges_processed = static_cast<uint32_t>(std::min<uint64_t>(engine.counters().ranges_received, 0xFFFFFFFFULL));
+    snapshot.header.ranges_processed =
+        static_cast<uint32_t>(std::min<uint64_t>(engine.counters().intake.ranges_received, 0xFFFFFFFFULL));
     ByteWriter block;
     block.u8(kEngineBlockVersion);
     const auto frame = engine.frameNodes();
@@ -226,13 +261,14 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
     for (const engine::NodeState &node : network.nodes) {
         cdro_sog_node_t out{};
         out.id = node.id;
-        out.flags = static_cast<uint8_t>((node.placed ? CDRO_SOG_NODE_PLACED : 0) |
-                                         (node.converged ? CDRO_SOG_NODE_CONVERGED : 0) |
-                                         (node.moving ? CDRO_SOG_NODE_MOVING : 0) | (node.fixed ? CDRO_SOG_NODE_FIXED : 0) |
-                                         (node.height_known ? CDRO_SOG_NODE_HEIGHT_KNOWN : 0));
+        out.flags = static_cast<uint8_t>((node.placed() ? CDRO_SOG_NODE_PLACED : 0) |
+                                         (node.converged() ? CDRO_SOG_NODE_CONVERGED : 0) |
+                                         (node.moving() ? CDRO_SOG_NODE_MOVING : 0) |
+                                         (node.fixed() ? CDRO_SOG_NODE_FIXED : 0) |
+                                         (node.height_m ? CDRO_SOG_NODE_HEIGHT_KNOWN : 0));
         out.x_mm = cdro_fixed_mm_from_m(node.position_m.x());
         out.y_mm = cdro_fixed_mm_from_m(node.position_m.y());
-        out.z_mm = cdro_fixed_mm_from_m(node.height_m);
+        out.z_mm = cdro_fixed_mm_from_m(node.height_m.value_or(0.0));
         const cdro_fixed_covariance_t covariance = cdro_fixed_covariance_from(
             node.covariance_m2(0, 0), node.covariance_m2(0, 1), node.covariance_m2(1, 1));
         out.std_x_um = covariance.std_x_um;
@@ -246,6 +282,32 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.u32(node.still_updates);
         block.u32(node.placements);
         block.u32(node.update_count);
+        // The exact state (the common layout above is rounded to millimetres and flags).
+        block.u8(static_cast<uint8_t>(node.role));
+        block.u8(static_cast<uint8_t>(node.lifecycle));
+        block.u8(static_cast<uint8_t>(node.doubt));
+        for (uint32_t hinge : node.hinge) {
+            block.u16(hinge == engine::kNoIndex ? 0 : network.nodes[hinge].id);
+        }
+        block.u64(bitsOf(node.position_m.x()));
+        block.u64(bitsOf(node.position_m.y()));
+        block.u64(bitsOf(node.covariance_m2(0, 0)));
+        block.u64(bitsOf(node.covariance_m2(0, 1)));
+        block.u64(bitsOf(node.covariance_m2(1, 1)));
+        block.u64(bitsOf(node.average_m.x()));
+        block.u64(bitsOf(node.average_m.y()));
+        block.u32(node.waiting_ranges);
+        block.u64(node.first_range);
+        block.u8(static_cast<uint8_t>((node.motion.reports ? 1U : 0U) | (node.motion.reported_moving ? 2U : 0U) |
+                                      (node.motion.inferred ? 4U : 0U)));
+        const engine::NodeSolveView &solve = node.solve;
+        block.u8(static_cast<uint8_t>((solve.solved ? 1U : 0U) | (solve.disputed ? 2U : 0U) | (solve.main_part ? 4U : 0U)));
+        block.u64(bitsOf(solve.position_m.x()));
+        block.u64(bitsOf(solve.position_m.y()));
+        block.u64(bitsOf(solve.covariance_m2(0, 0)));
+        block.u64(bitsOf(solve.covariance_m2(0, 1)));
+        block.u64(bitsOf(solve.covariance_m2(1, 1)));
+        block.u64(bitsOf(solve.reliability_m));
     }
     block.u32(static_cast<uint32_t>(network.links.size()));
     for (const engine::LinkState &link : network.links) {
@@ -261,11 +323,11 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         }
     }
     uint32_t rings = 0;
-    for (const engine::RingSog &ring : engine.rings()) {
+    for (const engine::RingSog &ring : network.rings) {
         rings += ring.empty() ? 0U : 1U;
     }
     block.u32(rings);
-    for (const engine::RingSog &ring : engine.rings()) {
+    for (const engine::RingSog &ring : network.rings) {
         if (ring.empty()) {
             continue;
         }
@@ -292,8 +354,9 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         snapshot.pairs.push_back(std::move(pair));
         block.u32(ring.updateCount());
     }
-    block.u64(engine.reinitLinkCount());
-    block.u64(engine.rangesSinceNewLink());
+    const auto [links_at_last, ranges_since_new_link] = engine.solveSchedule();
+    block.u64(links_at_last);
+    block.u64(ranges_since_new_link);
     engine::EngineCounters counters = engine.counters();
     const std::vector<uint64_t *> fields = counterFields(counters);
     block.u8(static_cast<uint8_t>(fields.size()));
@@ -328,6 +391,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         throw CheckpointError("the checkpoint's engine block names " + std::to_string(node_count) + " nodes, the map " +
                               std::to_string(snapshot.nodes.size()));
     }
+    std::vector<std::array<engine::NodeId, 2>> hinges;
     for (const cdro_sog_node_t &in : snapshot.nodes) {
         engine::NodeState node;
         node.id = in.id;
@@ -337,16 +401,52 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         node.still_updates = block.u32();
         node.placements = block.u32();
         node.update_count = block.u32();
-        node.placed = (in.flags & CDRO_SOG_NODE_PLACED) != 0;
-        node.converged = (in.flags & CDRO_SOG_NODE_CONVERGED) != 0;
-        node.moving = (in.flags & CDRO_SOG_NODE_MOVING) != 0;
-        node.fixed = (in.flags & CDRO_SOG_NODE_FIXED) != 0;
-        node.height_known = (in.flags & CDRO_SOG_NODE_HEIGHT_KNOWN) != 0;
-        node.height_m = cdro_fixed_mm_to_m(in.z_mm);
-        node.position_m = engine::Vector2(cdro_fixed_mm_to_m(in.x_mm), cdro_fixed_mm_to_m(in.y_mm));
-        node.average_m = engine::Vector2(cdro_fixed_mm_to_m(in.average_x_mm), cdro_fixed_mm_to_m(in.average_y_mm));
-        node.covariance_m2 = covarianceOf({in.std_x_um, in.std_y_um, in.correlation_q15});
+        node.role = enumOf<engine::NodeRole>(block.u8(), static_cast<uint8_t>(engine::NodeRole::Pinned), "role");
+        node.lifecycle =
+            enumOf<engine::NodeLifecycle>(block.u8(), static_cast<uint8_t>(engine::NodeLifecycle::Settling), "lifecycle");
+        node.doubt = enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt");
+        std::array<engine::NodeId, 2> hinge_ids{};
+        hinge_ids[0] = block.u16();
+        hinge_ids[1] = block.u16();
+        hinges.push_back(hinge_ids);
+        if ((in.flags & CDRO_SOG_NODE_HEIGHT_KNOWN) != 0) {
+            node.height_m = cdro_fixed_mm_to_m(in.z_mm);
+        }
+        node.position_m.x() = doubleOf(block.u64());
+        node.position_m.y() = doubleOf(block.u64());
+        node.covariance_m2(0, 0) = doubleOf(block.u64());
+        node.covariance_m2(0, 1) = node.covariance_m2(1, 0) = doubleOf(block.u64());
+        node.covariance_m2(1, 1) = doubleOf(block.u64());
+        node.average_m.x() = doubleOf(block.u64());
+        node.average_m.y() = doubleOf(block.u64());
+        node.waiting_ranges = block.u32();
+        node.first_range = block.u64();
+        const uint8_t motion = block.u8();
+        node.motion.reports = (motion & 1U) != 0;
+        node.motion.reported_moving = (motion & 2U) != 0;
+        node.motion.inferred = (motion & 4U) != 0;
+        const uint8_t solve = block.u8();
+        node.solve.solved = (solve & 1U) != 0;
+        node.solve.disputed = (solve & 2U) != 0;
+        node.solve.main_part = (solve & 4U) != 0;
+        node.solve.position_m.x() = doubleOf(block.u64());
+        node.solve.position_m.y() = doubleOf(block.u64());
+        node.solve.covariance_m2(0, 0) = doubleOf(block.u64());
+        node.solve.covariance_m2(0, 1) = node.solve.covariance_m2(1, 0) = doubleOf(block.u64());
+        node.solve.covariance_m2(1, 1) = doubleOf(block.u64());
+        node.solve.reliability_m = doubleOf(block.u64());
         state.nodes.push_back(node);
+    }
+    // Hinges name nodes by id; the engine keeps indices (the nodes' order is the block's).
+    for (size_t i = 0; i < state.nodes.size(); ++i) {
+        for (size_t k = 0; k < 2; ++k) {
+            state.nodes[i].hinge[k] = engine::kNoIndex;
+            for (size_t j = 0; j < state.nodes.size() && hinges[i][k] != 0; ++j) {
+                if (state.nodes[j].id == hinges[i][k]) {
+                    state.nodes[i].hinge[k] = static_cast<uint32_t>(j);
+                }
+            }
+        }
     }
     const uint32_t link_count = block.u32();
     for (uint32_t i = 0; i < link_count; ++i) {
@@ -384,7 +484,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         ring.setUpdateCount(block.u32());
         state.rings.push_back(std::move(ring));
     }
-    state.reinit_link_count = block.u64();
+    state.links_at_last_solve = block.u64();
     state.ranges_since_new_link = block.u64();
     std::vector<uint64_t *> fields = counterFields(state.counters);
     const uint8_t stored = block.u8();

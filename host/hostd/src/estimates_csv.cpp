@@ -6,10 +6,10 @@ namespace {
 
 void writeEstimateFields(std::FILE *out, const engine::NodeOutput &node)
 {
-    if (node.placed) {
+    if (node.placed()) {
         std::fprintf(out, ",%.17g,%.17g,%.17g,%.17g,%.17g,%d", node.position_m.x(), node.position_m.y(),
                      node.covariance_m2(0, 0), node.covariance_m2(0, 1), node.covariance_m2(1, 1),
-                     node.converged ? 1 : 0);
+                     node.converged() ? 1 : 0);
     } else {
         std::fprintf(out, ",,,,,,0");
     }
@@ -31,7 +31,7 @@ void writeTraceHeader(std::FILE *out) { std::fputs("ranges,id,x,y,var_x,cov_xy,v
 void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::NodeOutput> &nodes, const double *t_s)
 {
     for (const engine::NodeOutput &node : nodes) {
-        if (!node.placed) {
+        if (!node.placed()) {
             continue;
         }
         std::fprintf(out, "%llu,%u", static_cast<unsigned long long>(ranges), static_cast<unsigned>(node.id));

@@ -17,6 +17,49 @@ namespace cdro::hostd {
 
 namespace {
 
+// Why a placed node is not converged, and what would help, on stderr.
+void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
+{
+    const auto id = static_cast<unsigned>(node.id);
+    switch (node.doubt) {
+    case engine::NodeDoubt::None:
+        return;
+    case engine::NodeDoubt::TooFewLinks:
+        std::fprintf(log, "cdro-hostd: node %u has fewer than three links to placed nodes: its ranges cannot fix it "
+                          "(not converged; add a link)\n", id);
+        return;
+    case engine::NodeDoubt::Ambiguous:
+        std::fprintf(log, "cdro-hostd: node %u is ambiguous: another position, or another map of its part, fits its %u "
+                          "links about as well (not converged; add a link to a node off the line of its neighbours)\n",
+                     id, node.link_count);
+        return;
+    case engine::NodeDoubt::Foldable:
+        if (node.hinge_nodes == 0) {
+            std::fprintf(log, "cdro-hostd: node %u is not connected to the largest part of the network: its place "
+                              "relative to it is unknown (not converged)\n", id);
+        } else {
+            std::string hinge = std::to_string(node.hinge[0]);
+            if (node.hinge_nodes == 2) {
+                hinge += " and " + std::to_string(node.hinge[1]);
+            }
+            std::fprintf(log, "cdro-hostd: node %u hangs on node%s %s: its part of the network can %s without changing a "
+                              "range, so the ranges cannot tell its side (not converged; add a link from it to another "
+                              "node)\n",
+                         id, node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
+                         node.hinge_nodes == 2 ? "fold over them" : "turn about it");
+        }
+        return;
+    case engine::NodeDoubt::Flexible:
+        std::fprintf(log, "cdro-hostd: node %u is flexible: it hangs on links nothing else checks, so one error in them "
+                          "(or the map's own uncertainty) could move it a metre or more (not converged; add links "
+                          "across its part)\n", id);
+        return;
+    case engine::NodeDoubt::Unsettled:
+        std::fprintf(log, "cdro-hostd: node %u has not settled yet (not converged)\n", id);
+        return;
+    }
+}
+
 struct FileCloser {
     void operator()(std::FILE *file) const
     {
@@ -139,10 +182,10 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     writeNodesHeader(out);
     size_t placed = 0;
     for (const engine::NodeOutput &node : stage.estimates()) {
-        if (node.link_count > 0 || node.fixed) {
+        if (node.link_count > 0 || node.fixed()) {
             writeNodeRow(out, node);
         }
-        placed += node.placed ? 1U : 0U;
+        placed += node.placed() ? 1U : 0U;
     }
     if (std::fflush(trajectory.get()) != 0 || std::ferror(trajectory.get())) {
         std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_trajectory.c_str(), std::strerror(errno));
@@ -267,7 +310,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         uint64_t settled = 0;
         if (options.settle) {
             const uint64_t budget =
-                options.settle_budget != 0 ? options.settle_budget : 200ULL * engine.network().nodes.size() + 1000ULL;
+                options.settle_budget != 0 ? options.settle_budget : 200ULL * engine.map().nodes.size() + 1000ULL;
             settled = engine.settle(budget);
         }
         const std::vector<engine::NodeOutput> estimates = engine.estimates();
@@ -279,60 +322,40 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         size_t placed = 0;
         size_t converged = 0;
         for (const engine::NodeOutput &node : estimates) {
-            if (node.ambiguous) {
-                std::fprintf(log, "cdro-hostd: node %u is ambiguous: another position fits its %u links about as well "
-                                  "(add a link to a node off the line of its neighbours)\n",
-                             static_cast<unsigned>(node.id), node.link_count);
-            }
-            if (node.foldable) {
-                if (node.hinge_nodes == 0) {
-                    std::fprintf(log, "cdro-hostd: node %u is not connected to the largest part of the network: its place "
-                                      "relative to it is unknown (not converged)\n",
-                                 static_cast<unsigned>(node.id));
-                } else {
-                    std::string hinge = std::to_string(node.hinge[0]);
-                    if (node.hinge_nodes == 2) {
-                        hinge += " and " + std::to_string(node.hinge[1]);
-                    }
-                    std::fprintf(log, "cdro-hostd: node %u hangs on node%s %s: its part of the network can %s without "
-                                      "changing a range, so the ranges cannot tell its side (not converged; add a link from "
-                                      "it to another node)\n",
-                                 static_cast<unsigned>(node.id), node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
-                                 node.hinge_nodes == 2 ? "fold over them" : "turn about it");
-                }
-            }
-            if (node.link_count > 0 || node.fixed) {
+            reportDoubt(log, node);
+            if (node.link_count > 0 || node.fixed()) {
                 writeNodeRow(out.get(), node);
             }
-            placed += node.placed ? 1U : 0U;
-            converged += node.converged ? 1U : 0U;
+            placed += node.placed() ? 1U : 0U;
+            converged += node.converged() ? 1U : 0U;
         }
         if (std::fflush(out.get()) != 0 || std::ferror(out.get())) {
             std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
             return 2;
         }
-        const engine::EngineCounters &c = engine.counters();
+        const engine::EngineCounters c = engine.counters();
         std::fprintf(log,
                      "cdro-hostd: %llu ranges read (%zu bad rows skipped), %llu used, %llu stored before placement, "
                      "%llu refused (%llu self, %llu value), %llu projections clamped\n",
                      static_cast<unsigned long long>(processed), ranges.problems.size(),
                      static_cast<unsigned long long>(c.ranges_used), static_cast<unsigned long long>(c.ranges_stored),
-                     static_cast<unsigned long long>(refused), static_cast<unsigned long long>(c.rejected_self),
-                     static_cast<unsigned long long>(c.rejected_value),
-                     static_cast<unsigned long long>(c.projection_clamped));
+                     static_cast<unsigned long long>(refused), static_cast<unsigned long long>(c.intake.rejected_self),
+                     static_cast<unsigned long long>(c.intake.rejected_value),
+                     static_cast<unsigned long long>(c.intake.projection_clamped));
         std::fprintf(log,
                      "cdro-hostd: %zu nodes placed, %zu converged, %zu links; NLOS handling: %llu EKF updates gated, "
                      "%llu weight terms down-weighted, %llu refinement links down-weighted; %llu re-placements, "
-                     "%llu initializations (%llu adopted), %llu settle updates; motion: %llu starts (%llu inferred from "
-                     "ranges), %llu stops\n",
-                     placed, converged, engine.network().links.size(), static_cast<unsigned long long>(c.ekf_gated),
-                     static_cast<unsigned long long>(c.weight_terms_downweighted),
-                     static_cast<unsigned long long>(c.refinement_links_downweighted),
-                     static_cast<unsigned long long>(c.replacements),
-                     static_cast<unsigned long long>(c.reinitializations),
-                     static_cast<unsigned long long>(c.reinitializations_adopted),
-                     static_cast<unsigned long long>(settled), static_cast<unsigned long long>(c.motion_starts),
-                     static_cast<unsigned long long>(c.motion_inferred), static_cast<unsigned long long>(c.motion_stops));
+                     "%llu global solves (%llu maps adopted), %llu settle updates; motion: %llu starts (%llu inferred "
+                     "from ranges), %llu stops\n",
+                     placed, converged, engine.map().links.size(), static_cast<unsigned long long>(c.sogs.ekf_gated),
+                     static_cast<unsigned long long>(c.sogs.weight_terms_downweighted),
+                     static_cast<unsigned long long>(c.refinement.links_downweighted),
+                     static_cast<unsigned long long>(c.placement.replacements),
+                     static_cast<unsigned long long>(c.solve.solves),
+                     static_cast<unsigned long long>(c.solve.solves_adopted),
+                     static_cast<unsigned long long>(settled), static_cast<unsigned long long>(c.motion.motion_starts),
+                     static_cast<unsigned long long>(c.motion.motion_inferred),
+                     static_cast<unsigned long long>(c.motion.motion_stops));
         return 0;
     } catch (const CsvError &error) {
         std::fprintf(log, "cdro-hostd: %s\n", error.what());

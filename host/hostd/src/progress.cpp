@@ -23,8 +23,8 @@ void ProgressLine::tick()
             continue;
         }
         ++nodes;
-        placed += node.placed ? 1U : 0U;
-        converged += node.converged ? 1U : 0U;
+        placed += node.placed() ? 1U : 0U;
+        converged += node.converged() ? 1U : 0U;
     }
     std::fprintf(out_,
                  "cdro-hostd: %s | frames %llu good, %llu rejected, %llu lost | ranges %llu used | "

@@ -26,7 +26,8 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
 {
     return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.var_x_m2, b.var_x_m2) &&
            sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.converged == b.converged &&
-           a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable;
+           a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable && a.status == b.status &&
+           a.reason == b.reason && a.hinge == b.hinge;
 }
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)
@@ -51,6 +52,9 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &n, double t_s)
     j["moving"] = n.moving;
     j["placed"] = n.placed;
     j["foldable"] = n.foldable;
+    j["status"] = n.status;
+    j["reason"] = n.reason;
+    j["hinge"] = n.hinge;
     return j;
 }
 

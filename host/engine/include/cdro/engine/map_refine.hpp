@@ -77,10 +77,19 @@ struct MapCovariance {
                                           // translation projected out)
 };
 
+// What the measurement model leaves out and the covariance must not: NLOS and uncalibrated
+// antenna delays make links read long, in walled buildings nearly all of them a little, and the
+// map then reads too large by a share no range can tell apart from a larger map (scale_sigma,
+// relative; 0 with a frame fixed by known coordinates).
+struct MapModelError {
+    double scale_sigma = 0.0; // relative std of the map's size
+};
+
 // The covariance of the placed nodes from the information of every link at the solution (line-
 // of-sight weight / sigma^2), correlations across the map included, scaled by the variance factor
 // (the weighted residuals' spread over its expected value, at least 1) so that a map whose links
-// disagree more than the noise says so.
-MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood);
+// disagree more than the noise says so, and the model error's scale mode added.
+MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood,
+                            const MapModelError &model_error = {});
 
 } // namespace cdro::engine

@@ -51,19 +51,17 @@ struct RefinementParams {
     uint32_t max_placements = 4;      // times one node may be placed (then it stays)
 };
 
-// Streaming placement decides early, from the links seen so far (and their first ranges).
-// When the link graph has grown, the initialization is run again on everything known, and its
-// map replaces the current one if it explains the links better (map cost, engine.hpp). The
-// number of runs is logarithmic in the number of links; none happen once every link is known.
-struct ReinitializationParams {
-    bool enabled = true;
+// The global solve (global_step.hpp): the map of all the links seen so far, found whatever
+// order they came in, adopted when it explains the links better than the map the filter holds.
+// It runs when the link graph has grown (a logarithmic number of times), once more when no link
+// has appeared for a while, and at settle(); never once every link is known and the map adopted.
+struct SolveParams {
+    bool enabled = true;           // false: the streaming filter alone (the paper's, streaming)
     double link_growth = 1.25;     // run again when the links have grown by this factor
     uint32_t min_links = 6;        // not before this many links
-    double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges
-                                   // per link (every pair ranged twice more), if links
-                                   // appeared since it last ran
-    uint32_t sweeps = 30;          // refinement sweeps over the new map before comparing
-    double min_gain_nats = 1.0;    // nats, how much cheaper the new map must be
+    double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges per
+                                   // link, if links appeared since it last ran
+    double min_gain_nats = 1.0;    // nats, how much better the solve's map must explain the links
 };
 
 // Moving nodes (paper Fig. 4): a node reported moving stops being an anchor for the others; every
@@ -91,7 +89,16 @@ struct MotionParams {
     double track_max_speed_mps = 3.0;  // m/s, a carried node is not faster; the track's speed is capped
 };
 
+// Converged means: the estimate has settled (eq. 16), the node has three or more placed
+// neighbours, no distinct position or rival map explains its links about as well, its part
+// cannot fold, and neither one unnoticed link error nor the map's own uncertainty (the 2-sigma
+// ellipse) could put it more than `reliable_m` away (convergence.hpp).
 struct ConvergenceParams {
+    double reliable_m = 1.0;          // m, what converged promises at most
+    double scale_sigma = 0.02;        // relative std of the map's size when no two fixed nodes set
+                                      // it: links read long through walls and with uncalibrated
+                                      // antenna delays (1-3 %), which no range can tell apart from a
+                                      // larger map
     double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;        // m, step of the moving average under which a node is still
     uint32_t consecutive = 5;         // still updates in a row to count as converged ...
@@ -112,7 +119,7 @@ struct EngineParams {
     SogUpdateParams sog;
     PlacementParams placement;
     RefinementParams refinement;
-    ReinitializationParams reinitialization;
+    SolveParams solve;
     MotionParams motion;
     ConvergenceParams convergence;
     FrameParams frame;

@@ -16,17 +16,15 @@
 // from any placed nodes it sees, as soon as it sees enough of them.
 //
 // Where ranges cannot decide (a node with two placed neighbours, or mirror images that fit
-// equally), the coarse MDS-MAP layout of the network (mds.hpp), rigidly aligned to the placed
-// nodes, breaks the tie: the candidate nearest to the node's MDS position is taken if it is
-// clearly the nearer. That is what joins two well-meshed parts of a building that see each
-// other through a few nodes only (PLANT's north and south halves).
+// equally), the node waits: the global solve (global_step.hpp), which sees every link at once,
+// places it, or its patience runs out.
 #pragma once
 
 #include <array>
 #include <optional>
 #include <vector>
 
-#include "cdro/engine/network.hpp"
+#include "cdro/engine/map_state.hpp"
 #include "cdro/engine/point_solver.hpp"
 #include "cdro/engine/range_likelihood.hpp"
 
@@ -37,11 +35,6 @@ struct PlacementParams {
     double min_baseline_m = 1.0;         // m, neighbours closer than this give no intersection
     double ambiguity_gap_nats = 4.0;     // nats, how much better than any rival the best must be
     double distinct_m = 1.0;             // m, candidates closer than this are one solution
-    bool mds_tie_break = true;           // break remaining ties with the MDS-MAP layout
-    double mds_decisive_ratio = 0.5;     // the nearest candidate must be nearer than this
-                                         // fraction of the second's distance to the MDS position
-    double mds_margin_sigmas = 3.0;      // and nearer by this many times the layout's own error
-                                         // (its RMS misfit to the placed nodes)
     uint32_t patience_ranges = 60;       // a node with 3+ placed neighbours still ambiguous after
                                          // this many of its ranges is placed at its best candidate
 };
@@ -62,20 +55,11 @@ enum class PlacementDecision { Placed, Ambiguous, NoCandidate };
 struct PlacementChoice {
     PlacementDecision decision = PlacementDecision::NoCandidate;
     PlacementCandidate chosen;
-    bool by_tie_break = false; // decided by the hint, not by the ranges
-    double confidence = 0.0;   // tie breaks: how clearly, in units of the hint's error
 };
 
-// Where a coarse layout puts the node, and how wrong that layout is known to be.
-struct PlacementHint {
-    Vector2 position_m = Vector2::Zero(); // m
-    double error_m = 0.0;                 // m, RMS misfit of the layout on the placed nodes
-};
-
-// Decides among candidates found from constraint_count constraints: by cost gap, or, failing
-// that, by the hint when given.
+// Decides among candidates found from constraint_count constraints, by the cost gap.
 PlacementChoice choosePlacement(const std::vector<PlacementCandidate> &candidates, size_t constraint_count,
-                                const PlacementParams &params, const PlacementHint *hint);
+                                const PlacementParams &params);
 
 struct FrameTriangle {
     uint32_t origin = kNoIndex;     // p0 = (0, 0)
@@ -89,7 +73,7 @@ struct FrameTriangle {
 // The frame's triangle among the links so far, or nullopt if none is usable yet. `preferred`
 // (origin, x-axis, +y node indices) is taken when those three ranged to each other and are
 // not collinear. Only nodes for which `eligible` is true are considered.
-std::optional<FrameTriangle> chooseFrameTriangle(const Network &network, const PlacementParams &params,
+std::optional<FrameTriangle> chooseFrameTriangle(const MapState &network, const PlacementParams &params,
                                                  const std::vector<bool> &eligible,
                                                  const std::optional<std::array<uint32_t, 3>> &preferred);
 

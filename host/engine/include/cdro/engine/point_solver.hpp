@@ -12,7 +12,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "cdro/engine/network.hpp"
+#include "cdro/engine/map_state.hpp"
 #include "cdro/engine/range_likelihood.hpp"
 
 namespace cdro::engine {
@@ -27,7 +27,7 @@ struct RangeConstraint {
 
 // The links of `node` to placed neighbours that are not moving, as constraints (in the order
 // of the node's links).
-std::vector<RangeConstraint> placedConstraints(const Network &network, uint32_t node);
+std::vector<RangeConstraint> placedConstraints(const MapState &map, uint32_t node);
 
 struct PointSolution {
     Vector2 position_m = Vector2::Zero();           // m

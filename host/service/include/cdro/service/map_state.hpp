@@ -34,6 +34,10 @@ struct NodeEstimate {
     bool moving = false;
     bool placed = false;      // has an estimate at all; x/y are meaningless otherwise
     bool foldable = false;    // placed in a part that hangs on one or two nodes: its side is undecided
+    std::string status;       // unplaced, placed, converged, moving, settling (the engine's lifecycle)
+    std::string reason;       // why placed but not converged: "too few links", "ambiguous", "foldable",
+                              // "flexible", "unsettled"; empty otherwise
+    std::vector<uint16_t> hinge; // foldable: the one or two nodes its part hangs on
 };
 
 struct RobotPose {

@@ -1,8 +1,52 @@
-#include "cdro/engine/network.hpp"
+#include "cdro/engine/map_state.hpp"
 
 #include <algorithm>
 
 namespace cdro::engine {
+
+const char *nodeRoleName(NodeRole role)
+{
+    switch (role) {
+    case NodeRole::Free: return "free";
+    case NodeRole::Fixed: return "fixed";
+    case NodeRole::Pinned: return "pinned";
+    }
+    return "unknown";
+}
+
+const char *nodeLifecycleName(NodeLifecycle lifecycle)
+{
+    switch (lifecycle) {
+    case NodeLifecycle::Unplaced: return "unplaced";
+    case NodeLifecycle::Placed: return "placed";
+    case NodeLifecycle::Converged: return "converged";
+    case NodeLifecycle::Moving: return "moving";
+    case NodeLifecycle::Settling: return "settling";
+    }
+    return "unknown";
+}
+
+const char *nodeDoubtName(NodeDoubt doubt)
+{
+    switch (doubt) {
+    case NodeDoubt::None: return "";
+    case NodeDoubt::TooFewLinks: return "too few links";
+    case NodeDoubt::Ambiguous: return "ambiguous";
+    case NodeDoubt::Foldable: return "foldable";
+    case NodeDoubt::Flexible: return "flexible";
+    case NodeDoubt::Unsettled: return "unsettled";
+    }
+    return "unknown";
+}
+
+uint32_t MapState::placedCount() const
+{
+    uint32_t count = 0;
+    for (const NodeState &node : nodes) {
+        count += node.placed() ? 1U : 0U;
+    }
+    return count;
+}
 
 void RangeWindow::push(double range_m)
 {
@@ -59,13 +103,13 @@ std::vector<double> RangeWindow::values() const
     return out;
 }
 
-uint32_t Network::findNode(NodeId id) const
+uint32_t MapState::findNode(NodeId id) const
 {
     const auto found = node_index_.find(id);
     return found == node_index_.end() ? kNoIndex : found->second;
 }
 
-uint32_t Network::addNode(NodeId id)
+uint32_t MapState::addNode(NodeId id)
 {
     const auto [position, inserted] = node_index_.emplace(id, static_cast<uint32_t>(nodes.size()));
     if (inserted) {
@@ -76,7 +120,7 @@ uint32_t Network::addNode(NodeId id)
     return position->second;
 }
 
-uint32_t Network::findLink(uint32_t node_a, uint32_t node_b) const
+uint32_t MapState::findLink(uint32_t node_a, uint32_t node_b) const
 {
     NodeId a = nodes[node_a].id;
     NodeId b = nodes[node_b].id;
@@ -87,7 +131,7 @@ uint32_t Network::findLink(uint32_t node_a, uint32_t node_b) const
     return found == link_index_.end() ? kNoIndex : found->second;
 }
 
-uint32_t Network::addLink(uint32_t node_x, uint32_t node_y, uint32_t window_limit)
+uint32_t MapState::addLink(uint32_t node_x, uint32_t node_y, uint32_t window_limit)
 {
     const uint32_t existing = findLink(node_x, node_y);
     if (existing != kNoIndex) {

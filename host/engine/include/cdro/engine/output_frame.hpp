@@ -1,0 +1,48 @@
+// output_frame.hpp: where the outputs are. Fixed nodes (known coordinates, given before the first
+// range): two or more define the engine frame and never move; a single one only says where the
+// map sits (the outputs are shifted so that it is at its coordinates). Otherwise the named frame
+// (params.frame: origin at (0, 0), x-axis node on +x, a third on the +y side), else the frame
+// triangle's nodes play those roles, so the output frame stays put while the map is refined.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "cdro/engine/alignment.hpp"
+#include "cdro/engine/map_state.hpp"
+#include "cdro/engine/params.hpp"
+
+namespace cdro::engine {
+
+class OutputFrame {
+public:
+    explicit OutputFrame(const FrameParams &named) : named_(named) {}
+
+    // Before the first range (throws std::logic_error after).
+    void setFixed(NodeId id, const Vector2 &position_m);
+    // At the first placement: the fixed nodes take their coordinates (two or more), or the single
+    // one is remembered for the output shift.
+    void apply(MapState &map);
+    bool applied() const { return applied_; }
+    uint32_t fixedFrameNodes() const { return fixed_frame_nodes_; }
+    const std::vector<std::pair<NodeId, Vector2>> &fixedPositions() const { return fixed_; }
+    // Engine frame -> output frame.
+    RigidTransform transform(const MapState &map) const;
+    // The single fixed node, if there is exactly one.
+    const std::optional<std::pair<NodeId, Vector2>> &singleFixed() const { return single_; }
+    // The frame triangle is all placed, or picked again among the placed, still nodes.
+    void ensureFrameNodes(MapState &map, const PlacementParams &placement) const;
+    // After a restore: the state as it was.
+    void restored(const MapState &map);
+
+private:
+    FrameParams named_;
+    std::vector<std::pair<NodeId, Vector2>> fixed_;
+    std::optional<std::pair<NodeId, Vector2>> single_;
+    uint32_t fixed_frame_nodes_ = 0;
+    bool applied_ = false;
+};
+
+} // namespace cdro::engine

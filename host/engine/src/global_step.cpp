@@ -1,0 +1,227 @@
+#include "cdro/engine/global_step.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "cdro/engine/alignment.hpp"
+#include "cdro/engine/map_refine.hpp"
+
+namespace cdro::engine {
+
+namespace {
+
+// An unheard pair counts once both nodes have listened for two sweeps of the network: before,
+// "not heard" may only mean "not asked yet".
+constexpr double kListenSweeps = 2.0;
+// The unheard pairs' soft cost falls to 0 at this share of the median link range (map_problem.hpp).
+constexpr double kUnheardRadiusShare = 0.5;
+
+} // namespace
+
+StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_received)
+{
+    StateProblem out;
+    std::vector<std::pair<NodeId, uint32_t>> by_id;
+    for (uint32_t node = 0; node < map.nodes.size(); ++node) {
+        const NodeState &state = map.nodes[node];
+        // A moving node's links describe where it was: it is left out until it has settled.
+        if (!state.links.empty() && !state.moving() && !state.settling()) {
+            by_id.emplace_back(state.id, node);
+        }
+    }
+    std::sort(by_id.begin(), by_id.end());
+    std::vector<int> number(map.nodes.size(), -1);
+    MapProblem &problem = out.problem;
+    problem.sigma_m = params.range.sigma_m;
+    for (const auto &[id, node] : by_id) {
+        number[node] = static_cast<int>(problem.ids.size());
+        problem.ids.push_back(id);
+        out.node_of.push_back(node);
+        const NodeState &state = map.nodes[node];
+        problem.fixed.push_back(state.fixed() || state.pinned() ? 1 : 0);
+        problem.fixed_position_m.push_back(state.position_m);
+        const double listened = static_cast<double>(ranges_received - std::min(ranges_received, state.first_range));
+        problem.listens.push_back(listened >= kListenSweeps * static_cast<double>(map.links.size()) ? 1 : 0);
+    }
+    for (const LinkState &link : map.links) {
+        const int a = number[link.node_a];
+        const int b = number[link.node_b];
+        if (a >= 0 && b >= 0 && link.window.size() > 0 && link.representative_m > 0.0) {
+            problem.links.push_back(MapLink{static_cast<uint32_t>(a), static_cast<uint32_t>(b), link.representative_m});
+        }
+    }
+    problem.finish();
+    problem.unheard_radius_m = unheardRadiusFor(problem, kUnheardRadiusShare);
+    return out;
+}
+
+GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
+{
+}
+
+bool GlobalStep::enabled() const { return params_.solve.enabled; }
+
+bool GlobalStep::dueAfterRange(const MapState &map, bool new_link)
+{
+    const SolveParams &solve = params_.solve;
+    if (!enabled()) {
+        return false;
+    }
+    const auto links = static_cast<double>(map.links.size());
+    if (new_link) {
+        ranges_since_new_link_ = 0;
+        return map.links.size() >= solve.min_links && links >= solve.link_growth * static_cast<double>(links_at_last_);
+    }
+    ++ranges_since_new_link_;
+    // The network seems complete: once more on every link it has.
+    return map.links.size() != links_at_last_ && map.links.size() >= solve.min_links &&
+           static_cast<double>(ranges_since_new_link_) >= solve.quiet_ranges_per_link * links;
+}
+
+bool GlobalStep::dueAtSettle(const MapState &map) const
+{
+    return enabled() && map.links.size() != links_at_last_ && map.links.size() >= params_.solve.min_links;
+}
+
+GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes,
+                                    const Trace &trace)
+{
+    Outcome outcome;
+    links_at_last_ = map.links.size();
+    ++counters_.solves;
+    StateProblem built = mapProblemOf(map, params_, ranges_received);
+    const MapProblem &problem = built.problem;
+    MapEstimate current = MapEstimate::unplaced(problem.nodeCount());
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        const NodeState &state = map.nodes[built.node_of[i]];
+        current.placed[i] = state.placed() ? 1 : 0;
+        current.position_m[i] = state.position_m;
+    }
+    const GlobalSolveResult solved = solveGlobally(problem, likelihood_, solve_, &current);
+    counters_.solve_starts += solved.counters.starts;
+    counters_.solve_escapes += solved.counters.escapes;
+    if (solved.best.estimate.placedCount() < 3) {
+        return outcome;
+    }
+    // The filter's own map, refined, unless the solve found a map clearly better.
+    const MapHypothesis *chosen = &solved.best;
+    for (const MapHypothesis &hypothesis : solved.all) {
+        if (hypothesis.origin == "current" && &solved.best != &hypothesis && hypothesis.origin != solved.best.origin &&
+            hypothesis.estimate.placedCount() == solved.best.estimate.placedCount() &&
+            hypothesis.cost < solved.best.cost + params_.solve.min_gain_nats) {
+            chosen = &hypothesis;
+        }
+    }
+    outcome.adopted = chosen->origin != "current";
+    counters_.solves_adopted += outcome.adopted ? 1U : 0U;
+    MapEstimate map_estimate = chosen->estimate;
+    // Seen from the current frame: the rigid fit of the solve's map onto the filter's.
+    RigidTransform transform;
+    if (fixed_frame_nodes < 2) {
+        std::vector<Vector2> source;
+        std::vector<Vector2> target;
+        for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+            if (map_estimate.placed[i] != 0 && current.placed[i] != 0) {
+                source.push_back(map_estimate.position_m[i]);
+                target.push_back(current.position_m[i]);
+            }
+        }
+        if (source.size() >= 2) {
+            transform = fitRigid(source, target, true);
+        }
+    } else if (fixed_frame_nodes == 2) {
+        // Two fixed nodes fix the frame up to the mirror image through them: keep the side the
+        // filter's map is on (its handedness rule), by the nodes both place.
+        Vector2 a = Vector2::Zero();
+        Vector2 b = Vector2::Zero();
+        int seen = 0;
+        for (uint32_t i = 0; i < problem.nodeCount() && seen < 2; ++i) {
+            if (problem.fixed[i] != 0 && map.nodes[built.node_of[i]].fixed()) {
+                (seen == 0 ? a : b) = problem.fixed_position_m[i];
+                ++seen;
+            }
+        }
+        const Vector2 axis = (b - a).normalized();
+        double agree = 0.0;
+        double disagree = 0.0;
+        for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+            if (problem.fixed[i] != 0 || map_estimate.placed[i] == 0 || current.placed[i] == 0) {
+                continue;
+            }
+            auto side = [&](const Vector2 &p) {
+                const Vector2 d = p - a;
+                return axis.x() * d.y() - axis.y() * d.x();
+            };
+            const double s_new = side(map_estimate.position_m[i]);
+            const double s_old = side(current.position_m[i]);
+            (s_new * s_old >= 0.0 ? agree : disagree) += std::abs(s_old);
+        }
+        if (disagree > agree) {
+            // Reflect across the line through the two fixed nodes.
+            const Matrix2 reflection = 2.0 * axis * axis.transpose() - Matrix2::Identity();
+            transform.rotation = reflection;
+            transform.translation_m = a - reflection * a;
+            transform.reflected = true;
+        }
+    }
+    // What the model leaves out: the map's size, unless known coordinates fix it.
+    MapModelError model_error;
+    model_error.scale_sigma = fixed_frame_nodes < 2 ? params_.convergence.scale_sigma : 0.0;
+    const MapCovariance confidence = mapCovariance(problem, map_estimate, likelihood_, model_error);
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        const uint32_t node = built.node_of[i];
+        NodeState &state = map.nodes[node];
+        NodeSolveView &view = state.solve;
+        view = NodeSolveView{};
+        if (map_estimate.placed[i] == 0) {
+            continue;
+        }
+        const Vector2 position = transform.apply(map_estimate.position_m[i]);
+        view.solved = true;
+        view.position_m = position;
+        view.covariance_m2 = transform.applyToCovariance(confidence.covariance_m2[i]);
+        view.reliability_m = confidence.reliability_m[i];
+        view.disputed = solved.disputed[i] != 0;
+        view.main_part = confidence.main_part[i] != 0;
+        if (!state.free()) {
+            view.position_m = state.position_m;
+            continue;
+        }
+        if (!state.placed()) {
+            // One range says how far a node is from one neighbour, not where: the solve's
+            // position for it is one point of a circle, not a placement.
+            uint32_t placed_links = 0;
+            for (uint32_t link : problem.node_links[i]) {
+                placed_links += map_estimate.placed[problem.other(link, i)] != 0 ? 1U : 0U;
+            }
+            if (placed_links < 2) {
+                view = NodeSolveView{};
+                continue;
+            }
+            outcome.placed.push_back(node);
+            state.position_m = position;
+            ++counters_.solve_placed;
+            continue;
+        }
+        if (!params_.refinement.enabled) {
+            // The paper's filter: the merged SoG is the estimate of a placed node; the solve only
+            // places the nodes the filter could not.
+            view.position_m = state.position_m;
+            continue;
+        }
+        const Vector2 delta = position - state.position_m;
+        if (delta.squaredNorm() > 0.0) {
+            outcome.shifted.emplace_back(node, delta);
+        }
+        state.position_m = position;
+    }
+    if (trace) {
+        trace("global solve on " + std::to_string(problem.links.size()) + " links: " + chosen->origin + ", cost " +
+              std::to_string(chosen->cost) + " nats (NLOS share " + std::to_string(chosen->nlos_fraction) + ", mean excess " +
+              std::to_string(chosen->nlos_mean_excess_m) + " m), " + std::to_string(outcome.placed.size()) + " placed, " +
+              std::to_string(outcome.shifted.size()) + " moved, " + std::to_string(solved.rivals.size()) + " rival maps");
+    }
+    return outcome;
+}
+
+} // namespace cdro::engine

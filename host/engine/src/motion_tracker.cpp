@@ -1,0 +1,167 @@
+#include "cdro/engine/motion_tracker.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace cdro::engine {
+
+MotionTracker::MotionTracker(const EngineParams &params, const RangeLikelihood &likelihood)
+    : params_(params.motion), range_sigma_m_(params.range.sigma_m), gate_sigma_(params.sog.gate_sigma),
+      likelihood_(likelihood)
+{
+}
+
+bool MotionTracker::trackIsEstimate(const NodeState &state) const
+{
+    return (state.moving() || state.settling()) && state.track && state.track->updates() >= params_.track_warmup;
+}
+
+bool MotionTracker::report(MapState &map, SogBank &sogs, uint32_t node, bool moving, const Trace &trace)
+{
+    NodeState &state = map.nodes[node];
+    state.motion.reports = true;
+    state.motion.reported_moving = moving;
+    return change(map, sogs, node, moving, trace);
+}
+
+bool MotionTracker::change(MapState &map, SogBank &sogs, uint32_t node, bool moving, const Trace &trace)
+{
+    NodeState &state = map.nodes[node];
+    const bool was_moving = state.moving();
+    if (!state.placed() || was_moving == moving || (!moving && state.settling())) {
+        return false;
+    }
+    state.motion.inferred = false;
+    if (!params_.reset) {
+        // The ablation: the motion is shown, the node is handled as a static one.
+        state.lifecycle = moving ? NodeLifecycle::Moving : NodeLifecycle::Placed;
+        return true;
+    }
+    moving ? ++counters_.motion_starts : ++counters_.motion_stops;
+    if (trace) {
+        trace("node " + std::to_string(state.id) + (moving ? " moves" : " stopped"));
+    }
+    state.still_updates = 0;
+    state.motion.still_anchor_m = state.position_m;
+    state.motion.still_updates = 0;
+    state.motion.recent_count = 0;
+    // Stopping: the track, at rest, stays the estimate until every link has a range again (the
+    // links start afresh below, and a median of nothing is no range).
+    if (!moving && state.track && params_.track) {
+        state.track->stop();
+        state.position_m = state.track->position();
+        state.lifecycle = NodeLifecycle::Settling;
+    } else {
+        state.track.reset();
+        state.lifecycle = moving ? NodeLifecycle::Moving : NodeLifecycle::Placed;
+    }
+    for (uint32_t link : state.links) {
+        // Ranges from before the change describe another place: start the links afresh.
+        map.links[link].window.clear();
+    }
+    // The SoGs centred on the node describe its neighbours from where it was.
+    sogs.dropRings(map, node, true);
+    if (!moving) {
+        sogs.ensureRings(map, node); // generated again around where it stopped
+    }
+    return true;
+}
+
+bool MotionTracker::watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m, const Trace &trace)
+{
+    // The fallback detector: a node without motion reports moves when several of its recent
+    // ranges, on different links, read far from the map (one NLOS link reads far on one link).
+    NodeState &state = map.nodes[node];
+    if (!params_.reset || !params_.infer_from_ranges || state.motion.reports || state.moving() || state.fixed()) {
+        return false;
+    }
+    MotionMemory &memory = state.motion;
+    const uint32_t window = std::clamp<uint32_t>(params_.inferred_window, 1U, MotionMemory::kRecentRanges);
+    memory.recent_links[memory.recent_next] = link;
+    // Large means beyond both the configured distance and four standard deviations of the noise.
+    const double large_m = std::max(params_.inferred_residual_m, 4.0 * range_sigma_m_);
+    memory.recent_large[memory.recent_next] = std::abs(residual_m) > large_m ? 1 : 0;
+    memory.recent_next = (memory.recent_next + 1) % window;
+    memory.recent_count = std::min(memory.recent_count + 1, window);
+    uint32_t large = 0;
+    std::vector<uint32_t> large_links;
+    for (uint32_t i = 0; i < memory.recent_count; ++i) {
+        if (memory.recent_large[i] != 0) {
+            ++large;
+            if (std::find(large_links.begin(), large_links.end(), memory.recent_links[i]) == large_links.end()) {
+                large_links.push_back(memory.recent_links[i]);
+            }
+        }
+    }
+    if (large < params_.inferred_min_large || large_links.size() < params_.inferred_min_links) {
+        return false;
+    }
+    ++counters_.motion_inferred;
+    if (trace) {
+        trace("node " + std::to_string(state.id) + ": " + std::to_string(large) + " of its last " +
+              std::to_string(memory.recent_count) + " ranges read far from the map: taken as moving");
+    }
+    const bool changed = change(map, sogs, node, true, trace);
+    state.motion.inferred = true;
+    return changed;
+}
+
+void MotionTracker::track(MapState &map, uint32_t moving_node, uint32_t anchor_node, double range_m, double t_s)
+{
+    NodeState &state = map.nodes[moving_node];
+    const NodeState &anchor = map.nodes[anchor_node];
+    if (!params_.reset || !params_.track || !(state.moving() || state.settling()) || !anchor.anchor()) {
+        return;
+    }
+    if (!state.track) {
+        // An inferred motion is found late: the node is already somewhere else, by metres.
+        const double position_sigma = state.motion.inferred ? 2.0 : 0.3;
+        state.track = MotionTrack(state.position_m, position_sigma, params_.track_speed_sigma_mps);
+    }
+    // At rest (settling) only a little jitter is allowed, not walking.
+    state.track->predict(t_s, state.settling() ? 0.05 : params_.track_accel_sigma_mps2);
+    const Matrix2 anchor_covariance = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
+    if (state.track->updateRange(anchor.position_m, anchor_covariance, range_m, range_sigma_m_, likelihood_, gate_sigma_)) {
+        state.track->limitSpeed(params_.track_max_speed_mps);
+        ++counters_.track_updates;
+    } else {
+        ++counters_.track_refused;
+    }
+}
+
+bool MotionTracker::afterUpdate(MapState &map, SogBank &sogs, uint32_t node, const Trace &trace)
+{
+    NodeState &state = map.nodes[node];
+    if (state.settling()) {
+        bool fresh = true;
+        for (uint32_t link : state.links) {
+            const NodeState &other = map.nodes[map.otherNode(link, node)];
+            fresh = fresh && (!other.placed() || other.moving() || map.links[link].window.size() > 0);
+        }
+        if (fresh) {
+            state.track.reset();
+            state.lifecycle = NodeLifecycle::Placed;
+            return true;
+        }
+        return false;
+    }
+    if (!state.moving() || !state.motion.inferred) {
+        return false;
+    }
+    // An inferred motion ends when the track's speed stayed low for a while (or, without a track,
+    // the estimate stayed within inferred_still_m).
+    MotionMemory &memory = state.motion;
+    const bool slow = state.track ? state.track->velocity().norm() < params_.inferred_still_speed_mps
+                                  : (state.position_m - memory.still_anchor_m).norm() < params_.inferred_still_m;
+    memory.still_updates = slow ? memory.still_updates + 1 : 0;
+    if (!slow) {
+        memory.still_anchor_m = state.position_m;
+    }
+    if (memory.still_updates >= params_.inferred_still_updates) {
+        return change(map, sogs, node, false, trace);
+    }
+    return false;
+}
+
+} // namespace cdro::engine
