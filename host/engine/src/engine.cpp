@@ -101,8 +101,8 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
         placement_.markPending(map_, a);
         placement_.markPending(map_, b);
     }
-    if (global_.dueAfterRange(map_, taken.new_link)) {
-        runGlobalSolve();
+    if (global_.dueAfterRange(map_, taken.new_link, intake_.counters().ranges_received)) {
+        runGlobalSolve(false);
     }
     // 4. Placement.
     if (placement_.anyPending()) {
@@ -166,12 +166,12 @@ void Engine::adoptPlaced(const std::vector<uint32_t> &nodes)
     }
 }
 
-void Engine::runGlobalSolve()
+void Engine::runGlobalSolve(bool settling)
 {
     if (!frame_.applied()) {
         frame_.apply(map_);
     }
-    const GlobalStep::Outcome outcome = global_.run(map_, intake_.counters().ranges_received, frame_.fixedFrameNodes(), trace_);
+    const GlobalStep::Outcome outcome = global_.run(map_, intake_.counters().ranges_received, frame_.fixedFrameNodes(), settling, trace_);
     for (const auto &[node, delta] : outcome.shifted) {
         sogs_.translate(map_, node, delta);
         if (delta.norm() > params_.refinement.relax_threshold_m) {
@@ -331,8 +331,8 @@ void Engine::assess()
 uint64_t Engine::settle(uint64_t max_updates)
 {
     const uint64_t before = relaxations_;
-    if (global_.dueAtSettle(map_)) {
-        runGlobalSolve();
+    if (global_.dueAtSettle(map_, intake_.counters().ranges_received)) {
+        runGlobalSolve(true);
     }
     if (placement_.anyPending()) {
         runPlacement();
@@ -560,7 +560,7 @@ void Engine::restore(const RestoredState &restored)
     ranges_stored_ = c.ranges_stored;
     node_updates_ = c.node_updates;
     relaxations_ = c.relaxations;
-    global_.restoreSchedule(restored.links_at_last_solve, restored.ranges_since_new_link);
+    global_.restoreSchedule(restored.solve_schedule);
     frame_.restored(map_);
     assessed_key_ = 0;
     ++revision_;

@@ -173,6 +173,17 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
                                       ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
                                       : refineMap(problem, hypothesis.estimate, likelihood, params.refine);
         result.counters.refine_iterations += refined.iterations;
+        if (params.lift || lifted_mds) {
+            // The lifted refinement ends in the plane at the nominal noise, in the basin its own
+            // schedule chose; annealing again in the plane (from the widest stage) lets the
+            // links it judged outliers be judged again, where the map now is.
+            MapEstimate annealed = hypothesis.estimate;
+            const MapRefineResult again = refineMap(problem, annealed, likelihood, params.refine);
+            result.counters.refine_iterations += again.iterations;
+            if (again.cost < mapCost(problem, hypothesis.estimate, likelihood)) {
+                hypothesis.estimate = std::move(annealed);
+            }
+        }
         for (uint32_t round = 0; round < params.escape_rounds; ++round) {
             const uint32_t moved = escapeNodeMinima(problem, hypothesis.estimate, likelihood, params.growth,
                                                     params.escape_gap_nats);

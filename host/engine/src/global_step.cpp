@@ -61,33 +61,43 @@ GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood
 
 bool GlobalStep::enabled() const { return params_.solve.enabled; }
 
-bool GlobalStep::dueAfterRange(const MapState &map, bool new_link)
+bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received)
 {
     const SolveParams &solve = params_.solve;
     if (!enabled()) {
         return false;
     }
     const auto links = static_cast<double>(map.links.size());
-    if (new_link) {
-        ranges_since_new_link_ = 0;
-        return map.links.size() >= solve.min_links && links >= solve.link_growth * static_cast<double>(links_at_last_);
+    if (map.links.size() < solve.min_links) {
+        return false;
     }
-    ++ranges_since_new_link_;
-    // The network seems complete: once more on every link it has.
-    return map.links.size() != links_at_last_ && map.links.size() >= solve.min_links &&
-           static_cast<double>(ranges_since_new_link_) >= solve.quiet_ranges_per_link * links;
+    if (new_link) {
+        schedule_.ranges_since_new_link = 0;
+        if (links >= solve.link_growth * static_cast<double>(schedule_.links_at_last)) {
+            return true;
+        }
+    } else {
+        ++schedule_.ranges_since_new_link;
+        // The network seems complete: once more on every link it has.
+        if (map.links.size() != schedule_.links_at_last &&
+            static_cast<double>(schedule_.ranges_since_new_link) >= solve.quiet_ranges_per_link * links) {
+            return true;
+        }
+    }
+    return static_cast<double>(ranges_received) >= solve.link_growth * static_cast<double>(schedule_.ranges_at_last);
 }
 
-bool GlobalStep::dueAtSettle(const MapState &map) const
+bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_received) const
 {
-    return enabled() && map.links.size() != links_at_last_ && map.links.size() >= params_.solve.min_links;
+    return enabled() && ranges_received != schedule_.ranges_at_last && map.links.size() >= params_.solve.min_links;
 }
 
 GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes,
-                                    const Trace &trace)
+                                    bool settling, const Trace &trace)
 {
     Outcome outcome;
-    links_at_last_ = map.links.size();
+    schedule_.links_at_last = map.links.size();
+    schedule_.ranges_at_last = ranges_received;
     ++counters_.solves;
     StateProblem built = mapProblemOf(map, params_, ranges_received);
     const MapProblem &problem = built.problem;
@@ -103,10 +113,20 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     if (solved.best.estimate.placedCount() < 3) {
         return outcome;
     }
-    // The filter's own map, refined, unless the solve found a map clearly better.
+    // The filter's own map, refined, unless the solve found a map clearly better. When the two
+    // are different maps (a rival: some node a metre or more apart), the better one, however
+    // small the gain: the margin only saves the map from jumps that change nothing.
+    auto rival = [&](const MapHypothesis &hypothesis) {
+        for (const MapHypothesis &other : solved.rivals) {
+            if (other.origin == hypothesis.origin) {
+                return true;
+            }
+        }
+        return false;
+    };
     const MapHypothesis *chosen = &solved.best;
     for (const MapHypothesis &hypothesis : solved.all) {
-        if (hypothesis.origin == "current" && &solved.best != &hypothesis && hypothesis.origin != solved.best.origin &&
+        if (!settling && hypothesis.origin == "current" && hypothesis.origin != solved.best.origin && !rival(hypothesis) &&
             hypothesis.estimate.placedCount() == solved.best.estimate.placedCount() &&
             hypothesis.cost < solved.best.cost + params_.solve.min_gain_nats) {
             chosen = &hypothesis;

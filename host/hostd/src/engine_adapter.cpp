@@ -354,9 +354,10 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         snapshot.pairs.push_back(std::move(pair));
         block.u32(ring.updateCount());
     }
-    const auto [links_at_last, ranges_since_new_link] = engine.solveSchedule();
-    block.u64(links_at_last);
-    block.u64(ranges_since_new_link);
+    const engine::SolveSchedule &schedule = engine.solveSchedule();
+    block.u64(schedule.links_at_last);
+    block.u64(schedule.ranges_at_last);
+    block.u64(schedule.ranges_since_new_link);
     engine::EngineCounters counters = engine.counters();
     const std::vector<uint64_t *> fields = counterFields(counters);
     block.u8(static_cast<uint8_t>(fields.size()));
@@ -484,8 +485,9 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         ring.setUpdateCount(block.u32());
         state.rings.push_back(std::move(ring));
     }
-    state.links_at_last_solve = block.u64();
-    state.ranges_since_new_link = block.u64();
+    state.solve_schedule.links_at_last = block.u64();
+    state.solve_schedule.ranges_at_last = block.u64();
+    state.solve_schedule.ranges_since_new_link = block.u64();
     std::vector<uint64_t *> fields = counterFields(state.counters);
     const uint8_t stored = block.u8();
     for (uint8_t i = 0; i < stored; ++i) {

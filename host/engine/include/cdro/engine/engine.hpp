@@ -159,20 +159,16 @@ public:
         std::vector<RingSog> rings;
         std::optional<std::array<NodeId, 3>> frame_nodes;
         EngineCounters counters;
-        uint64_t links_at_last_solve = 0;
-        uint64_t ranges_since_new_link = 0;
+        SolveSchedule solve_schedule;
     };
-    std::pair<uint64_t, uint64_t> solveSchedule() const
-    {
-        return {global_.linksAtLastSolve(), global_.rangesSinceNewLink()};
-    }
+    const SolveSchedule &solveSchedule() const { return global_.schedule(); }
     void restore(const RestoredState &state); // replaces everything; throws std::invalid_argument
 
 private:
     uint32_t nodeIndex(NodeId id);
     void runPlacement();
     void adoptPlaced(const std::vector<uint32_t> &nodes);
-    void runGlobalSolve();
+    void runGlobalSolve(bool settling);
     void updateNode(uint32_t node, bool after_range = false);
     void unplace(uint32_t node);
     void enqueueNeighbours(uint32_t node);

@@ -1,14 +1,15 @@
 // global_step.hpp: the global solve (global_solve.hpp) as a step of the pipeline: when it runs,
 // the plain problem it is given, and how its map is adopted.
 //
-// When: once the links have grown by `link_growth` since the last run (so a logarithmic number of
-// times), once more when no link has appeared for `quiet_ranges_per_link` ranges per link, and at
-// settle(); only ever at these points of the range stream, so a replay gives the same estimates.
+// When: once the links have grown by `link_growth` since the last run, or the ranges received
+// have (so a logarithmic number of times: the links' medians keep improving after the last link
+// appeared), once more when no link has appeared for `quiet_ranges_per_link` ranges per link, and
+// at settle() when ranges arrived since; only ever at these points of the range stream, so a replay gives the same estimates.
 // The problem: the placed or placeable nodes that are not moving, numbered by id, their links'
 // ranges, fixed and pinned nodes where they are, and the unheard pairs of nodes that have listened
 // for two sweeps of the network. Adoption: the solve's best map, seen from the current frame (a
 // rigid fit on the nodes both place), unless the filter's own map, refined, explains the links
-// within `min_gain_nats` as well (no jump for nothing); nodes the solve places and the filter had
+// within `min_gain_nats` as well and is the same map (no jump for nothing); nodes the solve places and the filter had
 // not are placed; what the solve says about each node (its covariance with the correlations of
 // the whole map, its reliability, whether a rival map disputes it) is kept in NodeSolveView for
 // the convergence checks and the outputs.
@@ -26,6 +27,19 @@
 #include "cdro/engine/params.hpp"
 
 namespace cdro::engine {
+
+// Where the schedule stands (kept in checkpoints, so that a resumed engine solves when the
+// uninterrupted one would).
+struct SolveSchedule {
+    uint64_t links_at_last = 0;          // links at the last solve
+    uint64_t ranges_at_last = 0;         // ranges received at the last solve
+    uint64_t ranges_since_new_link = 0;
+    bool operator==(const SolveSchedule &other) const
+    {
+        return links_at_last == other.links_at_last && ranges_at_last == other.ranges_at_last &&
+               ranges_since_new_link == other.ranges_since_new_link;
+    }
+};
 
 struct GlobalStepCounters {
     uint64_t solves = 0;            // global solves run
@@ -50,10 +64,11 @@ public:
     // solve.enabled. Without refinement (the paper's filter: the merged SoG is the estimate) the
     // solve only places the nodes the filter could not place; it moves none.
     bool enabled() const;
-    // After a range: whether the solve is due (the links grew, or the network has been quiet).
-    bool dueAfterRange(const MapState &map, bool new_link);
-    // At settle(): whether links appeared since the last run.
-    bool dueAtSettle(const MapState &map) const;
+    // After a range: whether the solve is due (the links grew, the ranges grew by the same
+    // factor, or the network has been quiet).
+    bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received);
+    // At settle(): whether ranges arrived since the last run.
+    bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;
 
     struct Outcome {
         std::vector<uint32_t> placed;   // nodes it placed that were not placed
@@ -63,15 +78,12 @@ public:
     using Trace = std::function<void(const std::string &)>;
     // Runs the solve and adopts its map into `map` (positions only: the caller moves the rings,
     // places the new nodes' SoGs and restarts eq. 16 for the moved ones).
-    Outcome run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes, const Trace &trace);
+    // `settling`: the solve of settle(), whose map is the answer: the best, without the margin.
+    Outcome run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes, bool settling,
+                const Trace &trace);
 
-    uint64_t linksAtLastSolve() const { return links_at_last_; }
-    uint64_t rangesSinceNewLink() const { return ranges_since_new_link_; }
-    void restoreSchedule(uint64_t links_at_last, uint64_t ranges_since_new_link)
-    {
-        links_at_last_ = links_at_last;
-        ranges_since_new_link_ = ranges_since_new_link;
-    }
+    const SolveSchedule &schedule() const { return schedule_; }
+    void restoreSchedule(const SolveSchedule &schedule) { schedule_ = schedule; }
     const GlobalStepCounters &counters() const { return counters_; }
     void restoreCounters(const GlobalStepCounters &counters) { counters_ = counters; }
 
@@ -79,8 +91,7 @@ private:
     EngineParams params_;
     RangeLikelihood likelihood_;   // the engine's model without the floor (map_problem.hpp)
     GlobalSolveParams solve_;
-    uint64_t links_at_last_ = 0;
-    uint64_t ranges_since_new_link_ = 0;
+    SolveSchedule schedule_;
     GlobalStepCounters counters_;
 };
 
