@@ -187,7 +187,7 @@ TEST(EngineConfig, AnUnknownKeyNamesFileLineKeyAndTheKnownKeys)
     EXPECT_NE(group.find("test.yaml:2"), std::string::npos) << group;
     EXPECT_NE(group.find("'rnage'"), std::string::npos) << group;
     for (const char *known : {"convergence", "frame", "likelihood", "placement", "range", "refinement",
-                              "reinitialization", "sog"}) {
+                              "sog", "solve"}) {
         EXPECT_NE(group.find(known), std::string::npos) << group;
     }
     // Other sections of the file (the service's) are not the engine's business.

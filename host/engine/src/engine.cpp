@@ -236,6 +236,7 @@ void Engine::updateNode(uint32_t node, bool after_range)
         position = refined.position_m;
         covariance = refined.covariance_m2;
     }
+    covariance = symmetricPart(covariance);
     const Vector2 delta = position - state.position_m;
     const bool changed = delta.squaredNorm() > 0.0 || covariance != state.covariance_m2;
     state.position_m = position;

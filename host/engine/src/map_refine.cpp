@@ -289,6 +289,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     uint32_t free_count = 0;
     const std::vector<int> number = freeNumbers(problem, estimate.placed, &free_count);
     if (free_count == 0) {
+        // Nothing to estimate (every placed node fixed or pinned): the fixed nodes are exact.
+        out.link_redundancy.assign(problem.links.size(), -1.0);
+        out.reliability_m.assign(problem.nodeCount(), 0.0);
+        out.main_part.assign(problem.nodeCount(), 1);
+        out.gauge_free = false;
         return out;
     }
     const auto size = static_cast<Eigen::Index>(2 * free_count);

@@ -47,7 +47,7 @@ void PlacementStep::place(MapState &map, uint32_t node, const Vector2 &position_
     state.position_m = position_m;
     // Never start more certain than one range could make it.
     const double variance = params_.range.sigma_m * params_.range.sigma_m;
-    state.covariance_m2 = covariance_m2.allFinite() ? covariance_m2 : Matrix2::Identity();
+    state.covariance_m2 = covariance_m2.allFinite() ? symmetricPart(covariance_m2) : Matrix2::Identity();
     if (minEigenvalue(state.covariance_m2) < variance) {
         state.covariance_m2 += variance * Matrix2::Identity();
     }

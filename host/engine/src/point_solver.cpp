@@ -121,7 +121,7 @@ PointSolution solvePoint(const std::vector<RangeConstraint> &constraints, const 
     }
     solution.well_posed = solution.well_posed && minEigenvalue(information) >= params.min_information;
     if (solution.well_posed) {
-        solution.covariance_m2 = information.inverse();
+        solution.covariance_m2 = symmetricPart(information.inverse());
     }
     return solution;
 }

@@ -18,7 +18,7 @@ struct RigidTransform {
     Vector2 apply(const Vector2 &point_m) const { return rotation * point_m + translation_m; }
     Matrix2 applyToCovariance(const Matrix2 &covariance_m2) const
     {
-        return rotation * covariance_m2 * rotation.transpose();
+        return symmetricPart(rotation * covariance_m2 * rotation.transpose());
     }
 };
 
