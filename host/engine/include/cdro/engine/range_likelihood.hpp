@@ -53,10 +53,8 @@ public:
     // residual_m = measured - predicted (m); variance_m2 > 0 (m^2).
     ResidualEvaluation evaluate(double residual_m, double variance_m2) const;
     double logDensity(double residual_m, double variance_m2) const { return evaluate(residual_m, variance_m2).log_density; }
-    double inlierProbability(double residual_m, double variance_m2) const
-    {
-        return evaluate(residual_m, variance_m2).inlier_probability;
-    }
+    // evaluate()'s inlier probability (to rounding), without its logarithm.
+    double inlierProbability(double residual_m, double variance_m2) const;
     // p(e) itself (1/m): the weight update multiplies these (clamped at 1e-300).
     double density(double residual_m, double variance_m2) const;
     // Iteratively reweighted least squares: the weight w(e) = -slope / e (1/m^2), the curvature of
@@ -66,6 +64,18 @@ public:
     const RangeLikelihoodParams &params() const { return params_; }
 
 private:
+    // The mixture's terms (1/m) in linear space, with the floor in `total`; not `finite` where an
+    // exponent would overflow (then the log-space evaluation serves).
+    struct Terms {
+        bool finite = false;
+        double normal = 0.0;    // N(e; 0, S)
+        double los = 0.0;       // (1 - eps - eta) N
+        double nlos = 0.0;      // eps EMG(e; S, lambda)
+        double shortish = 0.0;  // eta EMG(-e; S, mu)
+        double total = 0.0;     // their sum with the floor, at least 1e-300
+    };
+    Terms terms(double residual_m, double variance_m2) const;
+
     RangeLikelihoodParams params_;
     double nlos_rate_per_m_;  // lambda, 1/m
     double short_rate_per_m_; // mu, 1/m
