@@ -484,3 +484,46 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
         assert result.returncode == 2 and message in result.stderr, (args, result.stderr)
     help_text = run_eval("--help").stdout
     assert "examples:" in help_text and "cdro-eval --truth" in help_text
+
+
+def test_that_converged_nodes_are_judged_on_their_own_wrong_ones_named_and_ellipses_checked(tmp_path):
+    # Fixture: five converged nodes fitted on their own; node 5 is 2 m off (wrong, sigma 0.1 m),
+    # nodes 1-4 are 0.1 m off and carry the fit's share of node 5's error, within their 2-sigma
+    # ellipses (sigma 0.3 m); node 6 is far off but not converged, so it must not count.
+    truth = {1: (0.0, 0.0), 2: (10.0, 0.0), 3: (10.0, 10.0), 4: (0.0, 10.0), 5: (5.0, 5.0), 6: (5.0, 20.0)}
+    (tmp_path / "truth.csv").write_text("id,x,y\n" + "".join(f"{i},{x},{y}\n" for i, (x, y) in truth.items()))
+    estimates = {i: np.array(p) + np.array([0.1, 0.0]) * (1 if i % 2 else -1) for i, p in truth.items()}
+    estimates[5] = np.array([7.0, 5.0])
+    estimates[6] = np.array([25.0, 20.0])
+    covariances = {i: np.diag([0.09, 0.09]) for i in truth}
+    covariances[5] = np.diag([0.01, 0.01])
+    write_estimates(tmp_path / "est.csv", estimates, covariances, converged={1, 2, 3, 4, 5})
+
+    # Test
+    result = run_eval("--truth", tmp_path / "truth.csv", "--estimates", tmp_path / "est.csv", "--no-baselines",
+                      "--json", tmp_path / "eval.json")
+
+    # Assert
+    assert result.returncode == 0, result.stderr
+    engine = json.loads((tmp_path / "eval.json").read_text())["methods"]["engine"]
+    assert engine["converged"] == 5
+    assert engine["converged_wrong"] == [5]
+    assert engine["ellipse_coverage"] == pytest.approx(0.8)
+    assert engine["nees"] > 2.0
+    assert "1 converged > 1 m off" in result.stdout
+
+
+def test_that_a_reader_that_stops_early_gets_no_traceback_and_the_files_are_written(tmp_path):
+    # cdro-eval ... | head: the pipe closes while the table is printed.
+    truth = {i: (float(i), float(i * i % 7)) for i in range(1, 60)}
+    (tmp_path / "truth.csv").write_text("id,x,y\n" + "".join(f"{i},{x},{y}\n" for i, (x, y) in truth.items()))
+    write_estimates(tmp_path / "est.csv", {i: np.array(p) for i, p in truth.items()})
+    process = subprocess.Popen([sys.executable, "-m", "cdro_tools.eval", "--truth", str(tmp_path / "truth.csv"),
+                                "--estimates", str(tmp_path / "est.csv"), "--no-baselines", "--json",
+                                str(tmp_path / "eval.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.readline()
+    process.stdout.close()
+    _, stderr = process.communicate(timeout=GUARD_S)
+    assert "Traceback" not in stderr.decode(), stderr.decode()
+    assert process.returncode == 0
+    assert json.loads((tmp_path / "eval.json").read_text())["methods"]["engine"]["nodes"] == 59

@@ -41,6 +41,7 @@ from .evaluation.alignment import Alignment, align  # noqa: E402
 from .evaluation.baselines import (DROP_THRESHOLD_M, HUBER_K, NAMES as LSQ_NAMES, BaselineError, Links,  # noqa: E402
                                    run_baselines)
 from .evaluation.convergence import all_converged_at, convergence_ranges, rmse_over_ranges  # noqa: E402
+from .evaluation.honesty import WRONG_M, converged_honesty  # noqa: E402
 from .evaluation.crb import anchor_free_crb  # noqa: E402
 from .evaluation.inputs import (BadRow, InputError, project_ranges, read_estimates, read_heights,  # noqa: E402
                                 read_ranges, read_trace, read_truth)
@@ -211,14 +212,21 @@ def evaluate(args, bad: list[BadRow]) -> tuple[dict, dict]:
         converged = {i: e for i, e in estimates.items() if e.converged}
         converged_alignment = align({i: e.xy_m for i, e in converged.items()}, truth_xy)
         engine = _method_json(alignment)
+        honesty = converged_honesty(converged, converged_alignment, truth_xy) if len(converged) >= 3 else None
         engine.update(estimates=len(estimates), converged=len(converged),
                       rmse_converged_m=_finite_or_none(converged_alignment.rmse_m) if len(converged) >= 3 else None,
+                      converged_wrong=honesty.wrong if honesty else [],
+                      ellipse_coverage=_finite_or_none(honesty.coverage) if honesty else None,
+                      nees=_finite_or_none(honesty.nees) if honesty else None,
                       nodes_without_truth=sorted(i for i in estimates if i not in truth_xy),
                       unplaced=sorted(unplaced),
                       ranged_nodes_without_estimate=sorted(ranged - set(estimates) - set(unplaced)))
         notes = [f"{len(converged)}/{len(estimates)} converged"]
         if engine["rmse_converged_m"] is not None and len(converged) < len(estimates):
             notes.append(f"converged nodes alone {_fmt(engine['rmse_converged_m'])} m")
+        if honesty:
+            notes.append(f"{len(honesty.wrong)} converged > {WRONG_M:g} m off; truth inside the 2-sigma ellipse of "
+                         f"{100 * honesty.coverage:.0f} % of them (NEES {honesty.nees:.2f})")
         if unplaced:
             shown = ", ".join(map(str, sorted(unplaced)[:5])) + (", ..." if len(unplaced) > 5 else "")
             notes.append(f"{len(unplaced)} not placed ({shown})")
@@ -423,9 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     _report_bad_rows(bad)
 
     table_out = sys.stderr if args.json == "-" else sys.stdout
-    for line in _summary_lines(report):
-        print(line, file=table_out)
-    print(_table(report), file=table_out)
+    try:
+        for line in _summary_lines(report):
+            print(line, file=table_out)
+        print(_table(report), file=table_out, flush=True)
+    except BrokenPipeError:
+        # The reader stopped early (| head): the files asked for are still written.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), table_out.fileno())
     title = args.title or f"cdro-eval: {args.estimates or args.ranges or args.trace[0]}"
     try:
         if args.map_png:
