@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 GUARD_S = 60
-HEADER = "id,x,y,var_x,cov_xy,var_y,converged"
+HEADER = "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
 TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,t"
 
 # Six nodes (m) that all range to each other: every one of them can be placed.
@@ -307,8 +307,10 @@ def test_that_a_part_hanging_on_two_nodes_is_placed_named_and_not_converged(host
     assert sorted(out) == sorted(everything)
     for i in NODES:
         assert out[i]["converged"] == "1", (i, result.stderr)
+        assert (out[i]["status"], out[i]["reason"]) == ("converged", ""), i
     for i in part:
         assert out[i]["x"] != "" and out[i]["converged"] == "0", (i, result.stderr)
+        assert (out[i]["status"], out[i]["reason"]) == ("placed", "foldable"), i
         assert f"node {i} hangs on nodes 3 and 4: its part of the network can fold over them" in result.stderr
     assert result.stderr.count("hangs on") == 3
 

@@ -127,6 +127,8 @@ def test_live_map_renders_and_follows_updates(build_dir, tmp_path, browser):
     assert foldable == [NODES[2]]
     tooltip = browser.run(f"return document.querySelector('#nodes g.node[data-id=\"{NODES[2]}\"] title').textContent")
     assert "side is undecided" in tooltip
+    assert browser.run(f"return document.querySelector('#nodes g.node[data-id=\"{NODES[2]}\"]').dataset.reason") == \
+        "foldable"
     assert browser.run(f"return getComputedStyle(document.querySelector('#nodes g.node[data-id=\"{NODES[2]}\"] "
                        "circle')).strokeDasharray") not in ("", "none")
 

@@ -93,7 +93,7 @@ def test_nodes_health_and_last_will_over_mqtt(build_dir, tmp_path, broker):
         payload = json.loads(message["payload"])
         assert payload["type"] == "node" and payload["id"] == node
         assert set(payload) >= {"t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "converged", "moving",
-                                "placed", "foldable"}
+                                "placed", "foldable", "status", "reason", "hinge"}
     health = wait_until(lambda: listener.latest("lab/health"), "health")
     assert json.loads(health["payload"])["link"] in ("connected", "handshaking")
     h = harness.health()

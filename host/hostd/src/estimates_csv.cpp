@@ -17,13 +17,13 @@ void writeEstimateFields(std::FILE *out, const engine::NodeOutput &node)
 
 } // namespace
 
-void writeNodesHeader(std::FILE *out) { std::fputs("id,x,y,var_x,cov_xy,var_y,converged\n", out); }
+void writeNodesHeader(std::FILE *out) { std::fputs("id,x,y,var_x,cov_xy,var_y,converged,status,reason\n", out); }
 
 void writeNodeRow(std::FILE *out, const engine::NodeOutput &node)
 {
     std::fprintf(out, "%u", static_cast<unsigned>(node.id));
     writeEstimateFields(out, node);
-    std::fputc('\n', out);
+    std::fprintf(out, ",%s,%s\n", engine::nodeLifecycleName(node.lifecycle), engine::nodeDoubtName(node.doubt));
 }
 
 void writeTraceHeader(std::FILE *out) { std::fputs("ranges,id,x,y,var_x,cov_xy,var_y,converged,t\n", out); }

@@ -16,6 +16,15 @@ function el(name, attrs, parent) {
   return node;
 }
 
+// Why a placed node is not converged (the engine's NodeDoubt, docs/engine.md "Convergence").
+const REASONS = {
+  'too few links': 'fewer than three links to placed nodes: its ranges cannot fix it',
+  'ambiguous': 'another position, or another map of its part, fits its links about as well',
+  'foldable': 'its part of the network hangs on one or two nodes: its side is undecided',
+  'flexible': 'one unnoticed error in the links it hangs on could move it a metre or more',
+  'unsettled': 'its estimate is still moving',
+};
+
 function hexId(id) { return '0x' + id.toString(16).toUpperCase().padStart(4, '0'); }
 
 // 2x2 covariance -> ellipse radii (sigma) and angle (rad) of the major axis.
@@ -104,11 +113,11 @@ function render(map) {
     if (n.moving) cls.push('moving');
     if (n.foldable) cls.push('foldable');
     if (n.id === selectedId) cls.push('selected');
-    const g = el('g', { class: cls.join(' '), 'data-id': n.id }, nodes);
+    const g = el('g', { class: cls.join(' '), 'data-id': n.id, 'data-reason': n.reason || '' }, nodes);
     el('circle', { cx: view.x(n.x_m), cy: view.y(n.y_m), r: 7 }, g);
     el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = hexId(n.id);
     el('title', {}, g).textContent = `${hexId(n.id)} (${n.id}): x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
-      (n.foldable ? ' (its part of the network hangs on one or two nodes: its side is undecided)' : '');
+      (n.reason ? ` - not converged: ${REASONS[n.reason] || n.reason}` : '');
     g.addEventListener('click', () => selectNode(n.id));
   }
   const list = document.getElementById('unplaced');

@@ -1,5 +1,7 @@
 // estimates_csv.hpp: the estimate CSV files written by the offline mode.
-//   nodes: id,x,y,var_x,cov_xy,var_y,converged
+//   nodes: id,x,y,var_x,cov_xy,var_y,converged,status,reason   status: the node's lifecycle
+//          (unplaced, placed, converged, moving, settling); reason: why a placed node is not
+//          converged (too few links, ambiguous, foldable, flexible, unsettled; empty otherwise)
 //   trace: ranges,id,x,y,var_x,cov_xy,var_y,converged,t   (a snapshot every N ranges; t in s of
 //          the last range, empty when the ranges have no time)
 // Numbers are written with 17 significant digits, so that the same run gives the same bytes
