@@ -832,6 +832,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
                           {"replacements", c.placement.replacements},
                           {"global_solves", c.solve.solves},
                           {"global_solves_adopted", c.solve.solves_adopted},
+                          {"global_solve_refreshes", c.solve.solve_refreshes},
                           {"ekf_gated", c.sogs.ekf_gated},
                           {"weight_collapses", c.sogs.weight_collapses}}},
     };

@@ -2,6 +2,7 @@
 // seeds), determinism, the verdicts on bad ranges, fixed nodes, the named frame, and the
 // ablation switches. Bugs found while writing these stay as regression tests, with what they
 // showed.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -199,6 +200,35 @@ TEST(Engine, SameInputGivesBitIdenticalEstimates)
     Engine third;
     feed(third, network, reordered);
     EXPECT_FALSE(identical(first.estimates(), third.estimates()));
+}
+
+// The steady state costs no global solve: once the links are known and their medians only
+// flicker (noise within a full window), the solve is not run again, however many ranges come;
+// while the ranges still change the links (a link reading 2 m longer from now on), it is.
+TEST(Engine, TheSteadyStateRunsNoGlobalSolveUntilTheRangesChange)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    const uint64_t seed = testSeed(3601);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 12, 7.0, false);
+    Engine engine;
+    feed(engine, network, roundRobin(network, random, 80, 0.1), false);
+    const uint64_t solves_at_80 = engine.counters().solve.solves;
+    feed(engine, network, roundRobin(network, random, 320, 0.1), false);
+    EXPECT_EQ(engine.counters().solve.solves, solves_at_80) << "80 sweeps: " << solves_at_80 << " offsets adopted " << engine.counters().solve.offsets_adopted << " refreshes " << engine.counters().solve.solve_refreshes;
+    // A sixth of the links now read 2 m long (a door closed, a cabinet moved): solved again.
+    std::vector<TestRange> changed = roundRobin(network, random, 200, 0.1);
+    for (TestRange &range : changed) {
+        const size_t from = static_cast<size_t>(
+            std::find(network.ids.begin(), network.ids.end(), range.from) - network.ids.begin());
+        const size_t to = static_cast<size_t>(std::find(network.ids.begin(), network.ids.end(), range.to) -
+                                              network.ids.begin());
+        range.range_m += (from + to) % 6 == 0 ? 2.0 : 0.0;
+    }
+    feed(engine, network, changed, false);
+    EXPECT_GT(engine.counters().solve.solves, solves_at_80);
+    EXPECT_GT(engine.counters().solve.solve_refreshes, 0U);
 }
 
 // ---- (c) verdicts and counters ---------------------------------------------------------------

@@ -312,4 +312,6 @@ def test_a_resumed_run_ends_within_the_documented_tolerance(build_dir, tmp_path)
                                 (uninterrupted[n]["x_m"], uninterrupted[n]["y_m"])) for n in final)
         print(f"split at {split_s:g} s: the resumed run ends {worst_m * 1000:.2f} mm from the uninterrupted one")
         assert worst_m <= RESUME_TOLERANCE_M
-        assert all(final[n]["converged"] == uninterrupted[n]["converged"] for n in final)
+        assert all(final[n]["converged"] == uninterrupted[n]["converged"] for n in final), [
+            (n, final[n]["reason"], uninterrupted[n]["reason"]) for n in final
+            if final[n]["converged"] != uninterrupted[n]["converged"]]

@@ -62,13 +62,18 @@ def test_that_plant_gives_the_golden_estimates_byte_for_byte(build_dir, plant, t
         f"change; if not, this is a regression.")
 
 
-def test_that_the_golden_file_holds_every_plant_node_placed_and_converged():
-    # The file itself is what the issue asks of PLANT: 28 nodes, all placed and converged.
+def test_that_the_golden_file_holds_every_plant_node_placed_and_converged_unless_its_ranges_cannot_tell():
+    # The file itself is what the issues ask of PLANT: 28 nodes, all placed; converged, except a
+    # node the ranges do not determine, which says why: node 29 has three links and no fourth to
+    # check them, so one NLOS reading among them would move it unnoticed (flexible).
     lines = GOLDEN.read_text().splitlines()
-    assert lines[0] == "id,x,y,var_x,cov_xy,var_y,converged"
+    assert lines[0] == "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
     rows = [line.split(",") for line in lines[1:]]
     assert len(rows) == 28
-    assert all(len(row) == 7 and row[1] != "" and row[6] == "1" for row in rows)
+    assert all(len(row) == 9 and row[1] != "" for row in rows)
+    not_converged = {int(row[0]): row[7:] for row in rows if row[6] != "1"}
+    assert not_converged == {29: ["placed", "flexible"]}
+    assert all(row[7:] == ["converged", ""] for row in rows if row[6] == "1")
     assert [int(row[0]) for row in rows] == sorted(int(row[0]) for row in rows)
 
 

@@ -172,6 +172,11 @@ void Engine::runGlobalSolve(bool settling)
         frame_.apply(map_);
     }
     const GlobalStep::Outcome outcome = global_.run(map_, intake_.counters().ranges_received, frame_.fixedFrameNodes(), settling, trace_);
+    // The links' ranges follow the offsets the solve came with.
+    for (uint32_t link = 0; link < map_.links.size(); ++link) {
+        intake_.refreshLinkRange(map_, link, params_.motion.reset);
+    }
+    global_.markSolved(map_);
     for (const auto &[node, delta] : outcome.shifted) {
         sogs_.translate(map_, node, delta);
         if (delta.norm() > params_.refinement.relax_threshold_m) {
@@ -517,10 +522,11 @@ void Engine::restore(const RestoredState &restored)
         for (double value : link.window_m) {
             state.window.push(value);
         }
-        state.representative_m = state.window.median();
+        intake_.refreshLinkRange(map, index, params_.motion.reset);
         state.range_count = link.range_count;
         state.last_range_m = link.last_range_m;
         state.inlier_probability = link.inlier_probability;
+        state.solved_range_m = link.solved_range_m;
     }
     for (const RingSog &ring : restored.rings) {
         const uint32_t center = map.findNode(ring.center());
@@ -563,7 +569,12 @@ void Engine::restore(const RestoredState &restored)
     relaxations_ = c.relaxations;
     global_.restoreSchedule(restored.solve_schedule);
     frame_.restored(map_);
-    assessed_key_ = 0;
+    if (!restored.structural_doubts.empty() && restored.structural_doubts.size() != map_.nodes.size()) {
+        throw std::invalid_argument("the convergence checks name " + std::to_string(restored.structural_doubts.size()) +
+                                    " nodes, the map " + std::to_string(map_.nodes.size()));
+    }
+    convergence_.restoreStructuralDoubts(restored.structural_doubts);
+    assessed_key_ = restored.assessed_key;
     ++revision_;
 }
 

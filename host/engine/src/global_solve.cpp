@@ -211,7 +211,9 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             finish(std::move(start));
         }
     }
-    for (const auto &seed : seedTriangles(problem, part, params.growth, params.growth_seeds)) {
+    const bool more_starts = !(params.only_current && !hypotheses.empty());
+    for (const auto &seed : more_starts ? seedTriangles(problem, part, params.growth, params.growth_seeds)
+                                        : std::vector<std::array<uint32_t, 3>>{}) {
         MapHypothesis start;
         start.estimate = growMap(problem, part, seed, likelihood, params.growth);
         std::ostringstream origin;
@@ -219,7 +221,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         start.origin = origin.str();
         finish(std::move(start));
     }
-    if (params.patch_start) {
+    if (params.patch_start && more_starts) {
         MapHypothesis start;
         start.estimate = patchMap(problem, part, likelihood);
         start.origin = "patches";
@@ -227,7 +229,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             finish(std::move(start));
         }
     }
-    if (params.mds_start && problem.fixedCount() < 2) {
+    if (params.mds_start && more_starts && problem.fixedCount() < 2) {
         if (std::optional<MapEstimate> layout = mdsMap(problem, part)) {
             MapHypothesis start;
             start.estimate = std::move(*layout);
@@ -235,7 +237,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             finish(std::move(start));
         }
     }
-    if (params.lifted_mds_start && problem.fixedCount() < 2) {
+    if (params.lifted_mds_start && more_starts && problem.fixedCount() < 2) {
         MapHypothesis start;
         start.estimate = MapEstimate::unplaced(problem.nodeCount());
         for (uint32_t node : part) {
@@ -303,6 +305,23 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         }
         if (distinct) {
             result.rivals.push_back(rival);
+        }
+    }
+    // The rivals were judged under the ranges as read; the offsets are the best map's.
+    if (params.range_offsets) {
+        MapHypothesis &best = result.best;
+        RangeLikelihoodParams own = likelihood.params();
+        if (best.nlos_fraction >= 0.0) {
+            own.nlos_fraction = best.nlos_fraction;
+            own.nlos_mean_excess_m = best.nlos_mean_excess_m;
+        }
+        result.offsets = calibrateRangeOffsets(problem, best.estimate, RangeLikelihood(own));
+        result.counters.offset_evaluations += result.offsets.evaluations;
+        if (result.offsets.adopted) {
+            best.estimate = result.offsets.estimate;
+            best.cost = result.offsets.cost_nats;
+            best.origin += ", range offsets";
+            result.all.front() = best;
         }
     }
     return result;

@@ -15,6 +15,21 @@ namespace {
 constexpr double kListenSweeps = 2.0;
 // The unheard pairs' soft cost falls to 0 at this share of the median link range (map_problem.hpp).
 constexpr double kUnheardRadiusShare = 0.5;
+// The evidence has changed enough to solve again when this share of the links' ranges has moved
+// by more than kChangedSigmas times the noise since the last solve (a window's median flickers by
+// about a third of the noise: twice the noise is a change, not flicker).
+constexpr double kChangedLinkShare = 0.1;
+constexpr double kChangedSigmas = 2.0;
+
+// Whether a share of the links' ranges moved by more than the noise since the last solve saw them.
+bool linksChanged(const MapState &map, double sigma_m)
+{
+    size_t changed = 0;
+    for (const LinkState &link : map.links) {
+        changed += link.solved_range_m > 0.0 && std::abs(link.representative_m - link.solved_range_m) > sigma_m ? 1U : 0U;
+    }
+    return static_cast<double>(changed) >= kChangedLinkShare * static_cast<double>(map.links.size());
+}
 
 } // namespace
 
@@ -46,8 +61,11 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
     for (const LinkState &link : map.links) {
         const int a = number[link.node_a];
         const int b = number[link.node_b];
-        if (a >= 0 && b >= 0 && link.window.size() > 0 && link.representative_m > 0.0) {
-            problem.links.push_back(MapLink{static_cast<uint32_t>(a), static_cast<uint32_t>(b), link.representative_m});
+        // The range as read: the solve estimates the offsets afresh.
+        const double read_m =
+            link.representative_m + map.nodes[link.node_a].range_offset_m + map.nodes[link.node_b].range_offset_m;
+        if (a >= 0 && b >= 0 && link.window.size() > 0 && read_m > 0.0) {
+            problem.links.push_back(MapLink{static_cast<uint32_t>(a), static_cast<uint32_t>(b), read_m});
         }
     }
     problem.finish();
@@ -57,9 +75,17 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
 
 GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
 {
+    solve_.range_offsets = params.solve.range_offsets;
 }
 
 bool GlobalStep::enabled() const { return params_.solve.enabled; }
+
+void GlobalStep::markSolved(MapState &map)
+{
+    for (LinkState &link : map.links) {
+        link.solved_range_m = link.representative_m;
+    }
+}
 
 bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received)
 {
@@ -84,12 +110,19 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
             return true;
         }
     }
-    return static_cast<double>(ranges_received) >= solve.link_growth * static_cast<double>(schedule_.ranges_at_last);
+    // The ranges have grown: solve again if they changed the links, looked at once a sweep of
+    // the network (at fixed points of the range stream, so a resumed engine looks when this one did).
+    if (static_cast<double>(ranges_received) < solve.link_growth * static_cast<double>(schedule_.ranges_at_last) ||
+        static_cast<double>(ranges_received - schedule_.ranges_at_check) < links) {
+        return false;
+    }
+    schedule_.ranges_at_check = ranges_received;
+    return linksChanged(map, kChangedSigmas * params_.range.sigma_m);
 }
 
 bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_received) const
 {
-    return enabled() && ranges_received != schedule_.ranges_at_last && map.links.size() >= params_.solve.min_links;
+    return enabled() && ranges_received != schedule_.ranges_at_full && map.links.size() >= params_.solve.min_links;
 }
 
 GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes,
@@ -98,16 +131,28 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     Outcome outcome;
     schedule_.links_at_last = map.links.size();
     schedule_.ranges_at_last = ranges_received;
+
     ++counters_.solves;
     StateProblem built = mapProblemOf(map, params_, ranges_received);
     const MapProblem &problem = built.problem;
+    const bool refresh = !settling && problem.links.size() == schedule_.links_at_full &&
+                         problem.nodeCount() == schedule_.nodes_at_full;
+    if (refresh) {
+        ++counters_.solve_refreshes;
+    } else {
+        schedule_.links_at_full = problem.links.size();
+        schedule_.nodes_at_full = problem.nodeCount();
+        schedule_.ranges_at_full = ranges_received;
+    }
+    GlobalSolveParams solve = solve_;
+    solve.only_current = refresh;
     MapEstimate current = MapEstimate::unplaced(problem.nodeCount());
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         const NodeState &state = map.nodes[built.node_of[i]];
         current.placed[i] = state.placed() ? 1 : 0;
         current.position_m[i] = state.position_m;
     }
-    const GlobalSolveResult solved = solveGlobally(problem, likelihood_, solve_, &current);
+    const GlobalSolveResult solved = solveGlobally(problem, likelihood_, solve, &current);
     counters_.solve_starts += solved.counters.starts;
     counters_.solve_escapes += solved.counters.escapes;
     if (solved.best.estimate.placedCount() < 3) {
@@ -187,11 +232,20 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     // What the model leaves out: the map's size, unless known coordinates fix it.
     MapModelError model_error;
     model_error.scale_sigma = fixed_frame_nodes < 2 ? params_.convergence.scale_sigma : 0.0;
-    const MapCovariance confidence = mapCovariance(problem, map_estimate, likelihood_, model_error);
+    // The range offsets come with the best map (its positions explain the corrected ranges).
+    const bool offsets = chosen == &solved.best && solved.offsets.adopted;
+    const MapProblem corrected = offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
+    const MapCovariance confidence = mapCovariance(offsets ? corrected : problem, map_estimate, likelihood_, model_error);
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        map.nodes[built.node_of[i]].range_offset_m = offsets ? solved.offsets.offset_m[i] : 0.0;
+    }
+    counters_.offsets_adopted += offsets ? 1U : 0U;
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         const uint32_t node = built.node_of[i];
         NodeState &state = map.nodes[node];
         NodeSolveView &view = state.solve;
+        // A refresh tried no other start: what the full solve found disputed stays disputed.
+        const bool was_disputed = refresh && view.solved && view.disputed;
         view = NodeSolveView{};
         if (map_estimate.placed[i] == 0) {
             continue;
@@ -201,7 +255,7 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
         view.position_m = position;
         view.covariance_m2 = transform.applyToCovariance(confidence.covariance_m2[i]);
         view.reliability_m = confidence.reliability_m[i];
-        view.disputed = solved.disputed[i] != 0;
+        view.disputed = solved.disputed[i] != 0 || was_disputed;
         view.main_part = confidence.main_part[i] != 0;
         if (!state.free()) {
             view.position_m = state.position_m;

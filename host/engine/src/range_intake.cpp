@@ -62,6 +62,8 @@ TakenRange RangeIntake::take(MapState &map, NodeId from, NodeId to, double range
     // but consistently; a node that moves reads differently from before).
     taken.jump_m = link.window.size() > 0 ? taken.planar_m - link.window.median() : 0.0;
     link.window.push(taken.planar_m);
+    // The window keeps the ranges as read; what the filter uses is corrected by the ends' offsets.
+    taken.planar_m -= a.range_offset_m + b.range_offset_m;
     link.last_range_m = range_m;
     ++link.range_count;
     return taken;
@@ -71,7 +73,8 @@ void RangeIntake::refreshLinkRange(MapState &map, uint32_t link, bool tracking_m
 {
     LinkState &state = map.links[link];
     const bool moving = map.nodes[state.node_a].moving() || map.nodes[state.node_b].moving();
-    state.representative_m = tracking_motion && moving ? state.window.newest() : state.window.median();
+    state.representative_m = (tracking_motion && moving ? state.window.newest() : state.window.median()) -
+                             map.nodes[state.node_a].range_offset_m - map.nodes[state.node_b].range_offset_m;
 }
 
 } // namespace cdro::engine

@@ -82,7 +82,7 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.solve.solve_escapes, &c.solve.solve_placed, &c.convergence.assessments,
             &c.convergence.ambiguous_nodes, &c.convergence.foldable_nodes, &c.convergence.flexible_nodes,
             &c.motion.motion_starts, &c.motion.motion_stops, &c.motion.motion_inferred, &c.motion.track_updates,
-            &c.motion.track_refused};
+            &c.motion.track_refused, &c.solve.solve_refreshes, &c.solve.offsets_adopted};
 }
 
 // Doubles through the block: their bits, exactly.
@@ -286,6 +286,9 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.u8(static_cast<uint8_t>(node.role));
         block.u8(static_cast<uint8_t>(node.lifecycle));
         block.u8(static_cast<uint8_t>(node.doubt));
+        const auto &structural = engine.structuralDoubts();
+        const size_t index = static_cast<size_t>(&node - network.nodes.data());
+        block.u8(static_cast<uint8_t>(index < structural.size() ? structural[index] : engine::NodeDoubt::None));
         for (uint32_t hinge : node.hinge) {
             block.u16(hinge == engine::kNoIndex ? 0 : network.nodes[hinge].id);
         }
@@ -308,6 +311,7 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.u64(bitsOf(solve.covariance_m2(0, 1)));
         block.u64(bitsOf(solve.covariance_m2(1, 1)));
         block.u64(bitsOf(solve.reliability_m));
+        block.u64(bitsOf(node.range_offset_m));
     }
     block.u32(static_cast<uint32_t>(network.links.size()));
     for (const engine::LinkState &link : network.links) {
@@ -316,6 +320,7 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.u32(link.range_count);
         block.u32(mmOfRange(link.last_range_m));
         block.u16(cdro_fixed_q16_from(link.inlier_probability));
+        block.u64(bitsOf(link.solved_range_m));
         const std::vector<double> window = link.window.values();
         block.u8(static_cast<uint8_t>(window.size()));
         for (double value : window) {
@@ -358,6 +363,11 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
     block.u64(schedule.links_at_last);
     block.u64(schedule.ranges_at_last);
     block.u64(schedule.ranges_since_new_link);
+    block.u64(schedule.ranges_at_check);
+    block.u64(schedule.links_at_full);
+    block.u64(schedule.nodes_at_full);
+    block.u64(schedule.ranges_at_full);
+    block.u64(engine.assessedKey());
     engine::EngineCounters counters = engine.counters();
     const std::vector<uint64_t *> fields = counterFields(counters);
     block.u8(static_cast<uint8_t>(fields.size()));
@@ -406,6 +416,8 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         node.lifecycle =
             enumOf<engine::NodeLifecycle>(block.u8(), static_cast<uint8_t>(engine::NodeLifecycle::Settling), "lifecycle");
         node.doubt = enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt");
+        state.structural_doubts.push_back(
+            enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt"));
         std::array<engine::NodeId, 2> hinge_ids{};
         hinge_ids[0] = block.u16();
         hinge_ids[1] = block.u16();
@@ -436,6 +448,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         node.solve.covariance_m2(0, 1) = node.solve.covariance_m2(1, 0) = doubleOf(block.u64());
         node.solve.covariance_m2(1, 1) = doubleOf(block.u64());
         node.solve.reliability_m = doubleOf(block.u64());
+        node.range_offset_m = doubleOf(block.u64());
         state.nodes.push_back(node);
     }
     // Hinges name nodes by id; the engine keeps indices (the nodes' order is the block's).
@@ -457,6 +470,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         link.range_count = block.u32();
         link.last_range_m = block.u32() / 1000.0;
         link.inlier_probability = cdro_fixed_q16_to(block.u16());
+        link.solved_range_m = doubleOf(block.u64());
         const uint8_t size = block.u8();
         for (uint8_t k = 0; k < size; ++k) {
             link.window_m.push_back(block.u32() / 1000.0);
@@ -488,6 +502,11 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
     state.solve_schedule.links_at_last = block.u64();
     state.solve_schedule.ranges_at_last = block.u64();
     state.solve_schedule.ranges_since_new_link = block.u64();
+    state.solve_schedule.ranges_at_check = block.u64();
+    state.solve_schedule.links_at_full = block.u64();
+    state.solve_schedule.nodes_at_full = block.u64();
+    state.solve_schedule.ranges_at_full = block.u64();
+    state.assessed_key = block.u64();
     std::vector<uint64_t *> fields = counterFields(state.counters);
     const uint8_t stored = block.u8();
     for (uint8_t i = 0; i < stored; ++i) {

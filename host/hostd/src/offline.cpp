@@ -345,13 +345,14 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         std::fprintf(log,
                      "cdro-hostd: %zu nodes placed, %zu converged, %zu links; NLOS handling: %llu EKF updates gated, "
                      "%llu weight terms down-weighted, %llu refinement links down-weighted; %llu re-placements, "
-                     "%llu global solves (%llu maps adopted), %llu settle updates; motion: %llu starts (%llu inferred "
+                     "%llu global solves (%llu of them refreshes, %llu maps adopted), %llu settle updates; motion: %llu starts (%llu inferred "
                      "from ranges), %llu stops\n",
                      placed, converged, engine.map().links.size(), static_cast<unsigned long long>(c.sogs.ekf_gated),
                      static_cast<unsigned long long>(c.sogs.weight_terms_downweighted),
                      static_cast<unsigned long long>(c.refinement.links_downweighted),
                      static_cast<unsigned long long>(c.placement.replacements),
                      static_cast<unsigned long long>(c.solve.solves),
+                     static_cast<unsigned long long>(c.solve.solve_refreshes),
                      static_cast<unsigned long long>(c.solve.solves_adopted),
                      static_cast<unsigned long long>(settled), static_cast<unsigned long long>(c.motion.motion_starts),
                      static_cast<unsigned long long>(c.motion.motion_inferred),

@@ -50,6 +50,9 @@ public:
     NodeDoubt doubtOf(const MapState &map, uint32_t node) const;
 
     const ConvergenceCounters &counters() const { return counters_; }
+    // The whole-map doubts of the last assessment, per node (checkpoints).
+    const std::vector<NodeDoubt> &structuralDoubts() const { return structural_; }
+    void restoreStructuralDoubts(std::vector<NodeDoubt> doubts) { structural_ = std::move(doubts); }
     void restoreCounters(const ConvergenceCounters &counters) { counters_ = counters; }
 
 private:

@@ -152,6 +152,7 @@ public:
         uint32_t range_count = 0;
         double last_range_m = 0.0;
         double inlier_probability = 1.0;
+        double solved_range_m = 0.0; // m
     };
     struct RestoredState {
         std::vector<NodeState> nodes; // their links are rebuilt from `links`
@@ -160,8 +161,14 @@ public:
         std::optional<std::array<NodeId, 3>> frame_nodes;
         EngineCounters counters;
         SolveSchedule solve_schedule;
+        std::vector<NodeDoubt> structural_doubts; // per node, as structuralDoubts()
+        uint64_t assessed_key = 0;
     };
     const SolveSchedule &solveSchedule() const { return global_.schedule(); }
+    // The convergence checks' whole-map doubts and the structure they were assessed on: a
+    // restored engine decides as this one would, without assessing again.
+    const std::vector<NodeDoubt> &structuralDoubts() const { return convergence_.structuralDoubts(); }
+    uint64_t assessedKey() const { return assessed_key_; }
     void restore(const RestoredState &state); // replaces everything; throws std::invalid_argument
 
 private:

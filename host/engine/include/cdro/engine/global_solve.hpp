@@ -4,6 +4,9 @@
 // that explain the links almost as well remembered (a node they place differently is disputed:
 // the ranges do not decide it).
 //
+// Then each node's range offset (its radio's antenna delay) with the best map, adopted when it
+// explains the links clearly better (range_offsets.hpp).
+//
 // Starts: the map grown from each of `growth_seeds` seed triangles spread over the network
 // (map_growth.hpp), MDS-MAP (map_mds.hpp), and the caller's current map if it has one. Only
 // the largest connected part of the link graph is solved; a node outside it has no range that
@@ -18,6 +21,7 @@
 #include "cdro/engine/map_lift.hpp"
 #include "cdro/engine/map_problem.hpp"
 #include "cdro/engine/map_refine.hpp"
+#include "cdro/engine/range_offsets.hpp"
 
 namespace cdro::engine {
 
@@ -32,6 +36,9 @@ struct GlobalSolveParams {
     uint32_t learn_rounds = 2;           // EM rounds learning the NLOS share and excess from the best map
     bool lift = true;                    // refine every start through the lifted space (map_lift.hpp)
     bool lifted_mds_start = true;        // and start from MDS-MAP in D dimensions too
+    bool range_offsets = true;           // estimate each node's range offset with the best map (range_offsets.hpp)
+    bool only_current = false;           // the caller's map the only start (its links were all
+                                         // solved from every start before: a refresh)
     MapLiftParams lifting;
     MapRefineParams refine;
     MapGrowthParams growth;
@@ -49,6 +56,7 @@ struct GlobalSolveCounters {
     uint32_t starts = 0;
     uint32_t escapes = 0;            // single nodes moved to a better local optimum
     uint32_t refine_iterations = 0;
+    uint32_t offset_evaluations = 0; // maps refined searching the range offsets
 };
 
 struct GlobalSolveResult {
@@ -60,6 +68,8 @@ struct GlobalSolveResult {
     GlobalSolveCounters counters;
     double learnt_nlos_fraction = -1.0;      // the NLOS model learnt (< 0: not learnt)
     double learnt_nlos_mean_excess_m = -1.0; // m
+    RangeOffsets offsets;                    // the nodes' range offsets (adopted or not); when adopted,
+                                             // `best` is the map under the corrected ranges
 };
 
 GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood &likelihood,

@@ -1,10 +1,16 @@
 // global_step.hpp: the global solve (global_solve.hpp) as a step of the pipeline: when it runs,
 // the plain problem it is given, and how its map is adopted.
 //
-// When: once the links have grown by `link_growth` since the last run, or the ranges received
-// have (so a logarithmic number of times: the links' medians keep improving after the last link
-// appeared), once more when no link has appeared for `quiet_ranges_per_link` ranges per link, and
-// at settle() when ranges arrived since; only ever at these points of the range stream, so a replay gives the same estimates.
+// When: once the links have grown by `link_growth` since the last run; once the ranges received
+// have grown by as much and a tenth of the links' ranges have moved by more than twice the noise
+// since the solve last saw them (looked at once a sweep of the network: the medians improve for a while
+// after the last link appeared; once they only flicker, in the steady state, nothing is solved
+// again); once more when no link has appeared
+// for `quiet_ranges_per_link` ranges per link; and at settle() when ranges arrived since. Only
+// ever at these points of the range stream, so a replay gives the same estimates.
+// Full or refresh: a solve on the same links and nodes as the last full solve starts from the
+// current map alone (every start was tried on these links; only their ranges changed) and keeps
+// what the full solve found disputed; settle() runs a full solve whenever ranges arrived since one.
 // The problem: the placed or placeable nodes that are not moving, numbered by id, their links'
 // ranges, fixed and pinned nodes where they are, and the unheard pairs of nodes that have listened
 // for two sweeps of the network. Adoption: the solve's best map, seen from the current frame (a
@@ -34,19 +40,27 @@ struct SolveSchedule {
     uint64_t links_at_last = 0;          // links at the last solve
     uint64_t ranges_at_last = 0;         // ranges received at the last solve
     uint64_t ranges_since_new_link = 0;
+    uint64_t ranges_at_check = 0;        // ranges received when the links were last checked for change
+    uint64_t links_at_full = 0;          // the problem's links and nodes at the last full solve
+    uint64_t nodes_at_full = 0;
+    uint64_t ranges_at_full = 0;         // ranges received at the last full solve
     bool operator==(const SolveSchedule &other) const
     {
         return links_at_last == other.links_at_last && ranges_at_last == other.ranges_at_last &&
-               ranges_since_new_link == other.ranges_since_new_link;
+               ranges_since_new_link == other.ranges_since_new_link && ranges_at_check == other.ranges_at_check &&
+               links_at_full == other.links_at_full && nodes_at_full == other.nodes_at_full &&
+               ranges_at_full == other.ranges_at_full;
     }
 };
 
 struct GlobalStepCounters {
-    uint64_t solves = 0;            // global solves run
+    uint64_t solves = 0;            // global solves run (full and refreshes)
+    uint64_t solve_refreshes = 0;   // ... of which refreshes: the same links as the last full solve, the current map refined
     uint64_t solves_adopted = 0;    // ... whose map replaced the filter's (not its refinement)
     uint64_t solve_starts = 0;      // starting maps refined, over all solves
     uint64_t solve_escapes = 0;     // single nodes moved out of a local minimum, over all solves
     uint64_t solve_placed = 0;      // nodes the solve placed that the filter had not
+    uint64_t offsets_adopted = 0;   // solves whose map came with the nodes' range offsets (range_offsets.hpp)
 };
 
 // The problem the solve sees, and which engine node each problem node is.
@@ -64,8 +78,10 @@ public:
     // solve.enabled. Without refinement (the paper's filter: the merged SoG is the estimate) the
     // solve only places the nodes the filter could not place; it moves none.
     bool enabled() const;
-    // After a range: whether the solve is due (the links grew, the ranges grew by the same
-    // factor, or the network has been quiet).
+    // After a solve was adopted and the links' ranges follow the new offsets: the ranges it saw.
+    void markSolved(MapState &map);
+    // After a range: whether the solve is due (the links grew; the ranges grew by the same
+    // factor and changed a share of the links' ranges; or the network has been quiet).
     bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received);
     // At settle(): whether ranges arrived since the last run.
     bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;

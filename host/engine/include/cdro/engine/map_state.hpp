@@ -115,6 +115,7 @@ struct NodeState {
     uint32_t placements = 0;        // times placed (re-placements after an inconsistency count)
     uint32_t waiting_ranges = 0;    // ranges seen while not placed (placement's patience)
     uint64_t first_range = 0;       // ranges the engine had received when the node appeared
+    double range_offset_m = 0.0;    // m, its radio reads this much long (range_offsets.hpp; the global solve's)
     std::vector<uint32_t> links;    // indices into MapState::links, in order of appearance
     MotionMemory motion;
     std::optional<MotionTrack> track; // while moving or settling: the constant-velocity track
@@ -138,7 +139,8 @@ struct LinkState {
     RangeWindow window;             // recent projected ranges, m
     uint32_t range_count = 0;       // ranges seen on this link
     double last_range_m = 0.0;      // m, last measured range (3D, as reported)
-    double representative_m = 0.0; // m, median of the window (projected): the link's range
+    double representative_m = 0.0; // m, median of the window (projected), less its ends' range offsets: the link's range
+    double solved_range_m = 0.0;    // m, the link's range when the global solve last saw it (0: never)
     uint32_t ring_from_a = kNoIndex; // SoG centred on node_a describing node_b (index into rings)
     uint32_t ring_from_b = kNoIndex;
     double inlier_probability = 1.0; // line-of-sight probability at the last refinement

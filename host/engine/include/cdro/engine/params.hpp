@@ -62,6 +62,8 @@ struct SolveParams {
     double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges per
                                    // link, if links appeared since it last ran
     double min_gain_nats = 1.0;    // nats, how much better the solve's map must explain the links
+    bool range_offsets = true;     // estimate each node's range offset (uncalibrated antenna
+                                   // delays, range_offsets.hpp); false: radios known calibrated
 };
 
 // Moving nodes (paper Fig. 4): a node reported moving stops being an anchor for the others; every
@@ -95,10 +97,10 @@ struct MotionParams {
 // ellipse) could put it more than `reliable_m` away (convergence.hpp).
 struct ConvergenceParams {
     double reliable_m = 1.0;          // m, what converged promises at most
-    double scale_sigma = 0.02;        // relative std of the map's size when no two fixed nodes set
-                                      // it: links read long through walls and with uncalibrated
-                                      // antenna delays (1-3 %), which no range can tell apart from a
-                                      // larger map
+    double scale_sigma = 0.005;       // relative std of the map's size when no two fixed nodes set
+                                      // it: what the model leaves out once the range offsets
+                                      // (antenna delays) are estimated, the walls' excess on many
+                                      // links at once (PLANT's map is 0.05 % off in size)
     double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;        // m, step of the moving average under which a node is still
     uint32_t consecutive = 5;         // still updates in a row to count as converged ...
