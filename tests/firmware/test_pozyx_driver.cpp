@@ -5,6 +5,8 @@
 #include <cstring>
 #include <memory>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "cdro_fw/config.h"
 #include "cdro_fw/pozyx.h"
@@ -261,6 +263,75 @@ TEST_F(Driver, RemoteRangeIgnoresOtherNodesMessagesWhileWaitingForTheResult)
     cdro_pozyx_range_result_t r{};
     ASSERT_EQ(cdro_pozyx_range_remote(&dev, kAnchorA, kAnchorB, &r), CDRO_POZYX_OK);
     EXPECT_EQ(r.distance_mm, 8000U);
+}
+
+// Issue 15, the remote-ranging race. Node B is carried 8 -> 9 -> 10 -> 11 m away from node A
+// between attempts; every remote-to-remote range must be B's distance at that attempt. The
+// driver once kept an RX_DATA bit seen before A's acknowledgement and took the acknowledgement
+// for A's result message (same sender), then read A's stored range while A was still ranging:
+// after one failed attempt, every attempt returned the distance of the attempt before it.
+class DriverRace : public Driver {
+  protected:
+    // B on the line through A, d_m metres from it (and about 4-7 m from the local node).
+    void placeB(double d_m) { pozyx_sim_find(sim.get(), kAnchorB)->config.position_m = {3.0, 4.0 - d_m, 0.0}; }
+    // One attempt with B at d_m, then gap_us of other work (the rest of the round) before the
+    // next: B moves only after A's ranging, so a stale entry is the previous distance.
+    std::string attempt(double d_m, uint64_t gap_us = 50000)
+    {
+        placeB(d_m);
+        cdro_pozyx_range_result_t r{};
+        const cdro_pozyx_status_t s = cdro_pozyx_range_remote(&dev, kAnchorA, kAnchorB, &r);
+        bus.advanceUs(gap_us);
+        return s == CDRO_POZYX_OK ? std::to_string(r.distance_mm) : cdro_pozyx_status_name(s);
+    }
+};
+
+// The device raises RX_DATA with FUNC for a reply (unverified on hardware: pypozyx waits for a
+// 4-byte message after the function's reply, the Arduino library catches reply-shaped messages
+// through RX_DATA).
+TEST_F(DriverRace, RepliesThatRaiseRxDataNeverPassForTheResultMessage)
+{
+    sim->config.range_noise_std_mm = 0;
+    sim->config.reply_raises_rx_data = 1;
+    std::vector<std::string> got;
+    for (double d_m : {8.0, 9.0, 10.0, 11.0}) {
+        got.push_back(attempt(d_m));
+    }
+    EXPECT_EQ(got, (std::vector<std::string>{"8000", "9000", "10000", "11000"}));
+    EXPECT_EQ(sim->stats.rangings, 4U);
+}
+
+// A late result message (of an attempt the driver gave up on) lands between TX_SEND and A's
+// acknowledgement of the next attempt.
+TEST_F(DriverRace, AResultMessageBeforeTheAcknowledgementIsStale)
+{
+    sim->config.range_noise_std_mm = 0;
+    std::vector<std::string> got;
+    // Attempt 1: A ranges for longer than the driver waits for its result message.
+    sim->config.ranging_duration_us = (CDRO_FW_REMOTE_RESULT_TIMEOUT_MS + 50U) * 1000U;
+    got.push_back(attempt(8.0, 0));
+    sim->config.ranging_duration_us = 15000;
+    // A's ranging ends (8 m stored) and its result message is on its way when the next attempt
+    // starts: it arrives after TX_SEND, before the acknowledgement.
+    bus.advanceToUs(pozyx_sim_next_event_us(sim.get()));
+    for (double d_m : {9.0, 10.0, 11.0}) {
+        got.push_back(attempt(d_m));
+    }
+    EXPECT_EQ(got, (std::vector<std::string>{"timeout", "9000", "10000", "11000"}));
+}
+
+// Messages of other nodes and replies of the wrong length, while waiting for the result: a
+// reply-shaped message from A (1 or 11 bytes) is not its result message (4 bytes).
+TEST_F(DriverRace, TheResultMessageIsMatchedBySenderAndLength)
+{
+    sim->config.range_noise_std_mm = 0;
+    const uint8_t reply_shaped[11] = {1};
+    const uint8_t other[4] = {1, 2, 3, 4};
+    // Both land after A's acknowledgement (7 ms), before A's result message (22 ms).
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kAnchorA, reply_shaped, 11, bus.nowUs() + 11000), 0);
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kTag, other, 4, bus.nowUs() + 15000), 0);
+    EXPECT_EQ(attempt(8.0), "8000");
+    EXPECT_EQ(sim->stats.function_calls[POZYX_FN_TX_SEND - 0xB0], 2U) << "GETRANGEINFO only after the result";
 }
 
 TEST_F(Driver, RemoteRangeFailures)

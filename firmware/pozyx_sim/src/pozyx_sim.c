@@ -427,7 +427,8 @@ static void run_event(pozyx_sim_t *sim, const pozyx_sim_event_t *event)
         break;
     }
     case EVENT_REPLY:
-        deliver(sim, event->a, event->data, event->length, POZYX_INT_FUNC);
+        deliver(sim, event->a, event->data, event->length,
+                (uint8_t)(POZYX_INT_FUNC | (sim->config.reply_raises_rx_data ? POZYX_INT_RX_DATA : 0U)));
         break;
     case EVENT_MESSAGE:
         deliver(sim, event->a, event->data, event->length, POZYX_INT_RX_DATA);

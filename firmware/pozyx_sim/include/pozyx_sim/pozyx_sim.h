@@ -109,6 +109,9 @@ typedef struct pozyx_sim_config {
     uint32_t ranging_duration_us;   /* us, one two-way ranging exchange (default 15000) */
     uint32_t uwb_message_us;        /* us, one UWB message on air incl. turnaround (default 3000) */
     uint32_t remote_processing_us;  /* us, a remote node's handling of a request (default 1000) */
+    /* Behaviours of the real device, each off in the ideal model: */
+    uint8_t reply_raises_rx_data;   /* a reply to a remote request raises RX_DATA with FUNC (it is
+                                       a received UWB data message too) */
     pozyx_sim_trace_fn trace;       /* NULL = no trace */
     void *trace_context;
 } pozyx_sim_config_t;
