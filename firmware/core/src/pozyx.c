@@ -2,7 +2,8 @@
  * pozyx.c: the Pozyx I2C driver (see pozyx.h for the transaction shapes and error model).
  * Written from the register facts; shares no code with the Pozyx libraries and avoids their
  * known bugs: every transaction's result is checked, ERR is checked in every wait, remote
- * replies are matched by sender and length, and flags read while polling are kept.
+ * replies and the result message of a remote ranging are matched by sender and length, and
+ * flags read while polling are kept (and dropped where they cannot belong to what is awaited).
  */
 #include "cdro_fw/pozyx.h"
 
@@ -361,9 +362,10 @@ cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id,
     return status;
 }
 
-/* Waits for an unsolicited data message (RX_DATA) from `from`, ignoring other senders', up to
- * timeout_ms in all. */
-static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, uint16_t timeout_ms)
+/* Waits for the result message a remote DO_RANGING makes `from` send (RX_DATA): the one from
+ * `from` with CDRO_FW_REMOTE_RESULT_LENGTH bytes. Other nodes' messages and `from`'s
+ * reply-shaped ones (a late reply to an earlier request) are skipped, up to timeout_ms in all. */
+static cdro_pozyx_status_t wait_result_message(cdro_pozyx_t *dev, uint16_t from, uint16_t timeout_ms)
 {
     const uint32_t start_ms = dev->ops->now_ms(dev->user);
     for (;;) {
@@ -371,7 +373,7 @@ static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, u
         uint8_t length = 0;
         const uint16_t left_ms = remaining_ms(dev, start_ms, timeout_ms);
         cdro_pozyx_status_t status;
-        if (left_ms == 0U) { /* a stream of other nodes' messages cannot extend the wait */
+        if (left_ms == 0U) { /* a stream of other messages cannot extend the wait */
             ++dev->timeouts;
             dev->last_target = POZYX_FN_DO_RANGING;
             dev->timeout_target = POZYX_FN_DO_RANGING;
@@ -381,10 +383,10 @@ static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, u
         if (status == CDRO_POZYX_OK) {
             status = read_rx_header(dev, &sender, &length);
         }
-        if (status != CDRO_POZYX_OK || sender == from) {
+        if (status != CDRO_POZYX_OK || (sender == from && length == CDRO_FW_REMOTE_RESULT_LENGTH)) {
             return status;
         }
-        /* Another node's message: not ours, keep waiting for the rest of the time. */
+        /* Not the result message: keep waiting for the rest of the time. */
     }
 }
 
@@ -399,11 +401,17 @@ cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, ui
     (void)cdro_put_u16(id, to);
     /* 1. `from` accepts DO_RANGING(to) (its 1-byte reply must be 1). */
     status = cdro_pozyx_remote_call(dev, from, POZYX_FN_DO_RANGING, id, sizeof id, NULL, 0);
-    /* 2. `from` ranges with `to`, then sends its result message. */
+    /* 2. `from` ranges with `to` only after it has acknowledged, then sends its result message.
+     * An RX_DATA seen up to the acknowledgement cannot be that message: it is the
+     * acknowledgement itself (the device may raise RX_DATA with FUNC for a reply) or a late
+     * message of an earlier attempt. Dropped, or the wait below would end at once and step 3
+     * would read the range `from` stored before, while it is still ranging. */
+    dev->sticky_flags = (uint8_t)(dev->sticky_flags & (uint8_t)~POZYX_INT_RX_DATA);
     if (status == CDRO_POZYX_OK) {
-        status = wait_message_from(dev, from, CDRO_FW_REMOTE_RESULT_TIMEOUT_MS);
+        status = wait_result_message(dev, from, CDRO_FW_REMOTE_RESULT_TIMEOUT_MS);
     }
-    /* 3. The stored result, read with a remote GETRANGEINFO(to) on `from`. */
+    /* 3. The stored result, read with a remote GETRANGEINFO(to) on `from`: never before the
+     * result message says that `from` has finished ranging. */
     if (status == CDRO_POZYX_OK) {
         status = cdro_pozyx_remote_call(dev, from, POZYX_FN_DEVICE_GETRANGEINFO, id, sizeof id, raw, sizeof raw);
     }

@@ -88,6 +88,14 @@
 #define CDRO_FW_REMOTE_RESULT_TIMEOUT_MS 100U
 #endif
 
+/* Length of that result message. Inferred (register facts 4.3: pypozyx decodes a 4-byte message
+ * from the ranging node as the distance); the bench checklist of docs/firmware.md checks it on
+ * the first real boards. The driver takes only a message of this length from the ranging node
+ * as its result. */
+#ifndef CDRO_FW_REMOTE_RESULT_LENGTH
+#define CDRO_FW_REMOTE_RESULT_LENGTH 4U
+#endif
+
 /* Discovery: DEVICES_DISCOVER(all, slots, slot duration); completion within
  * slot_ms * (slots + 20) as in the reference code. */
 #define CDRO_FW_DISCOVERY_SLOTS 3U

@@ -148,8 +148,10 @@ cdro_pozyx_status_t cdro_pozyx_remote_call(cdro_pozyx_t *dev, uint16_t id, uint8
 cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id, cdro_accel_t *accel);
 
 /* Remote-to-remote range: node `from` ranges with node `to` (section 4.3 of the register facts):
- * remote DO_RANGING on `from`, its result message (RX_DATA from `from`), then a remote
- * GETRANGEINFO on `from`. out->timestamp_ms is `from`'s clock. */
+ * remote DO_RANGING on `from` (its acknowledgement: from `from`, 1 byte, 1); RX_DATA flags seen
+ * up to the acknowledgement dropped; its result message (RX_DATA from `from` with
+ * CDRO_FW_REMOTE_RESULT_LENGTH bytes; anything else skipped); only then a remote GETRANGEINFO
+ * on `from`. out->timestamp_ms is `from`'s clock. */
 cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to, cdro_pozyx_range_result_t *out);
 
 /* Clears the device list, discovers every node (anchors and tags) and reads up to max_ids ids.
