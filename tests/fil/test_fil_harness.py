@@ -320,8 +320,11 @@ def test_measurements_are_consistent(run):
             mapped_s = (line["t_us"] - run.capture_created_us) / 1e6 + offset_s
             assert abs(mapped_s - line["device_time_ms"] / 1000.0) <= slack_s, line
 
-    # Throughput of the schedule: ALL_PAIRS over 6 remote nodes with the default UWB timings.
-    assert s["rangings"]["per_second"] >= 20.0
+    # Throughput of the schedule: ALL_PAIRS over 6 remote nodes with the real device's timings
+    # (pozyx.model realistic: ~45 ms a direct range, ~65 ms a remote one, accelerometer polls of
+    # 3 tags between them): a round of 21 pairs in ~1.4 s, ~14 ranges/s.
+    assert s["rangings"]["per_second"] >= 12.0
+    assert s["pozyx_model"]["model"] == "realistic
 
     # The main loop as timed from outside (PC at loop()) against the firmware's own STATUS
     # longest_loop_us, which times the step inside it with micros() (4 us resolution).

@@ -92,11 +92,14 @@ cdro_i2c_result_t SimBus::read(void *user, uint8_t address, uint8_t *data, uint8
         return CDRO_I2C_ERROR;
     }
     const pozyx_sim_bus_t r = pozyx_sim_i2c_start(self->sim_, address, 1);
-    if (r == POZYX_SIM_HANG) {
+    // Clock stretching: the device holds SCL before the first byte; Wire gives up at its timeout.
+    const uint64_t stretch_us = r == POZYX_SIM_ACK ? self->sim_->stretch_us : 0U;
+    if (r == POZYX_SIM_HANG || stretch_us >= self->hangTimeoutUs) {
         self->advanceUs(self->hangTimeoutUs);
         pozyx_sim_i2c_stop(self->sim_);
         return CDRO_I2C_TIMEOUT;
     }
+    self->advanceUs(stretch_us);
     if (r == POZYX_SIM_NACK) {
         self->byteTime(0);
         pozyx_sim_i2c_stop(self->sim_);
@@ -225,11 +228,15 @@ std::vector<cdro_frame_t> FakeSerial::ofType(uint8_t type, size_t from) const
 // ---- Bench ----------------------------------------------------------------------------------
 
 static std::unique_ptr<pozyx_sim_t> makeSim(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag,
-                                            uint16_t local_id)
+                                            uint16_t local_id, Model model)
 {
     auto owner = std::make_unique<pozyx_sim_t>();
     pozyx_sim_config_t config;
-    pozyx_sim_config_default(&config);
+    if (model == Model::Realistic) {
+        pozyx_sim_config_realistic(&config);
+    } else {
+        pozyx_sim_config_default(&config);
+    }
     config.seed = seed;
     pozyx_sim_init(owner.get(), &config);
     pozyx_sim_node_config_t node;
@@ -246,8 +253,8 @@ static std::unique_ptr<pozyx_sim_t> makeSim(uint64_t seed, const std::vector<Nod
     return owner;
 }
 
-Bench::Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag, uint16_t local_id)
-    : sim_(makeSim(seed, nodes, local_tag, local_id)), bus(sim_.get()), serial(&bus)
+Bench::Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag, uint16_t local_id, Model model)
+    : sim_(makeSim(seed, nodes, local_tag, local_id, model)), bus(sim_.get()), serial(&bus)
 {
     cdro_fw_config_t config{};
     config.pozyx_ops = bus.ops();

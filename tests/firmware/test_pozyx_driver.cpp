@@ -270,8 +270,22 @@ TEST_F(Driver, RemoteRangeIgnoresOtherNodesMessagesWhileWaitingForTheResult)
 // driver once kept an RX_DATA bit seen before A's acknowledgement and took the acknowledgement
 // for A's result message (same sender), then read A's stored range while A was still ranging:
 // after one failed attempt, every attempt returned the distance of the attempt before it.
-class DriverRace : public Driver {
+// Under the ideal model and under the real device's behaviour (then the late message of the
+// second test collides with the request or the acknowledgement instead: no air time is free
+// between them).
+class DriverRace : public Driver, public ::testing::WithParamInterface<fwtest::Model> {
   protected:
+    void SetUp() override
+    {
+        Driver::SetUp();
+        if (GetParam() == fwtest::Model::Realistic) {
+            pozyx_sim_config_t config;
+            pozyx_sim_config_realistic(&config);
+            config.seed = sim->config.seed;
+            sim->config = config;
+            bus.advanceUs(config.boot_us); // the nodes were powered up at time 0
+        }
+    }
     // B on the line through A, d_m metres from it (and about 4-7 m from the local node).
     void placeB(double d_m) { pozyx_sim_find(sim.get(), kAnchorB)->config.position_m = {3.0, 4.0 - d_m, 0.0}; }
     // One attempt with B at d_m, then gap_us of other work (the rest of the round) before the
@@ -289,7 +303,7 @@ class DriverRace : public Driver {
 // The device raises RX_DATA with FUNC for a reply (unverified on hardware: pypozyx waits for a
 // 4-byte message after the function's reply, the Arduino library catches reply-shaped messages
 // through RX_DATA).
-TEST_F(DriverRace, RepliesThatRaiseRxDataNeverPassForTheResultMessage)
+TEST_P(DriverRace, RepliesThatRaiseRxDataNeverPassForTheResultMessage)
 {
     sim->config.range_noise_std_mm = 0;
     sim->config.reply_raises_rx_data = 1;
@@ -303,14 +317,15 @@ TEST_F(DriverRace, RepliesThatRaiseRxDataNeverPassForTheResultMessage)
 
 // A late result message (of an attempt the driver gave up on) lands between TX_SEND and A's
 // acknowledgement of the next attempt.
-TEST_F(DriverRace, AResultMessageBeforeTheAcknowledgementIsStale)
+TEST_P(DriverRace, AResultMessageBeforeTheAcknowledgementIsStale)
 {
     sim->config.range_noise_std_mm = 0;
     std::vector<std::string> got;
     // Attempt 1: A ranges for longer than the driver waits for its result message.
+    const uint32_t ranging_us = sim->config.ranging_duration_us;
     sim->config.ranging_duration_us = (CDRO_FW_REMOTE_RESULT_TIMEOUT_MS + 50U) * 1000U;
     got.push_back(attempt(8.0, 0));
-    sim->config.ranging_duration_us = 15000;
+    sim->config.ranging_duration_us = ranging_us;
     // A's ranging ends (8 m stored) and its result message is on its way when the next attempt
     // starts: it arrives after TX_SEND, before the acknowledgement.
     bus.advanceToUs(pozyx_sim_next_event_us(sim.get()));
@@ -322,17 +337,26 @@ TEST_F(DriverRace, AResultMessageBeforeTheAcknowledgementIsStale)
 
 // Messages of other nodes and replies of the wrong length, while waiting for the result: a
 // reply-shaped message from A (1 or 11 bytes) is not its result message (4 bytes).
-TEST_F(DriverRace, TheResultMessageIsMatchedBySenderAndLength)
+TEST_P(DriverRace, TheResultMessageIsMatchedBySenderAndLength)
 {
     sim->config.range_noise_std_mm = 0;
     const uint8_t reply_shaped[11] = {1};
     const uint8_t other[4] = {1, 2, 3, 4};
-    // Both land after A's acknowledgement (7 ms), before A's result message (22 ms).
-    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kAnchorA, reply_shaped, 11, bus.nowUs() + 11000), 0);
-    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kTag, other, 4, bus.nowUs() + 15000), 0);
+    // Both land after A's acknowledgement, before A's result message, without overlapping
+    // either on air (TX_SEND comes within 3 ms of now).
+    const uint64_t air_us = sim->config.uwb_message_us;
+    const uint64_t ack_us = bus.nowUs() + 3000U + 2U * air_us + sim->config.remote_processing_us;
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kAnchorA, reply_shaped, 11, ack_us + air_us + 1000U), 0);
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), kTag, other, 4, ack_us + 2U * air_us + 2000U), 0);
+    ASSERT_LT(ack_us + 3U * air_us + 2000U, ack_us + sim->config.ranging_duration_us);
     EXPECT_EQ(attempt(8.0), "8000");
     EXPECT_EQ(sim->stats.function_calls[POZYX_FN_TX_SEND - 0xB0], 2U) << "GETRANGEINFO only after the result";
 }
+
+INSTANTIATE_TEST_SUITE_P(Models, DriverRace, ::testing::Values(fwtest::Model::Ideal, fwtest::Model::Realistic),
+                         [](const ::testing::TestParamInfo<fwtest::Model> &param) {
+                             return param.param == fwtest::Model::Ideal ? "Ideal" : "Realistic";
+                         });
 
 TEST_F(Driver, RemoteRangeFailures)
 {
