@@ -27,6 +27,7 @@ SimBus::SimBus(pozyx_sim_t *sim, uint32_t i2c_clock_hz, uint32_t overhead_ns)
     ops_.delay_ms = &SimBus::delayMs;
     ops_.now_ms = &SimBus::msNow;
     ops_.now_us = &SimBus::usNow;
+    ops_.bus_recover = &SimBus::busRecover;
 }
 
 void SimBus::advanceNs(uint64_t ns)
@@ -123,6 +124,13 @@ void SimBus::delayMs(void *user, uint16_t ms)
 uint32_t SimBus::msNow(void *user)
 {
     return static_cast<SimBus *>(user)->nowMs();
+}
+
+void SimBus::busRecover(void *user)
+{
+    auto *self = static_cast<SimBus *>(user);
+    ++self->recoveries;
+    self->advanceUs(self->recoveryUs);
 }
 
 uint32_t SimBus::usNow(void *user)

@@ -42,6 +42,8 @@ class SimBus {
     uint32_t longestWrite = 0; // bytes in one i2c_write
     uint32_t longestRead = 0;  // bytes in one i2c_read
     uint32_t hangTimeoutUs = CDRO_FW_I2C_TIMEOUT_US; // what Wire's timeout costs when the device hangs
+    uint32_t recoveries = 0;        // bus_recover calls (the bus clear after a timeout)
+    uint32_t recoveryUs = 100;      // what a bus clear costs: 9 clocks and a STOP at 100 kHz
 
   private:
     static cdro_i2c_result_t write(void *user, uint8_t address, const uint8_t *data, uint8_t length, uint8_t stop);
@@ -49,6 +51,7 @@ class SimBus {
     static void delayMs(void *user, uint16_t ms);
     static uint32_t msNow(void *user);
     static uint32_t usNow(void *user);
+    static void busRecover(void *user);
     void byteTime(uint32_t bytes);
 
     pozyx_sim_t *sim_;

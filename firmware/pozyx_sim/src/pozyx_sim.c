@@ -932,7 +932,7 @@ static void execute(pozyx_sim_t *sim)
         uint8_t count = sim->device_list_size;
         uint8_t i;
         if (n == 2U) {
-            offset = params[0];
+            offset = sim->config.getids_ignores_offset ? 0U : params[0];
             count = params[1];
         } else if (n != 0U) {
             break;

@@ -132,6 +132,9 @@ typedef struct pozyx_sim_config {
     uint32_t stretch_function_us;   /* us the device holds SCL before the return byte of a function */
     uint32_t stretch_register_us;   /* us the device holds SCL before the first byte of a register
                                        read (see pozyx_sim_t.stretch_us) */
+    uint8_t getids_ignores_offset;  /* not known of the real device (neither reference library pages
+                                       with an offset): DEVICES_GETIDS answers from index 0 whatever
+                                       the offset; for the driver's guard (off in both profiles) */
     uint32_t late_reply_us;         /* us a reply or result message is late under faults.late_reply
                                        (default 400000: past the firmware's 300 ms reply timeout) */
     pozyx_sim_trace_fn trace;       /* NULL = no trace */
