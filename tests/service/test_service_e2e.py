@@ -166,6 +166,28 @@ def test_other_protocol_version_in_frame_headers(harness_bin, tmp_path):
     device.vanish()
 
 
+def test_a_port_streaming_bytes_that_are_not_our_frames_is_named(harness_bin, tmp_path):
+    # Issue 15: another sketch's text on the port. The link says so (within 2 s of the first
+    # byte), before the session has even given up waiting for a HELLO.
+    # A pseudo-terminal that only ever writes text (FakeDevice would answer HELLO_REQUEST).
+    master, slave = os.openpty()
+    link = tmp_path / "ttyPOZYX"
+    link.symlink_to(os.ttyname(slave))
+    harness = Harness(harness_bin, tmp_path, device=link)
+    try:
+        harness.wait_health(lambda h: h["counters"]["link_connects"] >= 1, "port opened")
+        for _ in range(5):
+            os.write(master, b"Pozyx ready_to_range: 4235 mm\r\n")
+        wait_until(lambda: "not our frames" in harness.log(), "the foreign-bytes message")
+        line = next(line for line in harness.log().splitlines() if "not our frames" in line)
+        assert "bytes that are not our frames (wrong firmware or baud?)" in line
+        assert 'text "Pozyx ready_to_range' in line and "115200" in line
+        assert harness.stop() == 0
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 def test_device_vanishes_and_returns(harness_bin, tmp_path):
     device, harness = start_running(harness_bin, tmp_path)
     send_ranges(device, 50)
