@@ -77,6 +77,14 @@ def test_handshake_commands_and_keepalive(run):
     assert hello["pozyx_tries"] == 1, "the Pozyx answered at the first try"
     assert hello["capabilities"] == caps
     assert hello["max_nodes"] == 10 and hello["reset_cause"] == C["CDRO_RESET_POWER_ON"]
+    # Every node's Pozyx firmware and UWB settings, read at start and reported on the host too.
+    infos = run.device("NODE_INFO")
+    assert {i["node_id"] for i in infos} == {own, *remotes}
+    assert all(i["result"] == C["CDRO_NODE_INFO_READ"] and i["mismatch"] == 0 for i in infos)
+    host_log = run.host_log()
+    assert "Pozyx firmware 1.1" in host_log and "not our frames" not in host_log
+    for node in (own, *remotes):
+        assert f"serial: node 0x{node:04X}: Pozyx firmware 1.1, channel 5" in host_log
 
     lists = run.device("NODE_LIST")
     assert [l["source"] for l in lists] == [C["CDRO_NODE_SOURCE_DISCOVERY"], C["CDRO_NODE_SOURCE_HOST"]]
