@@ -10,6 +10,10 @@
 #   CDRO_FW_RAM_BUDGET_BYTES    static RAM budget (.data + .bss + .noinit); Uno default 1228
 #   CDRO_FW_SERIAL_TX_BUFFER    HardwareSerial transmit buffer, bytes (default 128)
 #   CDRO_FW_SERIAL_RX_BUFFER    HardwareSerial receive buffer, bytes (default 64)
+#   CDRO_UPLOAD_PORT            the board's serial port for `--target upload` (/dev/ttyACM0)
+#   CDRO_UPLOAD_PROGRAMMER      avrdude programmer (Uno: arduino, Optiboot; Mega: wiring, stk500v2)
+#   CDRO_UPLOAD_BAUD            the bootloader's bit/s (115200 for both)
+#   CDRO_AVRDUDE                avrdude (Debian package avrdude; scripts/setup.sh installs it)
 
 set(CDRO_ARDUINO_AVR_DIR /usr/share/arduino/hardware/arduino/avr CACHE PATH "arduino-core-avr tree")
 set(CDRO_FW_SERIAL_TX_BUFFER 128 CACHE STRING "HardwareSerial TX buffer in bytes")
@@ -21,17 +25,23 @@ if(CDRO_AVR_BOARD STREQUAL "mega")
   set(_flash_default 253952) # 256 KB minus the 8 KB bootloader section
   set(_ram_default 6144)     # of 8 KB, leaving 2 KB for the stack
   set(_max_nodes 20)
+  set(_programmer wiring)    # the Mega's stk500v2 bootloader
 elseif(CDRO_AVR_BOARD STREQUAL "uno")
   set(_variant standard)
   set(_board_define ARDUINO_AVR_UNO)
   set(_flash_default 24576)  # issue 7: 24 KB of the 32 KB (0.5 KB go to Optiboot)
   set(_ram_default 1228)     # issue 7: 1.2 KB of the 2 KB, the rest is stack
   set(_max_nodes 10)
+  set(_programmer arduino)   # Optiboot
 else()
   message(FATAL_ERROR "CDRO_AVR_BOARD must be uno or mega, not '${CDRO_AVR_BOARD}'")
 endif()
 set(CDRO_FW_FLASH_BUDGET_BYTES ${_flash_default} CACHE STRING "Firmware flash budget in bytes")
 set(CDRO_FW_RAM_BUDGET_BYTES ${_ram_default} CACHE STRING "Firmware static RAM budget in bytes")
+set(CDRO_UPLOAD_PORT /dev/ttyACM0 CACHE STRING "serial port of the board for --target upload")
+set(CDRO_UPLOAD_PROGRAMMER ${_programmer} CACHE STRING "avrdude programmer for --target upload")
+set(CDRO_UPLOAD_BAUD 115200 CACHE STRING "bootloader bit/s for --target upload")
+find_program(CDRO_AVRDUDE avrdude)
 
 function(cdro_avr_firmware)
   set(arduino ${CDRO_ARDUINO_AVR_DIR})
@@ -87,4 +97,20 @@ function(cdro_avr_firmware)
     COMMENT "size budget of ${image}"
     VERBATIM)
   add_dependencies(${image}-size ${image})
+
+  # `cmake --build build-avr --target upload`: the image, once within its budget, onto the
+  # board through its bootloader. -D: no chip erase (the bootloader cannot do one).
+  if(CDRO_AVRDUDE)
+    add_custom_target(upload
+      COMMAND ${CDRO_AVRDUDE} -p ${CDRO_AVR_MCU} -c ${CDRO_UPLOAD_PROGRAMMER} -P ${CDRO_UPLOAD_PORT}
+              -b ${CDRO_UPLOAD_BAUD} -D -U flash:w:${hex}:i
+      DEPENDS ${image}-size
+      COMMENT "avrdude: ${image}.hex -> ${CDRO_UPLOAD_PORT} (${CDRO_UPLOAD_PROGRAMMER}, ${CDRO_UPLOAD_BAUD} bit/s)"
+      USES_TERMINAL VERBATIM)
+  else()
+    add_custom_target(upload
+      COMMAND ${CMAKE_COMMAND} -E echo "upload: avrdude not found (apt-get install avrdude, or scripts/setup.sh)"
+      COMMAND ${CMAKE_COMMAND} -E false
+      VERBATIM)
+  endif()
 endfunction()

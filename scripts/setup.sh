@@ -15,7 +15,7 @@ DEB_PACKAGES=(
   libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
   mosquitto libmosquitto-dev
   clang libclang-rt-14-dev
-  gcc-avr avr-libc arduino-core-avr binutils-avr
+  gcc-avr avr-libc arduino-core-avr binutils-avr avrdude
   simavr libsimavr-dev libelf-dev
   chromium chromium-driver
 )

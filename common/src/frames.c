@@ -38,6 +38,26 @@ const char *cdro_frame_type_name(uint8_t type)
 
 /* ---- payload codecs, generated field by field from frame_layout.def -------------------- */
 
+/*
+ * CDRO_FRAMES_DEVICE_SIDE (the firmware image's build, where flash is short): the device only
+ * sends device-to-host types and only takes host-to-device ones. Its encoder then refuses the
+ * host-to-device types (returns 0), and its decoder checks a device-to-host frame's length
+ * without decoding its fields: CDRO_ERR_TYPE if the length is that type's, else
+ * CDRO_ERR_LENGTH, so that the device answers exactly as with the full decoder (UNKNOWN_TYPE
+ * whatever the values, MALFORMED for a wrong length). Validation of device-to-host types is
+ * left out (never reached). tests/common/test_device_codec.cpp checks it against the golden
+ * vectors.
+ */
+#if defined(CDRO_FRAMES_DEVICE_SIDE)
+#define CDRO_DEVICE_SIDE 1
+#else
+#define CDRO_DEVICE_SIDE 0
+#endif
+/* A device-to-host type whose fields the device-side decoder skips: fixed-size ones only (the
+ * length of one with an array depends on its count). */
+#define CDRO_SKIPPED_BY_DEVICE(NAME, id) \
+    (CDRO_DEVICE_SIDE && (id) < 0x40 && CDRO_##NAME##_MIN_SIZE == CDRO_##NAME##_MAX_SIZE)
+
 /* Every payload fits CDRO_MAX_PAYLOAD; checked here at compile time. */
 #define CDRO_X_FITS(NAME, name, id, doc) \
     typedef char cdro_##name##_fits_payload[(CDRO_##NAME##_MAX_SIZE <= CDRO_MAX_PAYLOAD) ? 1 : -1];
@@ -63,12 +83,20 @@ size_t cdro_frame_encode(const cdro_frame_t *frame, uint8_t *out, size_t out_cap
     switch (frame->type) {
 #define CDRO_X_ENCODE_CASE(NAME, name, id, doc)            \
     case id:                                               \
+        if (CDRO_DEVICE_SIDE && (id) >= 0x40) {            \
+            return 0; /* a device never sends a host frame */ \
+        }                                                  \
         payload_len = encode_##name(&frame->as.name, payload); \
         if (payload_len == 0U && CDRO_##NAME##_MIN_SIZE > 0) { \
             return 0;                                      \
         }                                                  \
         break;
-#define CDRO_X_EMPTY_CASE(NAME, name, id, doc) case id: break;
+#define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
+    case id:                                     \
+        if (CDRO_DEVICE_SIDE && (id) >= 0x40) {  \
+            return 0;                            \
+        }                                        \
+        break;
         CDRO_FRAME_LIST(CDRO_X_ENCODE_CASE)
         CDRO_EMPTY_FRAME_LIST(CDRO_X_EMPTY_CASE)
 #undef CDRO_X_ENCODE_CASE
@@ -132,8 +160,12 @@ cdro_result_t cdro_frame_decode(const uint8_t *chunk, size_t len, cdro_frame_t *
         return CDRO_ERR_LENGTH;
     }
     switch (out->type) {
-#define CDRO_X_DECODE_CASE(NAME, name, id, doc) \
-    case id: return decode_##name(raw + CDRO_HEADER_SIZE, payload_len, &out->as.name);
+#define CDRO_X_DECODE_CASE(NAME, name, id, doc)                                                   \
+    case id:                                                                                      \
+        if (CDRO_SKIPPED_BY_DEVICE(NAME, id)) {                                                   \
+            return payload_len == CDRO_##NAME##_MAX_SIZE ? CDRO_ERR_TYPE : CDRO_ERR_LENGTH;       \
+        }                                                                                         \
+        return decode_##name(raw + CDRO_HEADER_SIZE, payload_len, &out->as.name);
 #define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
     case id: return (payload_len == 0U) ? CDRO_OK : CDRO_ERR_LENGTH;
         CDRO_FRAME_LIST(CDRO_X_DECODE_CASE)
@@ -172,6 +204,7 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
         return CDRO_ERR_ARGUMENT;
     }
     switch (frame->type) {
+#if !CDRO_DEVICE_SIDE /* device-to-host types: the device NACKs them UNKNOWN_TYPE whatever their values */
     case CDRO_FRAME_HELLO:
         ok = frame->as.hello.node_id != 0U;
         break;
@@ -200,9 +233,29 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
     case CDRO_FRAME_ERROR:
         ok = frame->as.error.code != 0U;
         break;
+    case CDRO_FRAME_NODE_INFO:
+        ok = frame->as.node_info.node_id != 0U && frame->as.node_info.result <= CDRO_NODE_INFO_NO_ANSWER &&
+             frame->as.node_info.mismatch <= 0x3FU;
+        break;
+    case CDRO_FRAME_DIAG:
+        ok = frame->as.diag.item >= CDRO_DIAG_REMOTE_FLAGS && frame->as.diag.item <= CDRO_DIAG_ACCEL;
+        break;
+    case CDRO_FRAME_ACK:
+        break;
+#endif
     case CDRO_FRAME_SET_NODES:
         ok = node_ids_valid(frame->as.set_nodes.node_ids, frame->as.set_nodes.node_ids_count);
         break;
+    case CDRO_FRAME_SET_UWB: {
+        const cdro_set_uwb_t *u = &frame->as.set_uwb;
+        const uint8_t prf = (uint8_t)(u->uwb_rates >> 6);
+        const uint8_t p = u->uwb_plen;
+        ok = u->uwb_channel >= 1U && u->uwb_channel <= 7U && u->uwb_channel != 6U && (u->uwb_rates & 0x3FU) <= 2U &&
+             prf >= 1U && prf <= 2U && u->uwb_gain <= 67U && u->range_protocol <= 1U &&
+             (p == 0x04U || p == 0x14U || p == 0x24U || p == 0x34U || p == 0x08U || p == 0x18U || p == 0x28U ||
+              p == 0x0CU);
+        break;
+    }
     case CDRO_FRAME_SET_SCHEDULE: {
         const cdro_set_schedule_t *s = &frame->as.set_schedule;
         ok = s->mode <= CDRO_SCHEDULE_ALL_PAIRS && s->moving_boost >= 1U && s->moving_boost <= 8U &&
@@ -210,11 +263,11 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
              s->slot_period_ms <= 60000U && s->motion_poll_ms <= 60000U;
         break;
     }
-    case CDRO_FRAME_ACK:
     case CDRO_FRAME_PING:
     case CDRO_FRAME_START:
     case CDRO_FRAME_STOP:
     case CDRO_FRAME_HELLO_REQUEST:
+    case CDRO_FRAME_DIAGNOSE:
         break;
     case CDRO_FRAME_TYPE_NONE:
     default:

@@ -46,7 +46,9 @@ TEST(FilScenario, ShippedScenarioReadsAsWritten)
     EXPECT_EQ(s.motion[0].node, 0x6B05);
     ASSERT_EQ(s.motion[0].waypoints.size(), 2U);
     EXPECT_DOUBLE_EQ(s.motion[0].waypoints[0].z_m, 1.1) << "a waypoint without z keeps the node's height";
-    ASSERT_EQ(s.faults.size(), 9U);
+    ASSERT_EQ(s.faults.size(), 10U);
+    EXPECT_EQ(s.faults[9].kind, FaultKind::LateReply);
+    EXPECT_TRUE(s.pozyx_realistic);
     for (size_t i = 1; i < s.faults.size(); ++i) {
         EXPECT_LE(s.faults[i - 1].at_s, s.faults[i].at_s) << "faults sorted by time";
     }
@@ -63,7 +65,9 @@ TEST(FilScenario, DefaultsApply)
     EXPECT_EQ(s.seed, 1U);
     EXPECT_DOUBLE_EQ(s.duration_s, 0.0) << "0 = until a signal";
     EXPECT_DOUBLE_EQ(s.uwb.noise_std_mm, 30.0);
-    EXPECT_EQ(s.uwb.ranging_us, 15000U);
+    EXPECT_TRUE(s.pozyx_realistic) << "the real device's behaviour by default";
+    EXPECT_EQ(s.uwb.ranging_us, 40000U) << "and its timings";
+    EXPECT_EQ(s.uwb.message_us, 3500U);
     EXPECT_DOUBLE_EQ(s.accel.moving_amplitude_mg, 250.0);
     EXPECT_EQ(s.pozyx_who_am_i, 0x43);
     EXPECT_DOUBLE_EQ(s.node(0x6000)->position.z_m, 0.0);
@@ -97,6 +101,24 @@ TEST(FilScenario, MistakesNameTheLineAndTheKey)
     EXPECT_NE(errorOf("").find("empty scenario"), std::string::npos);
     message = errorOf(base + "uwb: {noise_std_mm: -1}\n");
     EXPECT_NE(message.find("uwb.noise_std_mm: must be between 0"), std::string::npos) << message;
+    message = errorOf(base + "pozyx: {model: perfect}\n");
+    EXPECT_NE(message.find("pozyx.model: 'perfect' is not one of: realistic, ideal"), std::string::npos) << message;
+}
+
+TEST(FilScenario, TheIdealModelHasItsOwnTimingsAndUwbOverridesEither)
+{
+    const std::string base = kMinimal;
+    Scenario s = parseScenario(base + "pozyx: {model: ideal}\n", "test.yaml");
+    EXPECT_FALSE(s.pozyx_realistic);
+    EXPECT_EQ(s.uwb.ranging_us, 15000U);
+    EXPECT_EQ(s.uwb.message_us, 3000U);
+    s = parseScenario(base + "uwb: {ranging_us: 25000}\npozyx: {model: realistic}\n", "test.yaml");
+    EXPECT_EQ(s.uwb.ranging_us, 25000U);
+    EXPECT_EQ(s.uwb.message_us, 3500U);
+    s = parseScenario(base + "faults:\n  - {kind: late_reply, at_s: 3, count: 2}\n", "test.yaml");
+    ASSERT_EQ(s.faults.size(), 1U);
+    EXPECT_EQ(s.faults[0].kind, cdro::fil::FaultKind::LateReply);
+    EXPECT_EQ(s.faults[0].count, 2U);
 }
 
 TEST(FilScenario, MotionIsChecked)

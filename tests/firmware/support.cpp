@@ -27,6 +27,7 @@ SimBus::SimBus(pozyx_sim_t *sim, uint32_t i2c_clock_hz, uint32_t overhead_ns)
     ops_.delay_ms = &SimBus::delayMs;
     ops_.now_ms = &SimBus::msNow;
     ops_.now_us = &SimBus::usNow;
+    ops_.bus_recover = &SimBus::busRecover;
 }
 
 void SimBus::advanceNs(uint64_t ns)
@@ -92,11 +93,14 @@ cdro_i2c_result_t SimBus::read(void *user, uint8_t address, uint8_t *data, uint8
         return CDRO_I2C_ERROR;
     }
     const pozyx_sim_bus_t r = pozyx_sim_i2c_start(self->sim_, address, 1);
-    if (r == POZYX_SIM_HANG) {
+    // Clock stretching: the device holds SCL before the first byte; Wire gives up at its timeout.
+    const uint64_t stretch_us = r == POZYX_SIM_ACK ? self->sim_->stretch_us : 0U;
+    if (r == POZYX_SIM_HANG || stretch_us >= self->hangTimeoutUs) {
         self->advanceUs(self->hangTimeoutUs);
         pozyx_sim_i2c_stop(self->sim_);
         return CDRO_I2C_TIMEOUT;
     }
+    self->advanceUs(stretch_us);
     if (r == POZYX_SIM_NACK) {
         self->byteTime(0);
         pozyx_sim_i2c_stop(self->sim_);
@@ -120,6 +124,13 @@ void SimBus::delayMs(void *user, uint16_t ms)
 uint32_t SimBus::msNow(void *user)
 {
     return static_cast<SimBus *>(user)->nowMs();
+}
+
+void SimBus::busRecover(void *user)
+{
+    auto *self = static_cast<SimBus *>(user);
+    ++self->recoveries;
+    self->advanceUs(self->recoveryUs);
 }
 
 uint32_t SimBus::usNow(void *user)
@@ -225,11 +236,15 @@ std::vector<cdro_frame_t> FakeSerial::ofType(uint8_t type, size_t from) const
 // ---- Bench ----------------------------------------------------------------------------------
 
 static std::unique_ptr<pozyx_sim_t> makeSim(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag,
-                                            uint16_t local_id)
+                                            uint16_t local_id, Model model)
 {
     auto owner = std::make_unique<pozyx_sim_t>();
     pozyx_sim_config_t config;
-    pozyx_sim_config_default(&config);
+    if (model == Model::Realistic) {
+        pozyx_sim_config_realistic(&config);
+    } else {
+        pozyx_sim_config_default(&config);
+    }
     config.seed = seed;
     pozyx_sim_init(owner.get(), &config);
     pozyx_sim_node_config_t node;
@@ -246,8 +261,8 @@ static std::unique_ptr<pozyx_sim_t> makeSim(uint64_t seed, const std::vector<Nod
     return owner;
 }
 
-Bench::Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag, uint16_t local_id)
-    : sim_(makeSim(seed, nodes, local_tag, local_id)), bus(sim_.get()), serial(&bus)
+Bench::Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag, uint16_t local_id, Model model)
+    : sim_(makeSim(seed, nodes, local_tag, local_id, model)), bus(sim_.get()), serial(&bus)
 {
     cdro_fw_config_t config{};
     config.pozyx_ops = bus.ops();

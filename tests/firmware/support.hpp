@@ -21,10 +21,11 @@ uint64_t testSeed(uint64_t fallback);
 
 // The simulated Pozyx as the driver's I2C: each transaction's bytes go through the slave state
 // machine and cost simulated time at the I2C clock (9 bits per byte plus start/stop and a fixed
-// per-transaction overhead of the Wire library); delay_ms advances simulated time.
+// per-transaction overhead of the Wire library) plus the device's clock stretching (a stretch
+// reaching Wire's timeout is a timeout); delay_ms advances simulated time.
 class SimBus {
   public:
-    explicit SimBus(pozyx_sim_t *sim, uint32_t i2c_clock_hz = 400000, uint32_t overhead_ns = 20000);
+    explicit SimBus(pozyx_sim_t *sim, uint32_t i2c_clock_hz = CDRO_FW_I2C_CLOCK_HZ, uint32_t overhead_ns = 20000);
 
     const cdro_pozyx_ops_t *ops() const { return &ops_; }
     void *user() { return this; }
@@ -40,7 +41,9 @@ class SimBus {
     uint32_t delays = 0;       // delay_ms calls
     uint32_t longestWrite = 0; // bytes in one i2c_write
     uint32_t longestRead = 0;  // bytes in one i2c_read
-    uint32_t hangTimeoutUs = 10000; // what Wire's timeout costs when the device hangs
+    uint32_t hangTimeoutUs = CDRO_FW_I2C_TIMEOUT_US; // what Wire's timeout costs when the device hangs
+    uint32_t recoveries = 0;        // bus_recover calls (the bus clear after a timeout)
+    uint32_t recoveryUs = 100;      // what a bus clear costs: 9 clocks and a STOP at 100 kHz
 
   private:
     static cdro_i2c_result_t write(void *user, uint8_t address, const uint8_t *data, uint8_t length, uint8_t stop);
@@ -48,6 +51,7 @@ class SimBus {
     static void delayMs(void *user, uint16_t ms);
     static uint32_t msNow(void *user);
     static uint32_t usNow(void *user);
+    static void busRecover(void *user);
     void byteTime(uint32_t bytes);
 
     pozyx_sim_t *sim_;
@@ -109,13 +113,17 @@ struct NodeSpec {
     double x, y, z; // m
 };
 
+// Which behaviour of the simulated Pozyx: the real device's (pozyx_sim_config_realistic, the
+// default of the firmware's tests) or the ideal model (pozyx_sim_config_default).
+enum class Model { Realistic, Ideal };
+
 // The firmware against a simulated Pozyx network, in simulated time.
 class Bench {
     std::unique_ptr<pozyx_sim_t> sim_; // first: the members below are built on it
 
   public:
     explicit Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag = true,
-                   uint16_t local_id = 0x6000);
+                   uint16_t local_id = 0x6000, Model model = Model::Realistic);
 
     pozyx_sim_t *sim() { return sim_.get(); }
     SimBus bus;

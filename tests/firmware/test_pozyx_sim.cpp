@@ -17,10 +17,14 @@ struct Sim {
     pozyx_sim_t *operator->() { return sim.get(); }
     pozyx_sim_t *get() { return sim.get(); }
 
-    explicit Sim(uint64_t seed = 7, double noise_mm = 30.0)
+    explicit Sim(uint64_t seed = 7, double noise_mm = 30.0, bool realistic = false)
     {
         pozyx_sim_config_t config;
-        pozyx_sim_config_default(&config);
+        if (realistic) {
+            pozyx_sim_config_realistic(&config);
+        } else {
+            pozyx_sim_config_default(&config);
+        }
         config.seed = seed;
         config.range_noise_std_mm = noise_mm;
         pozyx_sim_init(sim.get(), &config);
@@ -64,6 +68,16 @@ struct Sim {
         return out;
     }
     uint8_t intStatus() { return readRegs(POZYX_REG_INT_STATUS, 1)[0]; }
+    // TX_DATA(0, payload...), clear INT_STATUS, TX_SEND(dest, op): a remote request.
+    void request(uint16_t dest, uint8_t op, std::vector<uint8_t> payload)
+    {
+        payload.insert(payload.begin(), 0);
+        EXPECT_EQ(call(POZYX_FN_TX_DATA, payload, 0)[0], 1);
+        (void)intStatus();
+        EXPECT_EQ(call(POZYX_FN_TX_SEND, {static_cast<uint8_t>(dest & 0xFF), static_cast<uint8_t>(dest >> 8), op}, 0)[0],
+                  1);
+    }
+    uint64_t replyDelayUs() { return 2U * sim->config.uwb_message_us + sim->config.remote_processing_us; }
 };
 
 uint32_t u32(const std::vector<uint8_t> &v, size_t at)
@@ -296,6 +310,191 @@ TEST(PozyxSim, AccelerometerFollowsTheTraceAt100Hz)
     EXPECT_EQ(static_cast<int16_t>(raw[0] | (raw[1] << 8)), 123);
     EXPECT_EQ(static_cast<int16_t>(raw[2] | (raw[3] << 8)), -200);
     EXPECT_EQ(static_cast<int16_t>(raw[4] | (raw[5] << 8)), 1000);
+}
+
+// ---- the real device's behaviours (pozyx_sim_config_realistic), one switch each ------------------
+
+TEST(PozyxSimRealistic, TheProfileSwitchesEveryBehaviourOnAndTheIdealOneOff)
+{
+    pozyx_sim_config_t ideal;
+    pozyx_sim_config_t real;
+    pozyx_sim_config_default(&ideal);
+    pozyx_sim_config_realistic(&real);
+    EXPECT_EQ(ideal.reply_raises_rx_data + ideal.busy_remotes + ideal.collisions + ideal.device_list_full_error, 0);
+    EXPECT_EQ(ideal.boot_us + ideal.stretch_function_us + ideal.stretch_register_us, 0U);
+    EXPECT_EQ(real.reply_raises_rx_data + real.busy_remotes + real.collisions + real.device_list_full_error, 4);
+    EXPECT_EQ(real.boot_us, 250000U);
+    EXPECT_GT(real.stretch_function_us, 0U);
+    EXPECT_EQ(real.ranging_duration_us, 40000U);
+    EXPECT_EQ(real.uwb_message_us, 3500U);
+}
+
+TEST(PozyxSimRealistic, RepliesRaiseRxDataWithFunc)
+{
+    for (int on = 0; on < 2; ++on) {
+        Sim sim;
+        sim->config.reply_raises_rx_data = static_cast<uint8_t>(on);
+        sim.add(0x6002, true, 1.0, 0.0, 0.0);
+        sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+        pozyx_sim_advance(sim.get(), sim.replyDelayUs());
+        EXPECT_EQ(sim.intStatus() & (POZYX_INT_FUNC | POZYX_INT_RX_DATA),
+                  on ? POZYX_INT_FUNC | POZYX_INT_RX_DATA : POZYX_INT_FUNC);
+    }
+}
+
+TEST(PozyxSimRealistic, ANodeRangingReceivesNothingUntilItsResultMessageIsOut)
+{
+    Sim sim(3, 0.0);
+    sim->config.busy_remotes = 1;
+    sim.add(0x6002, false, 0.0, 0.0, 0.0);
+    sim.add(0x6003, false, 6.0, 8.0, 0.0);
+    sim.request(0x6002, POZYX_REMOTE_FUNCTION, {POZYX_FN_DO_RANGING, 0x03, 0x60});
+    const uint64_t ack_us = sim.replyDelayUs();
+    pozyx_sim_advance(sim.get(), ack_us + 1000U);
+    // While 0x6002 ranges with 0x6003, requests to either are lost.
+    sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+    sim.request(0x6003, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+    EXPECT_EQ(sim->stats.busy_losses, 2U);
+    const uint64_t result_us = ack_us + sim->config.ranging_duration_us + sim->config.uwb_message_us;
+    pozyx_sim_advance(sim.get(), result_us);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_RX_DATA, POZYX_INT_RX_DATA) << "the result message";
+    EXPECT_EQ(sim.readRegs(POZYX_REG_RX_DATA_LEN, 1)[0], 4);
+    // Once the result message is out it answers again.
+    sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+    pozyx_sim_advance(sim.get(), sim->now_us + sim.replyDelayUs());
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, POZYX_INT_FUNC);
+    EXPECT_EQ(sim->stats.busy_losses, 2U);
+    // The ideal model answers mid-ranging.
+    sim->config.busy_remotes = 0;
+    sim.request(0x6002, POZYX_REMOTE_FUNCTION, {POZYX_FN_DO_RANGING, 0x03, 0x60});
+    pozyx_sim_advance(sim.get(), sim->now_us + sim.replyDelayUs() + 1000U);
+    sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+    pozyx_sim_advance(sim.get(), sim->now_us + sim.replyDelayUs());
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, POZYX_INT_FUNC);
+}
+
+TEST(PozyxSimRealistic, MessagesOverlappingOnAirAreAllLost)
+{
+    Sim sim;
+    sim->config.collisions = 1;
+    sim.add(0x6002, false, 1.0, 0.0, 0.0);
+    const uint8_t data[4] = {1, 2, 3, 4};
+    const uint64_t air = sim->config.uwb_message_us;
+    // Two messages 1 ms apart overlap: both lost. A third one air time later is received.
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), 0x6002, data, 4, 10000), 0);
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), 0x6003, data, 4, 11000), 0);
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), 0x6004, data, 4, 11000 + air), 0);
+    pozyx_sim_advance(sim.get(), 10500);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_RX_DATA, 0);
+    pozyx_sim_advance(sim.get(), 11500);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_RX_DATA, 0);
+    pozyx_sim_advance(sim.get(), 12000 + air);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_RX_DATA, POZYX_INT_RX_DATA);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_RX_NETWORK_ID, 2)[0], 0x04);
+    EXPECT_EQ(sim->stats.collisions, 2U);
+    // A message arriving while the local device ranges is lost too (it is half-duplex).
+    EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {0x02, 0x60}, 0)[0], 1);
+    ASSERT_EQ(pozyx_sim_inject_message(sim.get(), 0x6003, data, 4, sim->now_us + 5000), 0);
+    pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us + 1000);
+    EXPECT_EQ(sim.intStatus() & (POZYX_INT_RX_DATA | POZYX_INT_FUNC), POZYX_INT_FUNC);
+    EXPECT_EQ(sim->stats.collisions, 3U);
+}
+
+TEST(PozyxSimRealistic, TheDeviceAnswersOnlyOnceBootedAgainAfterEachPowerUp)
+{
+    Sim sim;
+    sim->config.boot_us = 250000;
+    // Nodes added at time 0 are powered up then.
+    sim->nodes[0].ready_at_us = sim->config.boot_us;
+    pozyx_sim_advance(sim.get(), 249000);
+    EXPECT_EQ(pozyx_sim_i2c_start(sim.get(), kAddress, 0), POZYX_SIM_NACK);
+    pozyx_sim_i2c_stop(sim.get());
+    pozyx_sim_advance(sim.get(), 250000);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_WHO_AM_I, 1)[0], 0x43);
+    sim->nodes[0].config.powered = 0;
+    pozyx_sim_advance(sim.get(), 300000);
+    sim->nodes[0].config.powered = 1;
+    pozyx_sim_advance(sim.get(), 400000);
+    EXPECT_EQ(pozyx_sim_i2c_start(sim.get(), kAddress, 0), POZYX_SIM_NACK) << "booting again";
+    pozyx_sim_i2c_stop(sim.get());
+    pozyx_sim_advance(sim.get(), 650000);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_WHO_AM_I, 1)[0], 0x43);
+    EXPECT_EQ(sim->stats.boot_refusals, 2U);
+}
+
+TEST(PozyxSimRealistic, ClockStretchingBeforeTheFirstByteOfARead)
+{
+    Sim sim;
+    sim->config.stretch_function_us = 100;
+    sim->config.stretch_register_us = 10;
+    (void)sim.readRegs(POZYX_REG_WHO_AM_I, 1);
+    EXPECT_EQ(sim->stretch_us, 10U);
+    (void)sim.call(POZYX_FN_DEVICES_CLEAR, {}, 0);
+    EXPECT_EQ(sim->stretch_us, 100U);
+    EXPECT_EQ(sim->stats.stretched_us, 110U);
+}
+
+TEST(PozyxSimRealistic, ATwentyFirstRangingPartnerIsAnErrorNotAnEviction)
+{
+    for (int real = 0; real < 2; ++real) {
+        Sim sim(5, 0.0);
+        sim->config.device_list_full_error = static_cast<uint8_t>(real);
+        for (uint16_t i = 0; i < 21; ++i) {
+            sim.add(static_cast<uint16_t>(0x6100 + i), false, 1.0 + i, 0.0, 0.0);
+        }
+        for (uint16_t i = 0; i < 21; ++i) {
+            const uint16_t id = static_cast<uint16_t>(0x6100 + i);
+            EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {static_cast<uint8_t>(id & 0xFF), static_cast<uint8_t>(id >> 8)}, 0)[0],
+                      1);
+            pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us);
+            const uint8_t flags = sim.intStatus();
+            if (i < 20 || !real) {
+                EXPECT_EQ(flags & POZYX_INT_FUNC, POZYX_INT_FUNC) << i;
+            } else {
+                EXPECT_EQ(flags & POZYX_INT_ERR, POZYX_INT_ERR);
+                EXPECT_EQ(sim.readRegs(POZYX_REG_ERRORCODE, 1)[0], POZYX_ERROR_DEVICE_LIST_FULL);
+            }
+        }
+        EXPECT_EQ(sim->stats.list_full_errors, real ? 1U : 0U);
+    }
+}
+
+TEST(PozyxSimRealistic, ALateReplyArrivesLateIntoWhateverComesNext)
+{
+    Sim sim;
+    sim.add(0x6002, true, 1.0, 0.0, 0.0);
+    sim->faults.late_reply = 1;
+    sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_HARDWARE_VER, 1});
+    pozyx_sim_advance(sim.get(), sim.replyDelayUs() + sim->config.late_reply_us - 1U);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, 0);
+    pozyx_sim_advance(sim.get(), sim.replyDelayUs() + sim->config.late_reply_us);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, POZYX_INT_FUNC);
+    EXPECT_EQ(sim->faults.late_reply, 0U);
+}
+
+TEST(PozyxSimRealistic, NodesTalkOnlyOnTheSameUwbSettings)
+{
+    Sim sim;
+    sim.add(0x6002, true, 1.0, 0.0, 0.0);
+    sim.add(0x6003, false, 2.0, 0.0, 0.0);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_UWB_CHANNEL, 4), (std::vector<uint8_t>{5, 0x80, 0x08, 23}));
+    // A remote write of another channel moves the node away: its acknowledgement is not heard.
+    sim.request(0x6002, POZYX_REMOTE_WRITE, {POZYX_REG_UWB_CHANNEL, 2});
+    pozyx_sim_advance(sim.get(), sim.replyDelayUs());
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, 0);
+    EXPECT_EQ(sim.call(POZYX_FN_DEVICES_DISCOVER, {POZYX_DISCOVER_ALL, 3, 10}, 0)[0], 1);
+    pozyx_sim_advance(sim.get(), sim->now_us + 40000);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_DEVICE_LIST_SIZE, 1)[0], 1) << "only 0x6003 is on channel 5";
+    // The local device follows it: now it hears 0x6002 (and not 0x6003).
+    ASSERT_EQ(pozyx_sim_i2c_start(sim.get(), kAddress, 0), POZYX_SIM_ACK);
+    ASSERT_EQ(pozyx_sim_i2c_write(sim.get(), POZYX_REG_UWB_CHANNEL), POZYX_SIM_ACK);
+    ASSERT_EQ(pozyx_sim_i2c_start(sim.get(), kAddress, 0), POZYX_SIM_ACK);
+    ASSERT_EQ(pozyx_sim_i2c_write(sim.get(), 2), POZYX_SIM_ACK);
+    pozyx_sim_i2c_stop(sim.get());
+    sim.request(0x6002, POZYX_REMOTE_READ, {POZYX_REG_UWB_CHANNEL, 1});
+    pozyx_sim_advance(sim.get(), sim->now_us + sim.replyDelayUs());
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_FUNC, POZYX_INT_FUNC);
+    EXPECT_EQ(sim.call(POZYX_FN_RX_DATA, {0, 1}, 1)[1], 2);
 }
 
 } // namespace

@@ -170,7 +170,9 @@ TEST(Stream, MotionIsReportedAtStartPeriodicallyAndNeverForAnchors)
         }
         for (size_t k = 1; k < m.size(); ++k) {
             const uint32_t gap_ms = m[k].device_time_ms - m[k - 1].device_time_ms;
-            EXPECT_GE(gap_ms, 4900U);
+            // Every 5 s, at the next poll; a node's place in its poll round moves by up to two
+            // steps (polls alternate with ranging steps of up to ~60 ms with the real timings).
+            EXPECT_GE(gap_ms, 4800U);
             EXPECT_LE(gap_ms, 5400U) << "every 5 s, at the next poll";
         }
     }
@@ -259,9 +261,11 @@ TEST(Stream, FullTransmitBufferDropsFramesCountsThemAndKeepsRanging)
     const uint32_t rangings_before = bench.sim()->stats.rangings;
     bench.serial.setDraining(false); // the host stops reading, the buffer fills
     bench.runForMs(2000);
-    EXPECT_GT(bench.sim()->stats.rangings - rangings_before, 50U) << "ranging never waited for the UART";
+    // A round of 4 direct (~45 ms) and 6 remote pairs (~60 ms each) with the real timings: ~18
+    // rangings a second when nothing waits.
+    EXPECT_GT(bench.sim()->stats.rangings - rangings_before, 30U) << "ranging never waited for the UART";
     const uint32_t dropped = static_cast<uint32_t>(bench.fw.link.frames_dropped);
-    EXPECT_GT(dropped, 40U);
+    EXPECT_GT(dropped, 28U);
     bench.serial.setDraining(true);
     bench.runForMs(2000);
 
@@ -370,7 +374,7 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
     startRanging(bench, CDRO_SCHEDULE_ALL_PAIRS, 2, 2);
     for (int tick = 0; tick < 300; ++tick) { // 30 s
         pozyx_sim_faults_t &f = bench.sim()->faults;
-        switch (rng() % 12) {
+        switch (rng() % 13) {
         case 0: f.nack_address += 1; break;
         case 1: f.nack_write += 1; break;
         case 2: f.hang += 1; break;
@@ -380,6 +384,7 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
         case 6: f.stale_range += 1; break;
         case 7: f.drop_remote_reply += 1; break;
         case 8: f.refuse_function += 1; break;
+        case 10: f.late_reply += 1; break;
         case 9: {
             const uint8_t junk[5] = {1, 2, 3, 4, 5};
             (void)pozyx_sim_inject_message(bench.sim(), 0x6A03, junk, 5, bench.bus.nowUs() + rng() % 50000);
@@ -397,7 +402,7 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
     bench.runForMs(1500);
     // Every reported range is a true one: garbage and stale results never reach the host.
     const auto ranges = bench.serial.ofType(CDRO_FRAME_RANGE);
-    ASSERT_GT(ranges.size(), 500U);
+    ASSERT_GT(ranges.size(), 300U); // ~18 a second with the real timings, fewer under faults
     for (const cdro_frame_t &f : ranges) {
         const double truth_mm = 1000.0 * pozyx_sim_true_distance_m(bench.sim(), f.as.range.from_id, f.as.range.to_id);
         ASSERT_NEAR(f.as.range.distance_mm, truth_mm, kTolerance);
@@ -414,6 +419,59 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
                 ranges.size(), status.bus_errors, status.timeouts, status.retries,
                 static_cast<unsigned long long>(bench.fw.counters.stale_results),
                 static_cast<double>(bench.longestStepUs) / 1000.0);
+}
+
+// Issue 15 at the level of the device: a node carried at 2 m/s while replies and result messages
+// now and then arrive late (into the next attempt), with the real device's behaviour (replies
+// raise RX_DATA with FUNC, busy nodes, collisions). Every RANGE is where the nodes were when it
+// was ranged, never where they were at an earlier attempt (0.3 s earlier is 0.6 m away).
+struct Carried {
+    static pozyx_sim_vec3_t position(void *, double t_s)
+    {
+        const double moved_m = 2.0 * std::clamp(t_s - 2.0, 0.0, 5.0); // 2 m/s from 2 s to 7 s
+        return {2.0 + moved_m, 3.0, 1.0};
+    }
+};
+
+TEST(Stream, ACarriedNodeIsNeverReportedWhereItWas)
+{
+    const uint64_t seed = fwtest::testSeed(71);
+    Bench bench(seed, kNodes);
+    std::mt19937_64 rng(seed);
+    pozyx_sim_find(bench.sim(), kTag)->config.position_fn = &Carried::position;
+    startRanging(bench, CDRO_SCHEDULE_ALL_PAIRS, 1, 1, 0);
+    for (int tick = 0; tick < 80; ++tick) { // 8 s
+        if (rng() % 3 == 0) {
+            bench.sim()->faults.late_reply += 1;
+        }
+        bench.runForMs(100);
+    }
+    EXPECT_GT(bench.sim()->stats.faults_injected, 10U);
+    size_t with_tag = 0;
+    for (const cdro_frame_t &f : bench.serial.ofType(CDRO_FRAME_RANGE)) {
+        const cdro_range_t &r = f.as.range;
+        // The truth when the range was reported; it was ranged at most ~20 ms before (0.04 m).
+        const pozyx_sim_vec3_t tag = Carried::position(nullptr, r.device_time_ms / 1000.0);
+        const uint16_t other = r.from_id == kTag ? r.to_id : r.from_id;
+        if (r.to_id != kTag && r.from_id != kTag) {
+            continue;
+        }
+        ++with_tag;
+        pozyx_sim_vec3_t at{0, 0, 0};
+        for (const NodeSpec &n : kNodes) {
+            if (n.id == other) {
+                at = {n.x, n.y, n.z};
+            }
+        }
+        const double truth_mm = 1000.0 * std::sqrt((tag.x - at.x) * (tag.x - at.x) + (tag.y - at.y) * (tag.y - at.y) +
+                                                   (tag.z - at.z) * (tag.z - at.z));
+        EXPECT_NEAR(r.distance_mm, truth_mm, kTolerance + 60.0)
+            << std::hex << r.from_id << "-" << r.to_id << std::dec << " at " << r.device_time_ms << " ms";
+    }
+    EXPECT_GT(with_tag, 40U);
+    std::printf("carried: %zu ranges with the tag, %u late replies, %u collisions, %u requests lost to busy nodes\n",
+                with_tag, bench.sim()->stats.faults_injected, bench.sim()->stats.collisions,
+                bench.sim()->stats.busy_losses);
 }
 
 TEST(Stream, NoProtocolViolationsAndTheWireBufferIsRespected)

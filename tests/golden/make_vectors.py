@@ -20,8 +20,10 @@ from cdro_tools.codec import (CaptureHeader, CaptureRecord, Frame, SogPair, SogS
                               validate_frame)
 from cdro_tools.codec import capture_file, cobs  # noqa: E402
 from cdro_tools.codec import fixed  # noqa: E402
+from cdro_tools.codec import CONSTANTS as C  # noqa: E402
 
 C_MAX_NODES = 20
+V = C["CDRO_PROTOCOL_VERSION"]   # the version every good vector carries
 
 
 def hexs(data: bytes) -> str:
@@ -63,9 +65,9 @@ def cobs_vectors() -> list[dict]:
 
 
 FRAMES = [
-    ("hello", Frame("HELLO", 0, {"device_time_ms": 1234, "firmware_version": 0x0102, "protocol_version": 1,
-                                 "layout_hash": 0xFB88, "node_id": 0x6069, "capabilities": 0x1F,
-                                 "pozyx_firmware": 0x12, "max_nodes": 12, "reset_cause": 0x01})),
+    ("hello", Frame("HELLO", 0, {"device_time_ms": 1234, "firmware_version": 0x0102, "protocol_version": V,
+                                 "layout_hash": C["CDRO_LAYOUT_HASH"], "node_id": 0x6069, "capabilities": 0x3F,
+                                 "pozyx_firmware": 0x12, "max_nodes": 12, "reset_cause": 0x01, "pozyx_tries": 3})),
     ("range direct", Frame("RANGE", 7, {"device_time_ms": 50123, "from_id": 0x6069, "to_id": 0x6A11,
                                         "distance_mm": 4235, "rss_dbm": -79, "flags": 0})),
     ("range remote, retry, extremes", Frame("RANGE", 0xFFFF, {"device_time_ms": 0xFFFFFFFF, "from_id": 0xFFFE,
@@ -77,7 +79,7 @@ FRAMES = [
                                     "ranges_failed_direct": 17, "ranges_failed_remote": 230, "retries": 198,
                                     "bus_errors": 2, "timeouts": 31, "frames_sent": 160000, "frames_dropped": 5,
                                     "commands_rejected": 1, "longest_loop_us": 61234, "free_ram_bytes": 412,
-                                    "running": 1, "node_count": 6})),
+                                    "running": 1, "node_count": 6, "bus_recoveries": 2})),
     ("node list empty", Frame("NODE_LIST", 3, {"source": 0, "node_ids": []})),
     ("node list full", Frame("NODE_LIST", 4, {"source": 1, "node_ids": [0x6000 + i for i in range(C_MAX_NODES)]})),
     ("ack ping", Frame("ACK", 9, {"acked_type": 0x45, "acked_sequence": 77, "value": 0xDEADBEEF})),
@@ -92,6 +94,14 @@ FRAMES = [
     ("hello request", Frame("HELLO_REQUEST", 6)),
     ("sequence zero bytes", Frame("RANGE", 0x0100, {"device_time_ms": 0, "from_id": 0x0100, "to_id": 0x0200,
                                                    "distance_mm": 0, "rss_dbm": 0, "flags": 0})),
+    ("node info", Frame("NODE_INFO", 12, {"node_id": 0x6A11, "result": 0, "pozyx_firmware": 0x11, "uwb_channel": 5,
+                                          "uwb_rates": 0x80, "uwb_plen": 0x08, "uwb_gain": 23, "range_protocol": 1,
+                                          "mismatch": 0x10})),
+    ("diag", Frame("DIAG", 13, {"item": 2, "status": 0, "node_id": 0x6A11, "value_a": 4, "value_b": 8123,
+                                "value_c": 0xFFFFFFFF})),
+    ("set uwb", Frame("SET_UWB", 7, {"uwb_channel": 2, "uwb_rates": 0x42, "uwb_plen": 0x34, "uwb_gain": 67,
+                                     "range_protocol": 0})),
+    ("diagnose", Frame("DIAGNOSE", 8)),
 ]
 
 
@@ -122,35 +132,38 @@ def decode_error_vectors() -> list[dict]:
         {"name": "code byte runs past the end", "chunk": "050102", "result": "cobs"},
         {"name": "shorter than header and CRC", "chunk": hexs(cobs.cobs_encode(b"\x01\x02\x03")), "result": "short"},
         {"name": "one bit flipped", "chunk": hexs(bytes(flipped)), "result": "crc"},
-        {"name": "wrong CRC", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x43, 1, b"", crc_ok=False))),
+        {"name": "wrong CRC", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x43, 1, b"", crc_ok=False))),
          "result": "crc"},
-        {"name": "protocol version 2", "chunk": hexs(cobs.cobs_encode(raw_frame(2, 0x43, 1, b""))),
-         "result": "version", "version": 2, "type": 0x43, "sequence": 1},
-        {"name": "unknown type 0x7E", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x7E, 513, b"\x01"))),
-         "result": "type", "version": 1, "type": 0x7E, "sequence": 513},
-        {"name": "length field disagrees", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x45, 2, b"\x01\x02\x03\x04", 5))),
-         "result": "length", "version": 1, "type": 0x45, "sequence": 2},
-        {"name": "payload too short for PING", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x45, 2, b"\x01\x02\x03"))),
-         "result": "length", "version": 1, "type": 0x45, "sequence": 2},
-        {"name": "payload on START", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x43, 2, b"\x00"))),
-         "result": "length", "version": 1, "type": 0x43, "sequence": 2},
+        {"name": f"protocol version {V - 1} (the layout before)",
+         "chunk": hexs(cobs.cobs_encode(raw_frame(V - 1, 0x43, 1, b""))),
+         "result": "version", "version": V - 1, "type": 0x43, "sequence": 1},
+        {"name": "set uwb on channel 6", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x47, 7, bytes([6, 0x80, 0x08, 20, 0])))),
+         "result": "value", "version": V, "type": 0x47, "sequence": 7},
+        {"name": "unknown type 0x7E", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x7E, 513, b"\x01"))),
+         "result": "type", "version": V, "type": 0x7E, "sequence": 513},
+        {"name": "length field disagrees", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x45, 2, b"\x01\x02\x03\x04", 5))),
+         "result": "length", "version": V, "type": 0x45, "sequence": 2},
+        {"name": "payload too short for PING", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x45, 2, b"\x01\x02\x03"))),
+         "result": "length", "version": V, "type": 0x45, "sequence": 2},
+        {"name": "payload on START", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x43, 2, b"\x00"))),
+         "result": "length", "version": V, "type": 0x43, "sequence": 2},
         {"name": "array count above maximum",
-         "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x41, 3, bytes([21]) + bytes(range(1, 43))))),
-         "result": "length", "version": 1, "type": 0x41, "sequence": 3},
+         "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x41, 3, bytes([21]) + bytes(range(1, 43))))),
+         "result": "length", "version": V, "type": 0x41, "sequence": 3},
         {"name": "array count beyond the bytes",
-         "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x41, 3, bytes([3, 1, 0, 2, 0])))),
-         "result": "length", "version": 1, "type": 0x41, "sequence": 3},
+         "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x41, 3, bytes([3, 1, 0, 2, 0])))),
+         "result": "length", "version": V, "type": 0x41, "sequence": 3},
         {"name": "too long without delimiter", "chunk": "11" * 73, "result": "too_long"},
-        {"name": "range to itself", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x02, 4, range_payload))),
-         "result": "value", "version": 1, "type": 0x02, "sequence": 4},
-        {"name": "range beyond 200 m", "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x02, 4, too_far))),
-         "result": "value", "version": 1, "type": 0x02, "sequence": 4},
+        {"name": "range to itself", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x02, 4, range_payload))),
+         "result": "value", "version": V, "type": 0x02, "sequence": 4},
+        {"name": "range beyond 200 m", "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x02, 4, too_far))),
+         "result": "value", "version": V, "type": 0x02, "sequence": 4},
         {"name": "set nodes with a duplicate",
-         "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x41, 5, bytes([2, 7, 0, 7, 0])))),
-         "result": "value", "version": 1, "type": 0x41, "sequence": 5},
+         "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x41, 5, bytes([2, 7, 0, 7, 0])))),
+         "result": "value", "version": V, "type": 0x41, "sequence": 5},
         {"name": "schedule boost 0",
-         "chunk": hexs(cobs.cobs_encode(raw_frame(1, 0x42, 6, struct.pack("<HBHBHB", 25, 1, 200, 0, 1000, 2)))),
-         "result": "value", "version": 1, "type": 0x42, "sequence": 6},
+         "chunk": hexs(cobs.cobs_encode(raw_frame(V, 0x42, 6, struct.pack("<HBHBHB", 25, 1, 200, 0, 1000, 2)))),
+         "result": "value", "version": V, "type": 0x42, "sequence": 6},
     ]
     for vector in vectors:
         assert python_result(vector["chunk"]) == vector["result"], vector["name"]

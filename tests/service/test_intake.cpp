@@ -275,15 +275,15 @@ TEST(Intake, IncompatibleHelloNamesBothVersionsAndStopsData)
 {
     Fixture f;
     cdro_frame_t hello = helloFrame(0, 5);
-    hello.as.hello.protocol_version = 2;
+    hello.as.hello.protocol_version = CDRO_PROTOCOL_VERSION + 1;
     hello.as.hello.layout_hash = 0x1234;
     f.feed(encode(hello));
     ASSERT_EQ(f.observer.incompatible.size(), 1U);
     const std::string &message = f.observer.incompatible[0];
-    EXPECT_NE(message.find("protocol version 2"), std::string::npos) << message;
+    EXPECT_NE(message.find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION + 1)), std::string::npos) << message;
     EXPECT_NE(message.find("0x1234"), std::string::npos) << message;
-    EXPECT_NE(message.find("protocol version 1"), std::string::npos) << message;
-    EXPECT_NE(message.find("0xFB88"), std::string::npos) << message;
+    EXPECT_NE(message.find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION)), std::string::npos) << message;
+    EXPECT_NE(message.find("0x4D0F"), std::string::npos) << message;
     f.feed(encode(rangeFrame(1, 10, 0x6000, 0x6069, 1000)));
     EXPECT_EQ(f.consumer.count("range"), 0U);
     EXPECT_EQ(f.counters.frames_dropped_incompatible, 1U);
@@ -298,11 +298,11 @@ TEST(Intake, FramesOfAnotherProtocolVersionMarkTheDeviceIncompatible)
 {
     Fixture f;
     std::vector<uint8_t> raw = encode(helloFrame(0, 5));
-    // Re-encode with header version 2: decode the COBS, patch, fix the CRC, encode again.
+    // Re-encode with the next header version: decode the COBS, patch, fix the CRC, encode again.
     uint8_t plain[CDRO_MAX_RAW_FRAME];
     const long n = cdro_cobs_decode(raw.data(), raw.size() - 1, plain, sizeof plain);
     ASSERT_GT(n, 0);
-    plain[0] = 2;
+    plain[0] = CDRO_PROTOCOL_VERSION + 1;
     const uint16_t crc = cdro_crc16(plain, static_cast<size_t>(n) - 2);
     plain[n - 2] = static_cast<uint8_t>(crc & 0xFF);
     plain[n - 1] = static_cast<uint8_t>(crc >> 8);
@@ -313,8 +313,10 @@ TEST(Intake, FramesOfAnotherProtocolVersionMarkTheDeviceIncompatible)
     f.feed(bytes);
     EXPECT_EQ(f.counters.version_errors, 1U);
     ASSERT_EQ(f.observer.incompatible.size(), 1U);
-    EXPECT_NE(f.observer.incompatible[0].find("protocol version 2"), std::string::npos);
-    EXPECT_NE(f.observer.incompatible[0].find("protocol version 1"), std::string::npos);
+    EXPECT_NE(f.observer.incompatible[0].find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION + 1)),
+              std::string::npos);
+    EXPECT_NE(f.observer.incompatible[0].find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION)),
+              std::string::npos);
 }
 
 TEST(Intake, HostFrameTypesFromTheDeviceAreDropped)

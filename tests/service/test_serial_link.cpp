@@ -1,7 +1,10 @@
 // SerialLink on real pseudo-terminals: raw 8N1, bytes both ways, a vanished device is noticed,
-// retried with exponential backoff, and resumed when it comes back at the same path.
+// retried with exponential backoff, and resumed when it comes back at the same path; the first
+// errors a person setting up a board sees (a port they may not open, foreign bytes).
 #include <pty.h>
 #include <sys/ioctl.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
 #include <termios.h>
 #include <unistd.h>
 
@@ -12,6 +15,9 @@
 #include <gtest/gtest.h>
 #include <libserial/SerialPort.h>
 
+#include "cdro/cobs.h"
+#include "cdro/crc.h"
+#include "cdro/service/link_diagnostics.hpp"
 #include "cdro/service/serial_link.hpp"
 #include "support.hpp"
 
@@ -160,4 +166,111 @@ TEST(LibSerialConfiguration, BytesThatArriveWhileThePortIsConfiguredAreKept)
     EXPECT_NE(error.find("unsupported baud 12345"), std::string::npos) << error;
     port.Close();
     ::close(master);
+}
+
+// ---- first errors that help (issue 15) -------------------------------------------------------
+
+// A port the user may not open: the reason says what to do, not LibSerial's "Bad file
+// descriptor". On a real pseudo-terminal whose node the user has no rights to (as root the test
+// drops to nobody in a child process, since root may open anything).
+TEST(SerialOpen, APortTheUserMayNotOpenSaysPermissionDeniedAndTheDialoutGroup)
+{
+    int master = -1;
+    int slave = -1;
+    char name[256] = {};
+    ASSERT_EQ(openpty(&master, &slave, name, nullptr, nullptr), 0);
+    ::close(slave);
+    ASSERT_EQ(::chmod(name, 0600), 0); // the owner only (root, or the user then losing it below)
+    const pid_t child = ::fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+        if (::getuid() == 0) {
+            if (::setgid(65534) != 0 || ::setuid(65534) != 0) { // nobody
+                ::_exit(3);
+            }
+        } else if (::chmod(name, 0) != 0) {
+            ::_exit(3);
+        }
+        std::string error;
+        auto device = makeLibSerialDevice();
+        const int fd = device->open(name, 115200, &error);
+        ::_exit(fd < 0 && error.find("permission denied (add yourself to the dialout group") == 0 ? 0 : 1);
+    }
+    int status = 0;
+    ASSERT_EQ(::waitpid(child, &status, 0), child);
+    ASSERT_TRUE(WIFEXITED(status));
+    EXPECT_EQ(WEXITSTATUS(status), 0) << "the child's open error did not name the dialout group";
+    ::close(master);
+    // And a path with nothing behind it says so.
+    EXPECT_EQ(openFailureReason("/dev/cdro-no-such-port", "?").rfind("no such device", 0), 0U);
+}
+
+// The verdict on what a port streams, in its own time base: text from another sketch is named
+// 2 s after its first byte (not before), once; our frames, even of another protocol version,
+// never are (the intake says what is wrong with those).
+TEST(LinkDiagnostics, BytesThatAreNotOurFramesAreNamedTwoSecondsAfterTheFirst)
+{
+    LinkDiagnostics d("/dev/ttyACM0", 115200);
+    d.reset(0);
+    const std::string text = "Pozyx ready_to_range: 4235 mm\r\n";
+    d.onBytes(reinterpret_cast<const uint8_t *>(text.data()), text.size(), 100'000);
+    EXPECT_FALSE(d.check(100'000 + LinkDiagnostics::kVerdictUs - 1));
+    EXPECT_TRUE(d.check(100'000 + LinkDiagnostics::kVerdictUs));
+    EXPECT_EQ(d.foreignMessage().rfind("bytes that are not our frames (wrong firmware or baud?)", 0), 0U);
+    EXPECT_NE(d.foreignMessage().find("text \"Pozyx ready_to_range"), std::string::npos) << d.foreignMessage();
+    EXPECT_NE(d.foreignMessage().find("115200"), std::string::npos);
+    EXPECT_FALSE(d.check(10'000'000)) << "once per connection";
+
+    d.reset(20'000'000);
+    const std::vector<uint8_t> binary = {0x81, 0x9F, 0xE0, 0x13, 0x37, 0xFE, 0x42, 0x99, 0x10};
+    d.onBytes(binary.data(), binary.size(), 20'000'000);
+    EXPECT_TRUE(d.check(22'000'000));
+    EXPECT_NE(d.foreignMessage().find("bytes 81 9F E0"), std::string::npos) << d.foreignMessage();
+
+    for (const uint8_t version : {static_cast<uint8_t>(CDRO_PROTOCOL_VERSION), static_cast<uint8_t>(CDRO_PROTOCOL_VERSION + 1)}) {
+        d.reset(30'000'000);
+        std::vector<uint8_t> bytes = {0x13, 0x37, 0x00}; // garbage first, as after a reset
+        cdro_frame_t hello = cdro::test::helloFrame(0, 250);
+        std::vector<uint8_t> frame = cdro::test::encode(hello);
+        if (version != CDRO_PROTOCOL_VERSION) {
+            uint8_t raw[CDRO_MAX_RAW_FRAME];
+            const long n = cdro_cobs_decode(frame.data(), frame.size() - 1, raw, sizeof raw);
+            ASSERT_GT(n, 0);
+            raw[0] = version;
+            const uint16_t crc = cdro_crc16(raw, static_cast<size_t>(n) - 2);
+            raw[n - 2] = static_cast<uint8_t>(crc & 0xFF);
+            raw[n - 1] = static_cast<uint8_t>(crc >> 8);
+            uint8_t wire[CDRO_MAX_ENCODED_FRAME];
+            const size_t m = cdro_cobs_encode(raw, static_cast<size_t>(n), wire, sizeof wire);
+            frame.assign(wire, wire + m);
+            frame.push_back(0);
+        }
+        bytes.insert(bytes.end(), frame.begin(), frame.end());
+        d.onBytes(bytes.data(), bytes.size(), 30'000'000);
+        EXPECT_FALSE(d.check(40'000'000)) << "version " << int(version);
+    }
+    // A few stray bytes are line noise, not a stream.
+    d.reset(50'000'000);
+    d.onBytes(binary.data(), 3, 50'000'000);
+    EXPECT_FALSE(d.check(60'000'000));
+}
+
+// End to end on a pseudo-terminal: the link names the foreign stream within 2 s of its first
+// byte (the session would only time out its HELLO after 12 s).
+TEST_F(SerialLinkTest, APortStreamingForeignBytesIsNamedWithinTwoSeconds)
+{
+    cdro::test::FakeDevicePty device(config.device);
+    EventLoop loop(clock);
+    SerialLink link(loop, config, listener, counters);
+    link.start();
+    ASSERT_TRUE(link.isOpen());
+    const std::string text = "Hello from another sketch\r\n";
+    device.write(std::vector<uint8_t>(text.begin(), text.end()));
+    runUntil(loop, [&] { return link.diagnostics().sawFirstByte(); });
+    const int64_t first_us = link.diagnostics().firstByteUs();
+    runUntil(loop, [&] { return link.diagnostics().foreignReported(); });
+    const int64_t said_us = clock.monotonicUs();
+    EXPECT_GE(said_us - first_us, LinkDiagnostics::kVerdictUs);
+    EXPECT_NE(link.diagnostics().foreignMessage().find("Hello from another sketch"), std::string::npos);
+    EXPECT_TRUE(link.isOpen()) << "the port stays open: the right firmware may come (a reflash, a reset)";
 }

@@ -14,7 +14,7 @@ import pytest
 
 from cdro_tools.codec import Frame, StreamDecoder, decode_sog, encode_frame, read_capture
 from cdro_tools.codec.capture_file import FLAG_TO_DEVICE, RECORD_OVERHEAD
-from cdro_tools.codec.frames import Result
+from cdro_tools.codec.frames import LAYOUT_HASH, PROTOCOL_VERSION, Result
 
 from service_support import NODES, OWN, FakeDevice, Harness, start_running, wait_until
 
@@ -141,8 +141,8 @@ def test_incompatible_device_is_named_and_left_alone(harness_bin, tmp_path):
     harness = Harness(harness_bin, tmp_path, device=link)
     device.boot()
     h = harness.wait_health(lambda h: h["link"] == "incompatible", "link incompatible")
-    assert "0x1234" in h["detail"] and "0xFB88" in h["detail"], h["detail"]
-    assert "protocol version 1" in h["detail"]
+    assert "0x1234" in h["detail"] and f"0x{LAYOUT_HASH:04X}" in h["detail"], h["detail"]
+    assert f"protocol version {PROTOCOL_VERSION}" in h["detail"]
     send_ranges(device, 20)
     harness.wait_health(lambda h: h["counters"]["frames_dropped_incompatible"] >= 20, "data frames dropped")
     assert not [t for t in device.host_types() if t in ("SET_NODES", "SET_SCHEDULE", "START")]
@@ -155,15 +155,37 @@ def test_incompatible_device_is_named_and_left_alone(harness_bin, tmp_path):
 
 def test_other_protocol_version_in_frame_headers(harness_bin, tmp_path):
     link = tmp_path / "ttyPOZYX"
-    device = FakeDevice(link, header_version=2)
+    device = FakeDevice(link, header_version=PROTOCOL_VERSION + 1)
     harness = Harness(harness_bin, tmp_path, device=link)
     device.boot()  # (if this HELLO is lost before the port opens, the HELLO_REQUEST brings another)
     h = harness.wait_health(lambda h: h["link"] == "incompatible", "link incompatible")
-    assert "protocol version 2" in h["detail"] and "protocol version 1" in h["detail"]
+    assert f"protocol version {PROTOCOL_VERSION + 1}" in h["detail"] and f"protocol version {PROTOCOL_VERSION}" in h["detail"]
     assert h["counters"]["version_errors"] >= 1
     assert not [t for t in device.host_types() if t in ("SET_NODES", "SET_SCHEDULE", "START")]
     assert harness.stop() == 0
     device.vanish()
+
+
+def test_a_port_streaming_bytes_that_are_not_our_frames_is_named(harness_bin, tmp_path):
+    # Issue 15: another sketch's text on the port. The link says so (within 2 s of the first
+    # byte), before the session has even given up waiting for a HELLO.
+    # A pseudo-terminal that only ever writes text (FakeDevice would answer HELLO_REQUEST).
+    master, slave = os.openpty()
+    link = tmp_path / "ttyPOZYX"
+    link.symlink_to(os.ttyname(slave))
+    harness = Harness(harness_bin, tmp_path, device=link)
+    try:
+        harness.wait_health(lambda h: h["counters"]["link_connects"] >= 1, "port opened")
+        for _ in range(5):
+            os.write(master, b"Pozyx ready_to_range: 4235 mm\r\n")
+        wait_until(lambda: "not our frames" in harness.log(), "the foreign-bytes message")
+        line = next(line for line in harness.log().splitlines() if "not our frames" in line)
+        assert "bytes that are not our frames (wrong firmware or baud?)" in line
+        assert 'text "Pozyx ready_to_range' in line and "115200" in line
+        assert harness.stop() == 0
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 def test_device_vanishes_and_returns(harness_bin, tmp_path):

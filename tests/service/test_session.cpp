@@ -206,7 +206,7 @@ TEST(Session, IncompatibleDeviceIsLeftAloneUntilACompatibleHello)
     EXPECT_EQ(f.session->linkState(), LinkState::Incompatible);
     EXPECT_EQ(f.session->nextDeadlineUs(), INT64_MAX);
     cdro_frame_t hello = cdro::test::helloFrame(0, 10);
-    hello.as.hello.protocol_version = 2;
+    hello.as.hello.protocol_version = CDRO_PROTOCOL_VERSION + 1;
     f.frame(hello);
     EXPECT_TRUE(f.sink.sent.empty());
     f.frame(cdro::test::helloFrame(0, 10));

@@ -198,7 +198,7 @@ def raw_chunk(type_id, payload=b"", sequence=7, version=codec.PROTOCOL_VERSION, 
 
 
 @pytest.mark.parametrize("name, chunk, reason", [
-    ("host type, other version", raw_chunk(0x43, version=2), "MALFORMED"),
+    ("host type, other version", raw_chunk(0x43, version=codec.PROTOCOL_VERSION + 1), "MALFORMED"),
     ("device-to-host type, payload not its layout", raw_chunk(0x04, b"\x01\x02\x03"), "MALFORMED"),
     ("unknown type, length field disagrees", raw_chunk(0x7E, b"\x01", length=3), "MALFORMED"),
     ("unknown type", raw_chunk(0x7E, b"\x01"), "UNKNOWN_TYPE"),
@@ -245,7 +245,7 @@ def test_that_a_device_to_host_type_is_nacked_unknown_type():
     command(device, "STATUS", {"uptime_ms": 0, "ranges_ok_direct": 0, "ranges_ok_remote": 0, "ranges_failed_direct": 0,
                                "ranges_failed_remote": 0, "retries": 0, "bus_errors": 0, "timeouts": 0,
                                "frames_sent": 0, "frames_dropped": 0, "commands_rejected": 0, "longest_loop_us": 0,
-                               "free_ram_bytes": 0, "running": 0, "node_count": 0}, sequence=3)
+                               "free_ram_bytes": 0, "running": 0, "node_count": 0, "bus_recoveries": 0}, sequence=3)
     assert [(f.type, f["reason"]) for f in sink.frames()] == [("NACK", C["CDRO_NACK_UNKNOWN_TYPE"])]
 
 

@@ -6,6 +6,7 @@
 #include <stddef.h>
 #include <string.h>
 
+#include "cdro/wire.h"
 #include "cdro_fw/pozyx_regs.h"
 
 #define NO_POLL_ROUND 0xFFU
@@ -61,6 +62,7 @@ static void send_hello(cdro_fw_t *fw, uint32_t now_ms)
     hello->pozyx_firmware = fw->pozyx_firmware;
     hello->max_nodes = CDRO_FW_MAX_REMOTE_NODES;
     hello->reset_cause = fw->reset_cause;
+    hello->pozyx_tries = fw->pozyx_tries;
     (void)cdro_link_send(&fw->link, &frame);
 }
 
@@ -130,6 +132,7 @@ static void send_status(cdro_fw_t *fw, uint32_t now_ms)
     status->free_ram_bytes = fw->free_ram_bytes != NULL ? fw->free_ram_bytes(fw->platform_user) : 0U;
     status->running = fw->running;
     status->node_count = fw->node_count;
+    status->bus_recoveries = fw->pozyx.bus_recoveries;
     (void)cdro_link_send(&fw->link, &frame);
     fw->longest_loop_us = 0;
 }
@@ -198,39 +201,72 @@ void cdro_fw_init(cdro_fw_t *fw, const cdro_fw_config_t *config)
     node_reset(&fw->nodes[0], CDRO_FW_NODE_ID_UNKNOWN);
 }
 
-/* ---- boot -------------------------------------------------------------------------------- */
+/* ---- boot ------------------------------------------------------------------------------ */
 
-static void boot(cdro_fw_t *fw, uint32_t now_ms)
+static uint8_t firmware_supported(uint8_t version)
+{
+    return (uint8_t)(version >= CDRO_FW_POZYX_FIRMWARE_MIN && version <= CDRO_FW_POZYX_FIRMWARE_MAX);
+}
+
+/* One try at identifying the own Pozyx. The first try sends 0x00 and HELLO whatever it finds
+ * (the host learns at once that the device lives); a later try that finds it sends HELLO again,
+ * now with the node id and capabilities. A silent Pozyx or a wrong WHO_AM_I is tried again,
+ * CDRO_FW_IDENTIFY_RETRY_MS doubling up to CDRO_FW_IDENTIFY_RETRY_MAX_MS, each failed try
+ * reported by ERROR POZYX_ABSENT. A failed self-test or an unsupported firmware is final. */
+static void identify(cdro_fw_t *fw, uint32_t now_ms)
 {
     cdro_pozyx_info_t info;
     const cdro_pozyx_status_t status = cdro_pozyx_identify(&fw->pozyx, &info);
     uint8_t error_code = 0;
     uint16_t error_detail = 0;
+    if (fw->pozyx_tries < 0xFFU) {
+        ++fw->pozyx_tries;
+    }
     if (status == CDRO_POZYX_OK && info.network_id != 0U) {
         const uint8_t tag = (uint8_t)((info.hardware_version >> POZYX_HW_TYPE_SHIFT) == POZYX_HW_TYPE_TAG);
         const uint8_t expected = tag ? POZYX_ST_EXPECTED_TAG : POZYX_ST_EXPECTED_ANCHOR;
         fw->nodes[0].id = info.network_id;
         fw->nodes[0].flags = (uint8_t)(CDRO_FW_NODE_KIND_KNOWN | (tag ? CDRO_FW_NODE_TAG : 0U));
         fw->pozyx_firmware = info.firmware_version;
-        fw->capabilities = CDRO_CAP_DIRECT_RANGING | CDRO_CAP_REMOTE_RANGING | CDRO_CAP_REMOTE_ACCEL |
-                           CDRO_CAP_DISCOVERY | (tag ? CDRO_CAP_LOCAL_ACCEL : 0U);
-        fw->pozyx_ok = (uint8_t)((info.self_test & expected) == expected);
-        if (!fw->pozyx_ok) {
+        fw->pozyx_state = CDRO_FW_POZYX_OK;
+        if (!firmware_supported(info.firmware_version)) {
+            fw->pozyx_state = CDRO_FW_POZYX_FIRMWARE;
+            error_code = CDRO_DEVICE_ERROR_POZYX_FIRMWARE;
+            error_detail = info.firmware_version;
+        } else if ((info.self_test & expected) != expected) {
+            fw->pozyx_state = CDRO_FW_POZYX_SELF_TEST;
             error_code = CDRO_DEVICE_ERROR_SELF_TEST;
             error_detail = info.self_test;
         }
+        fw->capabilities = fw->pozyx_state != CDRO_FW_POZYX_FIRMWARE
+                               ? (uint8_t)(CDRO_CAP_DIRECT_RANGING | CDRO_CAP_REMOTE_RANGING | CDRO_CAP_REMOTE_ACCEL |
+                                           CDRO_CAP_DISCOVERY | CDRO_CAP_POZYX_SETUP | (tag ? CDRO_CAP_LOCAL_ACCEL : 0U))
+                               : 0U;
     } else {
         /* Silent, wrong WHO_AM_I, or no network id: HELLO says node 0xFFFF, Pozyx firmware 0. */
+        const uint8_t shift = fw->pozyx_tries < 5U ? (uint8_t)(fw->pozyx_tries - 1U) : 4U;
+        const uint32_t wait_ms = (uint32_t)CDRO_FW_IDENTIFY_RETRY_MS << shift;
         error_code = CDRO_DEVICE_ERROR_POZYX_ABSENT;
         error_detail = status == CDRO_POZYX_ERR_BUS ? 0U : info.who_am_i;
+        fw->next_identify_ms = now_ms + (wait_ms < CDRO_FW_IDENTIFY_RETRY_MAX_MS ? wait_ms : CDRO_FW_IDENTIFY_RETRY_MAX_MS);
     }
-    cdro_link_send_delimiter(&fw->link);
-    send_hello(fw, now_ms);
+    if (fw->pozyx_tries == 1U) {
+        cdro_link_send_delimiter(&fw->link);
+        send_hello(fw, now_ms);
+        fw->next_status_ms = now_ms + fw->status_period_ms;
+    } else if (fw->pozyx_state != CDRO_FW_POZYX_ABSENT) {
+        send_hello(fw, now_ms); /* found at last: the host hears the node id and capabilities */
+    }
     if (error_code != 0U) {
         send_error(fw, error_code, error_detail, 0);
     }
-    fw->next_status_ms = now_ms + fw->status_period_ms;
-    fw->state = fw->pozyx_ok ? CDRO_FW_STATE_DISCOVERY : CDRO_FW_STATE_READY;
+    fw->state = fw->pozyx_state == CDRO_FW_POZYX_OK ? CDRO_FW_STATE_DISCOVERY : CDRO_FW_STATE_READY;
+}
+
+static void start_round(cdro_fw_t *fw, uint8_t round)
+{
+    fw->round = round;
+    fw->round_cursor = 0;
 }
 
 /* Keeps ids that are non-zero, not the own node and not repeated (NODE_LIST must validate). */
@@ -260,16 +296,22 @@ static void discovery(cdro_fw_t *fw)
         cdro_pozyx_discover(&fw->pozyx, ids, CDRO_FW_MAX_REMOTE_NODES, &found, &listed);
     ++fw->discovery_attempts;
     if (status == CDRO_POZYX_OK) {
+        const uint8_t wanted = listed < CDRO_FW_MAX_REMOTE_NODES ? listed : (uint8_t)CDRO_FW_MAX_REMOTE_NODES;
+        if (found < wanted) { /* a page past the first did not verify: its ids are unknown */
+            send_error(fw, CDRO_DEVICE_ERROR_DEVICE_LIST, listed, 0);
+        }
         found = clean_ids(fw, ids, found);
         if (found > 0U) {
             set_nodes(fw, ids, found);
             send_node_list(fw, CDRO_NODE_SOURCE_DISCOVERY);
         }
         fw->state = CDRO_FW_STATE_READY;
+        start_round(fw, CDRO_FW_ROUND_NODE_INFO);
     } else if (fw->discovery_attempts >= CDRO_FW_DISCOVERY_ATTEMPTS) {
         send_error(fw, CDRO_DEVICE_ERROR_DISCOVERY,
                    status == CDRO_POZYX_ERR_DEVICE ? fw->pozyx.last_error_code : 0U, 0);
         fw->state = CDRO_FW_STATE_READY;
+        start_round(fw, CDRO_FW_ROUND_NODE_INFO); /* at least the own node's settings */
     }
 }
 
@@ -292,6 +334,9 @@ static void command_set_nodes(cdro_fw_t *fw, const cdro_frame_t *in)
     set_nodes(fw, cmd->node_ids, cmd->node_ids_count);
     send_ack(fw, in->type, in->sequence, 0);
     send_node_list(fw, CDRO_NODE_SOURCE_HOST);
+    if (fw->pozyx_state == CDRO_FW_POZYX_OK && fw->round < CDRO_FW_ROUND_UWB_REMOTE) {
+        start_round(fw, CDRO_FW_ROUND_NODE_INFO); /* the new nodes' settings */
+    }
 }
 
 static void command_set_schedule(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_ms)
@@ -322,7 +367,7 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
         command_set_schedule(fw, in, now_ms);
         break;
     case CDRO_FRAME_START:
-        if (!fw->pozyx_ok || fw->node_count == 0U) {
+        if (fw->pozyx_state != CDRO_FW_POZYX_OK || fw->node_count == 0U) {
             send_nack(fw, in->type, in->sequence, CDRO_NACK_WRONG_STATE);
             break;
         }
@@ -343,6 +388,27 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
     case CDRO_FRAME_PING:
         send_ack(fw, in->type, in->sequence, in->as.ping.nonce);
         break;
+    case CDRO_FRAME_SET_UWB:
+    case CDRO_FRAME_DIAGNOSE:
+        /* Only while stopped, with a working Pozyx, and no other round under way: they take
+         * over the Pozyx for seconds. */
+        if (fw->running || fw->pozyx_state != CDRO_FW_POZYX_OK || fw->round != CDRO_FW_ROUND_NONE) {
+            send_nack(fw, in->type, in->sequence, CDRO_NACK_WRONG_STATE);
+            break;
+        }
+        send_ack(fw, in->type, in->sequence, 0);
+        if (in->type == CDRO_FRAME_SET_UWB) {
+            const cdro_set_uwb_t *u = &in->as.set_uwb;
+            fw->target_uwb[0] = u->uwb_channel;
+            fw->target_uwb[1] = u->uwb_rates;
+            fw->target_uwb[2] = u->uwb_plen;
+            fw->target_uwb[3] = u->uwb_gain;
+            fw->target_uwb[4] = u->range_protocol;
+            start_round(fw, CDRO_FW_ROUND_UWB_REMOTE);
+        } else {
+            start_round(fw, CDRO_FW_ROUND_DIAG);
+        }
+        break;
     case CDRO_FRAME_HELLO_REQUEST:
         /* A host that opens the link of a running device (it restarted; the device did not)
          * has seen neither the boot HELLO nor the node list: send both, so that it can keep
@@ -360,6 +426,8 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
     case CDRO_FRAME_ACK:
     case CDRO_FRAME_NACK:
     case CDRO_FRAME_ERROR:
+    case CDRO_FRAME_NODE_INFO:
+    case CDRO_FRAME_DIAG:
     case CDRO_FRAME_TYPE_NONE:
     default:
         send_nack(fw, in->type, in->sequence, CDRO_NACK_UNKNOWN_TYPE);
@@ -651,13 +719,249 @@ static void operate(cdro_fw_t *fw, uint32_t now_ms)
     }
 }
 
+/* ---- rounds: node settings, SET_UWB, DIAGNOSE ------------------------------------------------ */
+
+/* Reads node `index`'s firmware version and UWB settings (the own node locally) and reports them
+ * in NODE_INFO, with what differs from the own node. A remote node's HARDWARE_VER, read on the
+ * way, also tells the motion polls whether it has an accelerometer. */
+static void node_info_step(cdro_fw_t *fw, uint8_t index)
+{
+    cdro_fw_node_t *node = &fw->nodes[index];
+    uint8_t versions[2] = {0, 0}; /* FIRMWARE_VER, HARDWARE_VER */
+    uint8_t uwb[6] = {0, 0, 0, 0, 0, 0}; /* UWB_CHANNEL .. RANGE_PROTOCOL (XTALTRIM at [4] skipped) */
+    cdro_pozyx_status_t status;
+    cdro_frame_t frame;
+    cdro_node_info_t *info = &frame.as.node_info;
+    uint8_t i;
+    if (index == 0U) {
+        versions[0] = fw->pozyx_firmware;
+        status = cdro_pozyx_read(&fw->pozyx, POZYX_REG_UWB_CHANNEL, uwb, sizeof uwb);
+    } else {
+        status = cdro_pozyx_remote_read(&fw->pozyx, node->id, POZYX_REG_FIRMWARE_VER, versions, sizeof versions);
+        if (status == CDRO_POZYX_OK) {
+            const uint8_t tag = (uint8_t)((versions[1] >> POZYX_HW_TYPE_SHIFT) == POZYX_HW_TYPE_TAG);
+            node->flags = (uint8_t)(node->flags | CDRO_FW_NODE_KIND_KNOWN | (tag ? CDRO_FW_NODE_TAG : 0U));
+            status = cdro_pozyx_remote_read(&fw->pozyx, node->id, POZYX_REG_UWB_CHANNEL, uwb, sizeof uwb);
+        }
+    }
+    uwb[4] = uwb[5]; /* RANGE_PROTOCOL after the gain: the NODE_INFO order */
+    frame_init(&frame, CDRO_FRAME_NODE_INFO);
+    info->node_id = node->id;
+    info->result = status == CDRO_POZYX_OK ? CDRO_NODE_INFO_READ : CDRO_NODE_INFO_NO_ANSWER;
+    if (status == CDRO_POZYX_OK) {
+        info->pozyx_firmware = versions[0];
+        info->uwb_channel = uwb[0];
+        info->uwb_rates = uwb[1];
+        info->uwb_plen = uwb[2];
+        info->uwb_gain = uwb[3];
+        info->range_protocol = uwb[4];
+        if (index == 0U) {
+            memcpy(fw->own_uwb, uwb, CDRO_FW_UWB_SETTINGS);
+        }
+        for (i = 0; i < CDRO_FW_UWB_SETTINGS; ++i) {
+            if (uwb[i] != fw->own_uwb[i]) {
+                info->mismatch = (uint8_t)(info->mismatch | (1U << i)); /* CDRO_MISMATCH_* in this order */
+            }
+        }
+        if (!firmware_supported(versions[0])) {
+            info->mismatch = (uint8_t)(info->mismatch | CDRO_MISMATCH_FIRMWARE);
+        }
+    }
+    (void)cdro_link_send(&fw->link, &frame);
+}
+
+/* SET_UWB on remote node `index`: channel, rates and preamble (one write: the node switches at
+ * once and answers on the new settings, so no acknowledgement is heard unless they are its old
+ * ones), or, once the own node has switched, gain and protocol (acknowledged). */
+static void set_uwb_remote(cdro_fw_t *fw, uint8_t index, uint8_t round)
+{
+    const uint16_t id = fw->nodes[index].id;
+    if (round == CDRO_FW_ROUND_UWB_REMOTE) {
+        (void)cdro_pozyx_remote_write(&fw->pozyx, id, POZYX_REG_UWB_CHANNEL, fw->target_uwb, 3);
+    } else if (cdro_pozyx_remote_write(&fw->pozyx, id, POZYX_REG_UWB_GAIN, &fw->target_uwb[3], 1) == CDRO_POZYX_OK) {
+        (void)cdro_pozyx_remote_write(&fw->pozyx, id, POZYX_REG_RANGE_PROTOCOL, &fw->target_uwb[4], 1);
+    }
+}
+
+/* The own node: channel, rates, preamble, then the gain (a channel write resets it), then the
+ * protocol. Not saved to the Pozyx's flash: a power cycle restores the saved settings, which
+ * the next start reads and reports. */
+static void set_uwb_local(cdro_fw_t *fw)
+{
+    if (cdro_pozyx_write(&fw->pozyx, POZYX_REG_UWB_CHANNEL, fw->target_uwb, 3) == CDRO_POZYX_OK &&
+        cdro_pozyx_write(&fw->pozyx, POZYX_REG_UWB_GAIN, &fw->target_uwb[3], 1) == CDRO_POZYX_OK) {
+        (void)cdro_pozyx_write(&fw->pozyx, POZYX_REG_RANGE_PROTOCOL, &fw->target_uwb[4], 1);
+    }
+}
+
+static void send_diag(cdro_fw_t *fw, uint8_t item, cdro_pozyx_status_t status, uint16_t node_id, uint32_t a,
+                      uint32_t b, uint32_t c)
+{
+    cdro_frame_t frame;
+    frame_init(&frame, CDRO_FRAME_DIAG);
+    frame.as.diag.item = item;
+    frame.as.diag.status = (uint8_t)status;
+    frame.as.diag.node_id = node_id;
+    frame.as.diag.value_a = a;
+    frame.as.diag.value_b = b;
+    frame.as.diag.value_c = c;
+    (void)cdro_link_send(&fw->link, &frame);
+}
+
+/* The bench checklist (docs/firmware.md), one group of items per step, each step within one
+ * operation's bound: a remote-to-remote range R1 -> R2 traced (flags, result message, times), a
+ * local range to R1 timed, GETIDS with an offset, I2C transaction times against their wire time
+ * (clock stretching), then the accelerometer norm of each tag (group 4 + node index). Items that
+ * need nodes the list does not have report ERR_ARGUMENT. */
+static void diag_step(cdro_fw_t *fw, uint8_t group)
+{
+    cdro_pozyx_t *dev = &fw->pozyx;
+    cdro_pozyx_range_result_t range;
+    cdro_pozyx_status_t status = CDRO_POZYX_ERR_ARGUMENT;
+    const uint16_t r1 = fw->node_count >= 1U ? fw->nodes[1].id : 0U;
+    const uint16_t r2 = fw->node_count >= 2U ? fw->nodes[2].id : 0U;
+    memset(&range, 0, sizeof range);
+    if (group == 0U) {
+        cdro_pozyx_trace_t trace;
+        memset(&trace, 0, sizeof trace);
+        if (r2 != 0U) {
+            dev->trace = &trace;
+            status = cdro_pozyx_range_remote(dev, r1, r2, &range);
+            dev->trace = NULL;
+        }
+        send_diag(fw, CDRO_DIAG_REMOTE_FLAGS, status, r1, trace.flags_to_ack, trace.flags_to_result,
+                  trace.result_ms - trace.ack_ms);
+        send_diag(fw, CDRO_DIAG_RESULT_MESSAGE, status, r1, trace.result_length, trace.result_head, range.distance_mm);
+        send_diag(fw, CDRO_DIAG_REMOTE_TIME, status, r2, trace.done_ms - trace.send_ms, trace.ack_ms - trace.send_ms,
+                  trace.done_ms - trace.result_ms);
+    } else if (group == 1U) {
+        uint32_t start_ms = clock_ms(fw);
+        uint32_t func_ms = 0;
+        if (r1 != 0U) {
+            /* DO_RANGING to its FUNC, then the whole range (another ranging, GETRANGEINFO included). */
+            uint8_t id[2];
+            (void)cdro_put_u16(id, r1);
+            status = cdro_pozyx_clear_flags(dev);
+            if (status == CDRO_POZYX_OK) {
+                status = cdro_pozyx_call(dev, POZYX_FN_DO_RANGING, id, sizeof id, NULL, 0, NULL);
+            }
+            if (status == CDRO_POZYX_OK) {
+                status = cdro_pozyx_wait(dev, POZYX_INT_FUNC, CDRO_FW_RANGING_TIMEOUT_MS, POZYX_FN_DO_RANGING);
+            }
+            func_ms = clock_ms(fw) - start_ms;
+            start_ms = clock_ms(fw);
+            if (status == CDRO_POZYX_OK) {
+                status = cdro_pozyx_range(dev, r1, &range);
+            }
+        }
+        send_diag(fw, CDRO_DIAG_LOCAL_TIME, status, r1, func_ms, range.distance_mm, clock_ms(fw) - start_ms);
+    } else if (group == 2U) {
+        uint8_t size = 0;
+        uint8_t params[2] = {0, 2};
+        uint8_t first[4] = {0, 0, 0, 0};
+        uint8_t second[2] = {0, 0};
+        status = cdro_pozyx_read(dev, POZYX_REG_DEVICE_LIST_SIZE, &size, 1);
+        if (status == CDRO_POZYX_OK && size < 2U) {
+            status = CDRO_POZYX_ERR_ARGUMENT;
+        }
+        if (status == CDRO_POZYX_OK) {
+            status = cdro_pozyx_call(dev, POZYX_FN_DEVICES_GETIDS, params, 2, first, 4, NULL);
+        }
+        if (status == CDRO_POZYX_OK) {
+            params[0] = 1;
+            params[1] = 1;
+            status = cdro_pozyx_call(dev, POZYX_FN_DEVICES_GETIDS, params, 2, second, 2, NULL);
+        }
+        send_diag(fw, CDRO_DIAG_GETIDS_OFFSET, status, 0, size, cdro_get_u16(first + 2), cdro_get_u16(second));
+    } else if (group == 3U) {
+        uint32_t longest_read_us = 0;
+        uint32_t longest_call_us = 0;
+        uint8_t i;
+        status = CDRO_POZYX_OK;
+        for (i = 0; i < 8U && status == CDRO_POZYX_OK; ++i) {
+            uint8_t raw[POZYX_RANGEINFO_SIZE];
+            uint8_t id[2];
+            uint8_t flags = 0;
+            uint32_t start_us = clock_us(fw);
+            uint32_t took_us;
+            status = cdro_pozyx_read(dev, POZYX_REG_INT_STATUS, &flags, 1);
+            took_us = clock_us(fw) - start_us;
+            longest_read_us = took_us > longest_read_us ? took_us : longest_read_us;
+            (void)cdro_put_u16(id, r1 != 0U ? r1 : 1U);
+            start_us = clock_us(fw);
+            if (status == CDRO_POZYX_OK) {
+                status = cdro_pozyx_call(dev, POZYX_FN_DEVICE_GETRANGEINFO, id, sizeof id, raw, sizeof raw, NULL);
+            }
+            took_us = clock_us(fw) - start_us;
+            longest_call_us = took_us > longest_call_us ? took_us : longest_call_us;
+        }
+        /* The call on the wire: address, function, 2 parameter bytes; address, 11 bytes read;
+         * 9 clocks each, plus START, repeated START and STOP. */
+        send_diag(fw, CDRO_DIAG_I2C_TIMING, status, 0, longest_read_us, longest_call_us,
+                  (uint32_t)((16UL * 9UL + 3UL) * 1000000UL / CDRO_FW_I2C_CLOCK_HZ));
+    } else {
+        /* One node a step (a remote read can take its 300 ms timeout): the tags only. */
+        const uint8_t index = (uint8_t)(group - 4U);
+        const cdro_fw_node_t *node = &fw->nodes[index];
+        cdro_accel_t accel;
+        if ((node->flags & CDRO_FW_NODE_TAG) == 0U) {
+            return;
+        }
+        memset(&accel, 0, sizeof accel);
+        status = index == 0U ? cdro_pozyx_read_accel(dev, &accel) : cdro_pozyx_remote_read_accel(dev, node->id, &accel);
+        send_diag(fw, CDRO_DIAG_ACCEL, status, node->id, cdro_accel_norm_mg(&accel), (uint32_t)(int32_t)accel.z_mg, 0);
+    }
+}
+
+/* One step of the round under way: a node of NODE_INFO or SET_UWB, or a DIAGNOSE group. */
+static void round_step(cdro_fw_t *fw)
+{
+    const uint8_t at = fw->round_cursor++;
+    switch (fw->round) {
+    case CDRO_FW_ROUND_NODE_INFO:
+        if (at <= fw->node_count) {
+            node_info_step(fw, at);
+            return;
+        }
+        break;
+    case CDRO_FW_ROUND_UWB_REMOTE:
+    case CDRO_FW_ROUND_UWB_GAIN:
+        if (at < fw->node_count) {
+            set_uwb_remote(fw, (uint8_t)(at + 1U), fw->round);
+            return;
+        }
+        if (fw->round == CDRO_FW_ROUND_UWB_REMOTE) {
+            start_round(fw, CDRO_FW_ROUND_UWB_LOCAL);
+            return;
+        }
+        start_round(fw, CDRO_FW_ROUND_NODE_INFO); /* and report what every node has now */
+        return;
+    case CDRO_FW_ROUND_UWB_LOCAL:
+        set_uwb_local(fw);
+        start_round(fw, CDRO_FW_ROUND_UWB_GAIN);
+        return;
+    case CDRO_FW_ROUND_DIAG:
+        if (at < 4U + 1U + fw->node_count) { /* 4 groups, then each node (the tags' accelerometers) */
+            diag_step(fw, at);
+            return;
+        }
+        break;
+    default:
+        break;
+    }
+    fw->round = CDRO_FW_ROUND_NONE;
+}
+
 /* ---- the step -------------------------------------------------------------------------------- */
 
 static uint32_t next_wake(const cdro_fw_t *fw, uint32_t now_ms)
 {
     uint32_t next = fw->next_status_ms;
-    if (fw->state != CDRO_FW_STATE_READY || fw->link.dropped_unreported > 0U) {
+    if (fw->state != CDRO_FW_STATE_READY || fw->link.dropped_unreported > 0U || fw->round != CDRO_FW_ROUND_NONE) {
         return now_ms;
+    }
+    if (fw->pozyx_state == CDRO_FW_POZYX_ABSENT) {
+        next = earlier(now_ms, next, reached(now_ms, fw->next_identify_ms) ? now_ms : fw->next_identify_ms);
     }
     if (fw->running) {
         if (fw->node_count > 0U) {
@@ -685,7 +989,7 @@ uint32_t cdro_fw_step(cdro_fw_t *fw, uint32_t now_ms)
         if (!reached(now_ms, CDRO_FW_POZYX_BOOT_MS)) {
             return CDRO_FW_POZYX_BOOT_MS; /* the Pozyx needs this long after power-up */
         }
-        boot(fw, now_ms);
+        identify(fw, now_ms);
     } else if (fw->state == CDRO_FW_STATE_DISCOVERY) {
         discovery(fw);
     } else {
@@ -695,7 +999,17 @@ uint32_t cdro_fw_step(cdro_fw_t *fw, uint32_t now_ms)
             fw->next_status_ms = now_ms + fw->status_period_ms;
             send_status(fw, now_ms);
         }
-        operate(fw, now_ms);
+        /* At most one Pozyx operation a step: another identification try, a round's step, or
+         * ranging / motion. */
+        if (fw->pozyx_state == CDRO_FW_POZYX_ABSENT) {
+            if (reached(now_ms, fw->next_identify_ms)) {
+                identify(fw, now_ms);
+            }
+        } else if (fw->round != CDRO_FW_ROUND_NONE) {
+            round_step(fw);
+        } else {
+            operate(fw, now_ms);
+        }
     }
     next_ms = next_wake(fw, now_ms);
     elapsed_us = clock_us(fw) - start_us;

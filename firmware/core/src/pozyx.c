@@ -2,7 +2,8 @@
  * pozyx.c: the Pozyx I2C driver (see pozyx.h for the transaction shapes and error model).
  * Written from the register facts; shares no code with the Pozyx libraries and avoids their
  * known bugs: every transaction's result is checked, ERR is checked in every wait, remote
- * replies are matched by sender and length, and flags read while polling are kept.
+ * replies and the result message of a remote ranging are matched by sender and length, and
+ * flags read while polling are kept (and dropped where they cannot belong to what is awaited).
  */
 #include "cdro_fw/pozyx.h"
 
@@ -22,12 +23,29 @@ CDRO_FW_STATIC_ASSERT(POZYX_GETIDS_MAX_PER_CALL * 2 + 1 < CDRO_FW_I2C_MAX_TRANSF
 /* Largest remote payload: TX_DATA carries the offset byte before it. */
 #define MAX_REMOTE_PAYLOAD (MAX_CALL_BYTES - 1)
 
-static cdro_pozyx_status_t bus_failure(cdro_pozyx_t *dev, uint8_t target)
+/* A failed transaction: counted, and after a timeout (a slave holding the bus) the bus is
+ * cleared, so that the next transaction can work. */
+static cdro_pozyx_status_t bus_failure(cdro_pozyx_t *dev, uint8_t target, cdro_i2c_result_t result)
 {
     ++dev->bus_errors;
     dev->last_target = target;
     dev->bus_target = target;
+    if (result == CDRO_I2C_TIMEOUT && dev->ops->bus_recover != NULL) {
+        dev->ops->bus_recover(dev->user);
+        ++dev->bus_recoveries;
+    }
     return CDRO_POZYX_ERR_BUS;
+}
+
+/* Writes then reads (a repeated start between): the shape of a register read and a call. */
+static cdro_i2c_result_t write_read(cdro_pozyx_t *dev, const uint8_t *out, uint8_t out_length, uint8_t *in,
+                                    uint8_t in_length)
+{
+    cdro_i2c_result_t result = dev->ops->i2c_write(dev->user, dev->address, out, out_length, 0);
+    if (result == CDRO_I2C_OK) {
+        result = dev->ops->i2c_read(dev->user, dev->address, in, in_length);
+    }
+    return result;
 }
 
 void cdro_pozyx_init(cdro_pozyx_t *dev, const cdro_pozyx_ops_t *ops, void *user, uint8_t address)
@@ -48,9 +66,9 @@ cdro_pozyx_status_t cdro_pozyx_read(cdro_pozyx_t *dev, uint8_t reg, uint8_t *dat
         const uint8_t remaining = (uint8_t)(length - offset);
         const uint8_t chunk = remaining < CDRO_FW_I2C_MAX_TRANSFER ? remaining : CDRO_FW_I2C_MAX_TRANSFER;
         const uint8_t at = (uint8_t)(reg + offset);
-        if (dev->ops->i2c_write(dev->user, dev->address, &at, 1, 0) != CDRO_I2C_OK ||
-            dev->ops->i2c_read(dev->user, dev->address, data + offset, chunk) != CDRO_I2C_OK) {
-            return bus_failure(dev, at);
+        const cdro_i2c_result_t result = write_read(dev, &at, 1, data + offset, chunk);
+        if (result != CDRO_I2C_OK) {
+            return bus_failure(dev, at, result);
         }
         offset = (uint8_t)(offset + chunk);
     }
@@ -63,9 +81,12 @@ cdro_pozyx_status_t cdro_pozyx_write(cdro_pozyx_t *dev, uint8_t reg, const uint8
         return CDRO_POZYX_ERR_ARGUMENT;
     }
     /* The documented form: the register byte, a repeated start, then the data. */
-    if (dev->ops->i2c_write(dev->user, dev->address, &reg, 1, 0) != CDRO_I2C_OK ||
-        dev->ops->i2c_write(dev->user, dev->address, data, length, 1) != CDRO_I2C_OK) {
-        return bus_failure(dev, reg);
+    cdro_i2c_result_t result = dev->ops->i2c_write(dev->user, dev->address, &reg, 1, 0);
+    if (result == CDRO_I2C_OK) {
+        result = dev->ops->i2c_write(dev->user, dev->address, data, length, 1);
+    }
+    if (result != CDRO_I2C_OK) {
+        return bus_failure(dev, reg, result);
     }
     return CDRO_POZYX_OK;
 }
@@ -81,9 +102,12 @@ cdro_pozyx_status_t cdro_pozyx_call(cdro_pozyx_t *dev, uint8_t fn, const uint8_t
     if (params_length > 0U) {
         memcpy(buffer + 1, params, params_length);
     }
-    if (dev->ops->i2c_write(dev->user, dev->address, buffer, (uint8_t)(params_length + 1U), 0) != CDRO_I2C_OK ||
-        dev->ops->i2c_read(dev->user, dev->address, buffer, (uint8_t)(result_length + 1U)) != CDRO_I2C_OK) {
-        return bus_failure(dev, fn);
+    {
+        const cdro_i2c_result_t bus =
+            write_read(dev, buffer, (uint8_t)(params_length + 1U), buffer, (uint8_t)(result_length + 1U));
+        if (bus != CDRO_I2C_OK) {
+            return bus_failure(dev, fn, bus);
+        }
     }
     if (return_byte != NULL) {
         *return_byte = buffer[0];
@@ -115,6 +139,7 @@ cdro_pozyx_status_t cdro_pozyx_clear_flags(cdro_pozyx_t *dev)
     uint8_t flags = 0;
     const cdro_pozyx_status_t status = cdro_pozyx_read(dev, POZYX_REG_INT_STATUS, &flags, 1);
     dev->sticky_flags = 0;
+    dev->seen_flags = 0;
     return status;
 }
 
@@ -129,6 +154,7 @@ cdro_pozyx_status_t cdro_pozyx_wait(cdro_pozyx_t *dev, uint8_t flags, uint16_t t
             return status;
         }
         dev->sticky_flags = (uint8_t)(dev->sticky_flags | status_flags);
+        dev->seen_flags = (uint8_t)(dev->seen_flags | status_flags);
         if ((dev->sticky_flags & wanted) != 0U) {
             break;
         }
@@ -351,6 +377,34 @@ cdro_pozyx_status_t cdro_pozyx_remote_call(cdro_pozyx_t *dev, uint16_t id, uint8
     return status;
 }
 
+cdro_pozyx_status_t cdro_pozyx_remote_write(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, const uint8_t *data,
+                                            uint8_t length)
+{
+    uint8_t request[MAX_REMOTE_PAYLOAD];
+    uint16_t sender = 0;
+    uint8_t ignored = 0;
+    cdro_pozyx_status_t status;
+    if (length == 0U || length > MAX_REMOTE_PAYLOAD - 1U) {
+        return CDRO_POZYX_ERR_ARGUMENT;
+    }
+    request[0] = reg;
+    memcpy(request + 1, data, length);
+    status = remote_send(dev, id, POZYX_REMOTE_WRITE, request, (uint8_t)(length + 1U));
+    /* The acknowledgement is the flag; its length is not documented, so only the sender is
+     * checked. */
+    if (status == CDRO_POZYX_OK) {
+        status = cdro_pozyx_wait(dev, POZYX_INT_FUNC, CDRO_FW_REMOTE_REPLY_TIMEOUT_MS, POZYX_FN_TX_SEND);
+    }
+    if (status == CDRO_POZYX_OK) {
+        status = read_rx_header(dev, &sender, &ignored);
+    }
+    if (status == CDRO_POZYX_OK && sender != id) {
+        dev->last_target = POZYX_REG_RX_NETWORK_ID;
+        status = CDRO_POZYX_ERR_REPLY;
+    }
+    return status;
+}
+
 cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id, cdro_accel_t *accel)
 {
     uint8_t raw[6];
@@ -361,9 +415,10 @@ cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id,
     return status;
 }
 
-/* Waits for an unsolicited data message (RX_DATA) from `from`, ignoring other senders', up to
- * timeout_ms in all. */
-static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, uint16_t timeout_ms)
+/* Waits for the result message a remote DO_RANGING makes `from` send (RX_DATA): the one from
+ * `from` with CDRO_FW_REMOTE_RESULT_LENGTH bytes. Other nodes' messages and `from`'s
+ * reply-shaped ones (a late reply to an earlier request) are skipped, up to timeout_ms in all. */
+static cdro_pozyx_status_t wait_result_message(cdro_pozyx_t *dev, uint16_t from, uint16_t timeout_ms)
 {
     const uint32_t start_ms = dev->ops->now_ms(dev->user);
     for (;;) {
@@ -371,7 +426,7 @@ static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, u
         uint8_t length = 0;
         const uint16_t left_ms = remaining_ms(dev, start_ms, timeout_ms);
         cdro_pozyx_status_t status;
-        if (left_ms == 0U) { /* a stream of other nodes' messages cannot extend the wait */
+        if (left_ms == 0U) { /* a stream of other messages cannot extend the wait */
             ++dev->timeouts;
             dev->last_target = POZYX_FN_DO_RANGING;
             dev->timeout_target = POZYX_FN_DO_RANGING;
@@ -381,15 +436,19 @@ static cdro_pozyx_status_t wait_message_from(cdro_pozyx_t *dev, uint16_t from, u
         if (status == CDRO_POZYX_OK) {
             status = read_rx_header(dev, &sender, &length);
         }
-        if (status != CDRO_POZYX_OK || sender == from) {
+        if (dev->trace != NULL && status == CDRO_POZYX_OK && sender == from) {
+            dev->trace->result_length = length;
+        }
+        if (status != CDRO_POZYX_OK || (sender == from && length == CDRO_FW_REMOTE_RESULT_LENGTH)) {
             return status;
         }
-        /* Another node's message: not ours, keep waiting for the rest of the time. */
+        /* Not the result message: keep waiting for the rest of the time. */
     }
 }
 
 cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to, cdro_pozyx_range_result_t *out)
 {
+    cdro_pozyx_trace_t *const trace = dev->trace;
     uint8_t id[2];
     uint8_t raw[POZYX_RANGEINFO_SIZE];
     cdro_pozyx_status_t status;
@@ -397,15 +456,42 @@ cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, ui
         return CDRO_POZYX_ERR_ARGUMENT;
     }
     (void)cdro_put_u16(id, to);
+    if (trace != NULL) {
+        memset(trace, 0, sizeof(*trace));
+        trace->send_ms = dev->ops->now_ms(dev->user);
+    }
     /* 1. `from` accepts DO_RANGING(to) (its 1-byte reply must be 1). */
     status = cdro_pozyx_remote_call(dev, from, POZYX_FN_DO_RANGING, id, sizeof id, NULL, 0);
-    /* 2. `from` ranges with `to`, then sends its result message. */
-    if (status == CDRO_POZYX_OK) {
-        status = wait_message_from(dev, from, CDRO_FW_REMOTE_RESULT_TIMEOUT_MS);
+    if (trace != NULL) {
+        trace->ack_ms = dev->ops->now_ms(dev->user);
+        trace->flags_to_ack = dev->seen_flags;
+        dev->seen_flags = 0;
     }
-    /* 3. The stored result, read with a remote GETRANGEINFO(to) on `from`. */
+    /* 2. `from` ranges with `to` only after it has acknowledged, then sends its result message.
+     * An RX_DATA seen up to the acknowledgement cannot be that message: it is the
+     * acknowledgement itself (the device may raise RX_DATA with FUNC for a reply) or a late
+     * message of an earlier attempt. Dropped, or the wait below would end at once and step 3
+     * would read the range `from` stored before, while it is still ranging. */
+    dev->sticky_flags = (uint8_t)(dev->sticky_flags & (uint8_t)~POZYX_INT_RX_DATA);
+    if (status == CDRO_POZYX_OK) {
+        status = wait_result_message(dev, from, CDRO_FW_REMOTE_RESULT_TIMEOUT_MS);
+    }
+    if (trace != NULL) {
+        uint8_t head[4] = {0, 0, 0, 0};
+        trace->result_ms = dev->ops->now_ms(dev->user);
+        trace->flags_to_result = dev->seen_flags;
+        if (status == CDRO_POZYX_OK) {
+            status = read_rx_buffer(dev, head, sizeof head);
+            trace->result_head = cdro_get_u32(head);
+        }
+    }
+    /* 3. The stored result, read with a remote GETRANGEINFO(to) on `from`: never before the
+     * result message says that `from` has finished ranging. */
     if (status == CDRO_POZYX_OK) {
         status = cdro_pozyx_remote_call(dev, from, POZYX_FN_DEVICE_GETRANGEINFO, id, sizeof id, raw, sizeof raw);
+    }
+    if (trace != NULL) {
+        trace->done_ms = dev->ops->now_ms(dev->user);
     }
     if (status == CDRO_POZYX_OK) {
         status = parse_range(dev, raw, out);
@@ -461,7 +547,19 @@ cdro_pozyx_status_t cdro_pozyx_discover(cdro_pozyx_t *dev, uint16_t *ids, uint8_
             return status;
         }
         for (i = 0; i < count; ++i) {
-            ids[offset + i] = cdro_get_u16(raw + 2U * i);
+            const uint16_t id = cdro_get_u16(raw + 2U * i);
+            uint8_t j;
+            /* A page after the first must hold new, non-zero ids: a device that ignored the
+             * offset repeats the first page. Its ids from here on are unknown: stop. */
+            for (j = 0; j < offset + i && offset > 0U; ++j) {
+                if (ids[j] == id) {
+                    return CDRO_POZYX_OK;
+                }
+            }
+            if (offset > 0U && id == 0U) {
+                return CDRO_POZYX_OK;
+            }
+            ids[offset + i] = id;
         }
         offset = (uint8_t)(offset + count);
         *found = offset;

@@ -50,7 +50,7 @@ void quietLogger(avr_t *, const int level, const char *format, va_list args)
 
 } // namespace
 
-uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol)
+uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol, bool any_type)
 {
     if (elf_version(EV_CURRENT) == EV_NONE) {
         throw BoardError("libelf is too old");
@@ -71,7 +71,8 @@ uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol
         const size_t count = header.sh_size / header.sh_entsize;
         for (size_t i = 0; data != nullptr && i < count; ++i) {
             GElf_Sym sym;
-            if (gelf_getsym(data, static_cast<int>(i), &sym) == nullptr || GELF_ST_TYPE(sym.st_info) != STT_FUNC) {
+            if (gelf_getsym(data, static_cast<int>(i), &sym) == nullptr ||
+                (!any_type && GELF_ST_TYPE(sym.st_info) != STT_FUNC)) {
                 continue;
             }
             const char *name = elf_strptr(elf, header.sh_link, sym.st_name);
@@ -101,6 +102,8 @@ AvrBoard::AvrBoard(const BoardOptions &options, World &world)
                          "); build it with the AVR toolchain (docs/firmware.md, Building)");
     }
     loop_pc_ = elfSymbolAddress(options.elf_path, options.loop_symbol);
+    // AVR .elf data addresses carry the 0x800000 data-space offset.
+    static_end_ = static_cast<uint16_t>(elfSymbolAddress(options.elf_path, "_end", true) & 0xFFFFU);
     avr_global_logger_set(quietLogger);
 
     elf_firmware_t firmware;
@@ -319,6 +322,10 @@ AvrBoard::State AvrBoard::runUntil(uint64_t until_cycles)
             cycle_base_ += last_cycle_; // simavr restarted its count: a reset
         }
         last_cycle_ = avr_->cycle;
+        const uint16_t sp = static_cast<uint16_t>(avr_->data[R_SPL] | (avr_->data[R_SPH] << 8));
+        if (sp < lowest_sp_ && avr_->pc != 0) {
+            lowest_sp_ = sp;
+        }
         if (avr_->pc == loop_pc_) {
             onLoopEntry();
         } else if (avr_->pc == 0 && cycles() > 0) {
@@ -363,6 +370,27 @@ void AvrBoard::report(nlohmann::ordered_json &out) const
         {"histogram", histogram},
     };
     out["avr_resets"] = resets_;
+    // Static RAM and the stack's worst case over the run: bytes between the end of the static
+    // data and the lowest stack pointer (interrupts included, every instruction watched), and
+    // the firmware's own painted low-water mark (STATUS free_ram_bytes) read from outside.
+    out["stack"] = {
+        {"ram_end", avr_->ramend},
+        {"static_end", static_end_},
+        {"lowest_sp", lowest_sp_},
+        {"deepest_bytes", avr_->ramend - lowest_sp_},
+        {"headroom_bytes", lowest_sp_ >= static_end_ ? lowest_sp_ - static_end_ + 1 : 0},
+        {"painted_free_bytes", paintedFreeBytes()},
+    };
+}
+
+uint16_t AvrBoard::paintedFreeBytes() const
+{
+    constexpr uint8_t kPaint = 0xC5; // cdro_arduino.cpp's CDRO_STACK_PAINT
+    uint16_t free_bytes = 0;
+    for (uint32_t a = static_end_; a <= avr_->ramend && avr_->data[a] == kPaint; ++a) {
+        ++free_bytes;
+    }
+    return free_bytes;
 }
 
 } // namespace cdro::fil

@@ -33,7 +33,8 @@ struct BoardOptions {
 };
 
 // The address of a function symbol in an AVR .elf (bytes, as simavr's PC); throws BoardError.
-uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol);
+// With any_type, any symbol (e.g. the linker's `_end`), its value as the .elf has it.
+uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol, bool any_type = false);
 
 class AvrBoard {
   public:
@@ -81,6 +82,7 @@ class AvrBoard {
     void armFeed();
     uint64_t cyclesPerRxByte() const;
     void onLoopEntry();
+    uint16_t paintedFreeBytes() const;
 
     World &world_;
     avr_t *avr_ = nullptr;
@@ -112,6 +114,10 @@ class AvrBoard {
     uint64_t loop_histogram_[24] = {}; // iterations by log2 of their length in us
     uint64_t resets_ = 0;
     std::string loop_symbol_;
+
+    // stack: the lowest stack pointer after any instruction, against the end of the static data
+    uint16_t static_end_ = 0;   // first byte after .data/.bss/.noinit (the linker's _end)
+    uint16_t lowest_sp_ = 0xFFFF;
 };
 
 } // namespace cdro::fil

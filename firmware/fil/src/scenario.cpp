@@ -18,7 +18,7 @@ namespace {
 
 const char *const kFaultNames[kFaultKindCount] = {
     "nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
-    "stale_range",  "drop_remote_reply", "refuse_function", "power_off"};
+    "stale_range",  "drop_remote_reply", "refuse_function", "late_reply", "power_off"};
 
 std::string where(const YAML::Node &node, const std::string &origin)
 {
@@ -375,7 +375,29 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                          [](const FaultSpec &a, const FaultSpec &b) { return a.at_s < b.at_s; });
     }
 
-    // ---- models
+    // ---- models (the Pozyx model first: the UWB timings default to its own)
+    if (top.has("pozyx")) {
+        Map p(top.get("pozyx"), "pozyx", origin);
+        s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i", s.pozyx_who_am_i, 0, 255));
+        s.pozyx_firmware_version = static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
+        const std::string model = p.string("model", "realistic");
+        if (model != "realistic" && model != "ideal") {
+            p.fail(p.get("model"), "model", "'" + model + "' is not one of: realistic, ideal");
+        }
+        s.pozyx_realistic = model == "realistic";
+        p.finish();
+    }
+    {
+        pozyx_sim_config_t model;
+        if (s.pozyx_realistic) {
+            pozyx_sim_config_realistic(&model);
+        } else {
+            pozyx_sim_config_default(&model);
+        }
+        s.uwb.ranging_us = model.ranging_duration_us;
+        s.uwb.message_us = model.uwb_message_us;
+        s.uwb.processing_us = model.remote_processing_us;
+    }
     if (top.has("uwb")) {
         Map u(top.get("uwb"), "uwb", origin);
         s.uwb.noise_std_mm = u.number("noise_std_mm", s.uwb.noise_std_mm, 0.0, 10000.0);
@@ -392,12 +414,6 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
         s.accel.moving_amplitude_mg = a.number("moving_amplitude_mg", s.accel.moving_amplitude_mg, 0.0, 15000.0);
         s.accel.moving_frequency_hz = a.number("moving_frequency_hz", s.accel.moving_frequency_hz, 0.01, 50.0);
         a.finish();
-    }
-    if (top.has("pozyx")) {
-        Map p(top.get("pozyx"), "pozyx", origin);
-        s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i", s.pozyx_who_am_i, 0, 255));
-        s.pozyx_firmware_version = static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
-        p.finish();
     }
     top.finish();
     return s;

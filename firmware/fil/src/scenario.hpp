@@ -47,10 +47,11 @@ enum class FaultKind {
     StaleRange,      // the next `count` rangings report success but store nothing new
     DropRemoteReply, // the next `count` replies to remote requests are lost
     RefuseFunction,  // the next `count` function calls return 0
+    LateReply,       // the next `count` replies / result messages arrive 400 ms late
     PowerOff,        // `node` is off (silent on UWB; the local one also on I2C) for duration_s
 };
 
-constexpr int kFaultKindCount = 9;
+constexpr int kFaultKindCount = 10;
 
 const char *faultKindName(FaultKind kind);
 
@@ -63,12 +64,14 @@ struct FaultSpec {
     double duration_s = 0.0;     // power_off
 };
 
+// The timings default to those of the Pozyx model in use (pozyx.model): realistic 40000 /
+// 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
 struct UwbSpec {
     double noise_std_mm = 30.0;      // Gaussian noise of each distance
     double bias_mm = 0.0;            // added to every distance
     double max_range_m = 50.0;       // longer links fail
-    uint32_t ranging_us = 15000;     // one two-way ranging exchange
-    uint32_t message_us = 3000;      // one UWB message on air, turnaround included
+    uint32_t ranging_us = 40000;     // one two-way ranging exchange
+    uint32_t message_us = 3500;      // one UWB message on air, turnaround included
     uint32_t processing_us = 1000;   // a remote node's handling of a request
 };
 
@@ -92,6 +95,9 @@ struct Scenario {
     AccelSpec accel;
     uint8_t pozyx_who_am_i = 0x43;       // another value: the firmware reports POZYX_ABSENT
     uint8_t pozyx_firmware_version = 0x11;
+    // The real device's behaviour (pozyx_sim_config_realistic: replies that raise RX_DATA with
+    // FUNC, busy nodes, collisions, boot time, the real timings) or the ideal model.
+    bool pozyx_realistic = true;
 
     const NodeSpec *node(uint16_t id) const;
 };

@@ -129,7 +129,11 @@ pozyx_sim_vec3_t Track::accelFn(void *context, double t_s)
 World::World(const Scenario &scenario) : scenario_(scenario), sim_(std::make_unique<pozyx_sim_t>())
 {
     pozyx_sim_config_t config;
-    pozyx_sim_config_default(&config);
+    if (scenario_.pozyx_realistic) {
+        pozyx_sim_config_realistic(&config);
+    } else {
+        pozyx_sim_config_default(&config);
+    }
     config.seed = scenario_.seed;
     config.who_am_i = scenario_.pozyx_who_am_i;
     config.firmware_version = scenario_.pozyx_firmware_version;
@@ -186,6 +190,7 @@ uint32_t *World::counterOf(FaultKind kind)
     case FaultKind::StaleRange: return &f.stale_range;
     case FaultKind::DropRemoteReply: return &f.drop_remote_reply;
     case FaultKind::RefuseFunction: return &f.refuse_function;
+    case FaultKind::LateReply: return &f.late_reply;
     case FaultKind::PowerOff: return nullptr;
     }
     return nullptr;
@@ -459,6 +464,13 @@ void World::report(nlohmann::ordered_json &out, double simulated_s) const
         {"remote_requests", st.remote_requests},
         {"messages_delivered", st.messages_delivered},
         {"protocol_violations", st.protocol_violations},
+    };
+    out["pozyx_model"] = {
+        {"model", scenario_.pozyx_realistic ? "realistic" : "ideal"},
+        {"collisions", st.collisions},
+        {"busy_losses", st.busy_losses},
+        {"boot_refusals", st.boot_refusals},
+        {"list_full_errors", st.list_full_errors},
     };
     // When each node was carried: back-to-back legs make one stretch.
     json motion = json::array();

@@ -43,10 +43,7 @@ public:
             port_->Open(path);
         } catch (const std::exception &e) {
             if (error != nullptr) {
-                // LibSerial's messages can be vague ("Bad file descriptor" for a missing
-                // device); say what the path looks like instead when it is not there.
-                struct stat st {};
-                *error = ::stat(path.c_str(), &st) != 0 ? std::string(std::strerror(errno)) : std::string(e.what());
+                *error = openFailureReason(path, e.what());
             }
             close();
             return -1;
@@ -105,6 +102,27 @@ private:
 
 std::unique_ptr<SerialDevice> makeLibSerialDevice() { return std::make_unique<LibSerialDevice>(); }
 
+std::string openFailureReason(const std::string &path, const std::string &fallback)
+{
+    const int fd = ::open(path.c_str(), O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    if (fd >= 0) {
+        ::close(fd);
+        return fallback;
+    }
+    switch (errno) {
+    case EACCES:
+    case EPERM:
+        return "permission denied (add yourself to the dialout group: sudo usermod -aG dialout $USER, then log in "
+               "again; or install config/udev/99-cdro-pozyx.rules)";
+    case ENOENT:
+        return "no such device (is the board plugged in? ls /dev/ttyACM* /dev/ttyUSB*)";
+    case EBUSY:
+        return "device busy (another program has it open?)";
+    default:
+        return std::strerror(errno);
+    }
+}
+
 int configureLibSerialPort(LibSerial::SerialPort &port, uint32_t baud, std::string *error)
 {
     const BaudEntry *entry = std::find_if(std::begin(kBauds), std::end(kBauds),
@@ -161,7 +179,7 @@ bool isSupportedBaud(uint32_t baud)
 SerialLink::SerialLink(EventLoop &loop, const SerialConfig &config, Listener &listener, ServiceCounters &counters,
                        std::unique_ptr<SerialDevice> device)
     : loop_(loop), config_(config), listener_(listener), counters_(counters), device_(std::move(device)),
-      backoff_us_(secondsToUs(config.reconnect_min_s))
+      backoff_us_(secondsToUs(config.reconnect_min_s)), diagnostics_(config.device, config.baud)
 {
     if (!isSupportedBaud(config_.baud)) {
         throw ConfigError("serial.baud: " + std::to_string(config_.baud) +
@@ -188,6 +206,10 @@ void SerialLink::shutdown()
     if (retry_timer_ != 0) {
         loop_.cancelTimer(retry_timer_);
         retry_timer_ = 0;
+    }
+    if (verdict_timer_ != 0) {
+        loop_.cancelTimer(verdict_timer_);
+        verdict_timer_ = 0;
     }
     if (fd_ >= 0) {
         loop_.unwatchFd(fd_);
@@ -222,6 +244,7 @@ void SerialLink::tryOpen()
     failed_opens_in_a_row_ = 0;
     fd_ = fd;
     out_queue_.clear();
+    diagnostics_.reset(loop_.clock().monotonicUs());
     ++counters_.link_connects;
     log()->info("serial: opened {} at {} bit/s, raw 8N1", config_.device, config_.baud);
     loop_.watchFd(fd_, POLLIN, [this](short revents) { onEvents(revents); });
@@ -249,6 +272,10 @@ void SerialLink::goDown(const std::string &reason)
     device_->close();
     fd_ = -1;
     out_queue_.clear();
+    if (verdict_timer_ != 0) {
+        loop_.cancelTimer(verdict_timer_);
+        verdict_timer_ = 0;
+    }
     ++counters_.link_disconnects;
     failed_opens_in_a_row_ = 1; // the coming retries are part of this outage: log it once
     log()->warn("serial: lost {}: {}; keeping the map, retrying with backoff", config_.device, reason);
@@ -278,6 +305,14 @@ void SerialLink::onEvents(short revents)
             const ssize_t n = ::read(fd_, buffer, sizeof buffer);
             if (n > 0) {
                 counters_.bytes_received += static_cast<uint64_t>(n);
+                const bool first = !diagnostics_.sawFirstByte();
+                diagnostics_.onBytes(buffer, static_cast<size_t>(n), loop_.clock().monotonicUs());
+                if (first) { // the verdict on what the port streams, kVerdictUs after its first byte
+                    verdict_timer_ = loop_.addTimerAfter(LinkDiagnostics::kVerdictUs, [this] {
+                        verdict_timer_ = 0;
+                        (void)diagnostics_.check(loop_.clock().monotonicUs());
+                    });
+                }
                 listener_.onLinkBytes(buffer, static_cast<size_t>(n), loop_.clock().unixUs());
                 if (fd_ < 0) {
                     return; // the listener closed the link

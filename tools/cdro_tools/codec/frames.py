@@ -177,6 +177,10 @@ def decode_frame(chunk: bytes) -> Frame:
     return frame
 
 
+# UWB_PLEN codes (register facts 2.4): 64, 128, 256, 512, 1024, 1536, 2048, 4096 symbols.
+UWB_PREAMBLE_CODES = (0x04, 0x14, 0x24, 0x34, 0x08, 0x18, 0x28, 0x0C)
+
+
 def _node_ids_valid(ids: list[int]) -> bool:
     return all(i != 0 for i in ids) and len(set(ids)) == len(ids)
 
@@ -203,6 +207,14 @@ def validate_frame(frame: Frame) -> None:
         ok = f["code"] != 0
     elif t == "SET_NODES":
         ok = _node_ids_valid(f["node_ids"])
+    elif t == "NODE_INFO":
+        ok = f["node_id"] != 0 and f["result"] <= C["CDRO_NODE_INFO_NO_ANSWER"] and f["mismatch"] <= 0x3F
+    elif t == "DIAG":
+        ok = C["CDRO_DIAG_REMOTE_FLAGS"] <= f["item"] <= C["CDRO_DIAG_ACCEL"]
+    elif t == "SET_UWB":
+        ok = (f["uwb_channel"] in (1, 2, 3, 4, 5, 7) and (f["uwb_rates"] & 0x3F) <= 2
+              and 1 <= (f["uwb_rates"] >> 6) <= 2 and f["uwb_plen"] in UWB_PREAMBLE_CODES
+              and f["uwb_gain"] <= 67 and f["range_protocol"] <= 1)
     elif t == "SET_SCHEDULE":
         ok = (f["mode"] <= C["CDRO_SCHEDULE_ALL_PAIRS"] and 1 <= f["moving_boost"] <= 8
               and 100 <= f["status_period_ms"] <= 60000 and f["max_retries"] <= 10

@@ -149,7 +149,7 @@ class SimDevice:
             "device_time_ms": self.device_ms(), "firmware_version": self.spec.firmware_version,
             "protocol_version": PROTOCOL_VERSION, "layout_hash": LAYOUT_HASH, "node_id": self.node_id,
             "capabilities": self.capabilities(), "pozyx_firmware": self.spec.pozyx_firmware if self.spec.pozyx_present else 0,
-            "max_nodes": self.spec.max_nodes, "reset_cause": self.reset_cause})
+            "max_nodes": self.spec.max_nodes, "reset_cause": self.reset_cause, "pozyx_tries": 1})
 
     def _boot_step(self, step: str) -> None:
         if step == "hello":
@@ -272,7 +272,7 @@ class SimDevice:
     def _status(self) -> None:
         fields = {"uptime_ms": self.device_ms(), **self.counters, "longest_loop_us": self.longest_step_us,
                   "free_ram_bytes": self.spec.free_ram_bytes, "running": int(self.running),
-                  "node_count": len(self.nodes)}
+                  "node_count": len(self.nodes), "bus_recoveries": 0}
         self.next_status_us = self.now_us + self.schedule.status_period_ms * 1000
         self._send("STATUS", fields)
         self.longest_step_us = 0
@@ -475,6 +475,9 @@ class SimDevice:
             self.running = False
         elif frame.type == "PING":
             self._ack(frame, f["nonce"])
+        elif frame.type in ("SET_UWB", "DIAGNOSE"):
+            # No Pozyx settings to set or bench items to measure (no CDRO_CAP_POZYX_SETUP).
+            return self._nack(frame, "UNKNOWN_TYPE")
         elif frame.type == "HELLO_REQUEST":
             # A host that opened the link of a running device has seen neither the boot HELLO
             # nor the node list: both again (docs/protocol.md, "Commands").

@@ -53,20 +53,37 @@
 
 #define CDRO_FW_POZYX_I2C_ADDRESS 0x4B /* 7-bit; 0x4A with the "I2C LSB" pads bridged */
 
+/* Standard mode, as the reference library runs it (it never sets the clock: Wire's 100 kHz).
+ * The Pozyx supports 400 kHz too (-DCDRO_FW_I2C_CLOCK_HZ=400000UL); 100 kHz is the one known
+ * to work with the shield's pull-ups and the Pozyx's clock stretching. */
 #ifndef CDRO_FW_I2C_CLOCK_HZ
-#define CDRO_FW_I2C_CLOCK_HZ 400000UL /* Pozyx supports fast mode */
+#define CDRO_FW_I2C_CLOCK_HZ 100000UL
 #endif
 
 /* The AVR Wire library buffers 32 bytes per transaction and direction. */
 #define CDRO_FW_I2C_MAX_TRANSFER 32
 
-/* Wire's per-transaction timeout (clock stretching or a stuck bus); the TWI unit is reset. */
+/* Wire's timeout: it covers a whole transfer (a 32-byte read at 100 kHz takes 3 ms) and the
+ * Pozyx's clock stretching, so it must be generous; after it the driver clears the bus
+ * (cdro_pozyx_ops_t.bus_recover) and counts it. At least 25 ms. */
 #ifndef CDRO_FW_I2C_TIMEOUT_US
-#define CDRO_FW_I2C_TIMEOUT_US 10000UL
+#define CDRO_FW_I2C_TIMEOUT_US 25000UL
 #endif
 
 /* Wait after power-up before the first access to the Pozyx. */
 #define CDRO_FW_POZYX_BOOT_MS 250U
+
+/* A Pozyx that did not answer (or answered with a wrong WHO_AM_I) is asked again after
+ * 500 ms, then after twice as long each time, up to 8 s, for ever: a Pozyx that boots slower
+ * (or is plugged in later) is found without a reset. Each try is reported. */
+#define CDRO_FW_IDENTIFY_RETRY_MS 500U
+#define CDRO_FW_IDENTIFY_RETRY_MAX_MS 8000U
+
+/* Pozyx firmware versions (FIRMWARE_VER, major << 4 | minor) this driver can drive: from 1.0
+ * (before it the function map differs: 0xC0 was GETRANGEINFO) to 1.2 (1.3 changed how remote
+ * results are handled, register facts 2.2). Others are refused (ERROR POZYX_FIRMWARE). */
+#define CDRO_FW_POZYX_FIRMWARE_MIN 0x10U
+#define CDRO_FW_POZYX_FIRMWARE_MAX 0x12U
 
 /* Interval between two INT_STATUS reads while waiting for a Pozyx operation. */
 #define CDRO_FW_POLL_INTERVAL_MS 1U
@@ -86,6 +103,14 @@
 /* The unsolicited result message a remote node sends after a remote DO_RANGING (RX_DATA). */
 #ifndef CDRO_FW_REMOTE_RESULT_TIMEOUT_MS
 #define CDRO_FW_REMOTE_RESULT_TIMEOUT_MS 100U
+#endif
+
+/* Length of that result message. Inferred (register facts 4.3: pypozyx decodes a 4-byte message
+ * from the ranging node as the distance); the bench checklist of docs/firmware.md checks it on
+ * the first real boards. The driver takes only a message of this length from the ranging node
+ * as its result. */
+#ifndef CDRO_FW_REMOTE_RESULT_LENGTH
+#define CDRO_FW_REMOTE_RESULT_LENGTH 4U
 #endif
 
 /* Discovery: DEVICES_DISCOVER(all, slots, slot duration); completion within
@@ -135,6 +160,7 @@
 #define CDRO_FW_STATIC_ASSERT(cond, name) typedef char cdro_fw_static_assert_##name[(cond) ? 1 : -1]
 
 CDRO_FW_STATIC_ASSERT(CDRO_FW_MAX_REMOTE_NODES >= 1, at_least_one_remote_node);
+CDRO_FW_STATIC_ASSERT(CDRO_FW_I2C_TIMEOUT_US >= 25000UL, wire_timeout_covers_a_transfer_and_stretching);
 CDRO_FW_STATIC_ASSERT(CDRO_FW_MAX_REMOTE_NODES <= CDRO_MAX_NODES, node_list_fits_the_protocol);
 CDRO_FW_STATIC_ASSERT(CDRO_FW_MAX_NODES <= 32, moving_mask_fits_uint32);
 CDRO_FW_STATIC_ASSERT(CDRO_FW_MAX_PAIRS <= 254, pair_index_fits_uint8);

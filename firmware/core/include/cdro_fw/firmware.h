@@ -66,6 +66,28 @@ typedef enum cdro_fw_state {
     CDRO_FW_STATE_READY = 2      /* answering commands; ranging after START */
 } cdro_fw_state_t;
 
+/* What identifying the own Pozyx found (cdro_fw_t.pozyx_state). Only OK ranges. */
+typedef enum cdro_fw_pozyx_state {
+    CDRO_FW_POZYX_ABSENT = 0,      /* not tried yet, silent, or a wrong WHO_AM_I: tried again with backoff */
+    CDRO_FW_POZYX_OK = 1,          /* identified, self-test passed, a firmware this build drives */
+    CDRO_FW_POZYX_SELF_TEST = 2,   /* its self-test failed (ERROR SELF_TEST) */
+    CDRO_FW_POZYX_FIRMWARE = 3     /* a firmware this build cannot drive (ERROR POZYX_FIRMWARE) */
+} cdro_fw_pozyx_state_t;
+
+/* A round of Pozyx work outside ranging (cdro_fw_t.round), one node or item per step, before
+ * any ranging or motion poll. */
+typedef enum cdro_fw_round {
+    CDRO_FW_ROUND_NONE = 0,
+    CDRO_FW_ROUND_NODE_INFO = 1,  /* reading every node's firmware and UWB settings (NODE_INFO) */
+    CDRO_FW_ROUND_UWB_REMOTE = 2, /* SET_UWB: writing channel, rates, preamble on each remote node */
+    CDRO_FW_ROUND_UWB_LOCAL = 3,  /* ... then on the own node, with the gain and the protocol */
+    CDRO_FW_ROUND_UWB_GAIN = 4,   /* ... then gain and protocol on each remote node (same settings now) */
+    CDRO_FW_ROUND_DIAG = 5        /* DIAGNOSE: the bench checklist, one DIAG item group per step */
+} cdro_fw_round_t;
+
+/* The UWB settings registers in NODE_INFO order: channel, rates, preamble, gain, protocol. */
+#define CDRO_FW_UWB_SETTINGS 5
+
 typedef struct cdro_fw_counters {
     uint32_t ranges_ok_direct;
     uint32_t ranges_ok_remote;
@@ -93,7 +115,12 @@ typedef struct cdro_fw {
 
     uint8_t state;          /* cdro_fw_state_t */
     uint8_t running;        /* 1 after START */
-    uint8_t pozyx_ok;       /* identity and self-test passed */
+    uint8_t pozyx_state;    /* cdro_fw_pozyx_state_t */
+    uint8_t pozyx_tries;    /* identification tries so far (HELLO.pozyx_tries), saturating */
+    uint8_t round;          /* cdro_fw_round_t */
+    uint8_t round_cursor;   /* the node (0 = own) or item group the round does next */
+    uint8_t own_uwb[CDRO_FW_UWB_SETTINGS];    /* the own node's settings, as NODE_INFO compares */
+    uint8_t target_uwb[CDRO_FW_UWB_SETTINGS]; /* SET_UWB's settings while its rounds run */
     uint8_t node_count;     /* remote nodes */
     uint8_t node_source;    /* CDRO_NODE_SOURCE_* of the node list (sent again after HELLO_REQUEST) */
     uint8_t reset_cause;
@@ -103,6 +130,7 @@ typedef struct cdro_fw {
     uint8_t poll_cursor;    /* next node of the motion round; > node_count: no round running */
     uint8_t last_op_was_poll;
 
+    uint32_t next_identify_ms;   /* device time of the next identification try (ABSENT) */
     uint32_t next_slot_ms;       /* device time the next slot may start */
     uint32_t next_poll_round_ms; /* device time the next motion round may start */
     uint32_t next_status_ms;     /* device time of the next STATUS */

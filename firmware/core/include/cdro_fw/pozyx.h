@@ -18,7 +18,8 @@
  * leaves the reason in the device struct (the register or function concerned, the Pozyx
  * ERRORCODE after an ERR) and counts bus errors and timeouts. No call allocates; no call blocks
  * longer than its documented timeout plus the I2C time of its polling (Wire's own timeout,
- * CDRO_FW_I2C_TIMEOUT_US, bounds a stuck bus).
+ * CDRO_FW_I2C_TIMEOUT_US, bounds a stuck bus; after one the driver has the bus cleared through
+ * ops->bus_recover and counts it).
  */
 #ifndef CDRO_FW_POZYX_H
 #define CDRO_FW_POZYX_H
@@ -46,6 +47,9 @@ typedef enum cdro_i2c_result {
  *              STOP. length <= 32.
  *   delay_ms:  waits (on the Arduino: delay(); in the simulation: advances simulated time).
  *   now_ms, now_us: free-running clocks, wrapping; only differences are used.
+ *   bus_recover: after a transaction timed out (a slave holding SDA or SCL low): frees the bus
+ *              (on the Arduino: clocks SCL until SDA is released, a STOP, the TWI restarted).
+ *              May be NULL.
  */
 typedef struct cdro_pozyx_ops {
     cdro_i2c_result_t (*i2c_write)(void *user, uint8_t address, const uint8_t *data, uint8_t length,
@@ -54,6 +58,7 @@ typedef struct cdro_pozyx_ops {
     void (*delay_ms)(void *user, uint16_t duration_ms);
     uint32_t (*now_ms)(void *user);
     uint32_t (*now_us)(void *user);
+    void (*bus_recover)(void *user);
 } cdro_pozyx_ops_t;
 
 typedef enum cdro_pozyx_status {
@@ -68,6 +73,16 @@ typedef enum cdro_pozyx_status {
     CDRO_POZYX_ERR_IDENTITY = 8  /* WHO_AM_I is not 0x43 */
 } cdro_pozyx_status_t;
 
+/* What one remote-to-remote range saw, for the bench diagnostics (DIAGNOSE): filled by
+ * cdro_pozyx_range_remote when cdro_pozyx_t.trace points at one. Times are the local clock. */
+typedef struct cdro_pozyx_trace {
+    uint8_t flags_to_ack;     /* INT_STATUS bits read from TX_SEND up to the acknowledgement */
+    uint8_t flags_to_result;  /* bits read after it, up to the result message */
+    uint8_t result_length;    /* bytes, RX_DATA_LEN of the last message from the ranging node */
+    uint32_t result_head;     /* the first 4 bytes of the result message, little-endian */
+    uint32_t send_ms, ack_ms, result_ms, done_ms; /* ms: TX_SEND, acknowledgement, result, GETRANGEINFO */
+} cdro_pozyx_trace_t;
+
 typedef struct cdro_pozyx {
     const cdro_pozyx_ops_t *ops;
     void *user;
@@ -77,8 +92,11 @@ typedef struct cdro_pozyx {
     uint8_t last_target;     /* register or function of the last failure of any kind */
     uint8_t bus_target;      /* register or function of the last bus error (ERROR BUS detail) */
     uint8_t timeout_target;  /* function of the last timeout (ERROR TIMEOUT detail) */
+    uint8_t seen_flags;      /* every INT_STATUS bit read since the last clear (diagnostics) */
     uint32_t bus_errors;     /* count of failed I2C transactions */
     uint32_t timeouts;       /* count of operations that timed out */
+    uint32_t bus_recoveries; /* count of bus clears after a transaction timed out */
+    cdro_pozyx_trace_t *trace; /* NULL, or where cdro_pozyx_range_remote records what it saw */
 } cdro_pozyx_t;
 
 typedef struct cdro_pozyx_info {
@@ -144,16 +162,27 @@ cdro_pozyx_status_t cdro_pozyx_remote_read(cdro_pozyx_t *dev, uint16_t id, uint8
 cdro_pozyx_status_t cdro_pozyx_remote_call(cdro_pozyx_t *dev, uint16_t id, uint8_t fn, const uint8_t *params,
                                            uint8_t params_length, uint8_t *result, uint8_t result_length);
 
+/* Remote register write of length (<= 29) bytes at reg of node `id`: waits for the
+ * acknowledgement (FUNC from `id`). A node whose UWB channel, rates or preamble the write
+ * changes answers on its new settings, so the local device does not hear it: ERR_TIMEOUT. */
+cdro_pozyx_status_t cdro_pozyx_remote_write(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, const uint8_t *data,
+                                            uint8_t length);
+
 /* A remote node's accelerometer (remote read of 6 bytes at ACCEL_X). */
 cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id, cdro_accel_t *accel);
 
 /* Remote-to-remote range: node `from` ranges with node `to` (section 4.3 of the register facts):
- * remote DO_RANGING on `from`, its result message (RX_DATA from `from`), then a remote
- * GETRANGEINFO on `from`. out->timestamp_ms is `from`'s clock. */
+ * remote DO_RANGING on `from` (its acknowledgement: from `from`, 1 byte, 1); RX_DATA flags seen
+ * up to the acknowledgement dropped; its result message (RX_DATA from `from` with
+ * CDRO_FW_REMOTE_RESULT_LENGTH bytes; anything else skipped); only then a remote GETRANGEINFO
+ * on `from`. out->timestamp_ms is `from`'s clock. */
 cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to, cdro_pozyx_range_result_t *out);
 
 /* Clears the device list, discovers every node (anchors and tags) and reads up to max_ids ids.
- * *found gets the number read (<= max_ids); *listed the size of the Pozyx list. */
+ * *found gets the number read (<= max_ids); *listed the size of the Pozyx list. Pages after the
+ * first (GETIDS with an offset, which neither reference library uses) are checked: an id of 0 or
+ * one already read means the device ignored the offset, and the ids from that page on are
+ * dropped; then *found < min(*listed, max_ids) with status OK. */
 cdro_pozyx_status_t cdro_pozyx_discover(cdro_pozyx_t *dev, uint16_t *ids, uint8_t max_ids, uint8_t *found,
                                         uint8_t *listed);
 

@@ -20,6 +20,10 @@
 /* ---- configuration -------------------------------------------------------------------- */
 #define POZYX_REG_INT_MASK 0x10       /* u8, which events drive the interrupt pin */
 #define POZYX_REG_NETWORK_ID 0x1A     /* u16, this device's UWB short address */
+#define POZYX_REG_UWB_CHANNEL 0x1C    /* u8, 1..5 or 7 */
+#define POZYX_REG_UWB_RATES 0x1D      /* u8, bits 5..0 bitrate (0 110k, 1 850k, 2 6.8M), 7..6 PRF (1 16, 2 64 MHz) */
+#define POZYX_REG_UWB_PLEN 0x1E       /* u8, preamble length code (0x08 = 1024 symbols) */
+#define POZYX_REG_UWB_GAIN 0x1F       /* u8, TX gain in 0.5 dB steps; reset by a channel write */
 #define POZYX_REG_RANGE_PROTOCOL 0x21 /* u8, 0 precision, 1 fast */
 
 /* ---- data ----------------------------------------------------------------------------- */

@@ -24,10 +24,16 @@
  *   - fault injection (pozyx_sim_faults_t): NACK on the bus, a hung bus, operations that never
  *     complete (-> the driver's timeout), ERR with an error code, garbage distances
  *     (167772160 mm), stale GETRANGEINFO (the stored entry is left as it was), lost remote
- *     replies, refused functions, foreign UWB messages.
+ *     replies, late replies, refused functions, foreign UWB messages;
+ *   - the real device's behaviours, each a switch of pozyx_sim_config_t that
+ *     pozyx_sim_config_realistic turns on (and pozyx_sim_config_default, the ideal model, off):
+ *     replies that raise RX_DATA with FUNC, nodes busy while they range, collisions of
+ *     overlapping messages, boot time, clock stretching, the real timings, a full device list;
+ *     nodes talk only on identical UWB settings (channel, rates, preamble).
  *
  * What it is not. It does not model I2C timing: the code driving it (a test adapter, or the
- * simavr TWI peripheral of the firmware-in-the-loop harness) advances time itself. It has no
+ * simavr TWI peripheral of the firmware-in-the-loop harness) advances time itself, and spends
+ * the clock stretching the device asks for (stretch_us) if it can. It has no
  * dependency on the firmware core or on GoogleTest, and it never allocates: the caller owns
  * pozyx_sim_t (about 24 KB; allocate it statically or on the heap of the native program).
  *
@@ -109,6 +115,28 @@ typedef struct pozyx_sim_config {
     uint32_t ranging_duration_us;   /* us, one two-way ranging exchange (default 15000) */
     uint32_t uwb_message_us;        /* us, one UWB message on air incl. turnaround (default 3000) */
     uint32_t remote_processing_us;  /* us, a remote node's handling of a request (default 1000) */
+    /* Behaviours of the real device (pozyx_sim_config_realistic sets them; docs/firmware.md,
+     * "The simulated Pozyx", says where each figure comes from). All off / 0 in the ideal model
+     * of pozyx_sim_config_default, which the unit tests of the model and the driver use. */
+    uint8_t reply_raises_rx_data;   /* a reply to a remote request raises RX_DATA with FUNC (it is
+                                       a received UWB data message too) */
+    uint8_t busy_remotes;           /* a node taking part in a two-way ranging (and, for the ranging
+                                       node, until its result message is sent) receives nothing:
+                                       a request reaching it then is lost */
+    uint8_t collisions;             /* UWB messages whose air times overlap at the local device are
+                                       all lost, as is one arriving while it sends or ranges */
+    uint8_t device_list_full_error; /* a ranging with a 21st partner fails with ERR 0x03 (the local
+                                       device) or silently (a remote one) instead of evicting */
+    uint32_t boot_us;               /* us after power-up during which a device neither answers on
+                                       I2C (NACK) nor on UWB */
+    uint32_t stretch_function_us;   /* us the device holds SCL before the return byte of a function */
+    uint32_t stretch_register_us;   /* us the device holds SCL before the first byte of a register
+                                       read (see pozyx_sim_t.stretch_us) */
+    uint8_t getids_ignores_offset;  /* not known of the real device (neither reference library pages
+                                       with an offset): DEVICES_GETIDS answers from index 0 whatever
+                                       the offset; for the driver's guard (off in both profiles) */
+    uint32_t late_reply_us;         /* us a reply or result message is late under faults.late_reply
+                                       (default 400000: past the firmware's 300 ms reply timeout) */
     pozyx_sim_trace_fn trace;       /* NULL = no trace */
     void *trace_context;
 } pozyx_sim_config_t;
@@ -127,6 +155,9 @@ typedef struct pozyx_sim_faults {
     uint32_t stale_range;       /* the next n rangings report success but store nothing new */
     uint32_t drop_remote_reply; /* the next n replies to remote requests are lost */
     uint32_t refuse_function;   /* the next n function calls return 0 without effect */
+    uint32_t late_reply;        /* the next n replies to remote requests and result messages of
+                                   remote rangings arrive config.late_reply_us late (after the
+                                   driver has given up on them, into whatever it does next) */
 } pozyx_sim_faults_t;
 
 typedef struct pozyx_sim_stats {
@@ -144,6 +175,11 @@ typedef struct pozyx_sim_stats {
     uint32_t remote_requests;      /* TX_SEND of read, write or function */
     uint32_t messages_delivered;   /* UWB messages that reached the local RX buffer */
     uint32_t faults_injected;
+    uint32_t collisions;           /* messages lost to overlapping air time (config.collisions) */
+    uint32_t busy_losses;          /* requests lost to a busy node (config.busy_remotes) */
+    uint32_t boot_refusals;        /* I2C address phases NACKed while booting (config.boot_us) */
+    uint32_t list_full_errors;     /* rangings refused for a full device list */
+    uint64_t stretched_us;         /* us of clock stretching in all */
 } pozyx_sim_stats_t;
 
 typedef struct pozyx_sim_range_entry {
@@ -160,6 +196,9 @@ typedef struct pozyx_sim_node {
     uint8_t range_count;
     int64_t accel_sample_index;         /* 10 ms IMU sample held in accel_mg, -1 = none */
     int16_t accel_mg[3];
+    uint8_t was_powered;                /* config.powered when last looked at (to see power-ups) */
+    uint64_t ready_at_us;               /* booted from then on (config.boot_us after power-up) */
+    uint64_t busy_from_us, busy_until_us; /* in a ranging exchange (config.busy_remotes) */
 } pozyx_sim_node_t;
 
 typedef struct pozyx_sim_event {
@@ -167,6 +206,7 @@ typedef struct pozyx_sim_event {
     uint8_t kind;       /* internal */
     uint16_t a, b;      /* node ids involved */
     uint8_t length;
+    uint8_t collided;   /* a message that overlapped another one on air: lost when due */
     uint8_t data[POZYX_SIM_BUFFER_SIZE];
 } pozyx_sim_event_t;
 
@@ -193,6 +233,11 @@ typedef struct pozyx_sim {
     uint8_t device_list_size;
     uint8_t busy;       /* a local long operation (ranging, discovery) is pending */
     uint64_t last_imu_tick;
+    uint64_t local_air_from_us, local_air_until_us; /* the local device sends or ranges then */
+    uint64_t last_rx_until_us;                      /* end of the last message received */
+    uint32_t stretch_us; /* us the device holds SCL after the last address phase of a read (clock
+                            stretching): the harness lets that much time pass before the first
+                            byte, or times out (the bytes are then not read) */
 
     /* bus state machine */
     uint8_t phase;      /* internal */
@@ -211,8 +256,13 @@ typedef struct pozyx_sim {
     uint8_t event_count;
 } pozyx_sim_t;
 
-/* Defaults as documented in pozyx_sim_config_t. */
+/* Defaults as documented in pozyx_sim_config_t: the ideal model (every real behaviour off,
+ * the historical faster timings). */
 void pozyx_sim_config_default(pozyx_sim_config_t *config);
+
+/* The default configuration with every real behaviour on and the timings of the real device
+ * (docs/firmware.md, "The simulated Pozyx": the source of each figure). */
+void pozyx_sim_config_realistic(pozyx_sim_config_t *config);
 
 /* Resets everything: no nodes, time 0, no faults, zero statistics. */
 void pozyx_sim_init(pozyx_sim_t *sim, const pozyx_sim_config_t *config);

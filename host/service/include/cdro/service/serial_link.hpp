@@ -9,6 +9,10 @@
 // reconnect_max_s), forever; nothing else stops. resetBackoff() is called by the owner once the
 // device is known healthy again (the session reached running).
 //
+// First errors that help: a port the user may not open says "permission denied (add yourself to
+// the dialout group)"; a port that streams bytes that are not CDRO frames says so within 2 s
+// (LinkDiagnostics), as do the device's Pozyx set-up reports.
+//
 // Threading: loop thread only.
 #pragma once
 
@@ -20,6 +24,7 @@
 #include "cdro/service/config.hpp"
 #include "cdro/service/counters.hpp"
 #include "cdro/service/event_loop.hpp"
+#include "cdro/service/link_diagnostics.hpp"
 
 namespace LibSerial {
 class SerialPort;
@@ -28,7 +33,8 @@ class SerialPort;
 namespace cdro::service {
 
 // The hardware seam: opens a serial device and hands back its descriptor. The real one uses
-// LibSerial; tests may substitute another (e.g. one that fails on demand).
+// LibSerial; tests may substitute another (e.g. one that fails on demand). Its error says what a
+// person can do about it (openFailureReason).
 class SerialDevice {
 public:
     virtual ~SerialDevice() = default;
@@ -38,6 +44,12 @@ public:
 };
 
 std::unique_ptr<SerialDevice> makeLibSerialDevice();
+
+// Why a serial device cannot be opened, in words a person can act on: tries open(2) itself
+// (LibSerial's own messages can be vague, e.g. "Bad file descriptor"): "permission denied (add
+// yourself to the dialout group ...)" for EACCES/EPERM, "no such device ..." for ENOENT, ...
+// `fallback` if open(2) works (the failure was elsewhere).
+std::string openFailureReason(const std::string &path, const std::string &fallback);
 
 // The configuration makeLibSerialDevice's open() applies to a port LibSerial has opened: baud,
 // 8N1, raw, no flow control, VMIN/VTIME 0, non-blocking. Returns the descriptor, or -1 with
@@ -79,6 +91,7 @@ public:
     int64_t currentBackoffUs() const { return backoff_us_; }
 
     std::string description() const; // "serial:<path>@<baud>"
+    const LinkDiagnostics &diagnostics() const { return diagnostics_; }
 
     static constexpr size_t kMaxQueuedBytes = 64 * 1024;
 
@@ -100,6 +113,8 @@ private:
     EventLoop::TimerId retry_timer_ = 0;
     uint64_t failed_opens_in_a_row_ = 0;
     std::vector<uint8_t> out_queue_;
+    LinkDiagnostics diagnostics_;
+    EventLoop::TimerId verdict_timer_ = 0;
 };
 
 } // namespace cdro::service
