@@ -32,8 +32,8 @@ namespace cdro::service {
     X(frames_lost, "device frames missing in those gaps")                                           \
     X(device_resets, "device resets detected (time backwards, sequence restart, unexpected HELLO)") \
     X(unknown_node_frames, "frames naming a node id that was not known")                            \
-    X(nodes_learned, "unknown node ids added to the known set (policy learn)")                      \
-    X(frames_rejected_unknown_node, "frames dropped for an unknown node id (policy reject)")        \
+    X(nodes_learned, "unknown node ids that became nodes (policy learn, seen often enough)")        \
+    X(frames_rejected_unknown_node, "frames dropped for a node id not known or not confirmed")      \
     X(frames_dropped_incompatible, "data frames dropped while the device is incompatible")          \
     X(handshakes, "handshakes completed (HELLO checked, configured, START acknowledged)")           \
     X(hello_requests, "HELLO_REQUEST frames sent")                                                   \
