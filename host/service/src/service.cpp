@@ -241,6 +241,11 @@ Health Service::health(int64_t now_event_unix_us) const
     h.device_node_id = intake_.deviceNodeId();
     h.device_firmware = intake_.deviceFirmware();
     h.counters = counters_;
+    if (http_) {
+        const HttpStats http = http_->stats();
+        h.counters.http_requests = http.requests;
+        h.counters.http_refused = http.refused;
+    }
     h.rates = intake_.rates(now_event_unix_us);
     return h;
 }

@@ -74,6 +74,8 @@ namespace cdro::service {
     X(mqtt_connects, "MQTT connections established")                                                \
     X(mqtt_disconnects, "MQTT connections lost")                                                     \
     X(mqtt_received, "MQTT messages received on the subscribed topics (odometry)")                 \
+    X(http_requests, "live map requests answered (200, or 404 for an unknown path or node)")        \
+    X(http_refused, "live map requests refused (400, 405, 408, 413, 431, 503) or connections closed to make room") \
     X(checkpoints_written, "checkpoints written")                                                    \
     X(checkpoint_errors, "checkpoints that could not be written")
 
