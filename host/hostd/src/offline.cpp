@@ -1,17 +1,23 @@
 #include "cdro/hostd/offline.hpp"
 
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <memory>
 #include <optional>
 #include <string>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
 #include "cdro/hostd/csv_input.hpp"
 #include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
+#include "cdro/service/config.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::hostd {
 
@@ -70,11 +76,21 @@ struct FileCloser {
 };
 using File = std::unique_ptr<std::FILE, FileCloser>;
 
+// Never through a symbolic link, never in a directory every user may write to (the service's
+// rule for every file it writes: output_file.hpp).
 File openForWriting(const std::string &path, std::FILE *log)
 {
-    File file(std::fopen(path.c_str(), "w"));
+    int fd = -1;
+    try {
+        fd = service::openOutputFile(path, O_WRONLY | O_CREAT | O_TRUNC, "output file");
+    } catch (const service::ConfigError &error) {
+        std::fprintf(log, "cdro-hostd: %s\n", error.what());
+        return File();
+    }
+    File file(::fdopen(fd, "w"));
     if (!file) {
         std::fprintf(log, "cdro-hostd: cannot write %s: %s\n", path.c_str(), std::strerror(errno));
+        ::close(fd);
     }
     return file;
 }

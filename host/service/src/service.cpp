@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cdro/service/log.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::service {
 
@@ -100,6 +101,15 @@ void Service::start()
             log()->info("resume: {} ({} nodes, {} pairs)", run_.resume_path, snapshot.nodes.size(),
                         snapshot.pairs.size());
         }
+    }
+
+    // Output paths are checked before anything is opened, so that a link or a world-writable
+    // directory stops the start with its reason (docs/service.md, "Security model").
+    if (hooks_.checkpoint != nullptr && !config_.checkpoint.path.empty()) {
+        checkOutputPath(config_.checkpoint.path, "checkpoint.path");
+    }
+    if (!config_.output.jsonl.empty() && config_.output.jsonl != "-") {
+        checkOutputPath(config_.output.jsonl, "output.jsonl");
     }
 
     std::string source;

@@ -66,7 +66,9 @@ private:
     int fd_ = -1;
     uint64_t file_bytes_ = 0;
     uint64_t rotate_bytes_ = 0;
-    bool write_error_logged_ = false;
+    uint64_t lost_in_outage_ = 0; // records not written since the last one that was
+    bool reopen_pending_ = false; // a rotation could not start its new file: retried
+    int64_t reopen_at_us_ = 0;    // us (record time) of the next attempt
 };
 
 struct CaptureRecord {
