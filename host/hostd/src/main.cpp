@@ -21,6 +21,7 @@
 #include "cdro/service/config_cli.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
+#include "cdro/service/yaml_section.hpp"
 
 namespace {
 
@@ -51,6 +52,11 @@ ConfigDocument loadDocument(const std::string &path, const std::vector<std::stri
         } catch (const YAML::Exception &error) {
             throw ConfigError(path + ": not valid YAML: " + error.what());
         }
+        // Each layer rejects unknown keys inside its sections; a misspelt section name is caught
+        // here, where every layer's sections are known.
+        std::vector<std::string> sections = cdro::service::serviceSectionNames();
+        sections.insert(sections.end(), {"engine", "movement", "map"});
+        cdro::service::rejectUnknownSections(document.root, path, sections);
     }
     if (!sets.empty()) {
         cdro::hostd::applySettings(document.root, sets);

@@ -47,8 +47,7 @@ void checkOutputPath(const std::string &path, const std::string &what)
     const std::string directory = directoryOf(path);
     struct stat dir {};
     if (::stat(directory.c_str(), &dir) != 0) {
-        throw ConfigError(what + ": cannot use the directory '" + directory + "' of '" + path +
-                          "': " + std::strerror(errno));
+        return; // no such directory: opening the file fails and says so
     }
     if ((dir.st_mode & S_IWOTH) != 0) {
         throw ConfigError(what + ": the directory '" + directory + "' (mode " + octal(dir.st_mode) +
@@ -66,7 +65,7 @@ int openOutputFile(const std::string &path, int flags, const std::string &what)
         if (error == ELOOP) {
             throw ConfigError(what + ": '" + path + "' is a symbolic link; refusing to write through it");
         }
-        throw ConfigError(what + ": cannot open '" + path + "': " + std::strerror(error));
+        throw ConfigError(what + ": cannot write " + path + ": " + std::strerror(error));
     }
     return fd;
 }
