@@ -47,12 +47,17 @@ constexpr int64_t kReopenPeriodUs = 1'000'000; // us of record time between atte
 
 // ---- writer --------------------------------------------------------------------------------
 
-CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters)
-    : config_(config), source_(std::move(source)), counters_(counters),
+CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters,
+                             std::string context)
+    : config_(config), source_(std::move(source)), context_(std::move(context)), counters_(counters),
       rotate_bytes_(static_cast<uint64_t>(std::llround(config.rotate_mib * 1024.0 * 1024.0)))
 {
     if (source_.size() > CDRO_CAPTURE_MAX_SOURCE) {
         source_.resize(CDRO_CAPTURE_MAX_SOURCE);
+    }
+    if (context_.size() > CDRO_CAPTURE_MAX_CONTEXT) {
+        throw CaptureError("capture: the run's context is " + std::to_string(context_.size()) + " bytes, at most " +
+                           std::to_string(CDRO_CAPTURE_MAX_CONTEXT) + " fit in a capture header");
     }
 }
 
@@ -96,16 +101,19 @@ void CaptureWriter::openFresh(int64_t created_unix_us)
     header.created_unix_us = created_unix_us;
     header.source_len = static_cast<uint8_t>(source_.size());
     std::memcpy(header.source, source_.data(), source_.size());
-    uint8_t bytes[CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE];
-    const size_t size = cdro_capture_header_encode(&header, bytes, sizeof bytes);
+    header.context_len = static_cast<uint16_t>(context_.size());
+    header.context = reinterpret_cast<const uint8_t *>(context_.data());
+    std::vector<uint8_t> bytes(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE + 2 + context_.size());
+    const size_t size = cdro_capture_header_encode(&header, bytes.data(), bytes.size());
     std::string error;
-    if (size == 0 || !writeAll(fd_, bytes, size, &error)) {
+    if (size == 0 || !writeAll(fd_, bytes.data(), size, &error)) {
         ::close(fd_);
         fd_ = -1;
         ::unlink(config_.path.c_str()); // a header cut short (full disk): the next attempt starts clean
         throw CaptureError("capture: cannot write the header of " + config_.path + ": " + error);
     }
     file_bytes_ = size;
+    header_bytes_ = size;
     counters_.capture_bytes += size;
 }
 
@@ -166,7 +174,7 @@ void CaptureWriter::append(uint8_t flags, int64_t host_time_us, const uint8_t *d
     record.data_len = static_cast<uint16_t>(len);
     record.data = data;
     const size_t size = cdro_capture_record_encode(&record, bytes, sizeof bytes);
-    if (file_bytes_ + size > rotate_bytes_ && file_bytes_ > CDRO_CAPTURE_HEADER_FIXED + source_.size()) {
+    if (file_bytes_ + size > rotate_bytes_ && file_bytes_ > header_bytes_) {
         try {
             rotate(host_time_us);
         } catch (const CaptureError &error) {
@@ -223,11 +231,16 @@ CaptureReader::CaptureReader(const std::string &path) : path_(path), buffer_(1 <
     if (fd_ < 0) {
         throw CaptureError(path + ": cannot open: " + std::strerror(errno));
     }
-    while (!eof_ && end_ < CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE) {
-        fill();
-    }
     size_t consumed = 0;
-    const cdro_result_t status = cdro_capture_header_decode(buffer_.data(), end_, &header_, &consumed);
+    cdro_result_t status = CDRO_PENDING;
+    // The header's size is in the header: read until it is all there (a context can make it
+    // up to 64 KiB), or the file ends.
+    while (status == CDRO_PENDING) {
+        status = cdro_capture_header_decode(buffer_.data(), end_, &header_, &consumed);
+        if (status == CDRO_PENDING && !fill()) {
+            break;
+        }
+    }
     switch (status) {
     case CDRO_OK: break;
     case CDRO_PENDING: throw CaptureError(path + ": not a capture file (it ends inside the header)");
@@ -239,6 +252,11 @@ CaptureReader::CaptureReader(const std::string &path) : path_(path), buffer_(1 <
     default: throw CaptureError(path + ": inconsistent capture header (" + cdro_result_name(status) + ")");
     }
     begin_ = consumed;
+    if (header_.context_len > 0) {
+        context_.assign(reinterpret_cast<const char *>(header_.context), header_.context_len);
+    }
+    header_.context = nullptr; // it pointed into the buffer, which moves on
+    header_.context_len = 0;
 }
 
 CaptureReader::~CaptureReader()
