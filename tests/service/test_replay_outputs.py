@@ -108,7 +108,7 @@ def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
         listener = Listener(build_dir, broker.port, "cdro/nodes/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
         replay = Harness(build_dir, tmp_path, name="replay",
-                         extra_config="mqtt: {rate_hz: 0, reconnect_min_s: 0.1, reconnect_max_s: 0.2}",
+                         extra_config="mqtt: {rate_hz: 0, reconnect_min_s: 0.5, reconnect_max_s: 1.0}",
                          args=["--replay", str(live.capture), "--speed", "max", "--mqtt",
                                f"mqtt://127.0.0.1:{forwarder.port}", "--jsonl", str(tmp_path / "replay.jsonl")])
         time.sleep(1.0)
@@ -129,6 +129,7 @@ def test_a_replay_says_what_it_could_not_publish(build_dir, tmp_path):
     live = live_capture(build_dir, tmp_path)
     port = free_port()  # nobody listens
     replay = Harness(build_dir, tmp_path, name="replay",
+                     extra_config="mqtt: {reconnect_min_s: 0.1, reconnect_max_s: 0.2}",
                      args=["--replay", str(live.capture), "--speed", "max", "--mqtt", f"mqtt://127.0.0.1:{port}",
                            "--jsonl", str(tmp_path / "replay.jsonl")])
     assert replay.wait_exit() == 0, replay.log()

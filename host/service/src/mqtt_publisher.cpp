@@ -57,6 +57,7 @@ void MqttPublisher::connect()
     if (stopping_ || mosq_ == nullptr) {
         return;
     }
+    ++connect_attempts_;
     const int keepalive_s = static_cast<int>(config_.keepalive_s);
     const int rc = first_connect_ ? mosquitto_connect_async(mosq_, host_.c_str(), port_, keepalive_s)
                                   : mosquitto_reconnect_async(mosq_);
@@ -99,7 +100,19 @@ void MqttPublisher::updateInterest()
     if (fd_ < 0 || mosq_ == nullptr) {
         return;
     }
-    loop_.setFdEvents(fd_, static_cast<short>(mosquitto_want_write(mosq_) ? (POLLIN | POLLOUT) : POLLIN));
+    const bool want_write = mosquitto_want_write(mosq_);
+    settleInFlight(want_write);
+    loop_.setFdEvents(fd_, static_cast<short>(want_write ? (POLLIN | POLLOUT) : POLLIN));
+}
+
+// QoS 0 has no acknowledgement: a message is done once libmosquitto has nothing left to write
+// (its on_publish callback does not come for every one of them). QoS 1 and 2 messages are done
+// when the broker acknowledges them (publishCallback).
+void MqttPublisher::settleInFlight(bool want_write)
+{
+    if (config_.qos == 0 && !want_write) {
+        in_flight_ = 0;
+    }
 }
 
 void MqttPublisher::onSocketEvents(short revents)
@@ -338,6 +351,10 @@ void MqttPublisher::shutdown()
         // Bounded flush of what is queued (a replay at full speed may have much: it all goes out,
         // then the offline status and the DISCONNECT).
         for (int i = 0; i < kFlushPolls && fd_ >= 0 && (mosquitto_want_write(mosq_) || in_flight_ > 0); ++i) {
+            settleInFlight(mosquitto_want_write(mosq_));
+            if (in_flight_ == 0 && !mosquitto_want_write(mosq_)) {
+                break;
+            }
             pollfd p{fd_, static_cast<short>(POLLIN | (mosquitto_want_write(mosq_) ? POLLOUT : 0)), 0};
             if (::poll(&p, 1, 20) <= 0) {
                 continue;

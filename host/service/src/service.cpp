@@ -419,10 +419,13 @@ void Service::httpTick()
 
 bool Service::replayMayGoOn()
 {
-    // A replay runs as fast as its outputs take it: MQTT must be connected and keeping up.
-    // A broker that stays away (or stops taking messages) is waited for kBrokerWaitUs, then the
-    // replay goes on and what cannot be published is dropped, counted and summed up at the end.
-    constexpr int64_t kBrokerWaitUs = 10'000'000;
+    // A replay runs as fast as its outputs take it: MQTT must be connected and keeping up. A
+    // broker that is not there is given kBrokerAttempts connection attempts (the first one and
+    // the retries of mqtt.reconnect_min_s, doubling); one that is connected but stops taking
+    // messages, kStallUs. Then the replay goes on without it, and what cannot be published is
+    // dropped, counted and summed up at the end.
+    constexpr uint64_t kBrokerAttempts = 4;
+    constexpr int64_t kStallUs = 10'000'000;
     if (mqtt_.readyForMore()) {
         broker_wait_since_us_ = 0;
         return true;
@@ -430,15 +433,18 @@ bool Service::replayMayGoOn()
     const int64_t now_us = clock_.monotonicUs();
     if (broker_wait_since_us_ == 0) {
         broker_wait_since_us_ = now_us;
+        broker_wait_attempts_ = mqtt_.connectAttempts();
     }
-    if (now_us - broker_wait_since_us_ < kBrokerWaitUs) {
+    const bool gave_up = mqtt_.connected() ? now_us - broker_wait_since_us_ >= kStallUs
+                                           : mqtt_.connectAttempts() >= broker_wait_attempts_ + kBrokerAttempts;
+    if (!gave_up) {
         return false;
     }
     if (!broker_gave_up_logged_) {
         broker_gave_up_logged_ = true;
-        log()->warn("mqtt: the broker {} is not taking messages after {} s; the replay goes on without it (what "
-                    "cannot be published is counted in mqtt_dropped)",
-                    config_.mqtt.url, kBrokerWaitUs / 1'000'000);
+        log()->warn("mqtt: the broker {} is {}; the replay goes on without it (what cannot be published is counted "
+                    "in mqtt_dropped)",
+                    config_.mqtt.url, mqtt_.connected() ? "not taking messages" : "not reachable");
     }
     return true;
 }

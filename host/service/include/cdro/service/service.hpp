@@ -147,6 +147,7 @@ private:
     int64_t session_timer_deadline_us_ = INT64_MAX;
     bool checkpoint_warned_ = false;
     int64_t broker_wait_since_us_ = 0; // monotonic us when a replay began to wait for MQTT (0 = not)
+    uint64_t broker_wait_attempts_ = 0; // MQTT connection attempts when that wait began
     bool broker_gave_up_logged_ = false;
     bool shut_down_ = false;
     bool started_ = false;
