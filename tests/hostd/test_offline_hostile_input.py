@@ -1,6 +1,6 @@
 """cdro-hostd's offline mode and configuration against input that is not what it should be
-(issue 16, 9-11): files with no usable row, a directory, an endless device, a byte-order mark,
-node id 0, a misspelt section name; and the reading rate, measured and printed.
+(issue 16, 7 and 9-11): files with no usable row, a directory, an endless device, a byte-order
+mark, node id 0, a misspelt section name, an output path that is a link; and the reading rate.
 
 The binary is the native build's (CDRO_BUILD_DIR; default ./build). Every timeout is a deadlock
 guard, nothing depends on how fast the machine is."""
@@ -115,3 +115,15 @@ def test_a_misspelt_section_is_an_error_with_its_line(hostd, tmp_path):
         assert result.returncode == 2, (args, result.stderr)
         assert f"{config}:3: unknown section 'engin'" in result.stderr, (args, result.stderr)
         assert "engine" in result.stderr.split("unknown section", 1)[1]
+
+
+def test_offline_outputs_refuse_links(hostd, tmp_path):
+    ranges = tmp_path / "ranges.csv"
+    ranges.write_text("from,to,range_m\n" + "\n".join(good_rows()) + "\n")
+    victim = tmp_path / "victim.csv"
+    victim.write_text("precious\n")
+    (tmp_path / "out.csv").symlink_to(victim)
+    result = run(hostd, "--ranges-csv", ranges, "--out-csv", tmp_path / "out.csv")
+    assert result.returncode == 2, result.stderr
+    assert "symbolic link" in result.stderr, result.stderr
+    assert victim.read_text() == "precious\n"
