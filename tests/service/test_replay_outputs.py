@@ -32,6 +32,7 @@ def last_health(harness):
 def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path):
     live = live_capture(build_dir, tmp_path)
     broker = Broker(tmp_path)
+    listener = None
     try:
         listener = Listener(build_dir, broker.port, "cdro/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
@@ -48,9 +49,10 @@ def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path):
         published_nodes = sum(1 for line in replay.jsonl_lines() if line["type"] == "node")
         wait_until(lambda: len([m for m in list(listener.messages) if m.get("topic", "").startswith("cdro/nodes/")])
                    >= published_nodes, "every node message at the subscriber")
-        listener.stop()
         assert len(node_topics) <= published_nodes
     finally:
+        if listener is not None:
+            listener.stop()
         broker.stop()
 
 
@@ -104,6 +106,7 @@ def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
     live = live_capture(build_dir, tmp_path)
     broker = Broker(tmp_path)
     forwarder = LateForwarder(broker.port)
+    listener = None
     try:
         listener = Listener(build_dir, broker.port, "cdro/nodes/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
@@ -118,9 +121,10 @@ def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
         assert node_lines > RANGES
         wait_until(lambda: len([m for m in list(listener.messages) if "topic" in m]) >= node_lines,
                    f"{node_lines} node messages at the subscriber")
-        listener.stop()
         assert len([m for m in listener.messages if "topic" in m]) == node_lines
     finally:
+        if listener is not None:
+            listener.stop()
         forwarder.close()
         broker.stop()
 
