@@ -7,11 +7,13 @@
 
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap)
 {
-    const size_t size = CDRO_CAPTURE_HEADER_FIXED + header->source_len;
+    const size_t context_size = header->context_len > 0U ? 2U + (size_t)header->context_len : 0U;
+    const size_t size = CDRO_CAPTURE_HEADER_FIXED + header->source_len + context_size;
     const uint16_t version =
         header->format_version == 0U ? (uint16_t)CDRO_CAPTURE_FORMAT_VERSION : header->format_version;
     uint8_t *p = out;
-    if (out_cap < size || version > CDRO_CAPTURE_FORMAT_VERSION) {
+    if (out_cap < size || version > CDRO_CAPTURE_FORMAT_VERSION || header->context_len > CDRO_CAPTURE_MAX_CONTEXT ||
+        (header->context_len > 0U && header->context == NULL)) {
         return 0;
     }
     memcpy(p, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE); /* includes the 0x00 */
@@ -22,6 +24,11 @@ size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *
     p = cdro_put_u8(p, header->source_len);
     memcpy(p, header->source, header->source_len);
     p += header->source_len;
+    if (header->context_len > 0U) {
+        p = cdro_put_u16(p, header->context_len);
+        memcpy(p, header->context, header->context_len);
+        p += header->context_len;
+    }
     (void)cdro_put_u16(p, cdro_crc16(out, (size_t)(p - out)));
     return size;
 }
@@ -59,6 +66,15 @@ cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_cap
     }
     out->created_unix_us = cdro_get_i64(in + 12);
     memcpy(out->source, in + 21, out->source_len);
+    /* Bytes between the source and the CRC: the context, when they hold one whole (otherwise a
+       layout this build does not know: skipped). */
+    if (size - 2U - covered >= 2U) {
+        const uint16_t context_len = cdro_get_u16(in + covered);
+        if (context_len > 0U && (size_t)context_len <= size - 2U - covered - 2U) {
+            out->context_len = context_len;
+            out->context = in + covered + 2U;
+        }
+    }
     *consumed = size;
     return CDRO_OK;
 }

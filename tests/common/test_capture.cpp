@@ -152,6 +152,30 @@ TEST(Capture, AVersion1FileStillReadsAndEncodes)
     EXPECT_EQ(golden::toHex(encoded), v["bytes"].get<std::string>().substr(0, 2 * encoded.size()));
 }
 
+// The run's context in the header (an addition to its layout, read by every version): decoded,
+// encoded to the same bytes, and skipped by whoever does not look at it.
+TEST(Capture, AHeaderWithAContextReadsAndEncodes)
+{
+    const auto &v = golden::vectors()["capture_context"];
+    cdro_capture_header_t header;
+    const auto file = golden::fromHex(v["bytes"]);
+    const Parsed parsed = parse(file, header);
+    ASSERT_EQ(header.context_len * 2U, v["header"]["context"].get<std::string>().size());
+    EXPECT_EQ(golden::toHex(header.context, header.context_len), v["header"]["context"].get<std::string>());
+    ASSERT_EQ(parsed.records.size(), 1U);
+    EXPECT_EQ(golden::toHex(parsed.records[0].data, parsed.records[0].data_len),
+              v["records"][0]["data"].get<std::string>());
+    std::vector<uint8_t> encoded(v["header"]["size"].get<size_t>());
+    EXPECT_EQ(cdro_capture_header_encode(&header, encoded.data(), encoded.size() - 1), 0U); // too small
+    encoded.resize(cdro_capture_header_encode(&header, encoded.data(), encoded.size()));
+    EXPECT_EQ(golden::toHex(encoded), v["bytes"].get<std::string>().substr(0, 2 * encoded.size()));
+    // A damaged context is a damaged header.
+    std::vector<uint8_t> damaged = file;
+    damaged[60] ^= 0x01;
+    size_t consumed = 0;
+    EXPECT_EQ(cdro_capture_header_decode(damaged.data(), damaged.size(), &header, &consumed), CDRO_ERR_CRC);
+}
+
 TEST(Capture, HeaderRefusesToEncodeAnUnknownVersion)
 {
     cdro_capture_header_t header{};

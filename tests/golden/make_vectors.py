@@ -242,6 +242,22 @@ def capture_v1_vector() -> dict:
     }
 
 
+def capture_context_vector() -> dict:
+    """A header that carries the run's context (an addition to the header's layout, read by every
+    version): cdro-hostd records there what the map depends on (docs/service.md)."""
+    context = b'{"heights":[[24577,0.8]],"fixed":[],"settings":"engine:\\n  range: {}\\n"}'
+    header = CaptureHeader(created_unix_us=1795046400123456, source="serial:/dev/ttyACM0@115200", context=context)
+    records = [CaptureRecord(1795046400200000, encode_frame(FRAMES[0][1])[:-1])]
+    blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in records)
+    return {
+        "header": {"created_unix_us": header.created_unix_us, "source": header.source,
+                   "format_version": capture_file.FORMAT_VERSION, "context": hexs(context),
+                   "size": len(capture_file.encode_header(header))},
+        "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
+        "bytes": hexs(blob),
+    }
+
+
 def sog_vector() -> dict:
     snapshot = SogSnapshot(
         header={"created_unix_us": 1795046400123456, "ranges_processed": 1205, "flags": 0},
@@ -298,6 +314,7 @@ def main() -> None:
         "stream": stream_vector(),
         "capture": capture_vector(),
         "capture_v1": capture_v1_vector(),
+        "capture_context": capture_context_vector(),
         "sog": sog_vector(),
         "fixed": fixed_vectors(),
     }

@@ -204,7 +204,10 @@ def sim_command(*args) -> list[str]:
 
 
 def replay(build_dir, tmp_path, name, capture, heights_csv, *extra) -> Hostd:
-    run = Hostd(build_dir, tmp_path, name, ["--replay", str(capture), "--speed", "max", *extra],
+    # A replay writes only what its command line names (docs/service.md, "Capture and replay").
+    run = Hostd(build_dir, tmp_path, name, ["--replay", str(capture), "--speed", "max", "--jsonl",
+                                            str(tmp_path / f"{name}.jsonl"), "--checkpoint",
+                                            str(tmp_path / f"{name}.cdrosog"), *extra],
                 heights_csv=heights_csv)
     code = run.wait()
     assert code == 0, f"{name} exited {code}:\n{run.log()}"

@@ -85,7 +85,7 @@ def test_that_bad_rows_are_reported_with_their_line_numbers_counted_and_skipped(
     bad = {
         3: "1,2,abc",          # not a number
         6: "1,2",              # too few fields
-        9: "-1,2,3.0",         # not a node id (0..65535; 0 is allowed: Plaza uses it)
+        9: "-1,2,3.0",         # not a node id (1..65535, as on the live link)
         12: "70000,2,3.0",     # beyond 16 bits
         15: "x,2,3.0",         # not an id at all
         18: "1,2,nan",         # not finite

@@ -19,7 +19,9 @@
 #include <sys/wait.h>
 #include <termios.h>
 #include <unistd.h>
+#include <dirent.h>
 
+#include <algorithm>
 #include <iostream>
 
 namespace cdro::test {
@@ -37,6 +39,24 @@ TempDir::~TempDir()
 {
     const std::string command = "rm -rf '" + path_ + "'";
     [[maybe_unused]] const int rc = std::system(command.c_str());
+}
+
+std::vector<std::string> listDirectory(const std::string &path)
+{
+    std::vector<std::string> names;
+    DIR *dir = ::opendir(path.c_str());
+    if (dir == nullptr) {
+        return names;
+    }
+    while (const dirent *entry = ::readdir(dir)) {
+        const std::string name = entry->d_name;
+        if (name != "." && name != "..") {
+            names.push_back(name);
+        }
+    }
+    ::closedir(dir);
+    std::sort(names.begin(), names.end());
+    return names;
 }
 
 FakeDevicePty::FakeDevicePty(const std::string &link_path) : link_path_(link_path)

@@ -26,6 +26,9 @@ private:
     std::string path_;
 };
 
+// The names in a directory (without . and ..), sorted.
+std::vector<std::string> listDirectory(const std::string &path);
+
 // A pseudo-terminal whose master side plays the device. The slave side is in raw mode and
 // reachable through a symlink (link_path), like /dev/serial/by-id/...; the test keeps a slave
 // descriptor open so that nothing the master writes is lost before the service opens it.

@@ -4,10 +4,14 @@
 #include <iterator>
 #include <random>
 
+#include <csignal>
+
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 
 #include "cdro/service/capture.hpp"
+#include "cdro/service/log.hpp"
 #include "support.hpp"
 
 using namespace cdro::service;
@@ -202,4 +206,93 @@ TEST(Capture, NotACaptureIsAClearError)
         EXPECT_NE(std::string(error.what()).find("not a capture file"), std::string::npos);
     }
     EXPECT_THROW(CaptureReader(dir.file("missing")), CaptureError);
+}
+
+// Issue 16, 8: a full disk. The file-size limit (RLIMIT_FSIZE) makes write() fail with EFBIG
+// exactly as ENOSPC would, for this process only, and can be lifted again as freeing space
+// would: records written while it holds are lost and counted, the file stays readable (a record
+// cut by the limit is removed again), and once writes succeed again the log says so.
+TEST(Capture, AFullDiskLosesOnlyTheRecordsThatDidNotFitAndWritingResumes)
+{
+    cdro::test::TempDir dir;
+    LoggingConfig logging;
+    logging.file = dir.file("service.log");
+    setupLogging(logging);
+    ServiceCounters counters;
+    CaptureConfig config;
+    config.path = dir.file("full.cdrocap");
+    CaptureWriter writer(config, "serial:/dev/ttyX", counters);
+    writer.open(1000);
+    const std::vector<uint8_t> data(100, 0x5A);
+    for (int i = 0; i < 10; ++i) {
+        writer.append(0, 2000 + i, data.data(), data.size());
+    }
+    const uint64_t size_before = writer.currentFileBytes();
+
+    rlimit saved{};
+    ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &saved), 0);
+    const auto previous = std::signal(SIGXFSZ, SIG_IGN);
+    rlimit full = saved;
+    full.rlim_cur = static_cast<rlim_t>(size_before + 50); // half a record still fits
+    ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &full), 0);
+    for (int i = 0; i < 5; ++i) {
+        writer.append(0, 3000 + i, data.data(), data.size());
+    }
+    ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &saved), 0); // space freed
+    std::signal(SIGXFSZ, previous);
+    for (int i = 0; i < 3; ++i) {
+        writer.append(0, 4000 + i, data.data(), data.size());
+    }
+    writer.close();
+    setupLogging(LoggingConfig{});
+
+    EXPECT_EQ(counters.capture_write_errors, 5U);
+    EXPECT_EQ(counters.capture_records, 13U);
+    CaptureReader *reader = nullptr;
+    const std::vector<CaptureRecord> records = readAll(config.path, &reader);
+    ASSERT_EQ(records.size(), 13U);
+    EXPECT_EQ(reader->corruptBytes(), 0U);         // no half record left behind by the full disk
+    EXPECT_EQ(reader->truncatedTailBytes(), 0U);
+    EXPECT_EQ(records[10].host_time_us, 4000);
+    std::ifstream in(logging.file);
+    const std::string log((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(log.find("cannot append"), std::string::npos) << log;
+    EXPECT_NE(log.find("writing again"), std::string::npos) << log;
+    EXPECT_NE(log.find("5 records were lost"), std::string::npos) << log;
+}
+
+TEST(Capture, ARotationOnAFullDiskStartsItsNewFileOnceThereIsSpace)
+{
+    cdro::test::TempDir dir;
+    ServiceCounters counters;
+    CaptureConfig config;
+    config.path = dir.file("rot.cdrocap");
+    config.rotate_mib = 0.01; // 10486 bytes
+    CaptureWriter writer(config, "serial:/dev/ttyX", counters);
+    writer.open(1000);
+    const std::vector<uint8_t> data(1000, 0x5A);
+    int64_t t_us = 2000;
+    for (int i = 0; i < 10; ++i) { // what fits before the next record would rotate the file
+        writer.append(0, t_us += 1000, data.data(), data.size());
+    }
+    ASSERT_EQ(counters.capture_rotations, 0U);
+    rlimit saved{};
+    ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &saved), 0);
+    const auto previous = std::signal(SIGXFSZ, SIG_IGN);
+    rlimit full = saved;
+    full.rlim_cur = 10; // not even a header fits
+    ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &full), 0);
+    for (int i = 0; i < 5; ++i) {
+        writer.append(0, t_us += 1000, data.data(), data.size()); // the rotation comes, its new file fails
+    }
+    ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &saved), 0);
+    std::signal(SIGXFSZ, previous);
+    const uint64_t errors = counters.capture_write_errors;
+    EXPECT_GE(errors, 4U);
+    writer.append(0, t_us += 2'000'000, data.data(), data.size()); // a second later: a new file
+    writer.close();
+    EXPECT_EQ(counters.capture_write_errors, errors);
+    EXPECT_EQ(readAll(config.path).size(), 1U);
+    EXPECT_EQ(readAll(config.path + ".1").size(), 10U);
+    EXPECT_EQ(counters.capture_rotations, 1U);
 }

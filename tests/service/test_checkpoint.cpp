@@ -97,10 +97,11 @@ TEST(Checkpoint, ReplacementIsAtomicAndAFailedWriteKeepsTheOldOne)
     EXPECT_EQ(loadCheckpointFile(path).nodes[0].x_mm, 1);
     writeCheckpointFile(path, sample(2)); // and the next write goes through
     EXPECT_EQ(loadCheckpointFile(path).nodes[0].x_mm, 2);
-    // A write that cannot happen (the temporary's place is a directory) throws and keeps it.
-    ::unlink((path + ".tmp").c_str());
-    ASSERT_EQ(::mkdir((path + ".tmp").c_str(), 0755), 0);
+    // A write that cannot happen (the directory became writable by every user, so the
+    // checkpoint is refused there) throws and keeps it.
+    ASSERT_EQ(::chmod(dir.path().c_str(), 0777), 0);
     EXPECT_THROW(writeCheckpointFile(path, sample(3)), CheckpointError);
+    ASSERT_EQ(::chmod(dir.path().c_str(), 0700), 0);
     EXPECT_EQ(loadCheckpointFile(path).nodes[0].x_mm, 2);
 }
 

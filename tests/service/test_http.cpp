@@ -1,7 +1,14 @@
 // The live map's HTTP server: page and assets, the JSON API, components fetched on the loop
 // thread, and server-sent events carrying a newly published map.
 #include <atomic>
+#include <chrono>
 #include <thread>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <gtest/gtest.h>
 #include <httplib.h>
@@ -127,4 +134,233 @@ TEST_F(HttpTest, EventsCarryEachNewSnapshot)
     reader.join();
     EXPECT_TRUE(got_second.load());
     EXPECT_NE(received.find("event: map\ndata: {"), std::string::npos);
+}
+
+// ---- hostile clients (issue 16, 4-6) ----------------------------------------------------------
+
+namespace {
+
+// A raw TCP client, for what a well-behaved library would never send.
+class RawClient {
+public:
+    explicit RawClient(int port, const char *source = "127.0.0.1")
+    {
+        fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+        sockaddr_in local{};
+        local.sin_family = AF_INET;
+        ::inet_pton(AF_INET, source, &local.sin_addr);
+        ::bind(fd_, reinterpret_cast<sockaddr *>(&local), sizeof local); // a client address of our choice
+        sockaddr_in server{};
+        server.sin_family = AF_INET;
+        server.sin_port = htons(static_cast<uint16_t>(port));
+        ::inet_pton(AF_INET, "127.0.0.1", &server.sin_addr);
+        connected_ = ::connect(fd_, reinterpret_cast<sockaddr *>(&server), sizeof server) == 0;
+    }
+    ~RawClient() { ::close(fd_); }
+    RawClient(const RawClient &) = delete;
+    RawClient &operator=(const RawClient &) = delete;
+    bool connected() const { return connected_; }
+    // False once the server closed (EPIPE/ECONNRESET).
+    bool send(const std::string &text)
+    {
+        size_t done = 0;
+        while (done < text.size()) {
+            const ssize_t n = ::send(fd_, text.data() + done, text.size() - done, MSG_NOSIGNAL);
+            if (n <= 0) {
+                return false;
+            }
+            done += static_cast<size_t>(n);
+        }
+        return true;
+    }
+    // Everything until the server closes or timeout_ms passes without a byte.
+    std::string receive(int timeout_ms)
+    {
+        std::string out;
+        char buffer[4096];
+        for (;;) {
+            pollfd p{fd_, POLLIN, 0};
+            if (::poll(&p, 1, timeout_ms) <= 0) {
+                timed_out_ = true;
+                return out;
+            }
+            const ssize_t n = ::recv(fd_, buffer, sizeof buffer, 0);
+            if (n <= 0) {
+                return out;
+            }
+            out.append(buffer, static_cast<size_t>(n));
+        }
+    }
+    bool timedOut() const { return timed_out_; }
+
+private:
+    int fd_ = -1;
+    bool connected_ = false;
+    bool timed_out_ = false;
+};
+
+std::string statusLine(const std::string &response) { return response.substr(0, response.find("\r\n")); }
+
+} // namespace
+
+// Issue 16, 4: forty connections sending their headers a byte at a time held every worker of
+// the old server; the health endpoint failed for as long as they kept going.
+TEST_F(HttpTest, SlowHeadersDoNotStarveTheHealthEndpoint)
+{
+    store.publish(mapText(1), R"({"type":"health","link":"connected"})");
+    std::vector<std::unique_ptr<RawClient>> slow;
+    for (int i = 0; i < 40; ++i) {
+        slow.push_back(std::make_unique<RawClient>(server->port(), "127.0.0.2"));
+        slow.back()->send("GET /api/health HTTP/1.1\r\n");
+    }
+    std::atomic<bool> trickling{true};
+    std::thread trickle([&] {
+        while (trickling.load()) {
+            for (auto &client : slow) {
+                client->send("X");
+            }
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        }
+    });
+    int answered = 0;
+    for (int i = 0; i < 10; ++i) {
+        RawClient check(server->port());
+        check.send("GET /api/health HTTP/1.1\r\nHost: x\r\n\r\n");
+        const std::string response = check.receive(10000);
+        answered += statusLine(response) == "HTTP/1.1 200 OK" ? 1 : 0;
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    trickling = false;
+    trickle.join();
+    EXPECT_EQ(answered, 10);
+}
+
+TEST_F(HttpTest, ARequestHeadNotCompleteInTimeIsAnswered408AndClosed)
+{
+    HttpLimits limits;
+    limits.head_deadline_s = 0.5;
+    HttpConfig config;
+    config.port = 0;
+    HttpServer quick(loop, config, store, nullptr, limits);
+    quick.start();
+    RawClient client(quick.port());
+    client.send("GET /api/health HTTP/1.1\r\nHost: x\r\n");
+    const auto start = std::chrono::steady_clock::now();
+    const std::string response = client.receive(30000); // a deadlock guard only
+    const double waited_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_FALSE(client.timedOut());
+    EXPECT_EQ(statusLine(response), "HTTP/1.1 408 Request Timeout");
+    EXPECT_GE(waited_s, limits.head_deadline_s * 0.9);
+    EXPECT_EQ(quick.stats().refused, 1U);
+}
+
+TEST_F(HttpTest, ConnectionsPerClientAndInTotalAreCappedAndTheNewestIsServed)
+{
+    store.publish(mapText(1), R"({"type":"health","link":"connected"})");
+    const HttpServer::Limits limits;
+    std::vector<std::unique_ptr<RawClient>> idle;
+    for (uint32_t i = 0; i < limits.max_connections + 50; ++i) {
+        // From many addresses (all of 127/8 is this machine), so that the total cap is reached.
+        const std::string source = "127.0.1." + std::to_string(1 + i % 200);
+        idle.push_back(std::make_unique<RawClient>(server->port(), source.c_str()));
+        idle.back()->send("GET / HTTP/1.1\r\n");
+    }
+    for (int i = 0; i < 3; ++i) {
+        RawClient check(server->port(), "127.0.1.7");
+        check.send("GET /api/health HTTP/1.1\r\n\r\n");
+        EXPECT_EQ(statusLine(check.receive(10000)), "HTTP/1.1 200 OK");
+    }
+    EXPECT_LE(server->openConnections(), limits.max_connections);
+    // One address alone is held to its own cap.
+    std::vector<std::unique_ptr<RawClient>> greedy;
+    for (uint32_t i = 0; i < limits.max_per_client + 20; ++i) {
+        greedy.push_back(std::make_unique<RawClient>(server->port(), "127.0.2.1"));
+        greedy.back()->send("GET / HTTP/1.1\r\n");
+    }
+    RawClient check(server->port(), "127.0.2.1");
+    check.send("GET /api/health HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(statusLine(check.receive(10000)), "HTTP/1.1 200 OK");
+    EXPECT_LE(server->connectionsFrom("127.0.2.1"), limits.max_per_client);
+}
+
+// Issue 16, 5: request bodies were read into memory whole (24 POSTs of 64 MiB took the service
+// to 1.55 GiB). No endpoint takes a body: it is refused from its announced length, unread.
+TEST_F(HttpTest, BodiesAreRefusedUnreadAndHugeHeadsAre431)
+{
+    RawClient post(server->port());
+    post.send("POST /api/map HTTP/1.1\r\nHost: x\r\nContent-Length: 67108864\r\n\r\n");
+    EXPECT_EQ(statusLine(post.receive(10000)), "HTTP/1.1 413 Payload Too Large");
+
+    RawClient chunked(server->port());
+    chunked.send("POST /api/map HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n4000000\r\n");
+    EXPECT_EQ(statusLine(chunked.receive(10000)), "HTTP/1.1 413 Payload Too Large");
+
+    RawClient get_with_body(server->port());
+    get_with_body.send("GET /api/health HTTP/1.1\r\nContent-Length: 5\r\n\r\nhello");
+    EXPECT_EQ(statusLine(get_with_body.receive(10000)), "HTTP/1.1 413 Payload Too Large");
+
+    RawClient huge(server->port());
+    huge.send("GET /api/health HTTP/1.1\r\nX-Big: " + std::string(64 * 1024, 'a'));
+    EXPECT_EQ(statusLine(huge.receive(10000)), "HTTP/1.1 431 Request Header Fields Too Large");
+
+    RawClient put(server->port());
+    put.send("PUT /api/map HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(statusLine(put.receive(10000)), "HTTP/1.1 405 Method Not Allowed");
+
+    RawClient nonsense(server->port()); // a TLS ClientHello's first bytes
+    nonsense.send(std::string("\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03", 11));
+    EXPECT_EQ(statusLine(nonsense.receive(10000)), "HTTP/1.1 400 Bad Request");
+}
+
+// Issue 16, 6: an id too large for std::stoul made the old handler throw: HTTP 500.
+TEST_F(HttpTest, NodeIdsOutsideTheirRangeAre400)
+{
+    auto c = client();
+    for (const char *path : {"/api/nodes/99999999999999999999/components", "/api/nodes/65536/components",
+                             "/api/nodes/0/components", "/api/nodes/000000000000000000001/components"}) {
+        auto response = c.Get(path);
+        ASSERT_TRUE(response) << path;
+        EXPECT_EQ(response->status, 400) << path;
+        EXPECT_NE(response->body.find("1..65535"), std::string::npos) << path;
+    }
+}
+
+TEST_F(HttpTest, NothingButThePagesAndTheApiIsServed)
+{
+    store.publish(mapText(1), "{}");
+    for (const char *path : {"/../../../../etc/passwd", "/..%2f..%2f..%2fetc%2fpasswd", "/%2e%2e/%2e%2e/etc/passwd",
+                             "/static/../../etc/passwd", "//etc/passwd", "/index.html/../../etc/passwd",
+                             "/api/../../etc/passwd", "/app.js%00.png", "/.git/config", "/web/app.js",
+                             "/api/map/../../../etc/shadow", "/%c0%ae%c0%ae/%c0%ae%c0%ae/etc/passwd",
+                             "/....//....//etc/passwd", "/..\\..\\etc\\passwd", "/api/nodes/../../etc/passwd",
+                             "/proc/self/environ", "/api/nodes/1/../../../etc/passwd", "/./././etc/passwd",
+                             "/%252e%252e/etc/passwd", "/api/events/../../etc/passwd", "/style.css/..",
+                             "/index.html%2f..%2f..%2fetc%2fpasswd"}) {
+        RawClient client(server->port());
+        client.send(std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\n\r\n");
+        const std::string response = client.receive(10000);
+        const std::string status = statusLine(response);
+        EXPECT_TRUE(status == "HTTP/1.1 404 Not Found" || status == "HTTP/1.1 400 Bad Request") << path << ": " << status;
+        EXPECT_EQ(response.find("root:"), std::string::npos) << path;
+    }
+    RawClient absolute(server->port());
+    absolute.send("GET http://127.0.0.1/etc/passwd HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(statusLine(absolute.receive(10000)), "HTTP/1.1 400 Bad Request");
+}
+
+TEST_F(HttpTest, ManyEventStreamsAreCappedAndTheRestStillAnswered)
+{
+    store.publish(mapText(1), R"({"type":"health","link":"connected"})");
+    std::vector<std::unique_ptr<RawClient>> streams;
+    int refused = 0;
+    for (uint32_t i = 0; i < HttpConfig{}.max_event_clients + 4; ++i) {
+        streams.push_back(std::make_unique<RawClient>(server->port(), ("127.0.3." + std::to_string(i + 1)).c_str()));
+        streams.back()->send("GET /api/events HTTP/1.1\r\n\r\n");
+        const std::string head = streams.back()->receive(200);
+        refused += statusLine(head) == "HTTP/1.1 503 Service Unavailable" ? 1 : 0;
+    }
+    EXPECT_EQ(refused, 4);
+    RawClient check(server->port());
+    check.send("GET /api/health HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(statusLine(check.receive(10000)), "HTTP/1.1 200 OK");
 }

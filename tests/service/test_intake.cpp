@@ -26,8 +26,11 @@ struct Observer final : IntakeObserver {
     void onIncompatible(const std::string &m) override { incompatible.push_back(m); }
 };
 
+// The nodes the frames below name, as nodes.ids: the device's list is known.
+const std::vector<uint16_t> kListedNodes = {0x6000, 0x6069, 0x6A11, 0x6A2C};
+
 struct Fixture {
-    explicit Fixture(UnknownNodePolicy policy = UnknownNodePolicy::Learn, std::vector<uint16_t> ids = {})
+    explicit Fixture(UnknownNodePolicy policy = UnknownNodePolicy::Learn, std::vector<uint16_t> ids = kListedNodes)
     {
         NodesConfig nodes;
         nodes.ids = std::move(ids);
@@ -236,6 +239,25 @@ TEST(Intake, ResetsAreDetectedByBootHelloTimeAndUnexpectedHello)
     EXPECT_EQ(f.counters.duplicate_frames, 0U);
 }
 
+// Issue 16, 3: a slow link answers two HELLO_REQUESTs late, one after the other. Both HELLOs
+// were asked for: neither is a reset. A third, unasked, is.
+TEST(Intake, EveryOutstandingHelloRequestMakesOneHelloExpected)
+{
+    Fixture f;
+    f.feed(encode(helloFrame(0, 50)));
+    f.feed(encode(rangeFrame(1, 5000, 0x6000, 0x6069, 1000)));
+    f.intake->noteSentFrame(CDRO_FRAME_HELLO_REQUEST);
+    f.intake->noteSentFrame(CDRO_FRAME_HELLO_REQUEST);
+    f.feed(encode(rangeFrame(2, 6000, 0x6000, 0x6069, 1000)));
+    f.feed(encode(helloFrame(3, 6100)));
+    f.feed(encode(rangeFrame(4, 6200, 0x6000, 0x6069, 1000)));
+    f.feed(encode(helloFrame(5, 6300)));
+    EXPECT_EQ(f.counters.device_resets, 0U);
+    EXPECT_TRUE(f.observer.resets.empty());
+    f.feed(encode(helloFrame(6, 6400)));
+    EXPECT_EQ(f.counters.device_resets, 1U);
+}
+
 TEST(Intake, DeviceTimeWrapAfter49DaysIsNotAReset)
 {
     Fixture f;
@@ -246,12 +268,18 @@ TEST(Intake, DeviceTimeWrapAfter49DaysIsNotAReset)
 
 TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
 {
-    Fixture learn(UnknownNodePolicy::Learn, {0x6069});
-    learn.feed(encode(rangeFrame(1, 10, 0x6069, 0x6A11, 1000)));
-    learn.feed(encode(rangeFrame(2, 20, 0x6069, 0x6A11, 1000)));
+    // Policy learn, no node list known yet (nodes.ids empty, no NODE_LIST): an id becomes a
+    // node once it has been seen in kFramesToConfirmNode frames; the frames before are dropped.
+    Fixture learn(UnknownNodePolicy::Learn, {});
+    learn.feed(encode(helloFrame(0, 5, 0x6000)));                  // the own node becomes known
+    for (uint16_t s = 1; s <= FrameIntake::kFramesToConfirmNode; ++s) {
+        learn.feed(encode(rangeFrame(s, 10U * s, 0x6000, 0x6A11, 1000)));
+    }
+    learn.feed(encode(rangeFrame(10, 100, 0x6000, 0x6A11, 1000)));
     EXPECT_EQ(learn.counters.nodes_learned, 1U);
-    EXPECT_EQ(learn.counters.unknown_node_frames, 1U);
-    EXPECT_EQ(learn.consumer.count("range"), 2U);
+    EXPECT_EQ(learn.counters.unknown_node_frames, FrameIntake::kFramesToConfirmNode);
+    EXPECT_EQ(learn.counters.frames_rejected_unknown_node, FrameIntake::kFramesToConfirmNode - 1U);
+    EXPECT_EQ(learn.consumer.count("range"), 2U);                  // the confirming frame and the next
 
     Fixture reject(UnknownNodePolicy::Reject, {0x6069});
     reject.feed(encode(helloFrame(0, 5, 0x6000)));                 // the own node becomes known
@@ -269,6 +297,54 @@ TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
     reject.feed(encode(rangeFrame(4, 30, 0x6069, 0x6A11, 1000)));
     EXPECT_EQ(reject.consumer.count("range"), 2U);
     EXPECT_EQ(reject.counters.nodes_learned, 0U);
+}
+
+// Issue 16, 1: frames whose CRC passes with a corrupted node id (the proxy's phantom ids) must
+// not create nodes. Once the device's node list is known (nodes.ids, or a NODE_LIST), an id
+// outside it is rejected under the default policy too, however often it comes.
+TEST(Intake, IdsOutsideTheDevicesNodeListAreRejectedEvenWhenLearning)
+{
+    Fixture configured(UnknownNodePolicy::Learn, {0x6069, 0x6A11});
+    configured.feed(encode(helloFrame(0, 5, 0x6000)));
+    configured.feed(encode(rangeFrame(1, 10, 0x6000, 0x6069, 1000)));
+    for (uint16_t s = 2; s < 12; ++s) {
+        configured.feed(encode(rangeFrame(s, 10U * s, 0x6000, 0x7B3D, 1000))); // a phantom, 10 times
+    }
+    EXPECT_EQ(configured.counters.nodes_learned, 0U);
+    EXPECT_EQ(configured.counters.frames_rejected_unknown_node, 10U);
+    EXPECT_EQ(configured.counters.unknown_node_frames, 10U);
+    EXPECT_EQ(configured.consumer.count("range"), 1U);
+    EXPECT_EQ(configured.intake->knownNodes().count(0x7B3D), 0U);
+
+    Fixture listed(UnknownNodePolicy::Learn, {});
+    listed.feed(encode(helloFrame(0, 5, 0x6000)));
+    cdro_frame_t list{};
+    list.type = CDRO_FRAME_NODE_LIST;
+    list.sequence = 1;
+    list.as.node_list.source = CDRO_NODE_SOURCE_DISCOVERY;
+    list.as.node_list.node_ids_count = 1;
+    list.as.node_list.node_ids[0] = 0x6069;
+    listed.feed(encode(list));
+    for (uint16_t s = 2; s < 8; ++s) {
+        listed.feed(encode(rangeFrame(s, 10U * s, 0x6000, 0x1234, 1000)));
+    }
+    listed.feed(encode(rangeFrame(8, 80, 0x6000, 0x6069, 1000)));
+    EXPECT_EQ(listed.counters.nodes_learned, 0U);
+    EXPECT_EQ(listed.counters.frames_rejected_unknown_node, 6U);
+    EXPECT_EQ(listed.consumer.count("range"), 1U);
+}
+
+TEST(Intake, ScatteredPhantomIdsNeverBecomeNodesBeforeTheListIsKnown)
+{
+    // Every phantom is another random id: none is seen often enough to be confirmed.
+    Fixture f(UnknownNodePolicy::Learn, {});
+    f.feed(encode(helloFrame(0, 5, 0x6000)));
+    for (uint16_t s = 1; s <= 200; ++s) {
+        f.feed(encode(rangeFrame(s, 10U * s, 0x6000, static_cast<uint16_t>(0x7000 + s), 1000)));
+    }
+    EXPECT_EQ(f.counters.nodes_learned, 0U);
+    EXPECT_EQ(f.counters.frames_rejected_unknown_node, 200U);
+    EXPECT_EQ(f.consumer.count("range"), 0U);
 }
 
 TEST(Intake, IncompatibleHelloNamesBothVersionsAndStopsData)
@@ -294,15 +370,15 @@ TEST(Intake, IncompatibleHelloNamesBothVersionsAndStopsData)
     EXPECT_EQ(f.consumer.count("range"), 1U);
 }
 
-TEST(Intake, FramesOfAnotherProtocolVersionMarkTheDeviceIncompatible)
+namespace {
+// A good frame re-encoded with another protocol version in its header (and a CRC that fits).
+std::vector<uint8_t> withHeaderVersion(const cdro_frame_t &frame, uint8_t version)
 {
-    Fixture f;
-    std::vector<uint8_t> raw = encode(helloFrame(0, 5));
-    // Re-encode with the next header version: decode the COBS, patch, fix the CRC, encode again.
+    std::vector<uint8_t> raw = encode(frame);
     uint8_t plain[CDRO_MAX_RAW_FRAME];
     const long n = cdro_cobs_decode(raw.data(), raw.size() - 1, plain, sizeof plain);
-    ASSERT_GT(n, 0);
-    plain[0] = CDRO_PROTOCOL_VERSION + 1;
+    EXPECT_GT(n, 0);
+    plain[0] = version;
     const uint16_t crc = cdro_crc16(plain, static_cast<size_t>(n) - 2);
     plain[n - 2] = static_cast<uint8_t>(crc & 0xFF);
     plain[n - 1] = static_cast<uint8_t>(crc >> 8);
@@ -310,13 +386,46 @@ TEST(Intake, FramesOfAnotherProtocolVersionMarkTheDeviceIncompatible)
     const size_t m = cdro_cobs_encode(plain, static_cast<size_t>(n), wire, sizeof wire);
     std::vector<uint8_t> bytes(wire, wire + m);
     bytes.push_back(0);
-    f.feed(bytes);
-    EXPECT_EQ(f.counters.version_errors, 1U);
+    return bytes;
+}
+} // namespace
+
+TEST(Intake, FramesOfAnotherProtocolVersionInARowMarkTheDeviceIncompatible)
+{
+    Fixture f;
+    for (uint16_t s = 0; s < FrameIntake::kVersionErrorsForIncompatible; ++s) {
+        EXPECT_TRUE(f.observer.incompatible.empty()) << s;
+        f.feed(withHeaderVersion(rangeFrame(s, 10U * s, 0x6000, 0x6069, 1000), CDRO_PROTOCOL_VERSION + 1));
+    }
+    EXPECT_EQ(f.counters.version_errors, FrameIntake::kVersionErrorsForIncompatible);
     ASSERT_EQ(f.observer.incompatible.size(), 1U);
     EXPECT_NE(f.observer.incompatible[0].find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION + 1)),
               std::string::npos);
     EXPECT_NE(f.observer.incompatible[0].find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION)),
               std::string::npos);
+}
+
+// Issue 16, 2: one frame with a valid checksum claiming another version (a corruption the CRC missed)
+// used to mark the device incompatible for good, and every data frame after it was dropped.
+TEST(Intake, StrayFramesOfAnotherVersionAreCountedAndLockNothingOut)
+{
+    Fixture f;
+    f.feed(encode(helloFrame(0, 5)));
+    uint16_t s = 1;
+    for (int round = 0; round < 50; ++round) {
+        f.feed(encode(rangeFrame(s, 10U * s, 0x6000, 0x6069, 1000)));
+        ++s;
+        // Fewer in a row than it takes, between good frames, again and again.
+        for (uint16_t k = 0; k + 1U < FrameIntake::kVersionErrorsForIncompatible; ++k) {
+            f.feed(withHeaderVersion(rangeFrame(s, 10U * s, 0x6000, 0x6069, 1000), CDRO_PROTOCOL_VERSION + 1));
+            ++s;
+        }
+    }
+    EXPECT_TRUE(f.observer.incompatible.empty());
+    EXPECT_FALSE(f.intake->incompatible());
+    EXPECT_EQ(f.counters.version_errors, 50U * (FrameIntake::kVersionErrorsForIncompatible - 1U));
+    EXPECT_EQ(f.counters.frames_dropped_incompatible, 0U);
+    EXPECT_EQ(f.consumer.count("range"), 50U);
 }
 
 TEST(Intake, HostFrameTypesFromTheDeviceAreDropped)

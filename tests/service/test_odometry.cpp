@@ -669,6 +669,7 @@ ServiceConfig quietConfig(const cdro::test::TempDir &dir)
     config.serial.device = dir.file("ttyPOZYX");
     config.serial.reconnect_min_s = 0.05;
     config.serial.reconnect_max_s = 0.2;
+    config.nodes.ids = {0x6069, 0x6A11}; // the device's list: the frames below name these
     config.capture.path = dir.file("live.cdrocap");
     config.output.jsonl = "";
     config.output.health_period_s = 0.0;

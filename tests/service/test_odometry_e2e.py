@@ -132,7 +132,8 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
     for speed in ("max", "25"):
         replay = Harness(harness_bin, tmp_path, name=f"replay-{speed}",
                          extra_config=f"odometry: {{udp_port: {port}}}\n",
-                         args=["--replay", str(harness.capture), "--speed", speed])
+                         args=["--replay", str(harness.capture), "--speed", speed,
+                               "--jsonl", str(tmp_path / f"replay-{speed}.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
         assert replay.received_lines() == live, f"speed {speed}"
         assert [l for l in replay.jsonl_lines() if l["type"] in ("node", "robot")] == live_outputs, f"speed {speed}"

@@ -288,7 +288,8 @@ def test_replay_is_identical_at_any_speed(harness_bin, tmp_path):
     live_nodes = [l for l in harness.jsonl_lines() if l["type"] == "node"]
     for speed in ("max", "25"):
         replay = Harness(harness_bin, tmp_path, name=f"replay-{speed}",
-                         args=["--replay", str(harness.capture), "--speed", speed])
+                         args=["--replay", str(harness.capture), "--speed", speed,
+                               "--jsonl", str(tmp_path / f"replay-{speed}.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
         assert replay.received_lines() == live_received, f"speed {speed}"
         assert [l for l in replay.jsonl_lines() if l["type"] == "node"] == live_nodes, f"speed {speed}"

@@ -204,7 +204,7 @@ TEST(Session, IncompatibleDeviceIsLeftAloneUntilACompatibleHello)
     f.session->onLinkUp();
     f.session->onIncompatible("device speaks protocol version 2");
     EXPECT_EQ(f.session->linkState(), LinkState::Incompatible);
-    EXPECT_EQ(f.session->nextDeadlineUs(), INT64_MAX);
+    EXPECT_EQ(f.session->nextDeadlineUs(), f.clock.monotonicUs() + 1'000'000); // asked again later
     cdro_frame_t hello = cdro::test::helloFrame(0, 10);
     hello.as.hello.protocol_version = CDRO_PROTOCOL_VERSION + 1;
     f.frame(hello);
@@ -212,6 +212,56 @@ TEST(Session, IncompatibleDeviceIsLeftAloneUntilACompatibleHello)
     f.frame(cdro::test::helloFrame(0, 10));
     EXPECT_EQ(f.session->linkState(), LinkState::Handshaking);
     EXPECT_EQ(f.sink.sent.size(), 1U);
+}
+
+// Issue 16, 2: an incompatible device was never asked again: a HELLO that only looked
+// incompatible (or a device reflashed without a reset) locked the service out until the device
+// rebooted by itself. HELLO_REQUEST keeps going out, with a doubling delay.
+TEST(Session, IncompatibleDeviceIsAskedAgainWithBackoff)
+{
+    Fixture f;
+    f.config.serial.reconnect_max_s = 4.0;
+    f.session = std::make_unique<DeviceSession>(f.config, f.clock, f.sink, f.listener, f.counters);
+    f.session->onLinkUp();
+    f.session->onIncompatible("device speaks protocol version 2");
+    std::vector<int64_t> delays_us;
+    for (int i = 0; i < 5; ++i) {
+        const int64_t before_us = f.clock.monotonicUs();
+        f.timeout();
+        delays_us.push_back(f.clock.monotonicUs() - before_us);
+        EXPECT_EQ(f.sink.sent.back().type, CDRO_FRAME_HELLO_REQUEST);
+        EXPECT_EQ(f.session->linkState(), LinkState::Incompatible);
+    }
+    EXPECT_EQ(f.sink.sent.size(), 5U);
+    // hello_timeout_s (1 s) doubling, up to serial.reconnect_max_s (4 s).
+    EXPECT_EQ(delays_us, (std::vector<int64_t>{1'000'000, 2'000'000, 4'000'000, 4'000'000, 4'000'000}));
+    f.frame(cdro::test::helloFrame(7, 10)); // the answer is compatible after all
+    EXPECT_EQ(f.session->linkState(), LinkState::Handshaking);
+    EXPECT_EQ(f.sink.sent.back().type, CDRO_FRAME_SET_NODES);
+}
+
+// Issue 16, 3: the late answer to an earlier HELLO_REQUEST is not a reason to configure again.
+TEST(Session, ALateHelloWhileRunningOrConfiguringChangesNothing)
+{
+    Fixture f;
+    f.handshake();
+    const size_t sent = f.sink.sent.size();
+    f.frame(cdro::test::helloFrame(40, 5000));
+    EXPECT_EQ(f.session->linkState(), LinkState::Connected);
+    EXPECT_EQ(f.sink.sent.size(), sent);
+    EXPECT_EQ(f.counters.handshakes, 1U);
+
+    Fixture g;
+    g.session->onLinkUp();
+    g.frame(cdro::test::helloFrame(3, 10));
+    ASSERT_EQ(g.sink.sent.back().type, CDRO_FRAME_SET_NODES);
+    g.frame(cdro::test::helloFrame(4, 20)); // the answer to a second request
+    ASSERT_EQ(g.sink.sent.size(), 1U);      // SET_NODES is not sent again
+    for (int i = 0; i < 3; ++i) {
+        g.ack(g.sink.sent.back());
+    }
+    EXPECT_EQ(g.session->linkState(), LinkState::Connected);
+    EXPECT_EQ(g.counters.command_timeouts, 0U);
 }
 
 TEST(Session, LinkDownIsDisconnectedAndSilent)

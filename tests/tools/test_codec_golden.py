@@ -130,6 +130,20 @@ def test_capture_version_1_still_reads_and_encodes(vectors):
     assert blob.hex() == v["bytes"]
 
 
+def test_capture_header_with_a_context_reads_and_encodes(vectors):
+    v = vectors["capture_context"]
+    contents = codec.parse_capture(bytes.fromhex(v["bytes"]))
+    assert contents.header.context.hex() == v["header"]["context"]
+    assert contents.header.format_version == v["header"]["format_version"]
+    assert [(r.host_time_us, r.flags, r.data.hex()) for r in contents.records] == [
+        (r["host_time_us"], r["flags"], r["data"]) for r in v["records"]]
+    header = codec.CaptureHeader(v["header"]["created_unix_us"], v["header"]["source"],
+                                 context=bytes.fromhex(v["header"]["context"]))
+    assert len(capture_file.encode_header(header)) == v["header"]["size"]
+    blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in contents.records)
+    assert blob.hex() == v["bytes"]
+
+
 def test_capture_refuses_newer_versions(vectors):
     data = bytearray.fromhex(vectors["capture"]["bytes"])
     data[8] = capture_file.FORMAT_VERSION + 1

@@ -85,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
                         out.write(json.dumps(_line(event, record.host_time_us, direction)) + "\n")
             print(json.dumps({"capture": {"source": contents.header.source,
                                           "format_version": contents.header.format_version,
+                                          "context": contents.header.context.decode("utf-8", errors="replace"),
                                           "records": len(contents.records), "odometry_records": odometry,
                                           "corrupt_bytes": contents.corrupt_bytes,
                                           "truncated_tail_bytes": contents.truncated_tail_bytes}}),

@@ -5,14 +5,20 @@
  *
  * File = header, then records, back to back. All integers little-endian.
  *
- * Header (23 + n bytes):
+ * Header (23 + n bytes, or 25 + n + m with a context):
  *   0   8  magic "CDROCAP" followed by 0x00
  *   8   u16 format version: 1 or 2 (CDRO_CAPTURE_FORMAT_VERSION; see "Versions" below)
- *   10  u16 header size in bytes, CRC included (23 + n; readers skip bytes they do not know)
+ *   10  u16 header size in bytes, CRC included (readers skip bytes they do not know)
  *   12  i64 creation time, us since the Unix epoch (UTC)
  *   20  u8  n, length of the source description
  *   21  n   source, UTF-8, not terminated (e.g. "serial:/dev/ttyACM0@115200")
- *   21+n u16 CRC-16/CCITT-FALSE of bytes [0, 21+n)
+ *   21+n    (optional) the run's context: u16 m, then m bytes, UTF-8: what the writer needs to
+ *           replay the run to the same result (cdro-hostd: JSON, docs/service.md "Capture and
+ *           replay"). Present when the header is longer than 23 + n bytes. An addition to the
+ *           header's layout, not a new version: a reader that does not know it skips it (the
+ *           header size says where the records start), so every reader of versions 1 and 2
+ *           reads such a file.
+ *   size-2 u16 CRC-16/CCITT-FALSE of every header byte before it
  *
  * Record (14 + n bytes):
  *   0   u8  marker 0xC5
@@ -58,6 +64,8 @@ extern "C" {
 #define CDRO_CAPTURE_RECORD_MARKER 0xC5U
 #define CDRO_CAPTURE_RECORD_OVERHEAD 14U
 #define CDRO_CAPTURE_MAX_DATA 4096U   /* bytes; longer garbage runs are cut and flagged */
+/* Bytes of the header's context at most (the header size is a u16). */
+#define CDRO_CAPTURE_MAX_CONTEXT (65535U - CDRO_CAPTURE_HEADER_FIXED - CDRO_CAPTURE_MAX_SOURCE - 2U)
 
 #define CDRO_CAPTURE_FLAG_TO_DEVICE 0x01U /* sent by the host; otherwise received */
 #define CDRO_CAPTURE_FLAG_TRUNCATED 0x02U /* the chunk was longer than the data kept */
@@ -69,6 +77,8 @@ typedef struct cdro_capture_header {
     int64_t created_unix_us;   /* us since the Unix epoch */
     uint8_t source_len;        /* bytes in source */
     char source[CDRO_CAPTURE_MAX_SOURCE]; /* not terminated */
+    uint16_t context_len;      /* bytes in context; 0 = none */
+    const uint8_t *context;    /* encode: read from here; decode: points into the input (NULL if none) */
 } cdro_capture_header_t;
 
 typedef struct cdro_capture_record {
@@ -80,8 +90,9 @@ typedef struct cdro_capture_record {
 
 /*
  * Encodes the header into out with header->format_version (0 = the newest; an older version
- * is for tests and converters). Returns its size, or 0 if out_cap is too small or the version
- * is not one this build knows.
+ * is for tests and converters), and its context when context_len > 0. Returns its size, or 0
+ * if out_cap is too small, the version is not one this build knows, or the context is longer
+ * than CDRO_CAPTURE_MAX_CONTEXT.
  */
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap);
 

@@ -1,13 +1,15 @@
 #include "cdro/hostd/csv_input.hpp"
 
-#include <cstdio>
-
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
-#include <fstream>
+#include <cstring>
 #include <map>
-#include <sstream>
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 namespace cdro::hostd {
 
@@ -26,15 +28,15 @@ std::string trim(const std::string &text)
 std::vector<std::string> split(const std::string &line)
 {
     std::vector<std::string> fields;
-    std::string field;
-    std::stringstream stream(line);
-    while (std::getline(stream, field, ',')) {
-        fields.push_back(trim(field));
+    size_t start = 0;
+    for (;;) {
+        const size_t comma = line.find(',', start);
+        fields.push_back(trim(line.substr(start, comma == std::string::npos ? std::string::npos : comma - start)));
+        if (comma == std::string::npos) {
+            return fields;
+        }
+        start = comma + 1;
     }
-    if (!line.empty() && line.back() == ',') {
-        fields.emplace_back();
-    }
-    return fields;
 }
 
 bool parseNumber(const std::string &text, double *value)
@@ -52,36 +54,156 @@ bool parseNumber(const std::string &text, double *value)
     return true;
 }
 
+// Any number, or an id of any 16-bit value (0 included: a row naming node 0 is a data row with
+// a bad id, not a header).
 bool looksNumeric(const std::vector<std::string> &fields)
 {
     for (const std::string &field : fields) {
         double ignored = 0.0;
-        uint16_t id = 0;
-        if (!parseNumber(field, &ignored) && !parseNodeId(field, &id)) {
-            return false;
+        if (!parseNumber(field, &ignored)) {
+            const bool hex = field.size() > 2 && field[0] == '0' && (field[1] == 'x' || field[1] == 'X') &&
+                             field.find_first_not_of("0123456789abcdefABCDEF", 2) == std::string::npos;
+            if (!hex) {
+                return false;
+            }
         }
     }
     return true;
 }
 
-// Reads a CSV whose columns are `wanted` (optional ones marked), calling row(fields-by-column).
-// Positional without a header: `positional` lists the layouts accepted by field count.
-template <typename Row, typename Make>
-CsvTable<Row> readTable(const std::string &path, const std::vector<std::string> &required,
-                        const std::vector<std::string> &optional,
-                        const std::map<size_t, std::vector<std::string>> &positional, Make make)
-{
-    std::ifstream in(path);
-    if (!in) {
-        throw CsvError(path + ": cannot open the file");
+// One pass over a file with a fixed buffer; lines longer than kMaxLineBytes or a 0x00 byte
+// mean the file is not a CSV at all.
+class LineReader {
+public:
+    explicit LineReader(const std::string &path) : path_(path)
+    {
+        struct stat st {};
+        if (::stat(path.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
+            throw CsvError(path + ": is a directory, not a CSV file");
+        }
+        fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd_ < 0) {
+            throw CsvError(path + ": cannot open the file (" + std::strerror(errno) + ")");
+        }
+        buffer_.resize(1 << 16);
     }
-    CsvTable<Row> table;
-    std::map<std::string, size_t> column; // name -> index
+    ~LineReader() { ::close(fd_); }
+    LineReader(const LineReader &) = delete;
+    LineReader &operator=(const LineReader &) = delete;
+
+    // The next line without its end (\n or \r\n); false at the end of the file.
+    bool next(std::string &line)
+    {
+        line.clear();
+        for (;;) {
+            if (begin_ == end_ && !fill()) {
+                if (line.empty() && !pending_) {
+                    return false;
+                }
+                pending_ = false;
+                ++number_;
+                if (!line.empty() && line.back() == '\r') {
+                    line.pop_back();
+                }
+                return true;
+            }
+            pending_ = true;
+            const char *start = buffer_.data() + begin_;
+            const size_t available = end_ - begin_;
+            const void *newline = std::memchr(start, '\n', available);
+            const size_t take = newline != nullptr ? static_cast<size_t>(static_cast<const char *>(newline) - start)
+                                                   : available;
+            if (std::memchr(start, '\0', take) != nullptr) {
+                throw CsvError(path_ + ":" + std::to_string(number_ + 1) + ": a 0x00 byte: not a CSV file");
+            }
+            if (line.size() + take > kMaxLineBytes) {
+                throw CsvError(path_ + ":" + std::to_string(number_ + 1) + ": a line longer than " +
+                               std::to_string(kMaxLineBytes) + " bytes: not a CSV file of this kind");
+            }
+            line.append(start, take);
+            begin_ += take;
+            if (newline != nullptr) {
+                ++begin_;
+                pending_ = false;
+                ++number_;
+                if (!line.empty() && line.back() == '\r') {
+                    line.pop_back();
+                }
+                return true;
+            }
+        }
+    }
+    size_t number() const { return number_; }
+
+private:
+    bool fill()
+    {
+        for (;;) {
+            const ssize_t n = ::read(fd_, buffer_.data(), buffer_.size());
+            if (n < 0 && errno == EINTR) {
+                continue;
+            }
+            if (n < 0) {
+                throw CsvError(path_ + ": read failed after line " + std::to_string(number_) + " (" +
+                               std::strerror(errno) + ")");
+            }
+            begin_ = 0;
+            end_ = static_cast<size_t>(n);
+            if (first_fill_) {
+                first_fill_ = false;
+                if (end_ >= 3 && std::memcmp(buffer_.data(), "\xEF\xBB\xBF", 3) == 0) {
+                    begin_ = 3; // a UTF-8 byte-order mark (spreadsheets write one)
+                }
+            }
+            return n > 0;
+        }
+    }
+
+    std::string path_;
+    int fd_ = -1;
+    std::vector<char> buffer_;
+    size_t begin_ = 0;
+    size_t end_ = 0;
+    size_t number_ = 0;
+    bool pending_ = false; // bytes of a line without its end have been taken
+    bool first_fill_ = true;
+};
+
+// The fields of one row by column name (a handful: a linear search is the fastest).
+class Fields {
+public:
+    void clear() { entries_.clear(); }
+    void set(const std::string &name, const std::string &value) { entries_.emplace_back(name, value); }
+    const std::string *find(const std::string &name) const
+    {
+        for (const auto &entry : entries_) {
+            if (entry.first == name) {
+                return &entry.second;
+            }
+        }
+        return nullptr;
+    }
+
+private:
+    std::vector<std::pair<std::string, std::string>> entries_;
+};
+
+// Reads a CSV whose columns are `required` (and optional ones), calling make(fields) per data
+// line, then onRow or onProblem. Positional without a header: `positional` lists the layouts
+// accepted by field count. Returns the number of data lines.
+template <typename Row, typename Make>
+size_t readRows(const std::string &path, const std::vector<std::string> &required,
+                const std::map<size_t, std::vector<std::string>> &positional, Make make,
+                const std::function<void(const Row &)> &onRow, const std::function<void(const CsvProblem &)> &onProblem)
+{
+    LineReader in(path);
+    std::vector<std::pair<std::string, size_t>> column; // name -> index
     bool have_layout = false;
     std::string line;
-    size_t number = 0;
-    while (std::getline(in, line)) {
-        ++number;
+    size_t data_lines = 0;
+    Fields values;
+    while (in.next(line)) {
+        const size_t number = in.number();
         const std::string text = trim(line);
         if (text.empty() || text[0] == '#') {
             continue;
@@ -91,10 +213,14 @@ CsvTable<Row> readTable(const std::string &path, const std::vector<std::string> 
             have_layout = true;
             if (!looksNumeric(fields)) {
                 for (size_t i = 0; i < fields.size(); ++i) {
-                    column[fields[i]] = i;
+                    column.emplace_back(fields[i], i);
                 }
                 for (const std::string &name : required) {
-                    if (column.count(name) == 0) {
+                    bool found = false;
+                    for (const auto &entry : column) {
+                        found = found || entry.first == name;
+                    }
+                    if (!found) {
                         std::string expected;
                         for (const std::string &n : required) {
                             expected += (expected.empty() ? "" : ",") + n;
@@ -106,20 +232,20 @@ CsvTable<Row> readTable(const std::string &path, const std::vector<std::string> 
                 continue;
             }
         }
-        ++table.data_lines;
-        std::map<std::string, std::string> values;
+        ++data_lines;
+        values.clear();
         if (!column.empty()) {
             for (const auto &[name, index] : column) {
                 if (index < fields.size()) {
-                    values[name] = fields[index];
+                    values.set(name, fields[index]);
                 }
             }
             bool complete = true;
             for (const std::string &name : required) {
-                complete = complete && values.count(name) != 0;
+                complete = complete && values.find(name) != nullptr;
             }
             if (!complete) {
-                table.problems.push_back({number, "too few fields (" + std::to_string(fields.size()) + ")"});
+                onProblem({number, "too few fields (" + std::to_string(fields.size()) + ")"});
                 continue;
             }
         } else {
@@ -129,42 +255,52 @@ CsvTable<Row> readTable(const std::string &path, const std::vector<std::string> 
                 for (const auto &entry : positional) {
                     counts += (counts.empty() ? "" : " or ") + std::to_string(entry.first);
                 }
-                table.problems.push_back({number, std::to_string(fields.size()) + " fields, expected " + counts});
+                onProblem({number, std::to_string(fields.size()) + " fields, expected " + counts});
                 continue;
             }
             for (size_t i = 0; i < fields.size(); ++i) {
-                values[layout->second[i]] = fields[i];
+                values.set(layout->second[i], fields[i]);
             }
         }
-        (void)optional;
         Row row{};
         row.line = number;
         std::string problem;
         if (make(values, row, problem)) {
-            table.rows.push_back(row);
+            onRow(row);
         } else {
-            table.problems.push_back({number, problem});
+            onProblem({number, problem});
         }
     }
+    return data_lines;
+}
+
+template <typename Row, typename Make>
+CsvTable<Row> readTable(const std::string &path, const std::vector<std::string> &required,
+                        const std::map<size_t, std::vector<std::string>> &positional, Make make)
+{
+    CsvTable<Row> table;
+    table.data_lines = readRows<Row>(
+        path, required, positional, make, [&table](const Row &row) { table.rows.push_back(row); },
+        [&table](const CsvProblem &problem) { table.problems.push_back(problem); });
     return table;
 }
 
-bool numberField(const std::map<std::string, std::string> &values, const char *name, double *out, std::string &problem)
+bool numberField(const Fields &values, const char *name, double *out, std::string &problem)
 {
-    const auto found = values.find(name);
-    if (found == values.end() || !parseNumber(found->second, out)) {
-        problem = std::string(name) + " '" + (found == values.end() ? "" : found->second) + "' is not a finite number";
+    const std::string *found = values.find(name);
+    if (found == nullptr || !parseNumber(*found, out)) {
+        problem = std::string(name) + " '" + (found == nullptr ? "" : *found) + "' is not a finite number";
         return false;
     }
     return true;
 }
 
-bool idField(const std::map<std::string, std::string> &values, const char *name, uint16_t *out, std::string &problem)
+bool idField(const Fields &values, const char *name, uint16_t *out, std::string &problem)
 {
-    const auto found = values.find(name);
-    if (found == values.end() || !parseNodeId(found->second, out)) {
-        problem = std::string(name) + " '" + (found == values.end() ? "" : found->second) +
-                  "' is not a node id (0..65535, decimal or 0x hex)";
+    const std::string *found = values.find(name);
+    if (found == nullptr || !parseNodeId(*found, out)) {
+        problem = std::string(name) + " '" + (found == nullptr ? "" : *found) +
+                  "' is not a node id (1..65535, decimal or 0x hex; 0 is not a node on the live link either)";
         return false;
     }
     return true;
@@ -181,33 +317,44 @@ bool parseNodeId(const std::string &text, uint16_t *id)
     errno = 0;
     const bool hex = text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
     const long long value = std::strtoll(text.c_str(), &end, hex ? 16 : 10);
-    if (*end != '\0' || errno == ERANGE || value < 0 || value > 65535) {
-        return false;
+    if (*end != '\0' || errno == ERANGE || value < 1 || value > 65535) {
+        return false; // 0 is not a node (the frame check of common/frames.c: it means "none")
     }
     *id = static_cast<uint16_t>(value);
     return true;
 }
 
+namespace {
+bool makeRange(const Fields &values, RangeRow &row, std::string &problem)
+{
+    if (values.find("t") != nullptr) {
+        row.has_time = true;
+        if (!numberField(values, "t", &row.t_s, problem)) {
+            return false;
+        }
+    }
+    return idField(values, "from", &row.from, problem) && idField(values, "to", &row.to, problem) &&
+           numberField(values, "range_m", &row.range_m, problem);
+}
+const std::map<size_t, std::vector<std::string>> kRangeLayouts = {{3, {"from", "to", "range_m"}},
+                                                                   {4, {"t", "from", "to", "range_m"}}};
+} // namespace
+
 CsvTable<RangeRow> readRangesCsv(const std::string &path)
 {
-    return readTable<RangeRow>(
-        path, {"from", "to", "range_m"}, {"t"}, {{3, {"from", "to", "range_m"}}, {4, {"t", "from", "to", "range_m"}}},
-        [](const std::map<std::string, std::string> &values, RangeRow &row, std::string &problem) {
-            if (values.count("t") != 0) {
-                row.has_time = true;
-                if (!numberField(values, "t", &row.t_s, problem)) {
-                    return false;
-                }
-            }
-            return idField(values, "from", &row.from, problem) && idField(values, "to", &row.to, problem) &&
-                   numberField(values, "range_m", &row.range_m, problem);
-        });
+    return readTable<RangeRow>(path, {"from", "to", "range_m"}, kRangeLayouts, makeRange);
+}
+
+size_t readRangesCsv(const std::string &path, const std::function<void(const RangeRow &)> &onRow,
+                     const std::function<void(const CsvProblem &)> &onProblem)
+{
+    return readRows<RangeRow>(path, {"from", "to", "range_m"}, kRangeLayouts, makeRange, onRow, onProblem);
 }
 
 CsvTable<HeightRow> readHeightsCsv(const std::string &path)
 {
-    return readTable<HeightRow>(path, {"id", "z"}, {}, {{2, {"id", "z"}}, {4, {"id", "x", "y", "z"}}},
-                                [](const std::map<std::string, std::string> &values, HeightRow &row, std::string &problem) {
+    return readTable<HeightRow>(path, {"id", "z"}, {{2, {"id", "z"}}, {4, {"id", "x", "y", "z"}}},
+                                [](const Fields &values, HeightRow &row, std::string &problem) {
                                     return idField(values, "id", &row.id, problem) &&
                                            numberField(values, "z", &row.z_m, problem);
                                 });
@@ -215,8 +362,8 @@ CsvTable<HeightRow> readHeightsCsv(const std::string &path)
 
 CsvTable<FixedRow> readFixedCsv(const std::string &path)
 {
-    return readTable<FixedRow>(path, {"id", "x", "y"}, {}, {{3, {"id", "x", "y"}}},
-                               [](const std::map<std::string, std::string> &values, FixedRow &row, std::string &problem) {
+    return readTable<FixedRow>(path, {"id", "x", "y"}, {{3, {"id", "x", "y"}}},
+                               [](const Fields &values, FixedRow &row, std::string &problem) {
                                    return idField(values, "id", &row.id, problem) &&
                                           numberField(values, "x", &row.x_m, problem) &&
                                           numberField(values, "y", &row.y_m, problem);
@@ -226,8 +373,8 @@ CsvTable<FixedRow> readFixedCsv(const std::string &path)
 CsvTable<OdometryRow> readOdometryCsv(const std::string &path)
 {
     return readTable<OdometryRow>(
-        path, {"t", "distance_m", "dheading_rad"}, {}, {{3, {"t", "distance_m", "dheading_rad"}}},
-        [](const std::map<std::string, std::string> &values, OdometryRow &row, std::string &problem) {
+        path, {"t", "distance_m", "dheading_rad"}, {{3, {"t", "distance_m", "dheading_rad"}}},
+        [](const Fields &values, OdometryRow &row, std::string &problem) {
             return numberField(values, "t", &row.t_s, problem) &&
                    numberField(values, "distance_m", &row.distance_m, problem) &&
                    numberField(values, "dheading_rad", &row.dheading_rad, problem);
@@ -236,8 +383,8 @@ CsvTable<OdometryRow> readOdometryCsv(const std::string &path)
 
 CsvTable<MotionRow> readMotionCsv(const std::string &path)
 {
-    return readTable<MotionRow>(path, {"t", "id", "moving"}, {}, {{3, {"t", "id", "moving"}}},
-                                [](const std::map<std::string, std::string> &values, MotionRow &row, std::string &problem) {
+    return readTable<MotionRow>(path, {"t", "id", "moving"}, {{3, {"t", "id", "moving"}}},
+                                [](const Fields &values, MotionRow &row, std::string &problem) {
                                     double moving = 0.0;
                                     if (!numberField(values, "t", &row.t_s, problem) ||
                                         !idField(values, "id", &row.id, problem) ||

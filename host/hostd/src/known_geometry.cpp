@@ -1,6 +1,7 @@
 // Known heights and fixed nodes, from the `map:` section or the command line (known_geometry.hpp).
 #include "cdro/hostd/known_geometry.hpp"
 
+#include <nlohmann/json.hpp>
 #include <yaml-cpp/yaml.h>
 
 #include "cdro/engine/engine.hpp"
@@ -27,29 +28,102 @@ KnownGeometry parseKnownGeometry(const YAML::Node &root, const std::string &orig
     return geometry;
 }
 
+bool KnownRows::operator==(const KnownRows &other) const
+{
+    if (heights.size() != other.heights.size() || fixed.size() != other.fixed.size()) {
+        return false;
+    }
+    for (size_t i = 0; i < heights.size(); ++i) {
+        if (heights[i].id != other.heights[i].id || heights[i].z_m != other.heights[i].z_m) {
+            return false;
+        }
+    }
+    for (size_t i = 0; i < fixed.size(); ++i) {
+        if (fixed[i].id != other.fixed[i].id || fixed[i].x_m != other.fixed[i].x_m || fixed[i].y_m != other.fixed[i].y_m) {
+            return false;
+        }
+    }
+    return true;
+}
+
+KnownRows readKnownGeometry(const KnownGeometry &geometry, uint32_t max_reported_rows, std::FILE *log)
+{
+    KnownRows rows;
+    if (!geometry.heights_csv.empty()) {
+        CsvTable<HeightRow> heights = readHeightsCsv(geometry.heights_csv);
+        reportCsvProblems(geometry.heights_csv, heights.problems, max_reported_rows, log);
+        rows.heights = std::move(heights.rows);
+        rows.skipped_rows += heights.problems.size();
+    }
+    if (!geometry.fixed_csv.empty()) {
+        CsvTable<FixedRow> fixed = readFixedCsv(geometry.fixed_csv);
+        reportCsvProblems(geometry.fixed_csv, fixed.problems, max_reported_rows, log);
+        rows.fixed = std::move(fixed.rows);
+        rows.skipped_rows += fixed.problems.size();
+    }
+    return rows;
+}
+
+KnownGeometryCounts applyKnownRows(engine::Engine &engine, const KnownRows &rows)
+{
+    KnownGeometryCounts counts;
+    for (const HeightRow &row : rows.heights) {
+        engine.setHeight(row.id, row.z_m);
+    }
+    for (const FixedRow &row : rows.fixed) {
+        engine.setFixed(row.id, engine::Vector2(row.x_m, row.y_m));
+    }
+    counts.heights = rows.heights.size();
+    counts.fixed = rows.fixed.size();
+    counts.skipped_rows = rows.skipped_rows;
+    return counts;
+}
+
 KnownGeometryCounts applyKnownGeometry(engine::Engine &engine, const KnownGeometry &geometry,
                                        uint32_t max_reported_rows, std::FILE *log)
 {
-    KnownGeometryCounts counts;
-    if (!geometry.heights_csv.empty()) {
-        const CsvTable<HeightRow> heights = readHeightsCsv(geometry.heights_csv);
-        reportCsvProblems(geometry.heights_csv, heights.problems, max_reported_rows, log);
-        for (const HeightRow &row : heights.rows) {
-            engine.setHeight(row.id, row.z_m);
-        }
-        counts.heights = heights.rows.size();
-        counts.skipped_rows += heights.problems.size();
+    return applyKnownRows(engine, readKnownGeometry(geometry, max_reported_rows, log));
+}
+
+std::string encodeRunContext(const RunContext &context)
+{
+    nlohmann::ordered_json json;
+    json["heights"] = nlohmann::ordered_json::array();
+    for (const HeightRow &row : context.rows.heights) {
+        json["heights"].push_back({row.id, row.z_m});
     }
-    if (!geometry.fixed_csv.empty()) {
-        const CsvTable<FixedRow> fixed = readFixedCsv(geometry.fixed_csv);
-        reportCsvProblems(geometry.fixed_csv, fixed.problems, max_reported_rows, log);
-        for (const FixedRow &row : fixed.rows) {
-            engine.setFixed(row.id, engine::Vector2(row.x_m, row.y_m));
-        }
-        counts.fixed = fixed.rows.size();
-        counts.skipped_rows += fixed.problems.size();
+    json["fixed"] = nlohmann::ordered_json::array();
+    for (const FixedRow &row : context.rows.fixed) {
+        json["fixed"].push_back({row.id, row.x_m, row.y_m});
     }
-    return counts;
+    json["settings"] = context.settings;
+    return json.dump(); // doubles in their shortest round-trip form: read back bit for bit
+}
+
+RunContext decodeRunContext(const std::string &text, const std::string &origin)
+{
+    RunContext context;
+    try {
+        const nlohmann::json json = nlohmann::json::parse(text);
+        for (const auto &item : json.at("heights")) {
+            HeightRow row;
+            row.id = item.at(0).get<uint16_t>();
+            row.z_m = item.at(1).get<double>();
+            context.rows.heights.push_back(row);
+        }
+        for (const auto &item : json.at("fixed")) {
+            FixedRow row;
+            row.id = item.at(0).get<uint16_t>();
+            row.x_m = item.at(1).get<double>();
+            row.y_m = item.at(2).get<double>();
+            context.rows.fixed.push_back(row);
+        }
+        context.settings = json.at("settings").get<std::string>();
+    } catch (const nlohmann::json::exception &error) {
+        throw service::ConfigError(origin + ": the run's context in the capture header is unreadable (" +
+                                   std::string(error.what()) + ")");
+    }
+    return context;
 }
 
 } // namespace cdro::hostd

@@ -18,9 +18,11 @@
 #include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/offline.hpp"
 #include "cdro/hostd/progress.hpp"
+#include "cdro/service/capture.hpp"
 #include "cdro/service/config_cli.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
+#include "cdro/service/yaml_section.hpp"
 
 namespace {
 
@@ -51,6 +53,11 @@ ConfigDocument loadDocument(const std::string &path, const std::vector<std::stri
         } catch (const YAML::Exception &error) {
             throw ConfigError(path + ": not valid YAML: " + error.what());
         }
+        // Each layer rejects unknown keys inside its sections; a misspelt section name is caught
+        // here, where every layer's sections are known.
+        std::vector<std::string> sections = cdro::service::serviceSectionNames();
+        sections.insert(sections.end(), {"engine", "movement", "map"});
+        cdro::service::rejectUnknownSections(document.root, path, sections);
     }
     if (!sets.empty()) {
         cdro::hostd::applySettings(document.root, sets);
@@ -60,6 +67,45 @@ ConfigDocument loadDocument(const std::string &path, const std::vector<std::stri
         document.origin += " + --set";
     }
     return document;
+}
+
+// A replay reaches the live run's map only with what the map depended on: the heights and fixed
+// nodes and the settings, which the live run recorded in its capture's header. Whatever the
+// replay's own command line and configuration do not give is taken from there; what they give
+// is used, with a warning when it differs from the live run's.
+void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_settings, cdro::hostd::KnownRows &rows,
+                    cdro::engine::EngineParams &params, cdro::engine::MovementParams &movement)
+{
+    cdro::service::CaptureReader reader(capture);
+    if (reader.context().empty()) {
+        cdro::service::log()->warn(
+            "replay: {} does not record what the map depends on (a capture written before cdro-hostd recorded "
+            "it): the replay uses the heights, fixed nodes and settings given now ({} heights, {} fixed nodes, {} "
+            "settings) and reaches the live run's map only if they are the live run's",
+            capture, rows.heights.size(), rows.fixed.size(), gave_settings ? "the configured" : "the default");
+        return;
+    }
+    const cdro::hostd::RunContext recorded = cdro::hostd::decodeRunContext(reader.context(), capture);
+    if (!gave_geometry) {
+        rows = recorded.rows;
+        cdro::service::log()->info("replay: the live run's {} known heights and {} fixed nodes, from the capture",
+                                   rows.heights.size(), rows.fixed.size());
+    } else if (!(rows == recorded.rows)) {
+        cdro::service::log()->warn("replay: the heights or fixed nodes given differ from the live run's (recorded in "
+                                   "the capture: {} heights, {} fixed nodes); the map will differ from the live one",
+                                   recorded.rows.heights.size(), recorded.rows.fixed.size());
+    }
+    const std::string now = cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement);
+    if (!gave_settings) {
+        const YAML::Node root = YAML::Load(recorded.settings);
+        params = cdro::hostd::parseEngineParams(root, capture + " (the live run's settings)");
+        movement = cdro::hostd::parseMovementParams(root, capture + " (the live run's settings)");
+        cdro::service::log()->info("replay: the live run's engine settings, from the capture");
+    } else if (now != recorded.settings) {
+        cdro::service::log()->warn("replay: the engine settings given differ from the live run's (recorded in the "
+                                   "capture; cdro-hostd --print-config shows these); the map will differ from the "
+                                   "live one");
+    }
 }
 
 } // namespace
@@ -145,10 +191,18 @@ int main(int argc, char **argv)
                                                   : cdro::service::parseServiceConfig(document.service_text, document.origin);
         cdro::service::applyOverrides(config, service_overrides);
         cdro::service::setupLogging(config.logging);
+        cdro::hostd::KnownRows rows = cdro::hostd::readKnownGeometry(geometry, 20, stderr);
+        if (!service_overrides.run.replay_path.empty()) {
+            const bool gave_geometry = !geometry.heights_csv.empty() || !geometry.fixed_csv.empty();
+            const bool gave_settings = (document.root && document.root.IsMap() &&
+                                        (document.root["engine"] || document.root["movement"])) ||
+                                       engine_overrides.no_weight_transfer || engine_overrides.no_cooperative ||
+                                       engine_overrides.no_refinement || engine_overrides.no_motion_reset;
+            takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows, params, movement);
+        }
         cdro::engine::Engine engine(params);
         engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
-        const cdro::hostd::KnownGeometryCounts known =
-            cdro::hostd::applyKnownGeometry(engine, geometry, 20, stderr);
+        const cdro::hostd::KnownGeometryCounts known = cdro::hostd::applyKnownRows(engine, rows);
         if (known.heights + known.fixed > 0) {
             cdro::service::log()->info("map: {} known heights, {} fixed nodes", known.heights, known.fixed);
         }
@@ -160,6 +214,8 @@ int main(int argc, char **argv)
         cdro::hostd::EngineAdapter adapter(engine, stage.get());
         cdro::service::SystemClock clock;
         cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter, &adapter}, clock);
+        service.setCaptureContext(cdro::hostd::encodeRunContext(
+            {rows, cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement)}));
         service.start();
         if (!service.liveMapUrl().empty()) {
             std::fprintf(stderr, "cdro-hostd: live map: %s\n", service.liveMapUrl().c_str());

@@ -1,17 +1,25 @@
 #include "cdro/hostd/offline.hpp"
 
+#include <algorithm>
 #include <cerrno>
+#include <chrono>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <memory>
 #include <optional>
 #include <string>
 
+#include <fcntl.h>
+#include <unistd.h>
+
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
 #include "cdro/hostd/csv_input.hpp"
 #include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
+#include "cdro/service/config.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::hostd {
 
@@ -70,13 +78,74 @@ struct FileCloser {
 };
 using File = std::unique_ptr<std::FILE, FileCloser>;
 
+// Never through a symbolic link, never in a directory every user may write to (the service's
+// rule for every file it writes: output_file.hpp).
 File openForWriting(const std::string &path, std::FILE *log)
 {
-    File file(std::fopen(path.c_str(), "w"));
+    int fd = -1;
+    try {
+        fd = service::openOutputFile(path, O_WRONLY | O_CREAT | O_TRUNC, "output file");
+    } catch (const service::ConfigError &error) {
+        std::fprintf(log, "cdro-hostd: %s\n", error.what());
+        return File();
+    }
+    File file(::fdopen(fd, "w"));
     if (!file) {
         std::fprintf(log, "cdro-hostd: cannot write %s: %s\n", path.c_str(), std::strerror(errno));
+        ::close(fd);
     }
     return file;
+}
+
+// The outputs of a run that ends with status 2 once they were opened (they are ours then; the
+// trajectory is opened only after every input was read).
+void removeOutputs(const OfflineOptions &options)
+{
+    for (const std::string *path : {&options.out_csv, &options.trace_csv}) {
+        if (!path->empty()) {
+            ::unlink(path->c_str());
+        }
+    }
+}
+
+// Wall time since construction, for the reading rate (never for anything that is output).
+class RateClock {
+public:
+    double seconds() const
+    {
+        return std::max(1e-6, std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count());
+    }
+
+private:
+    std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+};
+
+// True once a second (checked every 4096 calls, so that it costs nothing per row).
+class ProgressTicker {
+public:
+    bool due()
+    {
+        if (++calls_ % 4096 != 0) {
+            return false;
+        }
+        const auto now = std::chrono::steady_clock::now();
+        if (now < next_) {
+            return false;
+        }
+        next_ = now + std::chrono::seconds(1);
+        return true;
+    }
+
+private:
+    uint64_t calls_ = 0;
+    std::chrono::steady_clock::time_point next_ = std::chrono::steady_clock::now() + std::chrono::seconds(1);
+};
+
+void reportRate(std::FILE *log, const std::string &path, size_t rows, const RateClock &clock)
+{
+    const double seconds = clock.seconds();
+    std::fprintf(log, "cdro-hostd: %s: %zu rows in %.2f s (%.0f rows/s)\n", path.c_str(), rows, seconds,
+                 static_cast<double>(rows) / seconds);
 }
 
 // Sorts rows by time (stable) and says how many were out of order.
@@ -223,20 +292,29 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
 int runOffline(const OfflineOptions &options, const engine::EngineParams &params,
                const engine::MovementParams &movement_params, std::FILE *log)
 {
+    bool outputs_opened = false; // only files this run opened are removed when it fails
     try {
         engine::Engine engine(params);
         if (options.verbose) {
             engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
         applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows, log);
-        const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv);
-        reportCsvProblems(options.ranges_csv, ranges.problems, options.max_reported_rows, log);
+        const bool movement = !options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty();
 
         // Open the outputs before the work, so that an unwritable path fails at once.
         File out = openForWriting(options.out_csv, log);
         if (!out) {
             return 2;
         }
+        outputs_opened = true;
+        // An input with nothing to map ends the run with status 2, and no empty map is left
+        // behind to be taken for a result.
+        const auto nothing_to_map = [&](const std::string &why) {
+            std::fprintf(log, "cdro-hostd: %s: %s; nothing to map (exit status 2)\n", options.ranges_csv.c_str(),
+                         why.c_str());
+            removeOutputs(options);
+            return 2;
+        };
         File trace;
         if (!options.trace_csv.empty()) {
             trace = openForWriting(options.trace_csv, log);
@@ -246,11 +324,18 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             writeTraceHeader(trace.get());
         }
 
-        const bool movement = !options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty();
         if (movement) {
             if (options.odometry_csv.empty() || options.robot_id < 0 || options.out_trajectory.empty()) {
                 std::fprintf(log, "cdro-hostd: the movement stage needs --odometry-csv, --robot-id and --out-trajectory\n");
                 return 2;
+            }
+            // The stage merges every input by time: the ranges are read whole and sorted.
+            const RateClock clock;
+            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv);
+            reportCsvProblems(options.ranges_csv, ranges.problems, options.max_reported_rows, log);
+            reportRate(log, options.ranges_csv, ranges.data_lines, clock);
+            if (ranges.rows.empty()) {
+                return nothing_to_map("no usable row (" + std::to_string(ranges.problems.size()) + " bad rows skipped)");
             }
             engine::MovementParams stage_params = movement_params;
             stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
@@ -269,43 +354,92 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         if (!options.motion_csv.empty()) {
             motion = readMotionCsv(options.motion_csv);
             reportCsvProblems(options.motion_csv, motion.problems, options.max_reported_rows, log);
-            for (const RangeRow &row : ranges.rows) {
-                if (!row.has_time) {
-                    std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n",
-                                 options.ranges_csv.c_str());
-                    return 2;
-                }
-            }
             sortByTime(motion.rows, options.motion_csv, log);
         }
         size_t next_motion = 0;
         double last_t_s = 0.0;
         bool timed = false;
-        for (const RangeRow &row : ranges.rows) {
-            while (next_motion < motion.rows.size() && motion.rows[next_motion].t_s <= row.t_s) {
-                engine.setMoving(motion.rows[next_motion].id, motion.rows[next_motion].moving);
-                ++next_motion;
-            }
-            const engine::RangeVerdict verdict =
-                engine.addRange(row.from, row.to, row.range_m, row.has_time ? row.t_s : std::nan(""));
-            ++processed;
-            timed = row.has_time;
-            last_t_s = row.t_s;
-            if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
-                if (refused++ < options.max_reported_rows) {
-                    std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
-                                 options.ranges_csv.c_str(), row.line, engine::rangeVerdictName(verdict),
-                                 static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
+        bool untimed_with_motion = false;
+        // The ranges stream through the engine as they are read (in file order, as over the
+        // link): memory does not grow with the file, and a progress line comes every second.
+        struct HeldTrace {
+            uint64_t ranges = 0;
+            std::vector<engine::NodeOutput> estimates;
+            bool timed = false;
+            double t_s = 0.0; // s
+        };
+        std::optional<HeldTrace> held_trace;
+        std::vector<CsvProblem> shown_problems; // the first max_reported_rows, the rest counted
+        size_t bad_rows = 0;
+        const RateClock clock;
+        ProgressTicker progress;
+        const size_t data_lines = readRangesCsv(
+            options.ranges_csv,
+            [&](const RangeRow &row) {
+                if (untimed_with_motion) {
+                    return;
                 }
-            }
-            // The last range's snapshot is the final one, written after settling.
-            if (trace && processed % every == 0 && processed != ranges.rows.size()) {
-                writeTraceRows(trace.get(), processed, engine.estimates(), timed ? &last_t_s : nullptr);
-            }
+                if (!motion.rows.empty() && !row.has_time) {
+                    untimed_with_motion = true;
+                    return;
+                }
+                while (next_motion < motion.rows.size() && motion.rows[next_motion].t_s <= row.t_s) {
+                    engine.setMoving(motion.rows[next_motion].id, motion.rows[next_motion].moving);
+                    ++next_motion;
+                }
+                const engine::RangeVerdict verdict =
+                    engine.addRange(row.from, row.to, row.range_m, row.has_time ? row.t_s : std::nan(""));
+                ++processed;
+                timed = row.has_time;
+                last_t_s = row.t_s;
+                if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
+                    if (refused++ < options.max_reported_rows) {
+                        std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
+                                     options.ranges_csv.c_str(), row.line, engine::rangeVerdictName(verdict),
+                                     static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
+                    }
+                }
+                // A snapshot is written once the next range shows it was not the last: the last
+                // range's snapshot is the final one, written after settling.
+                if (held_trace) {
+                    writeTraceRows(trace.get(), held_trace->ranges, held_trace->estimates,
+                                   held_trace->timed ? &held_trace->t_s : nullptr);
+                    held_trace.reset();
+                }
+                if (trace && processed % every == 0) {
+                    held_trace = HeldTrace{processed, engine.estimates(), timed, last_t_s};
+                }
+                if (progress.due()) {
+                    std::fprintf(log, "cdro-hostd: %s: %llu rows so far (%.0f rows/s)\n", options.ranges_csv.c_str(),
+                                 static_cast<unsigned long long>(processed + bad_rows),
+                                 static_cast<double>(processed + bad_rows) / clock.seconds());
+                }
+            },
+            [&](const CsvProblem &problem) {
+                if (bad_rows++ < options.max_reported_rows) {
+                    shown_problems.push_back(problem);
+                }
+            });
+        if (untimed_with_motion) {
+            std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n", options.ranges_csv.c_str());
+            return 2;
         }
+        reportCsvProblems(options.ranges_csv, shown_problems, options.max_reported_rows, log);
+        if (bad_rows > shown_problems.size()) {
+            std::fprintf(log, "cdro-hostd: %s: %zu more bad rows skipped (not shown)\n", options.ranges_csv.c_str(),
+                         bad_rows - shown_problems.size());
+        }
+        reportRate(log, options.ranges_csv, data_lines, clock);
         if (refused > options.max_reported_rows) {
             std::fprintf(log, "cdro-hostd: %s: %llu more refused ranges (not shown)\n", options.ranges_csv.c_str(),
                          static_cast<unsigned long long>(refused - options.max_reported_rows));
+        }
+        if (processed == 0) {
+            return nothing_to_map("no usable row (" + std::to_string(bad_rows) + " bad rows skipped)");
+        }
+        if (refused == processed) {
+            return nothing_to_map("none of the " + std::to_string(processed) +
+                                  " ranges read could be used (the engine refused every one, above)");
         }
         uint64_t settled = 0;
         if (options.settle) {
@@ -337,7 +471,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         std::fprintf(log,
                      "cdro-hostd: %llu ranges read (%zu bad rows skipped), %llu used, %llu stored before placement, "
                      "%llu refused (%llu self, %llu value), %llu projections clamped\n",
-                     static_cast<unsigned long long>(processed), ranges.problems.size(),
+                     static_cast<unsigned long long>(processed), bad_rows,
                      static_cast<unsigned long long>(c.ranges_used), static_cast<unsigned long long>(c.ranges_stored),
                      static_cast<unsigned long long>(refused), static_cast<unsigned long long>(c.intake.rejected_self),
                      static_cast<unsigned long long>(c.intake.rejected_value),
@@ -360,6 +494,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         return 0;
     } catch (const CsvError &error) {
         std::fprintf(log, "cdro-hostd: %s\n", error.what());
+        // The outputs may have been opened already (the ranges are read as they are used):
+        // nothing half-done is left behind.
+        if (outputs_opened) {
+            removeOutputs(options);
+        }
         return 2;
     } catch (const std::logic_error &error) {
         std::fprintf(log, "cdro-hostd: %s\n", error.what());

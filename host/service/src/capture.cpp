@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "cdro/service/log.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::service {
 
@@ -36,21 +37,27 @@ bool writeAll(int fd, const uint8_t *bytes, size_t len, std::string *error)
 bool fileExists(const std::string &path)
 {
     struct stat st {};
-    return ::stat(path.c_str(), &st) == 0;
+    return ::lstat(path.c_str(), &st) == 0; // a link counts, whatever it points at
 }
 
 constexpr size_t kMaxRecordBytes = CDRO_CAPTURE_RECORD_OVERHEAD + CDRO_CAPTURE_MAX_DATA;
+constexpr int64_t kReopenPeriodUs = 1'000'000; // us of record time between attempts at a new file
 
 } // namespace
 
 // ---- writer --------------------------------------------------------------------------------
 
-CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters)
-    : config_(config), source_(std::move(source)), counters_(counters),
+CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters,
+                             std::string context)
+    : config_(config), source_(std::move(source)), context_(std::move(context)), counters_(counters),
       rotate_bytes_(static_cast<uint64_t>(std::llround(config.rotate_mib * 1024.0 * 1024.0)))
 {
     if (source_.size() > CDRO_CAPTURE_MAX_SOURCE) {
         source_.resize(CDRO_CAPTURE_MAX_SOURCE);
+    }
+    if (context_.size() > CDRO_CAPTURE_MAX_CONTEXT) {
+        throw CaptureError("capture: the run's context is " + std::to_string(context_.size()) + " bytes, at most " +
+                           std::to_string(CDRO_CAPTURE_MAX_CONTEXT) + " fit in a capture header");
     }
 }
 
@@ -64,6 +71,15 @@ std::string CaptureWriter::rotatedName(const std::string &path, uint32_t index)
 void CaptureWriter::open(int64_t created_unix_us)
 {
     close();
+    try {
+        checkOutputPath(config_.path, "capture");
+    } catch (const ConfigError &error) {
+        if (std::string(error.what()).find("symbolic link") == std::string::npos) {
+            throw CaptureError(error.what());
+        }
+        // A link at the path is rotated away like a previous run's file (rename moves the link
+        // itself, never its target), and a new file is created in its place.
+    }
     if (fileExists(config_.path)) {
         rotate(created_unix_us); // keeps the previous run's capture as path.1
         return;
@@ -73,24 +89,31 @@ void CaptureWriter::open(int64_t created_unix_us)
 
 void CaptureWriter::openFresh(int64_t created_unix_us)
 {
-    fd_ = ::open(config_.path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
-    if (fd_ < 0) {
-        throw CaptureError("capture: cannot create " + config_.path + ": " + std::strerror(errno));
+    // O_EXCL: whatever was at the path has just been rotated away; something that appeared
+    // there since (a planted link) makes this fail instead of being written through.
+    try {
+        fd_ = openOutputFile(config_.path, O_WRONLY | O_CREAT | O_EXCL | O_APPEND, "capture");
+    } catch (const ConfigError &error) {
+        throw CaptureError(error.what());
     }
     cdro_capture_header_t header{};
     header.format_version = CDRO_CAPTURE_FORMAT_VERSION;
     header.created_unix_us = created_unix_us;
     header.source_len = static_cast<uint8_t>(source_.size());
     std::memcpy(header.source, source_.data(), source_.size());
-    uint8_t bytes[CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE];
-    const size_t size = cdro_capture_header_encode(&header, bytes, sizeof bytes);
+    header.context_len = static_cast<uint16_t>(context_.size());
+    header.context = reinterpret_cast<const uint8_t *>(context_.data());
+    std::vector<uint8_t> bytes(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE + 2 + context_.size());
+    const size_t size = cdro_capture_header_encode(&header, bytes.data(), bytes.size());
     std::string error;
-    if (size == 0 || !writeAll(fd_, bytes, size, &error)) {
+    if (size == 0 || !writeAll(fd_, bytes.data(), size, &error)) {
         ::close(fd_);
         fd_ = -1;
+        ::unlink(config_.path.c_str()); // a header cut short (full disk): the next attempt starts clean
         throw CaptureError("capture: cannot write the header of " + config_.path + ": " + error);
     }
     file_bytes_ = size;
+    header_bytes_ = size;
     counters_.capture_bytes += size;
 }
 
@@ -120,7 +143,25 @@ void CaptureWriter::rotate(int64_t created_unix_us)
 void CaptureWriter::append(uint8_t flags, int64_t host_time_us, const uint8_t *data, size_t len)
 {
     if (fd_ < 0) {
-        return;
+        if (!reopen_pending_) {
+            return; // not opened, or closed
+        }
+        // A rotation failed (a full disk): a new file is tried again once a second of record
+        // time, and the records until then are lost and counted.
+        if (host_time_us < reopen_at_us_) {
+            ++counters_.capture_write_errors;
+            ++lost_in_outage_;
+            return;
+        }
+        try {
+            openFresh(host_time_us);
+            reopen_pending_ = false;
+        } catch (const CaptureError &) {
+            reopen_at_us_ = host_time_us + kReopenPeriodUs;
+            ++counters_.capture_write_errors;
+            ++lost_in_outage_;
+            return;
+        }
     }
     if (len > CDRO_CAPTURE_MAX_DATA) {
         len = CDRO_CAPTURE_MAX_DATA;
@@ -133,25 +174,39 @@ void CaptureWriter::append(uint8_t flags, int64_t host_time_us, const uint8_t *d
     record.data_len = static_cast<uint16_t>(len);
     record.data = data;
     const size_t size = cdro_capture_record_encode(&record, bytes, sizeof bytes);
-    if (file_bytes_ + size > rotate_bytes_ && file_bytes_ > CDRO_CAPTURE_HEADER_FIXED + source_.size()) {
+    if (file_bytes_ + size > rotate_bytes_ && file_bytes_ > header_bytes_) {
         try {
             rotate(host_time_us);
         } catch (const CaptureError &error) {
             ++counters_.capture_write_errors;
-            log()->error("{}; capture stopped", error.what());
+            ++lost_in_outage_;
+            reopen_pending_ = true;
+            reopen_at_us_ = host_time_us + kReopenPeriodUs;
+            log()->error("{}; records are lost and counted in capture_write_errors until a new file can be "
+                         "started (tried every second; it will be logged)",
+                         error.what());
             return;
         }
     }
     std::string error;
     if (!writeAll(fd_, bytes, size, &error)) {
         ++counters_.capture_write_errors;
-        if (!write_error_logged_) {
-            write_error_logged_ = true;
-            log()->error("capture: cannot append to {}: {} (counted in capture_write_errors; further errors "
-                         "are not logged)",
+        ++lost_in_outage_;
+        // A record cut by the full disk would read as corrupt bytes: the file goes back to
+        // its last whole record.
+        [[maybe_unused]] const int rc = ::ftruncate(fd_, static_cast<off_t>(file_bytes_));
+        if (lost_in_outage_ == 1) {
+            log()->error("capture: cannot append to {}: {} (records are lost and counted in capture_write_errors "
+                         "until writing works again, which will be logged)",
                          config_.path, error);
         }
         return;
+    }
+    if (lost_in_outage_ > 0) {
+        log()->warn("capture: writing again to {}; {} records were lost while it could not be written "
+                    "(capture_write_errors)",
+                    config_.path, lost_in_outage_);
+        lost_in_outage_ = 0;
     }
     file_bytes_ += size;
     ++counters_.capture_records;
@@ -160,6 +215,7 @@ void CaptureWriter::append(uint8_t flags, int64_t host_time_us, const uint8_t *d
 
 void CaptureWriter::close()
 {
+    reopen_pending_ = false;
     if (fd_ >= 0) {
         ::fsync(fd_);
         ::close(fd_);
@@ -175,11 +231,16 @@ CaptureReader::CaptureReader(const std::string &path) : path_(path), buffer_(1 <
     if (fd_ < 0) {
         throw CaptureError(path + ": cannot open: " + std::strerror(errno));
     }
-    while (!eof_ && end_ < CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE) {
-        fill();
-    }
     size_t consumed = 0;
-    const cdro_result_t status = cdro_capture_header_decode(buffer_.data(), end_, &header_, &consumed);
+    cdro_result_t status = CDRO_PENDING;
+    // The header's size is in the header: read until it is all there (a context can make it
+    // up to 64 KiB), or the file ends.
+    while (status == CDRO_PENDING) {
+        status = cdro_capture_header_decode(buffer_.data(), end_, &header_, &consumed);
+        if (status == CDRO_PENDING && !fill()) {
+            break;
+        }
+    }
     switch (status) {
     case CDRO_OK: break;
     case CDRO_PENDING: throw CaptureError(path + ": not a capture file (it ends inside the header)");
@@ -191,6 +252,11 @@ CaptureReader::CaptureReader(const std::string &path) : path_(path), buffer_(1 <
     default: throw CaptureError(path + ": inconsistent capture header (" + cdro_result_name(status) + ")");
     }
     begin_ = consumed;
+    if (header_.context_len > 0) {
+        context_.assign(reinterpret_cast<const char *>(header_.context), header_.context_len);
+    }
+    header_.context = nullptr; // it pointed into the buffer, which moves on
+    header_.context_len = 0;
 }
 
 CaptureReader::~CaptureReader()

@@ -8,6 +8,8 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include "cdro/service/config.hpp"
+#include "cdro/service/output_file.hpp"
 #include "cdro/wire.h"
 
 namespace cdro::service {
@@ -185,10 +187,14 @@ SogSnapshot decodeSnapshot(const uint8_t *bytes, size_t len, const std::string &
 void writeCheckpointFile(const std::string &path, const SogSnapshot &snapshot)
 {
     const std::vector<uint8_t> bytes = encodeSnapshot(snapshot);
-    const std::string temp = path + ".tmp";
-    const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) {
-        throw CheckpointError("checkpoint: cannot create " + temp + ": " + std::strerror(errno));
+    // A fresh temporary name each time (O_EXCL): a link planted at a predictable name can
+    // neither redirect the write nor be followed.
+    std::string temp;
+    int fd = -1;
+    try {
+        fd = createTempNextTo(path, "checkpoint", &temp);
+    } catch (const ConfigError &error) {
+        throw CheckpointError(error.what());
     }
     size_t done = 0;
     while (done < bytes.size()) {

@@ -130,6 +130,13 @@ void section(const YAML::Node &root, const char *name, const std::string &origin
 
 } // namespace
 
+const std::vector<std::string> &serviceSectionNames()
+{
+    static const std::vector<std::string> names = {"serial", "nodes",      "schedule", "capture", "output",
+                                                   "mqtt",   "http",       "checkpoint", "odometry", "logging"};
+    return names;
+}
+
 const char *unknownNodePolicyName(UnknownNodePolicy policy)
 {
     return policy == UnknownNodePolicy::Learn ? "learn" : "reject";

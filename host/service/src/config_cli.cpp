@@ -69,6 +69,15 @@ void applyOverrides(ServiceConfig &c, const ServiceOverrides &o)
         }
         c.checkpoint.period_s = *o.checkpoint_period_s;
     }
+    if (!o.run.replay_path.empty()) {
+        // A replay writes what its command line asks for and nothing else: the configuration
+        // file describes the live service (its checkpoint, its live map's port, its broker, its
+        // JSON Lines file), which a replay must neither overwrite nor compete with.
+        c.output.jsonl = o.jsonl.value_or("-");
+        c.checkpoint.path = o.checkpoint_path.value_or("");
+        c.http.port = o.http_port.value_or(0);
+        c.mqtt.url = o.mqtt_url.value_or("");
+    }
     if (o.odometry_udp_port) c.odometry.udp_port = *o.odometry_udp_port;
     if (o.odometry_mqtt_topic) c.odometry.mqtt_topic = *o.odometry_mqtt_topic;
     if (o.log_level) {

@@ -95,7 +95,7 @@ std::string describeFrame(const cdro_frame_t &f)
 FrameIntake::FrameIntake(const NodesConfig &nodes, double drop_log_per_s, ServiceCounters &counters,
                          const Clock &clock)
     : counters_(counters), clock_(clock), policy_(nodes.unknown), drop_log_(drop_log_per_s),
-      known_nodes_(nodes.ids.begin(), nodes.ids.end())
+      known_nodes_(nodes.ids.begin(), nodes.ids.end()), node_list_known_(!nodes.ids.empty())
 {
     cdro_decoder_init(&decoder_);
     chunk_.reserve(CDRO_CAPTURE_MAX_DATA);
@@ -103,8 +103,11 @@ FrameIntake::FrameIntake(const NodesConfig &nodes, double drop_log_per_s, Servic
 
 void FrameIntake::noteSentFrame(uint8_t type)
 {
-    if (type == CDRO_FRAME_HELLO_REQUEST) {
-        hello_requested_ = true;
+    // A bound, so that requests a device never answered (it was unplugged) cannot hide an
+    // unexpected HELLO for ever; more than this are never outstanding in a working session.
+    constexpr uint32_t kMaxOutstandingHelloRequests = 64;
+    if (type == CDRO_FRAME_HELLO_REQUEST && hello_requests_outstanding_ < kMaxOutstandingHelloRequests) {
+        ++hello_requests_outstanding_;
     }
 }
 
@@ -195,12 +198,17 @@ void FrameIntake::onRejected(cdro_result_t result, const cdro_frame_t &partial, 
         logDrop("value", [&] { return describeFrame(partial) + " (a field is out of its documented range)"; });
         break;
     case CDRO_ERR_VERSION:
-        markIncompatible("the device sends protocol version " + std::to_string(partial.version) +
-                         " frames; this host speaks protocol version " + std::to_string(CDRO_PROTOCOL_VERSION) +
-                         " (layout hash " + hex16(CDRO_LAYOUT_HASH) + ")");
         logDrop("version", [&] { return "a " + std::to_string(chunk_len) + "-byte chunk of protocol version " +
                                std::to_string(partial.version) + " (this host speaks " +
                                std::to_string(CDRO_PROTOCOL_VERSION) + ")"; });
+        // One such frame is a corruption the CRC missed; a firmware of another build sends
+        // nothing else, so only a run of them, with no good frame between, means that.
+        if (++version_errors_in_a_row_ == kVersionErrorsForIncompatible) {
+            markIncompatible("the device sends protocol version " + std::to_string(partial.version) +
+                             " frames (" + std::to_string(version_errors_in_a_row_) +
+                             " in a row); this host speaks protocol version " + std::to_string(CDRO_PROTOCOL_VERSION) +
+                             " (layout hash " + hex16(CDRO_LAYOUT_HASH) + ")");
+        }
         break;
     case CDRO_ERR_TYPE:
         logDrop("type", [&] { return "a frame of unknown type " + hex16(partial.type) + ", seq " + std::to_string(partial.sequence); });
@@ -220,9 +228,9 @@ bool FrameIntake::checkSequenceAndReset(const cdro_frame_t &f, int64_t host_unix
     uint32_t time_ms = 0;
     const bool has_time = deviceTimeOf(f, &time_ms);
     const bool is_hello = f.type == CDRO_FRAME_HELLO;
-    const bool hello_was_requested = hello_requested_;
-    if (is_hello) {
-        hello_requested_ = false;
+    const bool hello_was_requested = hello_requests_outstanding_ > 0;
+    if (is_hello && hello_requests_outstanding_ > 0) {
+        --hello_requests_outstanding_;
     }
 
     bool reset = false;
@@ -279,36 +287,65 @@ bool FrameIntake::checkSequenceAndReset(const cdro_frame_t &f, int64_t host_unix
     return true;
 }
 
-bool FrameIntake::nodeKnown(uint16_t id)
+bool FrameIntake::nodeKnown(uint16_t id, std::string *why)
 {
     if (known_nodes_.count(id) != 0) {
         return true;
     }
-    ++counters_.unknown_node_frames;
-    if (policy_ == UnknownNodePolicy::Learn) {
-        known_nodes_.insert(id);
-        ++counters_.nodes_learned;
-        log()->info("intake: learned node {}", hex16(id));
-        return true;
+    if (policy_ == UnknownNodePolicy::Reject) {
+        *why = "unknown node id " + hex16(id) + " (nodes.unknown: reject)";
+        return false;
     }
-    return false;
+    if (node_list_known_) {
+        // The device ranges the nodes of its list and no other: an id outside it is a
+        // corruption that passed the CRC, however often it comes.
+        *why = "node id " + hex16(id) + " is not in the device's node list";
+        return false;
+    }
+    // No list yet (a host that started against a running device, before its NODE_LIST): a
+    // real node keeps coming back, a corrupted id is another random one each time.
+    const uint32_t seen = ++candidates_[id];
+    if (seen < kFramesToConfirmNode) {
+        *why = "node id " + hex16(id) + " not confirmed yet (seen in " + std::to_string(seen) + " of " +
+               std::to_string(kFramesToConfirmNode) + " frames, and no node list from the device)";
+        return false;
+    }
+    candidates_.erase(id);
+    known_nodes_.insert(id);
+    ++counters_.nodes_learned;
+    log()->info("intake: learned node {} (seen in {} frames; the device has not listed its nodes yet)", hex16(id),
+                kFramesToConfirmNode);
+    return true;
 }
 
 bool FrameIntake::checkNodes(const cdro_frame_t &f)
 {
-    bool ok = true;
+    uint16_t ids[2] = {0, 0};
     switch (f.type) {
     case CDRO_FRAME_RANGE:
-        ok = nodeKnown(f.as.range.from_id);
-        ok = nodeKnown(f.as.range.to_id) && ok;
+        ids[0] = f.as.range.from_id;
+        ids[1] = f.as.range.to_id;
         break;
-    case CDRO_FRAME_MOTION: ok = nodeKnown(f.as.motion.node_id); break;
-    case CDRO_FRAME_ERROR: ok = f.as.error.node_id == 0 || nodeKnown(f.as.error.node_id); break;
-    default: break;
+    case CDRO_FRAME_MOTION: ids[0] = f.as.motion.node_id; break;
+    case CDRO_FRAME_ERROR: ids[0] = f.as.error.node_id; break; // 0 = the device itself
+    default: return true;
+    }
+    const bool unknown = (ids[0] != 0 && known_nodes_.count(ids[0]) == 0) ||
+                         (ids[1] != 0 && known_nodes_.count(ids[1]) == 0);
+    if (!unknown) {
+        return true;
+    }
+    ++counters_.unknown_node_frames;
+    std::string why;
+    bool ok = true;
+    for (const uint16_t id : ids) {
+        if (id != 0 && ok) {
+            ok = nodeKnown(id, &why);
+        }
     }
     if (!ok) {
         ++counters_.frames_rejected_unknown_node;
-        logDrop("unknown_node", [&] { return describeFrame(f) + ": unknown node id (nodes.unknown: reject)"; });
+        logDrop("unknown_node", [&] { return describeFrame(f) + ": " + why; });
     }
     return ok;
 }
@@ -350,6 +387,7 @@ void FrameIntake::checkHello(const cdro_hello_t &hello)
 
 void FrameIntake::onAccepted(const cdro_frame_t &f, int64_t host_unix_us)
 {
+    version_errors_in_a_row_ = 0;
     if (f.type >= 0x40U) {
         ++counters_.unexpected_frames;
         logDrop("unexpected", [&] { return describeFrame(f) + ": a host-to-device frame type from the device"; });
@@ -365,6 +403,8 @@ void FrameIntake::onAccepted(const cdro_frame_t &f, int64_t host_unix_us)
         for (uint8_t i = 0; i < f.as.node_list.node_ids_count; ++i) {
             known_nodes_.insert(f.as.node_list.node_ids[i]);
         }
+        node_list_known_ = true;
+        candidates_.clear();
     }
     if (observer_ != nullptr) {
         observer_->onDeviceFrame(f, host_unix_us);

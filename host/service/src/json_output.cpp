@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cdro/service/log.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::service {
 
@@ -41,10 +42,7 @@ void JsonLinesWriter::open()
         owns_fd_ = false;
         return;
     }
-    fd_ = ::open(config_.jsonl.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_APPEND | O_CLOEXEC, 0644);
-    if (fd_ < 0) {
-        throw ConfigError("output.jsonl: cannot create '" + config_.jsonl + "': " + std::strerror(errno));
-    }
+    fd_ = openOutputFile(config_.jsonl, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, "output.jsonl");
     owns_fd_ = true;
 }
 

@@ -6,6 +6,8 @@
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 
+#include "cdro/service/output_file.hpp"
+
 namespace cdro::service {
 
 namespace {
@@ -16,6 +18,9 @@ std::shared_ptr<spdlog::logger> g_logger;
 void setupLogging(const LoggingConfig &config)
 {
     std::shared_ptr<spdlog::logger> logger;
+    if (!config.file.empty()) {
+        checkOutputPath(config.file, "logging.file"); // spdlog opens it itself (and would follow a link)
+    }
     try {
         if (config.file.empty()) {
             logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());

@@ -18,6 +18,7 @@ namespace cdro::service {
 namespace {
 std::once_flag g_mosquitto_init;
 constexpr int64_t kMiscPeriodUs = 1'000'000; // libmosquitto wants loop_misc about once a second
+constexpr int kFlushPolls = 500;             // 20 ms polls at the stop: what is queued gets 10 s
 } // namespace
 
 MqttPublisher::MqttPublisher(EventLoop &loop, const MqttConfig &config, ServiceCounters &counters)
@@ -46,6 +47,7 @@ void MqttPublisher::start()
     mosquitto_disconnect_callback_set(mosq_, &MqttPublisher::disconnectCallback);
     mosquitto_message_callback_set(mosq_, &MqttPublisher::messageCallback);
     mosquitto_subscribe_callback_set(mosq_, &MqttPublisher::subscribeCallback);
+    mosquitto_publish_callback_set(mosq_, &MqttPublisher::publishCallback);
     connect();
 }
 
@@ -55,6 +57,7 @@ void MqttPublisher::connect()
     if (stopping_ || mosq_ == nullptr) {
         return;
     }
+    ++connect_attempts_;
     const int keepalive_s = static_cast<int>(config_.keepalive_s);
     const int rc = first_connect_ ? mosquitto_connect_async(mosq_, host_.c_str(), port_, keepalive_s)
                                   : mosquitto_reconnect_async(mosq_);
@@ -97,7 +100,19 @@ void MqttPublisher::updateInterest()
     if (fd_ < 0 || mosq_ == nullptr) {
         return;
     }
-    loop_.setFdEvents(fd_, static_cast<short>(mosquitto_want_write(mosq_) ? (POLLIN | POLLOUT) : POLLIN));
+    const bool want_write = mosquitto_want_write(mosq_);
+    settleInFlight(want_write);
+    loop_.setFdEvents(fd_, static_cast<short>(want_write ? (POLLIN | POLLOUT) : POLLIN));
+}
+
+// QoS 0 has no acknowledgement: a message is done once libmosquitto has nothing left to write
+// (its on_publish callback does not come for every one of them). QoS 1 and 2 messages are done
+// when the broker acknowledges them (publishCallback).
+void MqttPublisher::settleInFlight(bool want_write)
+{
+    if (config_.qos == 0 && !want_write) {
+        in_flight_ = 0;
+    }
 }
 
 void MqttPublisher::onSocketEvents(short revents)
@@ -177,6 +192,27 @@ void MqttPublisher::subscribeCallback(struct mosquitto *, void *self, int mid, i
     }
 }
 
+void MqttPublisher::publishCallback(struct mosquitto *, void *self, int)
+{
+    auto *publisher = static_cast<MqttPublisher *>(self);
+    if (publisher->in_flight_ > 0) {
+        --publisher->in_flight_;
+    }
+}
+
+// Messages libmosquitto still held when the connection went (or the service stops) never
+// reached the broker: they are counted as dropped, not as published-and-forgotten.
+void MqttPublisher::dropInFlight(const std::string &why)
+{
+    if (in_flight_ == 0) {
+        return;
+    }
+    counters_.mqtt_dropped += in_flight_;
+    counters_.mqtt_published -= std::min(counters_.mqtt_published, in_flight_);
+    last_loss_ = why;
+    in_flight_ = 0;
+}
+
 void MqttPublisher::onConnected(int rc)
 {
     if (rc != 0) {
@@ -213,6 +249,8 @@ void MqttPublisher::onConnected(int rc)
 
 void MqttPublisher::onLost(const std::string &reason)
 {
+    dropInFlight("the connection to the broker was lost: " + reason);
+    last_loss_ = "broker " + host_ + ":" + std::to_string(port_) + " unavailable: " + reason;
     if (fd_ >= 0) {
         loop_.unwatchFd(fd_); // before anything can reuse the descriptor number
         fd_ = -1;
@@ -246,14 +284,19 @@ void MqttPublisher::publish(const std::string &name, const std::string &payload,
     }
     if (!connected_ || mosq_ == nullptr) {
         ++counters_.mqtt_dropped;
+        if (last_loss_.empty()) {
+            last_loss_ = "not connected to the broker yet";
+        }
         return;
     }
     const int rc = mosquitto_publish(mosq_, nullptr, name.c_str(), static_cast<int>(payload.size()), payload.data(),
                                      config_.qos, retain);
     if (rc == MOSQ_ERR_SUCCESS) {
         ++counters_.mqtt_published;
+        ++in_flight_;
     } else {
         ++counters_.mqtt_dropped;
+        last_loss_ = mosquitto_strerror(rc);
         if (rc == MOSQ_ERR_NO_CONN || rc == MOSQ_ERR_CONN_LOST) {
             onLost(mosquitto_strerror(rc));
             return;
@@ -305,14 +348,37 @@ void MqttPublisher::shutdown()
     if (connected_) {
         publish(topic("status"), "offline", true);
         stopping_ = true;
+        // Bounded flush of what is queued (a replay at full speed may have much: it all goes out,
+        // then the offline status and the DISCONNECT).
+        for (int i = 0; i < kFlushPolls && fd_ >= 0 && (mosquitto_want_write(mosq_) || in_flight_ > 0); ++i) {
+            settleInFlight(mosquitto_want_write(mosq_));
+            if (in_flight_ == 0 && !mosquitto_want_write(mosq_)) {
+                break;
+            }
+            pollfd p{fd_, static_cast<short>(POLLIN | (mosquitto_want_write(mosq_) ? POLLOUT : 0)), 0};
+            if (::poll(&p, 1, 20) <= 0) {
+                continue;
+            }
+            // Reads too: with QoS 1 and 2 a message is done when the broker acknowledges it.
+            if ((p.revents & (POLLIN | POLLHUP | POLLERR)) != 0 && mosquitto_loop_read(mosq_, 64) != MOSQ_ERR_SUCCESS) {
+                break;
+            }
+            if ((p.revents & POLLOUT) != 0 && mosquitto_loop_write(mosq_, 64) != MOSQ_ERR_SUCCESS) {
+                break;
+            }
+        }
         mosquitto_disconnect(mosq_);
-        // Bounded flush of what is queued (the offline status and the DISCONNECT).
         for (int i = 0; i < 50 && fd_ >= 0 && mosquitto_want_write(mosq_); ++i) {
             pollfd p{fd_, POLLOUT, 0};
             if (::poll(&p, 1, 20) > 0 && mosquitto_loop_write(mosq_, 16) != MOSQ_ERR_SUCCESS) {
                 break;
             }
         }
+        dropInFlight("still queued when the service stopped");
+    }
+    if (counters_.mqtt_dropped > 0) {
+        log()->warn("mqtt: {} messages not published ({}); {} published", counters_.mqtt_dropped,
+                    last_loss_.empty() ? "the broker was not reachable" : last_loss_, counters_.mqtt_published);
     }
     stopping_ = true;
     if (fd_ >= 0) {

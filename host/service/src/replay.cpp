@@ -91,6 +91,11 @@ void ReplaySource::step()
     if (stopped_ || finished_) {
         return;
     }
+    if (gate_ && !gate_()) {
+        constexpr int64_t kGatePollUs = 2'000; // us; only while an output catches up
+        timer_ = loop_.addTimerAfter(kGatePollUs, [this] { step(); });
+        return;
+    }
     try {
         for (size_t fed = 0; fed < kBatchRecords; ++fed) {
             if (!have_pending_) {

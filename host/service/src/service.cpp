@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cdro/service/log.hpp"
+#include "cdro/service/output_file.hpp"
 
 namespace cdro::service {
 
@@ -94,6 +95,7 @@ void Service::start()
         ServiceCheckpointInfo info;
         const SogSnapshot::Extension *own = snapshot.findExtension(kServiceExtensionTag);
         if (own != nullptr && decodeServiceInfo(own->bytes, &info)) {
+            resumed_run_start_unix_us_ = info.run_start_unix_us; // t_s goes on from the run resumed
             log()->info("resume: {} ({} nodes, {} pairs; the run had delivered {} frames)", run_.resume_path,
                         snapshot.nodes.size(), snapshot.pairs.size(), info.frames_delivered);
         } else {
@@ -102,16 +104,30 @@ void Service::start()
         }
     }
 
+    // Output paths are checked before anything is opened, so that a link or a world-writable
+    // directory stops the start with its reason (docs/service.md, "Security model").
+    if (hooks_.checkpoint != nullptr && !config_.checkpoint.path.empty()) {
+        checkOutputPath(config_.checkpoint.path, "checkpoint.path");
+    }
+    if (!config_.output.jsonl.empty() && config_.output.jsonl != "-") {
+        checkOutputPath(config_.output.jsonl, "output.jsonl");
+    }
+
     std::string source;
     if (!run_.replay_path.empty()) {
         replay_ = std::make_unique<ReplaySource>(loop_, std::vector<std::string>{run_.replay_path}, run_.replay_speed,
                                                  intake_, counters_);
         replay_->setOdometryIntake(&odometry_);
         replay_->open();
-        run_start_unix_us_ = replay_->runStartUnixUs();
+        run_start_unix_us_ = resumed_run_start_unix_us_ != 0 ? resumed_run_start_unix_us_ : replay_->runStartUnixUs();
         source = replay_->source();
+        log()->info("replay: writes JSON Lines to {}, {}, {}, {} (each only when its option is given)",
+                    config_.output.jsonl.empty() ? "nowhere" : config_.output.jsonl == "-" ? "stdout" : config_.output.jsonl,
+                    config_.checkpoint.path.empty() ? "no checkpoint (--checkpoint FILE)" : "a checkpoint to " + config_.checkpoint.path,
+                    config_.http.port == 0 ? "no live map (--http-port N)" : "a live map on port " + std::to_string(config_.http.port),
+                    config_.mqtt.url.empty() ? "no MQTT (--mqtt URL)" : "MQTT to " + config_.mqtt.url);
     } else {
-        run_start_unix_us_ = clock_.unixUs();
+        run_start_unix_us_ = resumed_run_start_unix_us_ != 0 ? resumed_run_start_unix_us_ : clock_.unixUs();
         SerialLink::Listener &link_listener = *this;
         link_ = std::make_unique<SerialLink>(loop_, config_.serial, link_listener, counters_);
         source = link_->description();
@@ -120,7 +136,7 @@ void Service::start()
         session_ = std::make_unique<DeviceSession>(config_, clock_, sink, session_listener, counters_);
         intake_.setObserver(session_.get());
         if (!config_.capture.path.empty()) {
-            capture_ = std::make_unique<CaptureWriter>(config_.capture, source, counters_);
+            capture_ = std::make_unique<CaptureWriter>(config_.capture, source, counters_, capture_context_);
             capture_->open(run_start_unix_us_);
             intake_.setCapture(capture_.get());
             odometry_.setCapture(capture_.get());
@@ -179,6 +195,9 @@ void Service::start()
 
     started_ = true;
     if (replay_) {
+        if (!config_.mqtt.url.empty()) {
+            replay_->setGate([this] { return replayMayGoOn(); });
+        }
         replay_->start([this] { afterBatch(); }, [this] { shutdown("the replay is complete"); });
     } else {
         link_->start();
@@ -241,6 +260,11 @@ Health Service::health(int64_t now_event_unix_us) const
     h.device_node_id = intake_.deviceNodeId();
     h.device_firmware = intake_.deviceFirmware();
     h.counters = counters_;
+    if (http_) {
+        const HttpStats http = http_->stats();
+        h.counters.http_requests = http.requests;
+        h.counters.http_refused = http.refused;
+    }
     h.rates = intake_.rates(now_event_unix_us);
     return h;
 }
@@ -391,6 +415,38 @@ void Service::httpTick()
     }
     map_dirty_ = false;
     loop_.addTimerAfter(std::max<int64_t>(secondsToUs(config_.http.update_period_s), 10'000), [this] { httpTick(); });
+}
+
+bool Service::replayMayGoOn()
+{
+    // A replay runs as fast as its outputs take it: MQTT must be connected and keeping up. A
+    // broker that is not there is given kBrokerAttempts connection attempts (the first one and
+    // the retries of mqtt.reconnect_min_s, doubling); one that is connected but stops taking
+    // messages, kStallUs. Then the replay goes on without it, and what cannot be published is
+    // dropped, counted and summed up at the end.
+    constexpr uint64_t kBrokerAttempts = 4;
+    constexpr int64_t kStallUs = 10'000'000;
+    if (mqtt_.readyForMore()) {
+        broker_wait_since_us_ = 0;
+        return true;
+    }
+    const int64_t now_us = clock_.monotonicUs();
+    if (broker_wait_since_us_ == 0) {
+        broker_wait_since_us_ = now_us;
+        broker_wait_attempts_ = mqtt_.connectAttempts();
+    }
+    const bool gave_up = mqtt_.connected() ? now_us - broker_wait_since_us_ >= kStallUs
+                                           : mqtt_.connectAttempts() >= broker_wait_attempts_ + kBrokerAttempts;
+    if (!gave_up) {
+        return false;
+    }
+    if (!broker_gave_up_logged_) {
+        broker_gave_up_logged_ = true;
+        log()->warn("mqtt: the broker {} is {}; the replay goes on without it (what cannot be published is counted "
+                    "in mqtt_dropped)",
+                    config_.mqtt.url, mqtt_.connected() ? "not taking messages" : "not reachable");
+    }
+    return true;
 }
 
 bool Service::writeCheckpointNow()

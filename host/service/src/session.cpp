@@ -1,5 +1,6 @@
 #include "cdro/service/session.hpp"
 
+#include <algorithm>
 #include <climits>
 
 #include "cdro/service/log.hpp"
@@ -190,8 +191,18 @@ void DeviceSession::onTick()
         return;
     }
     switch (phase_) {
-    case Phase::Disconnected:
-    case Phase::Incompatible: deadline_us_ = INT64_MAX; return;
+    case Phase::Disconnected: deadline_us_ = INT64_MAX; return;
+    case Phase::Incompatible: {
+        // Ask again, ever less often: the HELLO may have been a corruption, or the device
+        // reflashed; a device that really speaks another version costs one frame per period.
+        ++counters_.hello_requests;
+        cdro_frame_t frame{};
+        frame.type = CDRO_FRAME_HELLO_REQUEST;
+        sink_.sendCommand(frame);
+        deadline_us_ = clock_.monotonicUs() + incompatible_backoff_us_;
+        incompatible_backoff_us_ = std::min(incompatible_backoff_us_ * 2, secondsToUs(config_.serial.reconnect_max_s));
+        return;
+    }
     case Phase::AwaitHello:
         if (hello_requests_ >= config_.serial.hello_retries) {
             deadline_us_ = INT64_MAX;
@@ -236,6 +247,13 @@ void DeviceSession::onDeviceFrame(const cdro_frame_t &f, int64_t /*host_unix_us*
         const cdro_hello_t &h = f.as.hello;
         if (h.protocol_version != CDRO_PROTOCOL_VERSION || h.layout_hash != CDRO_LAYOUT_HASH) {
             return; // onIncompatible has been called
+        }
+        if (phase_ == Phase::Configuring || phase_ == Phase::Running) {
+            // The answer to an earlier HELLO_REQUEST that a slow link delivered late: the
+            // device did not reset (the intake would have said so first, and the phase would
+            // be awaiting HELLO), so the configuration in place or under way stands.
+            log()->debug("session: HELLO while {} (a late answer); nothing to do", phaseName(phase_));
+            return;
         }
         log()->info("session: HELLO from node 0x{:04X}, firmware {}.{}, protocol {}, layout 0x{:04X}, "
                     "max_nodes {}, reset_cause 0x{:02X}",
@@ -299,8 +317,10 @@ void DeviceSession::onIncompatible(const std::string &message)
     if (phase_ == Phase::Disconnected) {
         return;
     }
-    deadline_us_ = INT64_MAX;
     steps_.clear();
+    incompatible_backoff_us_ = secondsToUs(config_.serial.hello_timeout_s);
+    deadline_us_ = clock_.monotonicUs() + incompatible_backoff_us_;
+    incompatible_backoff_us_ = std::min(incompatible_backoff_us_ * 2, secondsToUs(config_.serial.reconnect_max_s));
     setPhase(Phase::Incompatible, message);
 }
 

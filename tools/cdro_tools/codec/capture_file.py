@@ -17,6 +17,7 @@ MAGIC = b"CDROCAP\x00"
 FORMAT_VERSION = 2             # the newest version read and written; 1 is still read
 HEADER_FIXED = 23
 MAX_SOURCE = 255
+MAX_CONTEXT = 65535 - HEADER_FIXED - MAX_SOURCE - 2   # bytes of the header's context at most
 RECORD_MARKER = 0xC5
 RECORD_OVERHEAD = 14
 MAX_DATA = 4096
@@ -34,6 +35,8 @@ class CaptureHeader:
     created_unix_us: int           # us since the Unix epoch
     source: str                    # e.g. "serial:/dev/ttyACM0@115200"
     format_version: int = FORMAT_VERSION
+    context: bytes = b""           # the run's context (cdro-hostd: JSON); b"" = none. An addition
+                                   # to the header's layout read by every version (capture.h)
 
 
 @dataclasses.dataclass
@@ -75,8 +78,11 @@ def encode_header(header: CaptureHeader) -> bytes:
         raise ValueError(f"source description is {len(source)} bytes, at most {MAX_SOURCE}")
     if not 1 <= header.format_version <= FORMAT_VERSION:
         raise ValueError(f"capture format version {header.format_version} is not 1..{FORMAT_VERSION}")
-    body = MAGIC + struct.pack("<HHqB", header.format_version, HEADER_FIXED + len(source), header.created_unix_us,
-                               len(source)) + source
+    if len(header.context) > MAX_CONTEXT:
+        raise ValueError(f"context is {len(header.context)} bytes, at most {MAX_CONTEXT}")
+    context = struct.pack("<H", len(header.context)) + header.context if header.context else b""
+    body = MAGIC + struct.pack("<HHqB", header.format_version, HEADER_FIXED + len(source) + len(context),
+                               header.created_unix_us, len(source)) + source + context
     return body + struct.pack("<H", crc16(body))
 
 
@@ -97,7 +103,15 @@ def decode_header(data: bytes) -> tuple[CaptureHeader, int]:
     if crc16(data[:size - 2]) != received:
         raise CaptureError("corrupt header (CRC mismatch)")
     source = data[21:21 + source_len].decode("utf-8", errors="replace")
-    return CaptureHeader(created, source, version), size
+    # Between the source and the CRC: the context, when the bytes hold one whole (else a layout
+    # this build does not know: skipped, as every reader does).
+    covered = HEADER_FIXED - 2 + source_len
+    context = b""
+    if size - 2 - covered >= 2:
+        (context_len,) = struct.unpack_from("<H", data, covered)
+        if 0 < context_len <= size - 2 - covered - 2:
+            context = bytes(data[covered + 2:covered + 2 + context_len])
+    return CaptureHeader(created, source, version, context), size
 
 
 def encode_record(record: CaptureRecord) -> bytes:

@@ -7,15 +7,22 @@
 //   motion   t,id,moving              moving 0/1
 //
 // A first line that is not numbers is a header and names the columns (in any order; other
-// columns are ignored); without a header the columns are positional. Blank lines and lines
-// starting with # are skipped. A row that cannot be read (too few fields, not a number, an
-// id outside 0..65535, a non-finite value) is reported with its line number and skipped:
-// the rest of the file is still used. Semantic checks (a node ranging itself, an absurd
-// range) belong to the engine, which counts them.
+// columns are ignored); without a header the columns are positional. A UTF-8 byte-order mark
+// (spreadsheets write one) is skipped. Blank lines and lines starting with # are skipped. A row
+// that cannot be read (too few fields, not a number, an id outside 1..65535, a non-finite
+// value) is reported with its line number and skipped: the rest of the file is still used.
+// Node ids follow the live link's rule (frames.h: 0 is not a node; it means "none" in the
+// protocol), so a file and a capture of the same network name the same nodes. Semantic checks
+// (a node ranging itself, an absurd range) belong to the engine, which counts them.
+//
+// What is not a CSV at all is refused as a whole (CsvError) before it can cost memory or time:
+// a directory, a line longer than kMaxLineBytes (an endless device such as /dev/zero, a binary
+// file), a 0x00 byte. Files are read in one pass with a fixed buffer (linear in their size).
 #pragma once
 
 #include <cstdint>
 #include <cstdio>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -77,6 +84,13 @@ template <typename Row> struct CsvTable {
     size_t data_lines = 0; // lines that held data (good or bad)
 };
 
+constexpr size_t kMaxLineBytes = 4096; // bytes; no row of these files comes near it
+
+// Streaming: each good row to onRow as it is read (in file order), each bad one to onProblem;
+// the ranges file can then be any size. Returns the number of data lines. Throws CsvError.
+size_t readRangesCsv(const std::string &path, const std::function<void(const RangeRow &)> &onRow,
+                     const std::function<void(const CsvProblem &)> &onProblem);
+
 // Each throws CsvError when the file cannot be opened or a header lacks a required column.
 CsvTable<RangeRow> readRangesCsv(const std::string &path);
 CsvTable<HeightRow> readHeightsCsv(const std::string &path);
@@ -84,8 +98,7 @@ CsvTable<FixedRow> readFixedCsv(const std::string &path);
 CsvTable<OdometryRow> readOdometryCsv(const std::string &path);
 CsvTable<MotionRow> readMotionCsv(const std::string &path);
 
-// "42" or "0x2A" -> 42 in 0..65535 (0 is not a Pozyx id, but datasets such as Plaza use it);
-// false otherwise.
+// "42" or "0x2A" -> 42 in 1..65535 (the live link's rule: 0 is not a node id); false otherwise.
 bool parseNodeId(const std::string &text, uint16_t *id);
 
 // Prints "cdro-hostd: PATH:LINE: skipped: WHY" for the first `limit` problems and a count of the

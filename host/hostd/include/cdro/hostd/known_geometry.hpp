@@ -14,6 +14,9 @@
 #include <cstdint>
 #include <cstdio>
 #include <string>
+#include <vector>
+
+#include "cdro/hostd/csv_input.hpp"
 
 namespace YAML {
 class Node;
@@ -34,6 +37,15 @@ struct KnownGeometry {
 // naming file and line. Throws cdro::service::ConfigError.
 KnownGeometry parseKnownGeometry(const YAML::Node &root, const std::string &origin);
 
+// The rows of the two files (bad rows reported on `log` and skipped, as below).
+struct KnownRows {
+    std::vector<HeightRow> heights;
+    std::vector<FixedRow> fixed;
+    size_t skipped_rows = 0;
+    bool operator==(const KnownRows &other) const;
+};
+KnownRows readKnownGeometry(const KnownGeometry &geometry, uint32_t max_reported_rows, std::FILE *log);
+
 // Reads the files and gives every good row to the engine (setHeight, setFixed); bad rows are
 // reported on `log` with their line numbers (the first `max_reported_rows` of each file one by
 // one) and skipped. Returns the rows used. Throws CsvError when a file cannot be used at all.
@@ -44,5 +56,19 @@ struct KnownGeometryCounts {
 };
 KnownGeometryCounts applyKnownGeometry(engine::Engine &engine, const KnownGeometry &geometry,
                                        uint32_t max_reported_rows, std::FILE *log);
+KnownGeometryCounts applyKnownRows(engine::Engine &engine, const KnownRows &rows);
+
+// A capture's record of what the map depends on (the service writes it into the capture
+// header, capture.h): the known heights and fixed nodes, and the engine's and movement stage's
+// settings as --print-config prints them. JSON:
+//   {"heights": [[id, z_m], ...], "fixed": [[id, x_m, y_m], ...], "settings": "engine:\n  ..."}
+// A replay takes from it whatever its own command line does not give (docs/service.md).
+struct RunContext {
+    KnownRows rows;
+    std::string settings; // YAML
+};
+std::string encodeRunContext(const RunContext &context);
+// Throws cdro::service::ConfigError naming `origin` when the text is not a run context.
+RunContext decodeRunContext(const std::string &text, const std::string &origin);
 
 } // namespace cdro::hostd

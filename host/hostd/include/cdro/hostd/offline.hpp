@@ -11,7 +11,16 @@
 // numbers, counted and skipped; so are ranges the engine refuses (a node ranging itself, a
 // range that is not positive or beyond engine.range.max_range_m). At the end of the file the
 // engine settles (engine.hpp) unless --no-settle: a live run keeps receiving ranges, a file
-// ends.
+// ends. A file with no usable row (empty, only bad rows, or only ranges the engine refused)
+// ends with status 2 and a message, and leaves no OUT (an empty map is not a result); what is
+// not a CSV at all (a directory, /dev/zero, a binary file) is refused at once (csv_input.hpp).
+//
+// The ranges stream through the engine as they are read, in one pass with a fixed buffer:
+// memory does not grow with the file, a progress line comes every second, and the summary
+// gives the rate ("ranges.csv: 1000000 rows in 16.30 s (61338 rows/s)"). Measured (2-core
+// development machine, RelWithDebInfo): reading and parsing alone 1.45 million rows/s; with the
+// engine on a 4-node network about 61,000 rows/s (10 million rows in about 3 minutes, 8 MB
+// resident). The movement stage merges its inputs by time, so it reads the ranges whole first.
 //
 // With --odometry-csv, --robot-id and --out-trajectory the movement stage runs (movement.hpp):
 //   cdro-hostd --ranges-csv FILE --odometry-csv FILE --robot-id ID [--motion-csv FILE]

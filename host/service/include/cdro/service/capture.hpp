@@ -34,8 +34,12 @@ public:
 
 class CaptureWriter {
 public:
-    // source: e.g. "serial:/dev/ttyACM0@115200" (at most 255 bytes; longer is cut).
-    CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters);
+    // source: e.g. "serial:/dev/ttyACM0@115200" (at most 255 bytes; longer is cut). context:
+    // what a replay needs to reach the live run's result (the map's heights, fixed nodes and
+    // settings: cdro-hostd's JSON), written into every file's header; "" = none. Throws
+    // CaptureError if it is longer than CDRO_CAPTURE_MAX_CONTEXT.
+    CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters,
+                  std::string context = "");
     ~CaptureWriter();
     CaptureWriter(const CaptureWriter &) = delete;
     CaptureWriter &operator=(const CaptureWriter &) = delete;
@@ -62,11 +66,15 @@ private:
 
     CaptureConfig config_;
     std::string source_;
+    std::string context_;
     ServiceCounters &counters_;
     int fd_ = -1;
     uint64_t file_bytes_ = 0;
+    uint64_t header_bytes_ = 0;   // of the current file
     uint64_t rotate_bytes_ = 0;
-    bool write_error_logged_ = false;
+    uint64_t lost_in_outage_ = 0; // records not written since the last one that was
+    bool reopen_pending_ = false; // a rotation could not start its new file: retried
+    int64_t reopen_at_us_ = 0;    // us (record time) of the next attempt
 };
 
 struct CaptureRecord {
@@ -86,8 +94,11 @@ public:
     CaptureReader(const CaptureReader &) = delete;
     CaptureReader &operator=(const CaptureReader &) = delete;
 
+    // The header (its context pointer cleared: the bytes are in context()).
     const cdro_capture_header_t &header() const { return header_; }
     std::string source() const { return std::string(header_.source, header_.source_len); }
+    // The run's context the writer put in the header ("" when the file has none).
+    const std::string &context() const { return context_; }
 
     // The next good record, or false at the end of the file. Throws CaptureError on a read error.
     bool next(CaptureRecord &record);
@@ -102,6 +113,7 @@ private:
     std::string path_;
     int fd_ = -1;
     cdro_capture_header_t header_{};
+    std::string context_;
     std::vector<uint8_t> buffer_;
     size_t begin_ = 0;
     size_t end_ = 0;

@@ -120,6 +120,9 @@ struct ServiceConfig {
 // mqtt.topic_prefix; "" when there is none (no mqtt.url, or the topic set to "").
 std::string odometryMqttTopic(const ServiceConfig &config);
 
+// The top-level sections this layer reads (serial, nodes, ...), in the order of the docs.
+const std::vector<std::string> &serviceSectionNames();
+
 // Parses YAML text (origin names it in messages, e.g. the file path). Throws ConfigError.
 ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string &origin = "<config>");
 

@@ -32,8 +32,8 @@ namespace cdro::service {
     X(frames_lost, "device frames missing in those gaps")                                           \
     X(device_resets, "device resets detected (time backwards, sequence restart, unexpected HELLO)") \
     X(unknown_node_frames, "frames naming a node id that was not known")                            \
-    X(nodes_learned, "unknown node ids added to the known set (policy learn)")                      \
-    X(frames_rejected_unknown_node, "frames dropped for an unknown node id (policy reject)")        \
+    X(nodes_learned, "unknown node ids that became nodes (policy learn, seen often enough)")        \
+    X(frames_rejected_unknown_node, "frames dropped for a node id not known or not confirmed")      \
     X(frames_dropped_incompatible, "data frames dropped while the device is incompatible")          \
     X(handshakes, "handshakes completed (HELLO checked, configured, START acknowledged)")           \
     X(hello_requests, "HELLO_REQUEST frames sent")                                                   \
@@ -74,6 +74,8 @@ namespace cdro::service {
     X(mqtt_connects, "MQTT connections established")                                                \
     X(mqtt_disconnects, "MQTT connections lost")                                                     \
     X(mqtt_received, "MQTT messages received on the subscribed topics (odometry)")                 \
+    X(http_requests, "live map requests answered (200, or 404 for an unknown path or node)")        \
+    X(http_refused, "live map requests refused (400, 405, 408, 413, 431, 503) or connections closed to make room") \
     X(checkpoints_written, "checkpoints written")                                                    \
     X(checkpoint_errors, "checkpoints that could not be written")
 

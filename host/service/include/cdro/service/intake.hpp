@@ -8,12 +8,19 @@
 // that a live run and the replay of its capture give the consumer identical calls. The only
 // other input is noteSentFrame(): the frames the host sent (from the session live, from the
 // to-device records on replay), so that a HELLO answering a HELLO_REQUEST is not taken for
-// a reset.
+// a reset (every request sent and not yet answered makes one HELLO expected: on a slow link
+// the answers to two requests arrive one after the other).
+//
+// What one corrupted frame that passed the CRC can do is bounded: a frame of another protocol
+// version is dropped and counted, and only kVersionErrorsForIncompatible of them in a row make
+// the device incompatible (a HELLO naming another version or layout does at once: it is the
+// handshake); an unknown node id becomes a node only with evidence (docs/service.md, "Node ids").
 //
 // Threading: loop thread only.
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <set>
 #include <string>
 #include <vector>
@@ -42,6 +49,15 @@ public:
 
 class FrameIntake {
 public:
+    // Frames of another protocol version in a row (no good frame between them) that make the
+    // device incompatible. One such frame is a corruption that happened to pass the CRC (it is
+    // counted and dropped); a firmware of another build sends nothing else.
+    static constexpr uint32_t kVersionErrorsForIncompatible = 4;
+    // Frames naming an id that make it a node under policy learn while the device's node list
+    // is not known yet (no nodes.ids, no NODE_LIST). A corrupted id that passed the CRC is
+    // another random id each time; a real node keeps coming back.
+    static constexpr uint32_t kFramesToConfirmNode = 3;
+
     // clock: only for rate-limiting log lines (never for anything a consumer sees).
     FrameIntake(const NodesConfig &nodes, double drop_log_per_s, ServiceCounters &counters, const Clock &clock);
 
@@ -79,7 +95,7 @@ private:
     void onAccepted(const cdro_frame_t &frame, int64_t host_unix_us);
     bool checkSequenceAndReset(const cdro_frame_t &frame, int64_t host_unix_us);
     bool checkNodes(const cdro_frame_t &frame);
-    bool nodeKnown(uint16_t id);
+    bool nodeKnown(uint16_t id, std::string *why); // false: *why says why it is not
     void checkHello(const cdro_hello_t &hello);
     void markIncompatible(const std::string &message);
     // Logs a dropped frame unless the rate limit holds it back; message() is only built when
@@ -102,11 +118,16 @@ private:
     uint16_t last_sequence_ = 0;
     bool have_device_time_ = false;
     uint32_t last_device_time_ms_ = 0;
-    bool hello_requested_ = false;
+    uint32_t hello_requests_outstanding_ = 0; // HELLO_REQUESTs sent and not answered yet
+    uint32_t version_errors_in_a_row_ = 0;    // since the last good frame
     uint64_t accepted_frames_ = 0;
     bool incompatible_ = false;
     std::string incompatible_message_;
     std::set<uint16_t> known_nodes_;
+    // True once the device's node list is known (nodes.ids, or a NODE_LIST): then an id
+    // outside the known set is rejected under either policy.
+    bool node_list_known_ = false;
+    std::map<uint16_t, uint32_t> candidates_; // policy learn, list unknown: id -> frames seen
     uint16_t device_node_id_ = 0;
     uint16_t device_firmware_ = 0;
     int64_t last_event_unix_us_ = 0;

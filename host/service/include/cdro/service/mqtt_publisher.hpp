@@ -50,6 +50,13 @@ public:
     void start();      // throws ConfigError for a bad URL; connecting itself never throws
     void shutdown();   // "offline", clean disconnect (bounded wait), release
     bool connected() const { return connected_; }
+    // Connected, and fewer than kMaxInFlight messages handed to libmosquitto are still waiting
+    // to go out: a replay feeds more input only then, so that publishing keeps up with it.
+    bool readyForMore() const { return connected_ && in_flight_ < kMaxInFlight; }
+    static constexpr uint64_t kMaxInFlight = 1000;
+    // Connection attempts so far (the first and every retry), for a replay deciding how long
+    // to wait for the broker.
+    uint64_t connectAttempts() const { return connect_attempts_; }
     // Connected and nothing queued for the socket (tests, and a clean shutdown).
     bool flushed() const;
 
@@ -81,6 +88,9 @@ private:
     static void disconnectCallback(struct mosquitto *, void *self, int rc);
     static void messageCallback(struct mosquitto *, void *self, const ::mosquitto_message *message);
     static void subscribeCallback(struct mosquitto *, void *self, int mid, int qos_count, const int *granted_qos);
+    static void publishCallback(struct mosquitto *, void *self, int mid);
+    void dropInFlight(const std::string &why);
+    void settleInFlight(bool want_write);
 
     EventLoop &loop_;
     MqttConfig config_;
@@ -104,6 +114,9 @@ private:
     std::map<int, std::string> pending_subscriptions_;    // message id -> topic, until the SUBACK
     uint64_t subscriptions_acknowledged_ = 0;
     bool retained_warned_ = false;
+    uint64_t connect_attempts_ = 0;
+    uint64_t in_flight_ = 0;      // published, not yet written to the socket (QoS 0) or acknowledged
+    std::string last_loss_;       // why messages were last dropped, for the summary at the end
 };
 
 } // namespace cdro::service

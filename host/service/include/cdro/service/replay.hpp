@@ -35,6 +35,10 @@ public:
     // Where odometry records go; without it they are counted (replay_odometry_records) and
     // skipped.
     void setOdometryIntake(OdometryIntake *odometry) { odometry_ = odometry; }
+    // Asked before each batch: false holds the replay back (polled every few ms) until true,
+    // so that an output which must keep up (MQTT at full speed) is waited for. Event times
+    // come from the records, so waiting changes nothing the consumer or the outputs see.
+    void setGate(std::function<bool()> ready) { gate_ = std::move(ready); }
     // Opens the first file (throws CaptureError) so that its header is known before start().
     void open();
     // Starts feeding; after_batch runs after each batch, on_finished once at the end.
@@ -72,6 +76,7 @@ private:
     EventLoop::TimerId timer_ = 0;
     std::function<void()> after_batch_;
     std::function<void()> on_finished_;
+    std::function<bool()> gate_;
 };
 
 } // namespace cdro::service

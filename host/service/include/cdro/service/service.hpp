@@ -72,6 +72,10 @@ public:
     // Throws ConfigError, CaptureError or CheckpointError with a message for the user.
     void start();
     int run();             // until stopped; returns the exit code (0)
+    // What a replay of this run's capture needs to reach the same result (cdro-hostd: the map's
+    // heights, fixed nodes and settings, as JSON), written into every capture file's header.
+    // Call before start().
+    void setCaptureContext(std::string context) { capture_context_ = std::move(context); }
     void requestStop();    // thread-safe
 
     bool replaying() const { return replay_ != nullptr; }
@@ -110,6 +114,7 @@ private:
     void healthTick();
     void httpTick();
     void checkpointTick();
+    bool replayMayGoOn();
     void shutdown(const std::string &why);
 
     ServiceConfig config_;
@@ -131,7 +136,9 @@ private:
     MapSnapshotStore store_;
     std::unique_ptr<HttpServer> http_;
 
+    std::string capture_context_;
     int64_t run_start_unix_us_ = 0;
+    int64_t resumed_run_start_unix_us_ = 0; // the resumed run's start (us), from its checkpoint
     uint16_t host_sequence_ = 0;
     uint64_t last_map_revision_ = 0;
     bool map_dirty_ = false;
@@ -139,6 +146,9 @@ private:
     EventLoop::TimerId session_timer_ = 0;
     int64_t session_timer_deadline_us_ = INT64_MAX;
     bool checkpoint_warned_ = false;
+    int64_t broker_wait_since_us_ = 0; // monotonic us when a replay began to wait for MQTT (0 = not)
+    uint64_t broker_wait_attempts_ = 0; // MQTT connection attempts when that wait began
+    bool broker_gave_up_logged_ = false;
     bool shut_down_ = false;
     bool started_ = false;
 };

@@ -5,8 +5,12 @@
 //        ^                      |  no HELLO: HELLO_REQUEST every hello_timeout_s;   |
 //        |                      |  after hello_retries of them: ask for a reopen    |
 //        +------link down-------+<------ reset / command or keepalive failure ------+
-//   any state --HELLO or frames of another protocol build--> incompatible (silent until a
-//   compatible HELLO)
+//   any state --HELLO or frames of another protocol build--> incompatible (HELLO_REQUEST after
+//   hello_timeout_s, doubling up to serial.reconnect_max_s, until a compatible HELLO)
+//
+// A HELLO configures the device only while awaiting one (or while incompatible): a device
+// reset reaches the session first as onDeviceReset, which starts the wait; any other HELLO is
+// the late answer to an earlier HELLO_REQUEST and changes nothing.
 //
 // Configuring sends SET_NODES (if nodes.ids is set), SET_SCHEDULE and START, each awaiting its
 // ACK (matched by type and sequence) for command_timeout_s, resent up to command_retries times;
@@ -90,6 +94,7 @@ private:
     std::string detail_;
     int64_t deadline_us_ = INT64_MAX;
     uint32_t hello_requests_ = 0;      // in this wait for HELLO
+    int64_t incompatible_backoff_us_ = 0; // us until the next HELLO_REQUEST while incompatible
 
     std::vector<cdro_frame_t> steps_;  // the configuration commands, in order
     size_t step_ = 0;

@@ -210,5 +210,31 @@ private:
     std::set<std::string> known_;
 };
 
+// Every top-level key of a configuration document must be one of `sections`, so that a typo in
+// a section's name ("htpp:") is an error naming the file, the line and the sections that exist
+// rather than a whole section silently left at its defaults. Only the program that knows every
+// layer's sections can call it (cdro-hostd: the service's and the engine's).
+inline void rejectUnknownSections(const YAML::Node &root, const std::string &origin,
+                                  const std::vector<std::string> &sections)
+{
+    if (!root || !root.IsMap()) {
+        return;
+    }
+    for (const auto &entry : root) {
+        const std::string name = entry.first.IsScalar() ? entry.first.Scalar() : std::string("(not a name)");
+        bool known = false;
+        for (const std::string &section : sections) {
+            known = known || section == name;
+        }
+        if (!known) {
+            std::string allowed;
+            for (const std::string &section : sections) {
+                allowed += (allowed.empty() ? "" : ", ") + section;
+            }
+            throw ConfigError(where(entry.first, origin) + ": unknown section '" + name + "' (known sections: " +
+                              allowed + ")");
+        }
+    }
+}
 
 } // namespace cdro::service
