@@ -314,7 +314,7 @@ void device(int master, const DeviceScript &script, std::atomic<bool> &stop)
     cdro_frame_t hello{};
     hello.type = CDRO_FRAME_HELLO;
     hello.sequence = sequence++;
-    hello.as.hello = {1, 0x0100, CDRO_PROTOCOL_VERSION, CDRO_LAYOUT_HASH, script.own_node, 0x03, 0x12, 20, 1};
+    hello.as.hello = {1, 0x0100, CDRO_PROTOCOL_VERSION, CDRO_LAYOUT_HASH, script.own_node, 0x03, 0x12, 20, 1, 1};
     const uint8_t zero = 0;
     writeAll(master, &zero, 1);
     writeAll(master, buffer, encode(hello, buffer));
