@@ -115,9 +115,10 @@ int main(int argc, char **argv)
                          estimate.position_m[i].x(), estimate.position_m[i].y(), c(0, 0), c(0, 1), c(1, 1));
         }
         std::fclose(out);
-        std::printf("cost_nats %.6f\nnlos_fraction %.4f\nnlos_mean_excess_m %.4f\nnodes %u\nlinks %zu\n",
+        std::printf("cost_nats %.6f\nnlos_fraction %.4f\nnlos_mean_excess_m %.4f\nvariance_factor %.4f\nnodes %u\nlinks %zu\n",
                     engine::mapCost(problem, estimate, likelihood), likelihood.params().nlos_fraction,
-                    likelihood.params().nlos_mean_excess_m, problem.nodeCount(), problem.links.size());
+                    likelihood.params().nlos_mean_excess_m, confidence.variance_factor, problem.nodeCount(),
+                    problem.links.size());
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-reference: %s\n", error.what());
         return 1;
