@@ -16,7 +16,7 @@ import yaml
 
 GUARD_S = 60
 HEADER = "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
-TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,t"
+TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,status,reason,t"
 
 # Six nodes (m) that all range to each other: every one of them can be placed.
 NODES = {1: (0.0, 0.0), 2: (8.0, 1.0), 3: (3.0, 7.0), 4: (10.0, 9.0), 5: (-2.0, 5.0), 6: (6.0, -4.0)}
@@ -362,9 +362,9 @@ def test_that_print_config_fed_back_as_config_gives_the_same_settings(hostd, tmp
     assert settings["sog"]["cooperative"] is False
     assert (settings["frame"]["origin"], settings["frame"]["x_axis"], settings["frame"]["positive_y"]) == (3, 1, 2)
     groups = yaml.safe_load(defaults)["engine"]
-    assert set(groups) == {"range", "likelihood", "sog", "placement", "refinement", "reinitialization",
+    assert set(groups) == {"range", "likelihood", "sog", "placement", "refinement", "solve",
                            "motion", "convergence", "frame"}
-    assert sum(len(keys) for keys in groups.values()) == 66  # docs/engine.md has a row for each
+    assert sum(len(keys) for keys in groups.values()) == 65  # docs/engine.md has a row for each
 
 
 def test_that_an_unknown_engine_key_names_file_line_key_and_known_keys(hostd, tmp_path):

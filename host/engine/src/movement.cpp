@@ -226,7 +226,13 @@ bool MovementStage::insertNode(NodeId id)
     }
     const NodeState &node = network.nodes[index];
     const bool moving = moving_.count(id) != 0 && moving_.at(id);
-    if (!node.placed() || node.moving() || moving || node.pinned() || !(node.converged() || node.fixed())) {
+    // A node whose doubt is the link graph's (a part that can fold, links nothing checks) is where
+    // the map solve put it: the robot's ranges from many poses are what settles such a part. A
+    // node with a rival position, too few links or a moving estimate waits for a SoG around the
+    // robot instead.
+    const bool graph_doubt = node.doubt == NodeDoubt::Foldable || node.doubt == NodeDoubt::Flexible;
+    if (!node.placed() || node.moving() || moving || node.pinned() ||
+        !(node.converged() || node.fixed() || graph_doubt)) {
         return false;
     }
     // Never more certain than one range could make it: the initialization's covariances

@@ -13,6 +13,7 @@ void writeEstimateFields(std::FILE *out, const engine::NodeOutput &node)
     } else {
         std::fprintf(out, ",,,,,,0");
     }
+    std::fprintf(out, ",%s,%s", engine::nodeLifecycleName(node.lifecycle), engine::nodeDoubtName(node.doubt));
 }
 
 } // namespace
@@ -23,10 +24,13 @@ void writeNodeRow(std::FILE *out, const engine::NodeOutput &node)
 {
     std::fprintf(out, "%u", static_cast<unsigned>(node.id));
     writeEstimateFields(out, node);
-    std::fprintf(out, ",%s,%s\n", engine::nodeLifecycleName(node.lifecycle), engine::nodeDoubtName(node.doubt));
+    std::fputc('\n', out);
 }
 
-void writeTraceHeader(std::FILE *out) { std::fputs("ranges,id,x,y,var_x,cov_xy,var_y,converged,t\n", out); }
+void writeTraceHeader(std::FILE *out)
+{
+    std::fputs("ranges,id,x,y,var_x,cov_xy,var_y,converged,status,reason,t\n", out);
+}
 
 void writeTraceRows(std::FILE *out, uint64_t ranges, const std::vector<engine::NodeOutput> &nodes, const double *t_s)
 {

@@ -2,8 +2,8 @@
 //   nodes: id,x,y,var_x,cov_xy,var_y,converged,status,reason   status: the node's lifecycle
 //          (unplaced, placed, converged, moving, settling); reason: why a placed node is not
 //          converged (too few links, ambiguous, foldable, flexible, unsettled; empty otherwise)
-//   trace: ranges,id,x,y,var_x,cov_xy,var_y,converged,t   (a snapshot every N ranges; t in s of
-//          the last range, empty when the ranges have no time)
+//   trace: ranges,id,x,y,var_x,cov_xy,var_y,converged,status,reason,t   (a snapshot every N ranges,
+//          the same columns as nodes; t in s of the last range, empty when the ranges have no time)
 // Numbers are written with 17 significant digits, so that the same run gives the same bytes
 // and a file read back gives the same doubles.
 #pragma once
