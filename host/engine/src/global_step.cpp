@@ -31,6 +31,18 @@ bool linksChanged(const MapState &map, double sigma_m)
     return static_cast<double>(changed) >= kChangedLinkShare * static_cast<double>(map.links.size());
 }
 
+// The nodes the map solve works on: linked, and neither moving nor settling.
+bool solvable(const NodeState &state) { return !state.links.empty() && !state.moving() && !state.settling(); }
+
+uint64_t solvableNodes(const MapState &map)
+{
+    uint64_t count = 0;
+    for (const NodeState &state : map.nodes) {
+        count += solvable(state) ? 1U : 0U;
+    }
+    return count;
+}
+
 } // namespace
 
 StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_received)
@@ -40,7 +52,7 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
     for (uint32_t node = 0; node < map.nodes.size(); ++node) {
         const NodeState &state = map.nodes[node];
         // A moving node's links describe where it was: it is left out until it has settled.
-        if (!state.links.empty() && !state.moving() && !state.settling()) {
+        if (solvable(state)) {
             by_id.emplace_back(state.id, node);
         }
     }
@@ -109,6 +121,11 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
             static_cast<double>(schedule_.ranges_since_new_link) >= solve.quiet_ranges_per_link * links) {
             return true;
         }
+    }
+    // A node has settled after a carry, started moving or joined: the map the last full solve
+    // found is of other nodes. Looked at once a sweep (at fixed points of the range stream).
+    if (ranges_received % static_cast<uint64_t>(links) == 0 && solvableNodes(map) != schedule_.nodes_at_full) {
+        return true;
     }
     // The ranges have grown: solve again if they changed the links, looked at once a sweep of
     // the network (at fixed points of the range stream, so a resumed engine looks when this one did).
