@@ -30,7 +30,7 @@ constexpr bool kSanitizedBuild = false;
 #define CDRO_SKIP_WHEN_SANITIZED()                                                                     \
     do {                                                                                               \
         if (::cdro::enginetest::kSanitizedBuild) {                                                     \
-            GTEST_SKIP() << "sanitized build: the engine runs ~250x slower here; this test runs in the " \
+            GTEST_SKIP() << "sanitized build: the engine runs ~10-80x slower here; this test runs in the " \
                             "native build";                                                            \
         }                                                                                              \
     } while (false)

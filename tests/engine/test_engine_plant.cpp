@@ -50,7 +50,9 @@ class Plant : public ::testing::TestWithParam<int> {};
 
 TEST_P(Plant, EveryNodePlacedWithinTheGoalAndConvergedNodesWithinTheirPromise)
 {
-    CDRO_SKIP_WHEN_SANITIZED(); // 25 to 60 s per order there
+    if (GetParam() != 0) {
+        CDRO_SKIP_WHEN_SANITIZED(); // the file order runs there: real data through every step
+    }
     std::string where;
     const std::optional<PlantData> plant = loadPlant(&where);
     if (!plant) {
