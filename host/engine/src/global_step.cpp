@@ -122,9 +122,12 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
             return true;
         }
     }
-    // A node has settled after a carry, started moving or joined: the map the last full solve
-    // found is of other nodes. Looked at once a sweep (at fixed points of the range stream).
-    if (ranges_received % static_cast<uint64_t>(links) == 0 && solvableNodes(map) != schedule_.nodes_at_full) {
+    // No new link since the last solve, yet other nodes to solve: one settled after a carry or
+    // started moving, and the map the last full solve found is of other nodes. (A node that joins
+    // brings links: the growth rules above see it.) Looked at once a sweep, at fixed points of
+    // the range stream.
+    if (ranges_received % static_cast<uint64_t>(links) == 0 && map.links.size() == schedule_.links_at_last &&
+        solvableNodes(map) != schedule_.nodes_at_full) {
         return true;
     }
     // The ranges have grown: solve again if they changed the links, looked at once a sweep of
