@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 
 #include <Eigen/LU>
@@ -298,6 +299,37 @@ TEST(MapProblem, UnheardPairsAreFoundExactly)
     const double with = mapCost(exact.problem, estimate, likelihood());
     exact.problem.unheard_radius_m = 0.0;
     EXPECT_GT(with, mapCost(exact.problem, estimate, likelihood()));
+}
+
+// Regression test. Was a bug: a solve step that had diverged (a lifted refinement on PLANT in file
+// order) handed over positions that were not finite; their grid cell was cast from NaN to an
+// integer, undefined behaviour that UBSan stopped on. Such positions have no close pair.
+TEST(MapProblem, PositionsThatAreNotFiniteHaveNoUnheardPair)
+{
+    Exact exact = problemOf(netgen::makeWorld(netgen::Family::Corridor, 2));
+    std::fill(exact.problem.listens.begin(), exact.problem.listens.end(), uint8_t{1});
+    exact.problem.unheard_radius_m = 6.0;
+    const MapEstimate estimate = truthEstimate(exact);
+    Eigen::MatrixXd positions(exact.problem.nodeCount(), 2);
+    for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
+        positions.row(i) = exact.truth_m[i].transpose();
+    }
+    std::map<std::pair<uint32_t, uint32_t>, double> finite;
+    forEachCloseUnheardPair(exact.problem, estimate.placed, positions,
+                            [&](uint32_t a, uint32_t b, double d) { finite[{a, b}] = d; });
+    ASSERT_FALSE(finite.empty());
+    const uint32_t lost = finite.begin()->first.first;
+    const uint32_t far = finite.begin()->first.second;
+    positions(lost, 0) = std::numeric_limits<double>::quiet_NaN();
+    positions(far, 1) = -1e300;
+    std::map<std::pair<uint32_t, uint32_t>, double> found;
+    forEachCloseUnheardPair(exact.problem, estimate.placed, positions,
+                            [&](uint32_t a, uint32_t b, double d) { found[{a, b}] = d; });
+    for (const auto &[pair, distance] : finite) {
+        const bool involved = pair.first == lost || pair.second == lost || pair.first == far || pair.second == far;
+        EXPECT_EQ(found.count(pair), involved ? 0U : 1U) << pair.first << "-" << pair.second;
+    }
+    EXPECT_LT(found.size(), finite.size());
 }
 
 // A network of radios whose antenna delays are not calibrated (netgen's `biased` family: every

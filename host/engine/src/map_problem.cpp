@@ -59,12 +59,18 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
         return;
     }
     // A grid of cells one radius wide: close pairs are in the same or a neighbouring cell.
+    // A position that is not finite, or so far out that its cell number would not fit (a map
+    // a solve step threw away), has no close pair to check: it is left out, not cast.
+    constexpr double kFarthestCell = 1e15;
     std::map<std::pair<int64_t, int64_t>, std::vector<uint32_t>> cells;
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (placed[node] != 0 && problem.listens[node] != 0) {
-            const auto cx = static_cast<int64_t>(std::floor(positions(node, 0) / radius));
-            const auto cy = static_cast<int64_t>(std::floor(positions(node, 1) / radius));
-            cells[{cx, cy}].push_back(node);
+            const double cell_x = std::floor(positions(node, 0) / radius);
+            const double cell_y = std::floor(positions(node, 1) / radius);
+            if (!(std::abs(cell_x) < kFarthestCell && std::abs(cell_y) < kFarthestCell)) {
+                continue;
+            }
+            cells[{static_cast<int64_t>(cell_x), static_cast<int64_t>(cell_y)}].push_back(node);
         }
     }
     for (const auto &[cell, members] : cells) {
