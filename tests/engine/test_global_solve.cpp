@@ -269,19 +269,40 @@ TEST(MapCovariance, ANodeOnTwoLinksHangsOnLinksNothingChecks)
     }
 }
 
+// A corridor network at its truth, every node listening, unheard pairs within 6 m.
+struct UnheardFixture {
+    Exact exact;
+    MapEstimate estimate;
+    Eigen::MatrixXd positions;
+};
+
+UnheardFixture unheardFixture()
+{
+    UnheardFixture f{problemOf(netgen::makeWorld(netgen::Family::Corridor, 2)), {}, {}};
+    std::fill(f.exact.problem.listens.begin(), f.exact.problem.listens.end(), uint8_t{1});
+    f.exact.problem.unheard_radius_m = 6.0;
+    f.estimate = truthEstimate(f.exact);
+    f.positions.resize(f.exact.problem.nodeCount(), 2);
+    for (uint32_t i = 0; i < f.exact.problem.nodeCount(); ++i) {
+        f.positions.row(i) = f.exact.truth_m[i].transpose();
+    }
+    return f;
+}
+
+std::map<std::pair<uint32_t, uint32_t>, double> unheardPairs(const UnheardFixture &f)
+{
+    std::map<std::pair<uint32_t, uint32_t>, double> found;
+    forEachCloseUnheardPair(f.exact.problem, f.estimate.placed, f.positions,
+                            [&](uint32_t a, uint32_t b, double d) { found[{a, b}] = d; });
+    return found;
+}
+
 TEST(MapProblem, UnheardPairsAreFoundExactly)
 {
-    Exact exact = problemOf(netgen::makeWorld(netgen::Family::Corridor, 2));
-    std::fill(exact.problem.listens.begin(), exact.problem.listens.end(), uint8_t{1});
-    exact.problem.unheard_radius_m = 6.0;
-    const MapEstimate estimate = truthEstimate(exact);
-    Eigen::MatrixXd positions(exact.problem.nodeCount(), 2);
-    for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
-        positions.row(i) = exact.truth_m[i].transpose();
-    }
-    std::map<std::pair<uint32_t, uint32_t>, double> found;
-    forEachCloseUnheardPair(exact.problem, estimate.placed, positions,
-                            [&](uint32_t a, uint32_t b, double d) { found[{a, b}] = d; });
+    UnheardFixture fixture = unheardFixture();
+    Exact &exact = fixture.exact;
+    const MapEstimate &estimate = fixture.estimate;
+    std::map<std::pair<uint32_t, uint32_t>, double> found = unheardPairs(fixture);
     size_t expected = 0;
     for (uint32_t a = 0; a < exact.problem.nodeCount(); ++a) {
         for (uint32_t b = a + 1; b < exact.problem.nodeCount(); ++b) {
@@ -306,25 +327,14 @@ TEST(MapProblem, UnheardPairsAreFoundExactly)
 // integer, undefined behaviour that UBSan stopped on. Such positions have no close pair.
 TEST(MapProblem, PositionsThatAreNotFiniteHaveNoUnheardPair)
 {
-    Exact exact = problemOf(netgen::makeWorld(netgen::Family::Corridor, 2));
-    std::fill(exact.problem.listens.begin(), exact.problem.listens.end(), uint8_t{1});
-    exact.problem.unheard_radius_m = 6.0;
-    const MapEstimate estimate = truthEstimate(exact);
-    Eigen::MatrixXd positions(exact.problem.nodeCount(), 2);
-    for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
-        positions.row(i) = exact.truth_m[i].transpose();
-    }
-    std::map<std::pair<uint32_t, uint32_t>, double> finite;
-    forEachCloseUnheardPair(exact.problem, estimate.placed, positions,
-                            [&](uint32_t a, uint32_t b, double d) { finite[{a, b}] = d; });
+    UnheardFixture fixture = unheardFixture();
+    const std::map<std::pair<uint32_t, uint32_t>, double> finite = unheardPairs(fixture);
     ASSERT_FALSE(finite.empty());
     const uint32_t lost = finite.begin()->first.first;
     const uint32_t far = finite.begin()->first.second;
-    positions(lost, 0) = std::numeric_limits<double>::quiet_NaN();
-    positions(far, 1) = -1e300;
-    std::map<std::pair<uint32_t, uint32_t>, double> found;
-    forEachCloseUnheardPair(exact.problem, estimate.placed, positions,
-                            [&](uint32_t a, uint32_t b, double d) { found[{a, b}] = d; });
+    fixture.positions(lost, 0) = std::numeric_limits<double>::quiet_NaN();
+    fixture.positions(far, 1) = -1e300;
+    const std::map<std::pair<uint32_t, uint32_t>, double> found = unheardPairs(fixture);
     for (const auto &[pair, distance] : finite) {
         const bool involved = pair.first == lost || pair.second == lost || pair.first == far || pair.second == far;
         EXPECT_EQ(found.count(pair), involved ? 0U : 1U) << pair.first << "-" << pair.second;

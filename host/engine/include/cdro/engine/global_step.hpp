@@ -81,7 +81,8 @@ public:
     // After a solve was adopted and the links' ranges follow the new offsets: the ranges it saw.
     void markSolved(MapState &map);
     // After a range: whether the solve is due (the links grew; the ranges grew by the same
-    // factor and changed a share of the links' ranges; or the network has been quiet).
+    // factor and changed a share of the links' ranges; the network has been quiet; or, with no
+    // new link, the nodes to solve changed: a carry settled).
     bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received);
     // At settle(): whether ranges arrived since the last run.
     bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;
