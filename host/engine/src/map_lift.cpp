@@ -51,7 +51,7 @@ void principalAxes(const std::vector<uint8_t> &placed, Eigen::MatrixXd &position
 MapRefineResult liftedRefine(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
                              const MapLiftParams &params, bool mds_start)
 {
-    const auto dims = static_cast<Eigen::Index>(std::max<uint32_t>(params.dimensions, 3U));
+    const auto dims = static_cast<Eigen::Index>(std::clamp<uint32_t>(params.dimensions, 3U, kMaxEmbeddingDimensions));
     Eigen::MatrixXd positions = Eigen::MatrixXd::Zero(problem.nodeCount(), dims);
     std::vector<uint32_t> part;
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {

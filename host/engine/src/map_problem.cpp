@@ -58,11 +58,22 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
     if (radius <= 0.0) {
         return;
     }
-    // A grid of cells one radius wide: close pairs are in the same or a neighbouring cell.
+    // A grid of cells one radius wide: close pairs are in the same or a neighbouring cell. The
+    // occupied cells as one sorted array (cell, then node): the pairs come out in the order of
+    // the cells, then of the nodes, whatever the hashing, and without a container per cell.
     // A position that is not finite, or so far out that its cell number would not fit (a map
     // a solve step threw away), has no close pair to check: it is left out, not cast.
     constexpr double kFarthestCell = 1e15;
-    std::map<std::pair<int64_t, int64_t>, std::vector<uint32_t>> cells;
+    struct Member {
+        int64_t cell_x;
+        int64_t cell_y;
+        uint32_t node;
+    };
+    auto before = [](const Member &p, const Member &q) {
+        return p.cell_x != q.cell_x ? p.cell_x < q.cell_x : (p.cell_y != q.cell_y ? p.cell_y < q.cell_y : p.node < q.node);
+    };
+    std::vector<Member> members;
+    members.reserve(problem.nodeCount());
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (placed[node] != 0 && problem.listens[node] != 0) {
             const double cell_x = std::floor(positions(node, 0) / radius);
@@ -70,29 +81,36 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
             if (!(std::abs(cell_x) < kFarthestCell && std::abs(cell_y) < kFarthestCell)) {
                 continue;
             }
-            cells[{static_cast<int64_t>(cell_x), static_cast<int64_t>(cell_y)}].push_back(node);
+            members.push_back(Member{static_cast<int64_t>(cell_x), static_cast<int64_t>(cell_y), node});
         }
     }
-    for (const auto &[cell, members] : cells) {
+    std::sort(members.begin(), members.end(), before);
+    for (size_t first = 0; first < members.size();) {
+        size_t end = first;
+        while (end < members.size() && members[end].cell_x == members[first].cell_x &&
+               members[end].cell_y == members[first].cell_y) {
+            ++end;
+        }
         for (int64_t dx = -1; dx <= 1; ++dx) {
             for (int64_t dy = -1; dy <= 1; ++dy) {
-                const auto other = cells.find({cell.first + dx, cell.second + dy});
-                if (other == cells.end()) {
-                    continue;
-                }
-                for (uint32_t a : members) {
-                    for (uint32_t b : other->second) {
-                        if (b <= a || problem.linked(a, b)) {
+                const Member key{members[first].cell_x + dx, members[first].cell_y + dy, 0};
+                auto other = std::lower_bound(members.begin(), members.end(), key, before);
+                for (size_t i = first; i < end; ++i) {
+                    const uint32_t a = members[i].node;
+                    for (auto it = other; it != members.end() && it->cell_x == key.cell_x && it->cell_y == key.cell_y; ++it) {
+                        const uint32_t b = it->node;
+                        if (b <= a) {
                             continue;
                         }
                         const double distance = (positions.row(a) - positions.row(b)).norm();
-                        if (distance < radius) {
+                        if (distance < radius && !problem.linked(a, b)) {
                             visit(a, b, distance);
                         }
                     }
                 }
             }
         }
+        first = end;
     }
 }
 

@@ -1,6 +1,7 @@
 #include "cdro/engine/map_refine.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -15,6 +16,28 @@ namespace {
 
 using SparseMatrix = Eigen::SparseMatrix<double>;
 using Triplet = Eigen::Triplet<double>;
+// The unit vector from b to a in D dimensions, on the stack (the normal equations need one per
+// link per iteration); false where the two coincide.
+struct Direction {
+    std::array<double, kMaxEmbeddingDimensions> u{};
+    double distance = 0.0;
+};
+Direction directionBetween(const Eigen::MatrixXd &positions, uint32_t a, uint32_t b)
+{
+    Direction out;
+    const Eigen::Index dims = positions.cols();
+    double squared = 0.0;
+    for (Eigen::Index d = 0; d < dims; ++d) {
+        const double delta = positions(a, d) - positions(b, d);
+        out.u[static_cast<size_t>(d)] = delta;
+        squared += delta * delta;
+    }
+    out.distance = std::sqrt(squared);
+    for (Eigen::Index d = 0; d < dims; ++d) {
+        out.u[static_cast<size_t>(d)] /= out.distance;
+    }
+    return out;
+}
 
 // The unknowns: placed, not fixed nodes with links (-1: not an unknown), numbered in order.
 std::vector<int> freeNumbers(const MapProblem &problem, const std::vector<uint8_t> &placed, uint32_t *count)
@@ -49,21 +72,21 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         if (placed[link.a] == 0 || placed[link.b] == 0 || (na < 0 && nb < 0)) {
             continue;
         }
-        const Eigen::VectorXd delta = (positions.row(link.a) - positions.row(link.b)).transpose();
-        const double distance = delta.norm();
+        const Direction direction = directionBetween(positions, link.a, link.b);
+        const double distance = direction.distance;
         if (distance < 1e-9) {
             continue;
         }
-        const Eigen::VectorXd u = delta / distance; // d distance / d p_a
+        const std::array<double, kMaxEmbeddingDimensions> &u = direction.u; // d distance / d p_a
         const double residual = link.range_m - distance;
         const ResidualEvaluation at = likelihood.evaluate(residual, variance);
-        const double weight = fisher ? at.inlier_probability / variance : likelihood.irlsWeight(residual, variance);
+        const double weight = fisher ? at.inlier_probability / variance : likelihood.irlsWeight(residual, variance, at);
         // cost = -log p(e), e = r - |p_a - p_b|: d cost / d p_a = slope * u.
         const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
         const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
         for (Eigen::Index i = 0; i < dims; ++i) {
             for (Eigen::Index j = 0; j < dims; ++j) {
-                const double value = weight * u(i) * u(j);
+                const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
                 const int ii = static_cast<int>(i);
                 const int jj = static_cast<int>(j);
                 if (ca >= 0) {
@@ -78,11 +101,14 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
                 }
             }
         }
-        if (ca >= 0) {
-            descent.segment(ca, dims) -= at.slope_per_m * u;
-        }
-        if (cb >= 0) {
-            descent.segment(cb, dims) += at.slope_per_m * u;
+        for (Eigen::Index d = 0; d < dims; ++d) {
+            const double push = at.slope_per_m * u[static_cast<size_t>(d)];
+            if (ca >= 0) {
+                descent(ca + d) -= push;
+            }
+            if (cb >= 0) {
+                descent(cb + d) += push;
+            }
         }
     }
     if (fisher || problem.unheard_radius_m <= 0.0) {
@@ -97,13 +123,16 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         if (distance < 1e-9 || (na < 0 && nb < 0)) {
             return;
         }
-        const Eigen::VectorXd u = (positions.row(a) - positions.row(b)).transpose() / distance;
+        std::array<double, kMaxEmbeddingDimensions> u{};
+        for (Eigen::Index d = 0; d < dims; ++d) {
+            u[static_cast<size_t>(d)] = (positions(a, d) - positions(b, d)) / distance;
+        }
         const double push = weight * (radius - distance); // -d cost / d distance
         const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
         const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
         for (Eigen::Index i = 0; i < dims; ++i) {
             for (Eigen::Index j = 0; j < dims; ++j) {
-                const double value = weight * u(i) * u(j);
+                const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
                 const int ii = static_cast<int>(i);
                 const int jj = static_cast<int>(j);
                 if (ca >= 0) {
@@ -118,13 +147,27 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
                 }
             }
         }
-        if (ca >= 0) {
-            descent.segment(ca, dims) += push * u;
-        }
-        if (cb >= 0) {
-            descent.segment(cb, dims) -= push * u;
+        for (Eigen::Index d = 0; d < dims; ++d) {
+            if (ca >= 0) {
+                descent(ca + d) += push * u[static_cast<size_t>(d)];
+            }
+            if (cb >= 0) {
+                descent(cb + d) -= push * u[static_cast<size_t>(d)];
+            }
         }
     });
+}
+
+// Whether two compressed matrices have the same nonzero pattern.
+bool samePattern(const SparseMatrix &x, const SparseMatrix &y)
+{
+    if (x.rows() != y.rows() || x.cols() != y.cols() || x.nonZeros() != y.nonZeros()) {
+        return false;
+    }
+    const auto outer = static_cast<size_t>(x.outerSize()) + 1;
+    const auto inner = static_cast<size_t>(x.nonZeros());
+    return std::equal(x.outerIndexPtr(), x.outerIndexPtr() + outer, y.outerIndexPtr()) &&
+           std::equal(x.innerIndexPtr(), x.innerIndexPtr() + inner, y.innerIndexPtr());
 }
 
 double embeddingCost(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
@@ -160,7 +203,7 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
     uint32_t free_count = 0;
     const std::vector<int> number = freeNumbers(problem, placed, &free_count);
     const Eigen::Index dims = positions.cols();
-    if (free_count == 0) {
+    if (free_count == 0 || dims < 2 || dims > static_cast<Eigen::Index>(kMaxEmbeddingDimensions)) {
         return result;
     }
     const auto unknowns = static_cast<Eigen::Index>(free_count);
@@ -173,6 +216,7 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
     }
     Eigen::SimplicialLDLT<SparseMatrix> solver;
     bool analysed = false;
+    SparseMatrix analysed_pattern;
     std::vector<Triplet> triplets;
     Eigen::VectorXd descent;
     Eigen::MatrixXd saved;
@@ -205,9 +249,11 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
             normal.setFromTriplets(triplets.begin(), triplets.end());
             const Eigen::VectorXd diagonal = normal.diagonal();
             const double mean_diagonal = std::max(diagonal.sum() / static_cast<double>(size), 1e-12);
-            // The unheard pairs that are close change the pattern between iterations.
-            if (!analysed || problem.unheard_radius_m > 0.0) {
+            // The unheard pairs that are close can change the pattern between iterations; the
+            // ordering depends on the pattern alone, so it is computed again only when that changed.
+            if (!analysed || !samePattern(normal, analysed_pattern)) {
                 solver.analyzePattern(normal);
+                analysed_pattern = normal;
                 analysed = true;
             }
             bool accepted = false;

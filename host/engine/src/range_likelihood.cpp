@@ -210,12 +210,15 @@ double RangeLikelihood::inlierProbability(double residual_m, double variance_m2)
 
 double RangeLikelihood::irlsWeight(double residual_m, double variance_m2) const
 {
+    return irlsWeight(residual_m, variance_m2, evaluate(residual_m, std::max(variance_m2, 1e-12)));
+}
+
+double RangeLikelihood::irlsWeight(double residual_m, double variance_m2, const ResidualEvaluation &at) const
+{
     const double variance = std::max(variance_m2, 1e-12);
     if (std::abs(residual_m) < 1e-6 * std::sqrt(variance)) {
-        // The limit at e = 0: the curvature of the line-of-sight term, as much as it carries.
         return evaluate(0.0, variance).inlier_probability / variance;
     }
-    const ResidualEvaluation at = evaluate(residual_m, variance);
     return std::max(-at.slope_per_m / residual_m, 0.0);
 }
 

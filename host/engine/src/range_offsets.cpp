@@ -53,7 +53,7 @@ void solveDeviations(const MapProblem &problem, const MapEstimate &map, const Ra
             const double residual =
                 link.range_m - 2.0 * common_m - deviation_m[link.a] - deviation_m[link.b] - distance;
             const ResidualEvaluation at = likelihood.evaluate(residual, variance);
-            const double weight = likelihood.irlsWeight(residual, variance);
+            const double weight = likelihood.irlsWeight(residual, variance, at);
             const int a = static_cast<int>(link.a);
             const int b = static_cast<int>(link.b);
             triplets.emplace_back(a, a, weight);

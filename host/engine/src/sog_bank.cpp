@@ -4,6 +4,11 @@
 
 namespace cdro::engine {
 
+namespace {
+constexpr uint32_t kSettledReweightEvery = 4;
+constexpr uint32_t kSettledRingUpdates = 64;
+} // namespace
+
 SogBank::SogBank(const EngineParams &params, const RangeLikelihood &likelihood)
     : ring_(params.ring), sog_(params.sog), range_sigma_m_(params.range.sigma_m), motion_reset_(params.motion.reset),
       follow_(params.sog.rings_follow_center && params.refinement.enabled), likelihood_(likelihood)
@@ -97,6 +102,16 @@ void SogBank::update(MapState &map, uint32_t link, uint32_t center_node, double 
                                                           sog_.gate_sigma, sog_.process_noise_m2, full);
     counters_.ekf_component_updates += result.updated;
     counters_.ekf_gated += result.gated;
+    // A ring that has been weighed kSettledRingUpdates times around a still node has settled on
+    // one arc: the other nodes' ranges re-weigh it on every kSettledReweightEvery-th range of the
+    // ring (and on every full update), not on each. Half of the per-range work at PLANT's size,
+    // for weights that no longer move; a young ring, or one around a node that moved, takes
+    // every range.
+    if ((target.converged() || ring.updateCount() >= kSettledRingUpdates) && !full &&
+        ring.updateCount() % kSettledReweightEvery != 0) {
+        ++counters_.weight_updates_deferred;
+        return;
+    }
     reweight(map, link, center_node, range_m, full);
 }
 

@@ -82,7 +82,8 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.solve.solve_escapes, &c.solve.solve_placed, &c.convergence.assessments,
             &c.convergence.ambiguous_nodes, &c.convergence.foldable_nodes, &c.convergence.flexible_nodes,
             &c.motion.motion_starts, &c.motion.motion_stops, &c.motion.motion_inferred, &c.motion.track_updates,
-            &c.motion.track_refused, &c.solve.solve_refreshes, &c.solve.offsets_adopted};
+            &c.motion.track_refused, &c.solve.solve_refreshes, &c.solve.offsets_adopted,
+            &c.sogs.weight_updates_deferred};
 }
 
 // Doubles through the block: their bits, exactly.

@@ -19,7 +19,7 @@
 namespace cdro::engine {
 
 struct MapLiftParams {
-    uint32_t dimensions = 3;                           // D >= 3
+    uint32_t dimensions = 3;                           // 3 <= D <= kMaxEmbeddingDimensions (map_refine.hpp)
     std::vector<RefineStage> stages{{8.0, 0.5, 3.0}, {4.0, 0.3, 2.0}, {2.0, -1.0, -1.0}, {1.0, -1.0, -1.0}};
                                                        // stages at D dimensions, no penalty
     std::vector<double> squeeze{1e-2, 1e-1, 1.0, 10.0, 100.0, 1e4}; // penalty stages (1/m^2 per node)

@@ -44,7 +44,10 @@ struct MapRefineResult {
 MapRefineResult refineMap(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
                           const MapRefineParams &params = {});
 
-// The same on an embedding in D >= 2 dimensions (one row per node), with an optional penalty
+// The most dimensions an embedding may have (map_lift.hpp clamps its D to it).
+constexpr uint32_t kMaxEmbeddingDimensions = 8;
+
+// The same on an embedding in 2 <= D <= kMaxEmbeddingDimensions dimensions (one row per node), with an optional penalty
 // squeeze_per_m2 * |x_{2..D-1}|^2 per node on the coordinates beyond the plane (map_lift.hpp); one
 // LM run per stage. Returns the cost at the nominal noise without the penalty.
 MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uint8_t> &placed,

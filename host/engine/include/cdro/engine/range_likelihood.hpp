@@ -60,6 +60,8 @@ public:
     // Iteratively reweighted least squares: the weight w(e) = -slope / e (1/m^2), the curvature of
     // the quadratic that touches the cost -log p at e (0 where the cost is not increasing in |e|).
     double irlsWeight(double residual_m, double variance_m2) const;
+    // The same from evaluate(residual_m, variance_m2), already at hand.
+    double irlsWeight(double residual_m, double variance_m2, const ResidualEvaluation &at) const;
 
     const RangeLikelihoodParams &params() const { return params_; }
 
