@@ -26,6 +26,7 @@ import serial
 from .codec import CaptureWriter, StreamDecoder
 from .codec.frames import COUNTER_NAMES
 from .simulation.link import Chunker
+from .cli import entry_point
 
 BACKOFF_START_S = 0.1
 BACKOFF_MAX_S = 2.0
@@ -189,6 +190,7 @@ class Capture:
                 "vanished": self.vanished, "partial_chunks": self.partial_chunks}
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-capture", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -35,6 +35,7 @@ import numpy as np
 
 from .evaluation import drawing
 from .evaluation.alignment import align, rigid_fit, rmse  # noqa: F401  (rigid_fit: part of this module's API)
+from .cli import entry_point
 
 
 class InputError(ValueError):
@@ -289,6 +290,7 @@ def read_links(path: str) -> set[tuple[int, int]]:
     return links
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-plot", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

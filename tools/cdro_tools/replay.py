@@ -29,6 +29,7 @@ from .codec import CaptureError, StreamDecoder, read_capture
 from .simulation.link import LinkError, PtyLink
 from .simulation.runner import READER_GRACE_S
 from .sim import _speed
+from .cli import entry_point
 
 
 def _err(message: str) -> None:
@@ -86,6 +87,7 @@ class PortOutput:
         return 0
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-replay", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
