@@ -9,7 +9,7 @@ reader opens the link, and the link is removed after the reader has read everyth
 5 s).
 
 examples:
-  cdro-replay run.cdrocap --pty /tmp/cdro-dev               # then: cdro-hostd --port /tmp/cdro-dev
+  cdro-replay run.cdrocap --pty /tmp/cdro-dev               # then: cdro-hostd --device /tmp/cdro-dev
   cdro-replay run.cdrocap --port /dev/ttyUSB1 --speed 4
   cdro-replay run.cdrocap --pty /tmp/cdro-dev --speed max
 """
