@@ -11,6 +11,7 @@ import pty
 import re
 import select
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -70,10 +71,22 @@ def json_lines(text: str) -> list[str]:
     return [line for line in text.replace("\r", "").splitlines() if line.startswith('{"type"')]
 
 
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def test_a_terminal_gets_a_progress_line_and_no_json_lines(build_dir, capture):
-    text = run_on_a_terminal(build_dir, capture, [], lambda t: PROGRESS_WITH_NODES.search(t))
+    port = free_port()
+    text = run_on_a_terminal(build_dir, capture, ["--http-port", str(port)],
+                             lambda t: PROGRESS_WITH_NODES.search(t))
     assert json_lines(text) == []
     assert "stdout is a terminal" in text
+    # The progress line: link, nodes placed and converged, and where the live map is.
+    progress = PROGRESS_WITH_NODES.search(text).group(0)
+    line = text[text.index(progress):].splitlines()[0]
+    assert "placed" in line and "converged" in line and f"| map http://127.0.0.1:{port}/" in line
 
 
 def test_json_lines_on_a_terminal_when_asked(build_dir, capture):
