@@ -46,6 +46,8 @@ def commands_of(text: str, anywhere: bool = False) -> list[str]:
     In prose (a comment, "# then: cdro-hostd --device ...", or a --help description) a program
     is taken as a command only when an option comes with it."""
     joined = re.sub(r"\\\n\s*", " ", text)
+    # A synopsis goes on, indented, on the next line ("cdro-pozyx ... --prf {16,64}\n    --preamble ...").
+    joined = re.sub(r"\n[ \t]+(?=--|\[)", " ", joined)
     code_commands, prose_commands = [], []
     for line in joined.splitlines():
         code, _, comment = ("", "", line) if line.lstrip().startswith("#") else line.partition(" #")
