@@ -197,7 +197,8 @@ int main(int argc, char **argv)
         // A person at a terminal reads the logs and a progress line there; a thousand JSON lines a
         // minute would bury both. Scripts (stdout a pipe or a file) get JSON Lines as ever, and
         // `--jsonl -` asks for them on a terminal too.
-        const bool jsonl_held_back = config.output.jsonl == "-" && !service_overrides.jsonl && isatty(STDOUT_FILENO) == 1;
+        const bool jsonl_held_back =
+            config.output.jsonl == "-" && !service_overrides.jsonl && isatty(STDOUT_FILENO) == 1;
         if (jsonl_held_back) {
             config.output.jsonl.clear();
             progress = true;

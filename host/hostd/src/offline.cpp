@@ -34,12 +34,13 @@ void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
     case engine::NodeDoubt::None:
         return;
     case engine::NodeDoubt::TooFewLinks:
-        std::fprintf(log, "cdro-hostd: node 0x%04X has fewer than three links to placed nodes: its ranges cannot fix it "
-                          "(not converged; add a link)\n", id);
+        std::fprintf(log, "cdro-hostd: node 0x%04X has fewer than three links to placed nodes: its ranges cannot "
+                          "fix it (not converged; add a link)\n", id);
         return;
     case engine::NodeDoubt::Ambiguous:
-        std::fprintf(log, "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, fits its %u "
-                          "links about as well (not converged; add a link to a node off the line of its neighbours)\n",
+        std::fprintf(log, "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, "
+                          "fits its %u links about as well (not converged; add a link to a node off the line of "
+                          "its neighbours)\n",
                      id, node.link_count);
         return;
     case engine::NodeDoubt::Foldable:
@@ -51,17 +52,17 @@ void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
             if (node.hinge_nodes == 2) {
                 hinge += " and " + service::nodeIdHex(node.hinge[1]);
             }
-            std::fprintf(log, "cdro-hostd: node 0x%04X hangs on node%s %s: its part of the network can %s without changing a "
-                              "range, so the ranges cannot tell its side (not converged; add a link from it to another "
-                              "node)\n",
+            std::fprintf(log, "cdro-hostd: node 0x%04X hangs on node%s %s: its part of the network can %s without "
+                              "changing a range, so the ranges cannot tell its side (not converged; add a link "
+                              "from it to another node)\n",
                          id, node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
                          node.hinge_nodes == 2 ? "fold over them" : "turn about it");
         }
         return;
     case engine::NodeDoubt::Flexible:
-        std::fprintf(log, "cdro-hostd: node 0x%04X is flexible: it hangs on links nothing else checks, so one error in them "
-                          "(or the map's own uncertainty) could move it a metre or more (not converged; add links "
-                          "across its part)\n", id);
+        std::fprintf(log, "cdro-hostd: node 0x%04X is flexible: it hangs on links nothing else checks, so one "
+                          "error in them (or the map's own uncertainty) could move it a metre or more (not "
+                          "converged; add links across its part)\n", id);
         return;
     case engine::NodeDoubt::Unsettled:
         std::fprintf(log, "cdro-hostd: node 0x%04X has not settled yet (not converged)\n", id);

@@ -141,7 +141,8 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &node, OutputTime time);
 nlohmann::ordered_json robotJson(const RobotPose &robot, OutputTime time);
 nlohmann::ordered_json healthJson(const Health &health, OutputTime time);
 nlohmann::ordered_json linkJson(const LinkEstimate &link);
-// The whole map for the JSON API: {"schema", "t_s", "t_unix_s", "nodes": [...], "robot": {...}|null, "links": [...], "health": {...}}
+// The whole map for the JSON API: {"schema", "t_s", "t_unix_s", "nodes": [...], "robot": {...}|null,
+// "links": [...], "health": {...}}
 nlohmann::ordered_json mapJson(const MapState &map);
 nlohmann::ordered_json componentsJson(const NodeComponents &components);
 
