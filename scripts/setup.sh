@@ -1,24 +1,56 @@
 #!/usr/bin/env bash
 # Installs what is missing, and only that: Debian packages (apt-get, as root or via sudo) and the
 # Python tools into ./.venv. Idempotent; quick when everything is already there.
+#
+#   scripts/setup.sh                    everything: build, tests, demo, firmware, benchmarks
+#   scripts/setup.sh --runtime          only what building and running cdro-hostd and the Python
+#                                       tools needs (no clang, Chromium, simavr, AVR toolchain,
+#                                       GoogleTest, pytest); build with the README's runtime flags
+#   scripts/setup.sh [--runtime] --list the Debian packages of that set, one a line; installs nothing
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+runtime=0
+list=0
+for arg in "$@"; do
+  case "$arg" in
+    --runtime) runtime=1 ;;
+    --list) list=1 ;;
+    *) echo "usage: scripts/setup.sh [--runtime] [--list]" >&2; exit 2 ;;
+  esac
+done
 
 SUDO=""
 if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
 
-# Everything the build, the tests, the demo and the service need, from Debian 12.
-DEB_PACKAGES=(
+# What building and running the service and the tools needs, from Debian 12.
+RUNTIME_PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   python3 python3-venv python3-pip
-  libeigen3-dev libgtest-dev libgmock-dev
+  libeigen3-dev
   libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
-  mosquitto libmosquitto-dev
+  libmosquitto-dev
+)
+# Everything the build, the tests, the demo and the firmware need besides.
+DEVELOPMENT_PACKAGES=(
+  libgtest-dev libgmock-dev
+  mosquitto
   clang libclang-rt-14-dev
   gcc-avr avr-libc arduino-core-avr binutils-avr avrdude
   simavr libsimavr-dev libelf-dev
   chromium chromium-driver
 )
+DEB_PACKAGES=("${RUNTIME_PACKAGES[@]}")
+extras="[dev]"
+if [ "$runtime" = 0 ]; then
+  DEB_PACKAGES+=("${DEVELOPMENT_PACKAGES[@]}")
+else
+  extras=""
+fi
+if [ "$list" = 1 ]; then
+  printf '%s\n' "${DEB_PACKAGES[@]}"
+  exit 0
+fi
 
 missing=()
 for p in "${DEB_PACKAGES[@]}"; do
@@ -39,11 +71,11 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.cdro-tools-installed
-want=$(sha256sum tools/pyproject.toml | cut -d' ' -f1)
+want="$(sha256sum tools/pyproject.toml | cut -d' ' -f1) tools$extras"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "setup: installing the Python tools into .venv"
   log=.venv/pip-install.log
-  if ! { .venv/bin/python -m pip install --upgrade pip && .venv/bin/python -m pip install -e "tools[dev]"; } > "$log" 2>&1; then
+  if ! { .venv/bin/python -m pip install --upgrade pip && .venv/bin/python -m pip install -e "tools$extras"; } > "$log" 2>&1; then
     cat "$log"
     echo "setup: installing the Python tools failed (log above, also in $log)" >&2
     exit 1

@@ -311,7 +311,8 @@ def test_that_a_part_hanging_on_two_nodes_is_placed_named_and_not_converged(host
     for i in part:
         assert out[i]["x"] != "" and out[i]["converged"] == "0", (i, result.stderr)
         assert (out[i]["status"], out[i]["reason"]) == ("placed", "foldable"), i
-        assert f"node {i} hangs on nodes 3 and 4: its part of the network can fold over them" in result.stderr
+        assert f"node 0x{i:04X} hangs on nodes 0x0003 and 0x0004: its part of the network can fold over them" \
+            in result.stderr
     assert result.stderr.count("hangs on") == 3
 
 

@@ -180,7 +180,14 @@ void HarnessEngine::fill(MapState &map) const
     if (have_robot_) {
         // The variance grows with the steps taken, as dead reckoning's does.
         const double variance_m2 = 0.01 * static_cast<double>(odometry_steps_);
-        map.robot = RobotPose{own_id_, robot_x_m_, robot_y_m_, robot_heading_rad_, variance_m2, 0.0, variance_m2};
+        RobotPose robot;
+        robot.id = own_id_;
+        robot.x_m = robot_x_m_;
+        robot.y_m = robot_y_m_;
+        robot.heading_rad = robot_heading_rad_;
+        robot.var_x_m2 = variance_m2;
+        robot.var_y_m2 = variance_m2;
+        map.robot = robot;
     }
 }
 

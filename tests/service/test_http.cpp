@@ -24,7 +24,7 @@ std::string mapText(int nodes)
 {
     MapState map;
     for (int i = 0; i < nodes; ++i) {
-        map.nodes.push_back({static_cast<uint16_t>(100 + i), 1.0 * i, 2.0, 0.1, 0.0, 0.1, true, false, true, false, "converged", "", {}});
+        map.nodes.push_back({static_cast<uint16_t>(100 + i), 1.0 * i, 2.0, 0.1, 0.0, 0.1, true, false, true, false, "converged", "", {}, {}});
     }
     return mapJson(map).dump();
 }

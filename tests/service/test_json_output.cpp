@@ -23,41 +23,101 @@ std::vector<nlohmann::json> readLines(const std::string &path)
 MapState twoNodes(double x0)
 {
     MapState map;
-    map.nodes.push_back({24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}});
-    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}});
+    map.nodes.push_back({24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, {}});
+    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}, {}});
     return map;
 }
 } // namespace
 
 TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
 {
-    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}};
-    EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, 12.5)),
-              R"({"type":"node","t_s":12.5,"id":24577,"x_m":3.214,"y_m":-0.502,"var_x_m2":0.0041,)"
+    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, 1.25};
+    const OutputTime at{12.5, 1700000012.5};
+    EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, at)),
+              R"({"type":"node","schema":2,"t_s":12.5,"t_unix_s":1700000012.5,"id":24577,"id_hex":"0x6001",)"
+              R"("x_m":3.214,"y_m":-0.502,"z_m":1.25,"var_x_m2":0.0041,)"
               R"("cov_xy_m2":-0.0003,"var_y_m2":0.0052,"converged":true,"moving":false,"placed":true,)"
-              R"("foldable":false,"status":"converged","reason":"","hinge":[]})");
+              R"("foldable":false,"status":"converged","reason":"","hinge":[],"hinge_hex":[]})");
     node.converged = false;
     node.foldable = true;
     node.status = "placed";
     node.reason = "foldable";
     node.hinge = {24580, 24581};
-    EXPECT_NE(JsonLinesWriter::line(nodeJson(node, 12.5))
+    EXPECT_NE(JsonLinesWriter::line(nodeJson(node, at))
                   .find(R"("converged":false,"moving":false,"placed":true,"foldable":true,"status":"placed",)"
-                        R"("reason":"foldable","hinge":[24580,24581]})"),
+                        R"("reason":"foldable","hinge":[24580,24581],"hinge_hex":["0x6004","0x6005"]})"),
               std::string::npos);
-    RobotPose robot{24600, 1.5, 2.5, 0.25, 0.01, 0.0, 0.02};
-    EXPECT_EQ(JsonLinesWriter::line(robotJson(robot, 1.0)),
-              R"({"type":"robot","t_s":1.0,"id":24600,"x_m":1.5,"y_m":2.5,"heading_rad":0.25,)"
-              R"("var_x_m2":0.01,"cov_xy_m2":0.0,"var_y_m2":0.02})");
+    RobotPose robot;
+    robot.id = 24600;
+    robot.x_m = 1.5;
+    robot.y_m = 2.5;
+    robot.heading_rad = 0.25;
+    robot.var_x_m2 = 0.01;
+    robot.var_y_m2 = 0.02;
+    robot.frame = "map";
+    robot.var_heading_rad2 = 0.003;
+    robot.cov_x_heading_m_rad = 0.001;
+    robot.cov_y_heading_m_rad = -0.002;
+    robot.heading_hypotheses = 1;
+    robot.range_scale = 1.0625;
+    robot.range_scale_sigma = 0.0125;
+    robot.range_offset_m = 0.25;
+    robot.range_offset_sigma_m = 0.05;
+    EXPECT_EQ(JsonLinesWriter::line(robotJson(robot, {1.0, 1700000001.0})),
+              R"({"type":"robot","schema":2,"t_s":1.0,"t_unix_s":1700000001.0,"id":24600,"id_hex":"0x6018",)"
+              R"("frame":"map","x_m":1.5,"y_m":2.5,"heading_rad":0.25,)"
+              R"("var_x_m2":0.01,"cov_xy_m2":0.0,"var_y_m2":0.02,"var_heading_rad2":0.003,)"
+              R"("cov_x_heading_m_rad":0.001,"cov_y_heading_m_rad":-0.002,"heading_hypotheses":1,)"
+              R"("range_scale":1.0625,"range_scale_sigma":0.0125,"range_offset_m":0.25,"range_offset_sigma_m":0.05})");
     Health health;
     health.link = LinkState::Connected;
     health.counters.crc_errors = 3;
-    const nlohmann::json h = nlohmann::json::parse(JsonLinesWriter::line(healthJson(health, 2.0)));
+    health.device_node_id = 0x6000;
+    const nlohmann::json h = nlohmann::json::parse(JsonLinesWriter::line(healthJson(health, {2.0, 1700000002.0})));
     EXPECT_EQ(h["type"], "health");
+    EXPECT_EQ(h["schema"], 2);
+    EXPECT_EQ(h["t_unix_s"], 1700000002.0);
+    EXPECT_EQ(h["device_node_id_hex"], "0x6000");
     EXPECT_EQ(h["link"], "connected");
     EXPECT_EQ(h["counters"]["crc_errors"], 3);
     EXPECT_TRUE(h["counters"].contains("frames_ok"));
     EXPECT_TRUE(h["counters"].contains("device_resets"));
+}
+
+TEST(JsonOutput, AnUnplacedNodeHasNoPositionAndAnUnknownHeightNoZ)
+{
+    // What the engine leaves in an unplaced node's fields must not reach a consumer as a
+    // certain position at the origin.
+    NodeEstimate node;
+    node.id = 0x6A3F;
+    node.status = "unplaced";
+    const nlohmann::json j = nlohmann::json::parse(JsonLinesWriter::line(nodeJson(node, {3.0, 1700000003.0})));
+    for (const char *key : {"x_m", "y_m", "z_m", "var_x_m2", "cov_xy_m2", "var_y_m2"}) {
+        EXPECT_TRUE(j.at(key).is_null()) << key;
+    }
+    EXPECT_EQ(j["placed"], false);
+    EXPECT_EQ(j["id_hex"], "0x6A3F");
+    // A robot whose filter gave no range model says so with null, not with 1 and 0.
+    const nlohmann::json r = nlohmann::json::parse(JsonLinesWriter::line(robotJson(RobotPose{}, {3.0, 1700000003.0})));
+    EXPECT_TRUE(r.at("range_scale").is_null());
+    EXPECT_TRUE(r.at("range_offset_m").is_null());
+    EXPECT_EQ(r["frame"], "odometry");
+}
+
+TEST(JsonOutput, TheMapObjectCarriesTheSchemaAndBothTimes)
+{
+    MapState map = twoNodes(1.0);
+    map.t_s = 2.5;
+    map.t_unix_s = 1700000002.5;
+    map.links.push_back({24577, 24578, 3.5, 7});
+    const nlohmann::json j = nlohmann::json::parse(mapJson(map).dump());
+    EXPECT_EQ(j["schema"], 2);
+    EXPECT_EQ(j["t_unix_s"], 1700000002.5);
+    EXPECT_EQ(j["nodes"][1]["t_unix_s"], 1700000002.5);
+    EXPECT_EQ(j["links"][0]["a_hex"], "0x6001");
+    EXPECT_EQ(j["links"][0]["b_hex"], "0x6002");
+    EXPECT_EQ(j["health"]["t_unix_s"], 1700000002.5);
+    EXPECT_TRUE(j["health"]["device_node_id_hex"].is_null()); // not known yet
 }
 
 TEST(JsonOutput, EveryUpdateWritesOnlyTheNodesThatChanged)

@@ -70,9 +70,17 @@ MapState mapWith(double x)
 {
     MapState map;
     map.t_s = 4.5;
-    map.nodes.push_back({24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true, false, "converged", "", {}});
-    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true, false, "moving", "", {}});
-    map.robot = RobotPose{24600, 0.5, 0.25, 1.0, 0.01, 0.0, 0.01};
+    map.t_unix_s = 1700000004.5;
+    map.nodes.push_back({24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true, false, "converged", "", {}, 1.5});
+    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true, false, "moving", "", {}, {}});
+    RobotPose robot;
+    robot.id = 24600;
+    robot.x_m = 0.5;
+    robot.y_m = 0.25;
+    robot.heading_rad = 1.0;
+    robot.var_x_m2 = 0.01;
+    robot.var_y_m2 = 0.01;
+    map.robot = robot;
     return map;
 }
 
@@ -103,24 +111,28 @@ TEST(Mqtt, PublishesNodesRobotHealthAndStatusRetained)
     Health health;
     health.link = LinkState::Connected;
     health.counters.frames_ok = 42;
-    publisher.publishHealth(health, 4.5);
+    publisher.publishHealth(health, {4.5, 1700000004.5});
     // (libmosquitto writes at once when the socket takes it; anything left goes out when the
     // loop sees the socket writable.)
     pump(loop, [&] { return publisher.flushed(); });
     Subscriber subscriber(broker.port(), "test/cdro/#");
     const auto any = [](const std::string &) { return true; };
-    const auto node = nlohmann::json::parse(subscriber.waitFor("test/cdro/nodes/24577", any));
+    // Topics name a node as the logs and the live map do: 0x6001 is 24577.
+    const auto node = nlohmann::json::parse(subscriber.waitFor("test/cdro/nodes/0x6001", any));
     EXPECT_EQ(node["type"], "node");
     EXPECT_EQ(node["x_m"], 1.25);
+    EXPECT_EQ(node["z_m"], 1.5);
     EXPECT_EQ(node["t_s"], 4.5);
-    EXPECT_EQ(nlohmann::json::parse(subscriber.waitFor("test/cdro/nodes/24578", any))["moving"], true);
+    EXPECT_EQ(node["t_unix_s"], 1700000004.5);
+    EXPECT_EQ(node["id_hex"], "0x6001");
+    EXPECT_EQ(nlohmann::json::parse(subscriber.waitFor("test/cdro/nodes/0x6002", any))["moving"], true);
     EXPECT_EQ(nlohmann::json::parse(subscriber.waitFor("test/cdro/robot", any))["heading_rad"], 1.0);
     EXPECT_EQ(nlohmann::json::parse(subscriber.waitFor("test/cdro/health", any))["counters"]["frames_ok"], 42);
     EXPECT_EQ(subscriber.waitFor("test/cdro/status", any), "online");
     EXPECT_GE(counters.mqtt_published, 5U);
     // Retained: a subscriber that comes after the messages were delivered still gets them.
     Subscriber later(broker.port(), "test/cdro/nodes/#");
-    EXPECT_EQ(nlohmann::json::parse(later.waitFor("test/cdro/nodes/24577", any))["x_m"], 1.25);
+    EXPECT_EQ(nlohmann::json::parse(later.waitFor("test/cdro/nodes/0x6001", any))["x_m"], 1.25);
     publisher.shutdown();
     EXPECT_EQ(subscriber.waitFor("test/cdro/status", [](const std::string &p) { return p == "offline"; }), "offline");
 }
@@ -155,7 +167,7 @@ TEST(Mqtt, ALostBrokerIsRetriedAndGetsTheLatestStateWhenBack)
     // What was published from the connect callback is queued; the loop writes it.
     pump(loop, [&] { return publisher.flushed(); });
     Subscriber subscriber(port, "cdro/#");
-    const std::string payload = subscriber.waitFor("cdro/nodes/24577", [](const std::string &p) {
+    const std::string payload = subscriber.waitFor("cdro/nodes/0x6001", [](const std::string &p) {
         return nlohmann::json::parse(p)["x_m"] == 7.5; // the state published while it was away
     });
     ASSERT_FALSE(payload.empty());

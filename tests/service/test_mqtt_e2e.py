@@ -89,9 +89,9 @@ def test_nodes_health_and_last_will_over_mqtt(build_dir, tmp_path, broker):
     wait_until(lambda: listener.latest("lab/status") and listener.latest("lab/status")["payload"] == "online",
                "status online")
     for node in [OWN, *NODES]:
-        message = wait_until(lambda n=node: listener.latest(f"lab/nodes/{n}"), f"node {node}")
+        message = wait_until(lambda n=node: listener.latest(f"lab/nodes/0x{n:04X}"), f"node {node}")
         payload = json.loads(message["payload"])
-        assert payload["type"] == "node" and payload["id"] == node
+        assert payload["type"] == "node" and payload["id"] == node and payload["id_hex"] == f"0x{node:04X}"
         assert set(payload) >= {"t_s", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2", "converged", "moving",
                                 "placed", "foldable", "status", "reason", "hinge"}
     health = wait_until(lambda: listener.latest("lab/health"), "health")

@@ -153,7 +153,7 @@ TEST(OutputFiles, AnOrdinaryFileIsReplacedAsBefore)
     config.jsonl = path;
     JsonLinesWriter writer(config, counters);
     writer.open();
-    writer.writeHealth(Health{}, 1.0);
+    writer.writeHealth(Health{}, {1.0, 1700000001.0});
     writer.close();
     EXPECT_EQ(readFile(path).find("old run"), std::string::npos);
     EXPECT_NE(readFile(path).find("\"type\":\"health\""), std::string::npos);

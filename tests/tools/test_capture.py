@@ -164,3 +164,37 @@ def test_that_an_unwritable_output_is_a_clear_error(tmp_path):
     finally:
         link.close()
     assert result.returncode == 1 and "cannot write" in result.stderr
+
+
+def test_that_the_status_line_gives_rates_while_frames_arrive(capsys):
+    # Fixture: a capture whose clock the test moves; 10 frames/s arrive in batches every 0.5 s,
+    # and the status goes to a log (not a terminal: a line every 5 s)
+    import argparse
+    import types
+    from cdro_tools import capture
+    clock = [1000.0]
+    fake_time = types.SimpleNamespace(monotonic=lambda: clock[0], time_ns=time.time_ns, sleep=time.sleep)
+    original_time = capture.time
+    capture.time = fake_time
+    try:
+        status = capture.Capture(argparse.Namespace(quiet=False, port="pty", out="out.cdrocap"), stop=lambda: False)
+        status.tty = False
+        status.writer = types.SimpleNamespace(records_written=0)
+        sequence = 0
+
+        # Test: 12 s of frames
+        for _ in range(24):
+            clock[0] += 0.5
+            data = b"".join(range_frame(sequence + k) for k in range(5))
+            sequence += 5
+            list(status.decoder.feed(data))
+            status.bytes_total += len(data)
+            status._status()
+    finally:
+        capture.time = original_time
+
+    # Assert: every status line has rates, and they are the rates the frames came at
+    lines = [line for line in capsys.readouterr().err.splitlines() if "frames ok" in line]
+    assert len(lines) >= 2
+    assert all("- B/s" not in line for line in lines), lines
+    assert "10.0 frames/s" in lines[-1]

@@ -87,7 +87,7 @@ def test_that_the_aligned_rmse_is_the_error_a_rigid_motion_cannot_remove(tmp_pat
     assert numbers["reflected"] is True and numbers["nodes"] == 5
     assert numbers["rmse_over_time"]["points"] == 21
     assert numbers["rmse_over_time"]["first_m"] == pytest.approx(math.sqrt(4 * 1.0 ** 2 / 5), abs=1e-6)
-    assert "dropped 1 line(s): not JSON" in result.stderr
+    assert "dropped 1 line(s) that cannot be used: not JSON" in result.stderr
     assert_png(tmp_path / "map.png", 800, 700)
     assert_png(tmp_path / "rmse.png", 800, 400)
 
@@ -161,7 +161,8 @@ def test_that_an_offline_nodes_csv_and_trajectory_give_a_robot_error(tmp_path):
                   "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv", "--map", tmp_path / "map2.png")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["robot_rmse_m"] == pytest.approx(numbers["robot_rmse_m"])
-    assert "dropped 5 line(s):" in result.stderr and "trajectory row in the odometry frame" in result.stderr
+    assert "note: 5 line(s) not drawn:" in result.stderr and "trajectory row in the odometry frame" in result.stderr
+    assert "dropped" not in result.stderr
 
 
 def test_that_unusable_input_is_a_clear_error(tmp_path):
@@ -176,3 +177,99 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
         result = plot(*args)
         assert result.returncode == 2 and message in result.stderr, (args, result.stderr)
     assert "example" in plot("--help").stdout
+
+
+def carried_node_fixture(tmp_path):
+    """The square, and 0x6010 carried from (2, 2) to (8, 2) during the run; the offline nodes CSV
+    (one row per node, no time) holds the final map, exact, in the engine's frame."""
+    write_truth(tmp_path / "truth.csv", {**SQUARE, 0x6010: (2.0, 2.0)})
+    tracks = ["t,id,x,y"] + [f"{t},{0x6010},{2.0 + 0.6 * t},2.0" for t in range(11)]
+    (tmp_path / "tracks.csv").write_text("\n".join(tracks) + "\n")
+    rows = ["id,x,y,var_x,cov_xy,var_y,converged"]
+    for node_id, (x, y) in {**SQUARE, 0x6010: (8.0, 2.0)}.items():
+        ex, ey = engine_frame(x, y)
+        rows.append(f"{node_id},{ex},{ey},0.01,0.0,0.02,1")
+    (tmp_path / "nodes.csv").write_text("\n".join(rows) + "\n")
+
+
+def test_that_a_final_map_is_compared_with_where_a_carried_node_ended(tmp_path):
+    # Fixture: a map that is exact at the end of the run
+    carried_node_fixture(tmp_path)
+
+    # Test
+    result = plot(tmp_path / "nodes.csv", "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv",
+                  "--map", tmp_path / "map.png")
+
+    # Assert: nothing is off; the carried node is where its track ended, not where it started
+    assert result.returncode == 0, result.stderr
+    numbers = json.loads(result.stdout)
+    assert numbers["per_node_error_m"]["0x6010"] == pytest.approx(0.0, abs=1e-6)
+    assert numbers["rmse_m"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_that_the_alignment_is_fitted_on_the_nodes_that_stood(tmp_path):
+    # Fixture: the carried node's final estimate is 1 m off; the static nodes are exact
+    carried_node_fixture(tmp_path)
+    rows = (tmp_path / "nodes.csv").read_text().splitlines()
+    ex, ey = engine_frame(8.0, 3.0)
+    rows[-1] = f"{0x6010},{ex},{ey},0.01,0.0,0.02,1"
+    (tmp_path / "nodes.csv").write_text("\n".join(rows) + "\n")
+
+    result = plot(tmp_path / "nodes.csv", "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv",
+                  "--map", tmp_path / "map.png")
+
+    # Assert: the error stays with the node that has it, instead of being spread over the map
+    assert result.returncode == 0, result.stderr
+    errors = json.loads(result.stdout)["per_node_error_m"]
+    assert errors["0x6010"] == pytest.approx(1.0, abs=1e-6)
+    assert all(errors[f"0x{i:04X}"] == pytest.approx(0.0, abs=1e-6) for i in SQUARE)
+
+
+def test_that_the_legend_names_only_what_is_drawn(tmp_path, monkeypatch):
+    # Fixture: a final map (one estimate per node): there is no estimated track to draw
+    from cdro_tools import plot as plot_module
+    from cdro_tools.evaluation import drawing
+    carried_node_fixture(tmp_path)
+    legends = []
+
+    def keep_legend(fig, ax, path, title, **kwargs):
+        legends.append([t.get_text() for t in ax.legend().get_texts()])
+        import matplotlib.pyplot as plt
+        plt.close(fig)
+
+    monkeypatch.setattr(drawing, "finish", keep_legend)
+
+    # Test
+    assert plot_module.main([str(tmp_path / "nodes.csv"), "--truth", str(tmp_path / "truth.csv"), "--tracks",
+                             str(tmp_path / "tracks.csv"), "--map", str(tmp_path / "map.png")]) == 0
+
+    # Assert
+    assert legends and "true track" in legends[0]
+    assert "estimated track" not in legends[0]
+
+
+def test_that_schema_2_lines_are_read_unplaced_nodes_are_a_note_and_robot_lines_keep_the_map_frame(tmp_path):
+    # Fixture: the service's lines of schema 2: unplaced nodes with null positions, then the
+    # map; a robot that dead-reckoned in the odometry frame before it was localized in the map
+    write_truth(tmp_path / "truth.csv", SQUARE)
+    lines = [json.dumps({"type": "node", "schema": 2, "t_s": 0.5, "t_unix_s": 1700000000.5, "id": i,
+                         "id_hex": f"0x{i:04X}", "x_m": None, "y_m": None, "z_m": 1.0, "var_x_m2": None,
+                         "cov_xy_m2": None, "var_y_m2": None, "placed": False, "converged": False})
+             for i in SQUARE]
+    lines += [node_line(6.0, i, x, y) for i, (x, y) in SQUARE.items()]
+    robot = {"type": "robot", "schema": 2, "id": 0x6010, "heading_rad": 0.0, "var_x_m2": 0.01, "cov_xy_m2": 0.0,
+             "var_y_m2": 0.01}
+    lines += [json.dumps({**robot, "t_s": 1.0 + k, "frame": "odometry", "x_m": -40.0, "y_m": -40.0}) for k in range(3)]
+    ex, ey = engine_frame(5.0, 6.0)
+    lines += [json.dumps({**robot, "t_s": 6.0, "frame": "map", "x_m": ex, "y_m": ey})]
+    (tmp_path / "est.jsonl").write_text("\n".join(lines) + "\n")
+    (tmp_path / "tracks.csv").write_text("t,id,x,y\n0,24592,5.0,6.0\n10,24592,5.0,6.0\n")
+
+    result = plot(tmp_path / "est.jsonl", "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv",
+                  "--map", tmp_path / "map.png")
+
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["robot_rmse_m"] == pytest.approx(0.0, abs=1e-6)
+    assert "note: 5 line(s) not drawn: node not placed yet" in result.stderr
+    assert "note: 3 line(s) not drawn: robot line in the odometry frame" in result.stderr
+    assert "dropped" not in result.stderr

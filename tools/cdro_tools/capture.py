@@ -26,6 +26,7 @@ import serial
 from .codec import CaptureWriter, StreamDecoder
 from .codec.frames import COUNTER_NAMES
 from .simulation.link import Chunker
+from .cli import entry_point
 
 BACKOFF_START_S = 0.1
 BACKOFF_MAX_S = 2.0
@@ -148,13 +149,17 @@ class Capture:
             return
         self.last_status = now
         frames, rejected = self._counts()
+        if not self.window:
+            self.window.append((self.started, 0, 0))      # the first line gives the rates since the start
         self.window.append((now, self.bytes_total, frames))
-        while self.window and now - self.window[0][0] > RATE_WINDOW_S:
+        # The rates are over at least RATE_WINDOW_S: the base is the newest sample that old (or the
+        # oldest there is), never dropped merely because status lines come further apart (5 s to a log).
+        while len(self.window) > 2 and now - self.window[1][0] >= RATE_WINDOW_S:
             self.window.popleft()
         t0, b0, f0 = self.window[0]
-        span = max(now - t0, 1e-9)
+        span = now - t0
         rates = (f"{(self.bytes_total - b0) / span:.0f} B/s, {(frames - f0) / span:.1f} frames/s"
-                 if len(self.window) > 1 else "- B/s, - frames/s")
+                 if span > 0 else "- B/s, - frames/s")
         rejects = ", ".join(f"{k} {v}" for k, v in rejected.items()) or "none"
         line = (f"frames ok {frames} | rejected {rejects} | {rates} | {self.bytes_total} B, "
                 f"{self.writer.records_written} records, {now - self.started:.0f} s")
@@ -189,6 +194,7 @@ class Capture:
                 "vanished": self.vanished, "partial_chunks": self.partial_chunks}
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-capture", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

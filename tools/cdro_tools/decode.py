@@ -20,6 +20,7 @@ import json
 import sys
 
 from .codec import CaptureError, Frame, Result, StreamDecoder, read_capture
+from .cli import entry_point
 
 
 def _line(event, host_time_us=None, direction="rx") -> dict:
@@ -51,6 +52,7 @@ def _odometry_line(record) -> dict:
     return line
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-decode", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -90,11 +92,11 @@ def main(argv: list[str] | None = None) -> int:
                                           "corrupt_bytes": contents.corrupt_bytes,
                                           "truncated_tail_bytes": contents.truncated_tail_bytes}}),
                   file=sys.stderr)
+    except BrokenPipeError:
+        raise               # the reader went away (| head): entry_point ends quietly
     except (OSError, CaptureError) as error:
         print(f"cdro-decode: {args.input}: {error}", file=sys.stderr)
         return 2
-    except BrokenPipeError:
-        return 0
     print(json.dumps({"received": rx.counters, "sent": tx.counters}), file=sys.stderr)
     return 0
 

@@ -45,6 +45,7 @@ from .evaluation.honesty import WRONG_M, converged_honesty  # noqa: E402
 from .evaluation.crb import anchor_free_crb  # noqa: E402
 from .evaluation.inputs import (BadRow, InputError, project_ranges, read_estimates, read_heights,  # noqa: E402
                                 read_ranges, read_trace, read_truth)
+from .cli import entry_point  # noqa: E402
 
 PROG = "cdro-eval"
 BASELINES = (*LSQ_NAMES, "crb")
@@ -417,6 +418,7 @@ def _report_bad_rows(bad: list[BadRow]) -> None:
         _log(f"{path}: {count} bad row(s) skipped" + (" (all in --json)" if count > BAD_ROWS_SHOWN else ""))
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)

@@ -26,6 +26,7 @@ from .evaluation.alignment import align
 from .evaluation.inputs import BadRow, InputError, read_estimates, read_truth
 from .evaluation.movement import (evaluate_beacons, evaluate_path, evaluate_track, read_motion, read_path,
                                   read_trace_rows, read_tracks)
+from .cli import entry_point
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -60,6 +61,7 @@ def _fmt(value) -> str:
     return "-" if value is None or (isinstance(value, float) and not math.isfinite(value)) else f"{value:.3f}"
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     out = sys.stderr if args.json == "-" else sys.stdout

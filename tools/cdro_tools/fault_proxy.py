@@ -46,6 +46,7 @@ import tty
 
 from .codec import PROTOCOL_VERSION, Frame, FrameError, cobs_decode, cobs_encode, crc16, decode_frame, encode_frame
 from .simulation.link import PtyLink
+from .cli import entry_point
 
 CLASSES = ("bit_flip", "garbage", "phantom", "version", "duplicate", "drop", "slow")
 DATA_TYPES = ("RANGE", "MOTION", "STATUS")
@@ -346,6 +347,7 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     rates = dict(args.fault)

@@ -7,8 +7,11 @@ frame are drawn). Truth from cdro-sim (or a dataset): nodes id,x,y,z (start posi
 t,id,x,y of everything that moves, ranges t,from,to,range_m (to draw links).
 
 Estimates live in the engine's own frame. They are aligned to the truth with a rigid fit
-(rotation and translation, reflection allowed, no scale) over the nodes, at the end for the
-map and at every time step for the RMSE curve. The map shows the truth (hollow circles),
+(rotation and translation, reflection allowed, no scale) over the nodes that stand still (the
+nodes without a truth track; all nodes when fewer than three stand still), at the end for the
+map and at every time step for the RMSE curve; every node's error is then measured in that fit.
+The truth of a moving node is its track at the estimate's time; a nodes CSV is the map at the
+end of the run, so it is compared with the end of each track. The map shows the truth (hollow circles),
 the aligned estimates with their 2-sigma ellipses, the links that were ranged, the tracks of
 moving nodes (truth dashed, estimates solid), and the robot's path. The numbers (aligned
 RMSE, per-node errors) are printed as one JSON object on stdout.
@@ -32,6 +35,7 @@ import numpy as np
 
 from .evaluation import drawing
 from .evaluation.alignment import align, rigid_fit, rmse  # noqa: F401  (rigid_fit: part of this module's API)
+from .cli import entry_point
 
 
 class InputError(ValueError):
@@ -46,13 +50,15 @@ class Estimate:
     cov_m2: np.ndarray              # 2x2
     converged: bool = False
     moving: bool = False
+    frame: str | None = None        # robot: "odometry" or "map" (None: not said)
 
 
 @dataclasses.dataclass
 class Estimates:
     nodes: dict[int, list[Estimate]] = dataclasses.field(default_factory=lambda: collections.defaultdict(list))
     robot: dict[int, list[Estimate]] = dataclasses.field(default_factory=lambda: collections.defaultdict(list))
-    dropped: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    dropped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # unusable lines
+    skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # fine, nothing to draw
     timed: bool = False             # JSON Lines: estimates over time
 
 
@@ -83,6 +89,10 @@ def read_json_lines(path: str) -> Estimates:
                 if kind != "health":
                     out.dropped[f"type {kind!r}"] += 1
                 continue
+            # (before the numbers: an unplaced node's position is null, schema 2)
+            if kind == "node" and obj.get("placed") is False:
+                out.skipped["node not placed yet"] += 1
+                continue
             keys = ["t_s", "id", "x_m", "y_m", "var_x_m2", "cov_xy_m2", "var_y_m2"]
             if any(k not in obj for k in keys):
                 out.dropped[f"{kind} line without {', '.join(k for k in keys if k not in obj)}"] += 1
@@ -91,15 +101,21 @@ def read_json_lines(path: str) -> Estimates:
             if not _finite(*values) or obj["id"] != int(obj["id"]):
                 out.dropped[f"{kind} line with a non-numeric value"] += 1
                 continue
-            if kind == "node" and obj.get("placed") is False:
-                out.dropped["node not placed yet"] += 1
-                continue
             estimate = Estimate(float(obj["t_s"]), float(obj["x_m"]), float(obj["y_m"]),
                                 _cov(obj["var_x_m2"], obj["cov_xy_m2"], obj["var_y_m2"]),
                                 bool(obj.get("converged", False)), bool(obj.get("moving", False)))
+            estimate.frame = obj.get("frame")
             (out.nodes if kind == "node" else out.robot)[int(obj["id"])].append(estimate)
     for series in (*out.nodes.values(), *out.robot.values()):
         series.sort(key=lambda e: e.t_s)
+    # Robot lines of schema 2 name their frame: as with a trajectory CSV, only the lines in the
+    # frame of the last one share the nodes' frame.
+    for robot_id, series in out.robot.items():
+        final_frame = series[-1].frame if series else None
+        kept = [e for e in series if e.frame == final_frame]
+        if len(kept) < len(series):
+            out.skipped[f"robot line in the {series[0].frame} frame (before the map)"] += len(series) - len(kept)
+        out.robot[robot_id] = kept
     return out
 
 
@@ -135,7 +151,7 @@ def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> E
         final_frame = rows[-1]["frame"] if rows else None
         for row in rows:
             if row["frame"] != final_frame:
-                out.dropped[f"{trajectory}: trajectory row in the {row['frame']} frame (before the map)"] += 1
+                out.skipped[f"{trajectory}: trajectory row in the {row['frame']} frame (before the map)"] += 1
                 continue
             out.robot[robot_id if robot_id is not None else 0].append(
                 Estimate(row["t"], row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"])))
@@ -185,10 +201,17 @@ def latest(series: list[Estimate], times: list[float], t_s: float) -> Estimate |
 
 
 def aligned_errors(estimates: dict[int, Estimate], truth: Truth, t_s: float, offset_s: float):
-    """(R, t, {id: error_m}) for the nodes with both an estimate and a truth, at t_s."""
-    alignment = align({i: (e.x_m, e.y_m) for i, e in estimates.items()},
-                      {i: truth.at(i, t_s + offset_s) for i in estimates if truth.has(i)})
-    return alignment.rotation, alignment.translation_m, alignment.errors_m
+    """(R, t, {id: error_m}) for the nodes with both an estimate and a truth, at t_s (math.inf:
+    the end of every track). The fit is over the nodes that stand still where there are three:
+    a moving node's estimate lags its truth, and fitting on it would spread its error over the
+    whole map."""
+    truth_now = {i: truth.at(i, t_s + offset_s) for i in estimates if truth.has(i)}
+    still = {i: xy for i, xy in truth_now.items() if i not in truth.tracks}
+    fit_on = still if len(still) >= 3 else truth_now
+    alignment = align({i: (estimates[i].x_m, estimates[i].y_m) for i in fit_on}, fit_on)
+    errors = {i: float(np.linalg.norm(alignment.apply([estimates[i].x_m, estimates[i].y_m]) - np.asarray(xy)[:2]))
+              for i, xy in sorted(truth_now.items())}
+    return alignment.rotation, alignment.translation_m, errors
 
 
 def rmse_series(est: Estimates, truth: Truth, step_s: float, offset_s: float, min_nodes: int = 3):
@@ -219,7 +242,7 @@ def rmse_series(est: Estimates, truth: Truth, step_s: float, offset_s: float, mi
 
 
 def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]], rotation, translation,
-             offset_s: float, title: str) -> None:
+             offset_s: float, title: str, final_t: float) -> None:
     def aligned(e: Estimate) -> np.ndarray:
         return rotation @ [e.x_m, e.y_m] + translation
 
@@ -231,18 +254,18 @@ def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]
         ax.plot(xy[:, 0], xy[:, 1], "--", color="tab:green", linewidth=1.2, zorder=2,
                 label="true track" if node_id == next(iter(truth.tracks)) else None)
     # estimated tracks of moving nodes, from converged or moving estimates (not the start-up)
-    tracked = [i for i, s in est.nodes.items() if (i in truth.tracks or any(e.moving for e in s))
-               and any(e.converged or e.moving for e in s)]
-    for node_id in tracked:
-        xy = np.array([aligned(e) for e in est.nodes[node_id] if e.converged or e.moving])
+    # (a track needs two estimates: a final map has one per node, and no track to draw or name)
+    tracks = {i: np.array([aligned(e) for e in s if e.converged or e.moving]) for i, s in est.nodes.items()
+              if i in truth.tracks or any(e.moving for e in s)}
+    tracks = {i: xy for i, xy in tracks.items() if len(xy) >= 2}
+    for k, xy in enumerate(tracks.values()):
         ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:orange", linewidth=1.0, zorder=3,
-                label="estimated track" if node_id == tracked[0] else None)
+                label="estimated track" if k == 0 else None)
     for robot_id, series in est.robot.items():
         xy = np.array([aligned(e) for e in series])
         ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:purple", linewidth=1.2, zorder=3, label="robot estimate")
     ids_truth = sorted(truth.start)
     if ids_truth:
-        final_t = max((e.t_s for e in final.values()), default=0.0)
         txy = np.array([truth.at(i, final_t + offset_s) for i in ids_truth])
         drawing.draw_truth(ax, txy)
     drawing.draw_estimates(ax, positions, {i: rotation @ e.cov_m2 @ rotation.T for i, e in final.items()},
@@ -267,6 +290,7 @@ def read_links(path: str) -> set[tuple[int, int]]:
     return links
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-plot", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -296,8 +320,10 @@ def main(argv: list[str] | None = None) -> int:
         links = read_links(args.ranges) if args.ranges else set()
     except (OSError, InputError, UnicodeDecodeError) as error:
         return fail(str(error))
+    for reason, count in sorted(est.skipped.items()):
+        print(f"cdro-plot: note: {count} line(s) not drawn: {reason} (as expected)", file=sys.stderr)
     for reason, count in sorted(est.dropped.items()):
-        print(f"cdro-plot: dropped {count} line(s): {reason}", file=sys.stderr)
+        print(f"cdro-plot: dropped {count} line(s) that cannot be used: {reason}", file=sys.stderr)
     if not est.nodes:
         return fail(f"{args.estimates}: no node estimates")
     if args.rmse and not (est.timed or est.robot):
@@ -306,7 +332,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--rmse needs --truth (and --tracks for moving nodes)")
 
     final = {i: s[-1] for i, s in est.nodes.items() if s}
-    final_t = max(e.t_s for e in final.values())
+    # A nodes CSV has no time: it is the map at the end of the run.
+    final_t = max(e.t_s for e in final.values()) if est.timed else math.inf
     matched = sum(1 for i in final if truth.has(i))
     result: dict = {"nodes": len(final), "nodes_with_truth": matched}
     if matched:
@@ -324,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
         print("cdro-plot: no truth for these nodes: the map shows the estimates in the engine's frame", file=sys.stderr)
     title = args.title or args.estimates
     try:
-        plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title)
+        plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title, final_t)
         if args.rmse:
             if est.timed:
                 series = rmse_series(est, truth, args.step_s, args.time_offset_s)

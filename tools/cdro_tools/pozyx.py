@@ -30,6 +30,7 @@ import serial
 from .codec import CONSTANTS as C
 from .codec import Frame, StreamDecoder, encode_frame
 from .codec.frames import Result
+from .cli import entry_point
 
 BITRATES = {"110k": 0, "850k": 1, "6.8M": 2}
 PRFS = {16: 1, 64: 2}
@@ -261,6 +262,7 @@ def run_diagnose(device: Device) -> int:
     return 0 if diags and all(f["status"] == 0 for f in diags) else 1
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-pozyx", description=__doc__.split("\n\n")[0],
                                      epilog=__doc__.split("\n\n", 1)[1],

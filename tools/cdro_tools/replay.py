@@ -9,7 +9,7 @@ reader opens the link, and the link is removed after the reader has read everyth
 5 s).
 
 examples:
-  cdro-replay run.cdrocap --pty /tmp/cdro-dev               # then: cdro-hostd --port /tmp/cdro-dev
+  cdro-replay run.cdrocap --pty /tmp/cdro-dev               # then: cdro-hostd --device /tmp/cdro-dev
   cdro-replay run.cdrocap --port /dev/ttyUSB1 --speed 4
   cdro-replay run.cdrocap --pty /tmp/cdro-dev --speed max
 """
@@ -29,6 +29,7 @@ from .codec import CaptureError, StreamDecoder, read_capture
 from .simulation.link import LinkError, PtyLink
 from .simulation.runner import READER_GRACE_S
 from .sim import _speed
+from .cli import entry_point
 
 
 def _err(message: str) -> None:
@@ -86,6 +87,7 @@ class PortOutput:
         return 0
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cdro-replay", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)

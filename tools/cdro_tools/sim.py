@@ -34,6 +34,7 @@ from .simulation.network import random_network
 from .simulation.runner import LiveRunner, Simulation, print_to_stderr, run_offline, streams
 from .simulation.scenario import ScenarioError, builtin_names, load_scenario, parse_fault_option
 from .simulation.world import World
+from .cli import entry_point
 
 log = print_to_stderr("cdro-sim")
 
@@ -185,6 +186,7 @@ def _run_random(args) -> int:
     return 0
 
 
+@entry_point
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)

@@ -182,6 +182,9 @@ void EngineAdapter::fill(service::MapState &map) const
         for (uint8_t k = 0; k < node.hinge_nodes; ++k) {
             out.hinge.push_back(node.hinge[k]);
         }
+        if (node.height_known) {
+            out.z_m = node.height_m;
+        }
         if (node.placed()) {
             out.x_m = node.position_m.x();
             out.y_m = node.position_m.y();
@@ -212,6 +215,15 @@ void EngineAdapter::fill(service::MapState &map) const
             pose.var_x_m2 = robot->covariance(0, 0);
             pose.cov_xy_m2 = robot->covariance(0, 1);
             pose.var_y_m2 = robot->covariance(1, 1);
+            pose.frame = engine::robotFrameName(robot->frame);
+            pose.var_heading_rad2 = robot->covariance(2, 2);
+            pose.cov_x_heading_m_rad = robot->covariance(0, 2);
+            pose.cov_y_heading_m_rad = robot->covariance(1, 2);
+            pose.heading_hypotheses = robot->hypotheses;
+            pose.range_scale = robot->range_scale;
+            pose.range_scale_sigma = robot->range_scale_sigma;
+            pose.range_offset_m = robot->range_offset_m;
+            pose.range_offset_sigma_m = robot->range_offset_sigma_m;
             map.robot = pose;
         }
     }

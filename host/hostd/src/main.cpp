@@ -9,6 +9,8 @@
 #include <fstream>
 #include <sstream>
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <yaml-cpp/yaml.h>
 
@@ -148,7 +150,9 @@ int main(int argc, char **argv)
     bool print_config = false;
     app.add_flag("--print-config", print_config, "print the engine settings in effect (YAML) and exit");
     bool progress = false;
-    app.add_flag("--progress", progress, "a progress line on stderr every second (link, frames, map)");
+    app.add_flag("--progress", progress,
+                 "a progress line on stderr every second (link, frames, map); the default when stdout is a "
+                 "terminal and no --jsonl is given");
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError &error) {
@@ -190,7 +194,20 @@ int main(int argc, char **argv)
                                                   ? cdro::service::ServiceConfig{}
                                                   : cdro::service::parseServiceConfig(document.service_text, document.origin);
         cdro::service::applyOverrides(config, service_overrides);
+        // A person at a terminal reads the logs and a progress line there; a thousand JSON lines a
+        // minute would bury both. Scripts (stdout a pipe or a file) get JSON Lines as ever, and
+        // `--jsonl -` asks for them on a terminal too.
+        const bool jsonl_held_back =
+            config.output.jsonl == "-" && !service_overrides.jsonl && isatty(STDOUT_FILENO) == 1;
+        if (jsonl_held_back) {
+            config.output.jsonl.clear();
+            progress = true;
+        }
         cdro::service::setupLogging(config.logging);
+        if (jsonl_held_back) {
+            cdro::service::log()->info("output: stdout is a terminal, so it gets a progress line instead of the "
+                                       "JSON Lines (--jsonl - writes them here, --jsonl FILE to a file)");
+        }
         cdro::hostd::KnownRows rows = cdro::hostd::readKnownGeometry(geometry, 20, stderr);
         if (!service_overrides.run.replay_path.empty()) {
             const bool gave_geometry = !geometry.heights_csv.empty() || !geometry.fixed_csv.empty();

@@ -19,13 +19,14 @@
 #include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
 #include "cdro/service/config.hpp"
+#include "cdro/service/map_state.hpp"
 #include "cdro/service/output_file.hpp"
 
 namespace cdro::hostd {
 
 namespace {
 
-// Why a placed node is not converged, and what would help, on stderr.
+// Why a placed node is not converged, and what would help, on stderr (ids as in every log: 0x6001).
 void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
 {
     const auto id = static_cast<unsigned>(node.id);
@@ -33,37 +34,38 @@ void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
     case engine::NodeDoubt::None:
         return;
     case engine::NodeDoubt::TooFewLinks:
-        std::fprintf(log, "cdro-hostd: node %u has fewer than three links to placed nodes: its ranges cannot fix it "
-                          "(not converged; add a link)\n", id);
+        std::fprintf(log, "cdro-hostd: node 0x%04X has fewer than three links to placed nodes: its ranges cannot "
+                          "fix it (not converged; add a link)\n", id);
         return;
     case engine::NodeDoubt::Ambiguous:
-        std::fprintf(log, "cdro-hostd: node %u is ambiguous: another position, or another map of its part, fits its %u "
-                          "links about as well (not converged; add a link to a node off the line of its neighbours)\n",
+        std::fprintf(log, "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, "
+                          "fits its %u links about as well (not converged; add a link to a node off the line of "
+                          "its neighbours)\n",
                      id, node.link_count);
         return;
     case engine::NodeDoubt::Foldable:
         if (node.hinge_nodes == 0) {
-            std::fprintf(log, "cdro-hostd: node %u is not connected to the largest part of the network: its place "
+            std::fprintf(log, "cdro-hostd: node 0x%04X is not connected to the largest part of the network: its place "
                               "relative to it is unknown (not converged)\n", id);
         } else {
-            std::string hinge = std::to_string(node.hinge[0]);
+            std::string hinge = service::nodeIdHex(node.hinge[0]);
             if (node.hinge_nodes == 2) {
-                hinge += " and " + std::to_string(node.hinge[1]);
+                hinge += " and " + service::nodeIdHex(node.hinge[1]);
             }
-            std::fprintf(log, "cdro-hostd: node %u hangs on node%s %s: its part of the network can %s without changing a "
-                              "range, so the ranges cannot tell its side (not converged; add a link from it to another "
-                              "node)\n",
+            std::fprintf(log, "cdro-hostd: node 0x%04X hangs on node%s %s: its part of the network can %s without "
+                              "changing a range, so the ranges cannot tell its side (not converged; add a link "
+                              "from it to another node)\n",
                          id, node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
                          node.hinge_nodes == 2 ? "fold over them" : "turn about it");
         }
         return;
     case engine::NodeDoubt::Flexible:
-        std::fprintf(log, "cdro-hostd: node %u is flexible: it hangs on links nothing else checks, so one error in them "
-                          "(or the map's own uncertainty) could move it a metre or more (not converged; add links "
-                          "across its part)\n", id);
+        std::fprintf(log, "cdro-hostd: node 0x%04X is flexible: it hangs on links nothing else checks, so one "
+                          "error in them (or the map's own uncertainty) could move it a metre or more (not "
+                          "converged; add links across its part)\n", id);
         return;
     case engine::NodeDoubt::Unsettled:
-        std::fprintf(log, "cdro-hostd: node %u has not settled yet (not converged)\n", id);
+        std::fprintf(log, "cdro-hostd: node 0x%04X has not settled yet (not converged)\n", id);
         return;
     }
 }

@@ -1,5 +1,7 @@
 #include "cdro/hostd/progress.hpp"
 
+#include <string>
+
 namespace cdro::hostd {
 
 namespace {
@@ -26,12 +28,16 @@ void ProgressLine::tick()
         placed += node.placed() ? 1U : 0U;
         converged += node.converged() ? 1U : 0U;
     }
+    // The live map's address on every line: the line that printed it at the start has long
+    // scrolled away when someone looks.
+    const std::string url = service_.liveMapUrl();
     std::fprintf(out_,
                  "cdro-hostd: %s | frames %llu good, %llu rejected, %llu lost | ranges %llu used | "
-                 "nodes %zu: %zu placed, %zu converged\n",
+                 "nodes %zu: %zu placed, %zu converged%s%s\n",
                  service::linkStateName(service_.linkState()), static_cast<unsigned long long>(c.frames_ok),
                  static_cast<unsigned long long>(c.chunks_rejected), static_cast<unsigned long long>(c.frames_lost),
-                 static_cast<unsigned long long>(engine_.counters().ranges_used), nodes, placed, converged);
+                 static_cast<unsigned long long>(engine_.counters().ranges_used), nodes, placed, converged,
+                 url.empty() ? "" : " | map ", url.c_str());
     std::fflush(out_);
     service_.loop().addTimerAfter(kPeriodUs, [this] { tick(); });
 }

@@ -56,11 +56,11 @@ void JsonLinesWriter::append(const std::string &text)
 void JsonLinesWriter::writeAll(const MapState &map)
 {
     for (const NodeEstimate &node : map.nodes) {
-        append(line(nodeJson(node, map.t_s)));
+        append(line(nodeJson(node, outputTimeOf(map))));
         last_node_[node.id] = node;
     }
     if (map.robot) {
-        append(line(robotJson(*map.robot, map.t_s)));
+        append(line(robotJson(*map.robot, outputTimeOf(map))));
         last_robot_ = map.robot;
     }
 }
@@ -87,11 +87,11 @@ void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
         if (it != last_node_.end() && sameEstimate(it->second, node)) {
             continue;
         }
-        append(line(nodeJson(node, map.t_s)));
+        append(line(nodeJson(node, outputTimeOf(map))));
         last_node_[node.id] = node;
     }
     if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
-        append(line(robotJson(*map.robot, map.t_s)));
+        append(line(robotJson(*map.robot, outputTimeOf(map))));
         last_robot_ = map.robot;
     }
 }
@@ -104,12 +104,12 @@ void JsonLinesWriter::finish(const MapState &map)
     }
 }
 
-void JsonLinesWriter::writeHealth(const Health &health, double t_s)
+void JsonLinesWriter::writeHealth(const Health &health, OutputTime time)
 {
     if (fd_ < 0) {
         return;
     }
-    append(line(healthJson(health, t_s)));
+    append(line(healthJson(health, time)));
 }
 
 void JsonLinesWriter::flush()

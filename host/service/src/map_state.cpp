@@ -1,5 +1,6 @@
 #include "cdro/service/map_state.hpp"
 
+#include <cstdio>
 #include <cstring>
 
 #include <nlohmann/json.hpp>
@@ -18,8 +19,41 @@ const char *linkStateName(LinkState state)
     return "disconnected";
 }
 
+std::string nodeIdHex(uint16_t id)
+{
+    char text[8];
+    std::snprintf(text, sizeof text, "0x%04X", static_cast<unsigned>(id));
+    return text;
+}
+
 namespace {
 bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool sameBits(const std::optional<double> &a, const std::optional<double> &b)
+{
+    return a.has_value() == b.has_value() && (!a || sameBits(*a, *b));
+}
+
+// A value that may be unknown: JSON null rather than a number that looks like a measurement.
+nlohmann::ordered_json orNull(const std::optional<double> &value)
+{
+    return value ? nlohmann::ordered_json(*value) : nlohmann::ordered_json(nullptr);
+}
+
+void putTime(nlohmann::ordered_json &j, OutputTime time)
+{
+    j["schema"] = kOutputSchemaVersion;
+    j["t_s"] = time.t_s;
+    j["t_unix_s"] = time.t_unix_s;
+}
+
+nlohmann::ordered_json idList(const std::vector<uint16_t> &ids)
+{
+    nlohmann::ordered_json list = nlohmann::ordered_json::array();
+    for (uint16_t id : ids) {
+        list.push_back(nodeIdHex(id));
+    }
+    return list;
+}
 } // namespace
 
 bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
@@ -27,27 +61,38 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
     return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.var_x_m2, b.var_x_m2) &&
            sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.converged == b.converged &&
            a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable && a.status == b.status &&
-           a.reason == b.reason && a.hinge == b.hinge;
+           a.reason == b.reason && a.hinge == b.hinge && sameBits(a.z_m, b.z_m);
 }
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)
 {
     return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) &&
            sameBits(a.heading_rad, b.heading_rad) && sameBits(a.var_x_m2, b.var_x_m2) &&
-           sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2);
+           sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.frame == b.frame &&
+           sameBits(a.var_heading_rad2, b.var_heading_rad2) && sameBits(a.cov_x_heading_m_rad, b.cov_x_heading_m_rad) &&
+           sameBits(a.cov_y_heading_m_rad, b.cov_y_heading_m_rad) && a.heading_hypotheses == b.heading_hypotheses &&
+           sameBits(a.range_scale, b.range_scale) && sameBits(a.range_scale_sigma, b.range_scale_sigma) &&
+           sameBits(a.range_offset_m, b.range_offset_m) && sameBits(a.range_offset_sigma_m, b.range_offset_sigma_m);
 }
 
-nlohmann::ordered_json nodeJson(const NodeEstimate &n, double t_s)
+nlohmann::ordered_json nodeJson(const NodeEstimate &n, OutputTime time)
 {
+    // An unplaced node has no position: null, so that a consumer that does not read `placed`
+    // does not see a certain node at the origin.
+    const auto placedOnly = [&n](double value) {
+        return n.placed ? nlohmann::ordered_json(value) : nlohmann::ordered_json(nullptr);
+    };
     nlohmann::ordered_json j;
     j["type"] = "node";
-    j["t_s"] = t_s;
+    putTime(j, time);
     j["id"] = n.id;
-    j["x_m"] = n.x_m;
-    j["y_m"] = n.y_m;
-    j["var_x_m2"] = n.var_x_m2;
-    j["cov_xy_m2"] = n.cov_xy_m2;
-    j["var_y_m2"] = n.var_y_m2;
+    j["id_hex"] = nodeIdHex(n.id);
+    j["x_m"] = placedOnly(n.x_m);
+    j["y_m"] = placedOnly(n.y_m);
+    j["z_m"] = orNull(n.z_m);
+    j["var_x_m2"] = placedOnly(n.var_x_m2);
+    j["cov_xy_m2"] = placedOnly(n.cov_xy_m2);
+    j["var_y_m2"] = placedOnly(n.var_y_m2);
     j["converged"] = n.converged;
     j["moving"] = n.moving;
     j["placed"] = n.placed;
@@ -55,34 +100,47 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &n, double t_s)
     j["status"] = n.status;
     j["reason"] = n.reason;
     j["hinge"] = n.hinge;
+    j["hinge_hex"] = idList(n.hinge);
     return j;
 }
 
-nlohmann::ordered_json robotJson(const RobotPose &r, double t_s)
+nlohmann::ordered_json robotJson(const RobotPose &r, OutputTime time)
 {
     nlohmann::ordered_json j;
     j["type"] = "robot";
-    j["t_s"] = t_s;
+    putTime(j, time);
     j["id"] = r.id;
+    j["id_hex"] = nodeIdHex(r.id);
+    j["frame"] = r.frame;
     j["x_m"] = r.x_m;
     j["y_m"] = r.y_m;
     j["heading_rad"] = r.heading_rad;
     j["var_x_m2"] = r.var_x_m2;
     j["cov_xy_m2"] = r.cov_xy_m2;
     j["var_y_m2"] = r.var_y_m2;
+    j["var_heading_rad2"] = r.var_heading_rad2;
+    j["cov_x_heading_m_rad"] = r.cov_x_heading_m_rad;
+    j["cov_y_heading_m_rad"] = r.cov_y_heading_m_rad;
+    j["heading_hypotheses"] = r.heading_hypotheses;
+    j["range_scale"] = orNull(r.range_scale);
+    j["range_scale_sigma"] = orNull(r.range_scale_sigma);
+    j["range_offset_m"] = orNull(r.range_offset_m);
+    j["range_offset_sigma_m"] = orNull(r.range_offset_sigma_m);
     return j;
 }
 
-nlohmann::ordered_json healthJson(const Health &h, double t_s)
+nlohmann::ordered_json healthJson(const Health &h, OutputTime time)
 {
     nlohmann::ordered_json j;
     j["type"] = "health";
-    j["t_s"] = t_s;
+    putTime(j, time);
     j["link"] = linkStateName(h.link);
     j["counters"] = toJson(h.counters);
     j["rates"] = toJson(h.rates);
     j["device"] = h.device;
     j["device_node_id"] = h.device_node_id;
+    j["device_node_id_hex"] = h.device_node_id != 0 ? nlohmann::ordered_json(nodeIdHex(h.device_node_id))
+                                                    : nlohmann::ordered_json(nullptr);
     j["device_firmware"] = h.device_firmware;
     j["detail"] = h.detail;
     return j;
@@ -93,6 +151,8 @@ nlohmann::ordered_json linkJson(const LinkEstimate &l)
     nlohmann::ordered_json j;
     j["a"] = l.a;
     j["b"] = l.b;
+    j["a_hex"] = nodeIdHex(l.a);
+    j["b_hex"] = nodeIdHex(l.b);
     j["last_range_m"] = l.last_range_m;
     j["range_count"] = l.range_count;
     return j;
@@ -101,28 +161,31 @@ nlohmann::ordered_json linkJson(const LinkEstimate &l)
 nlohmann::ordered_json mapJson(const MapState &map)
 {
     nlohmann::ordered_json j;
-    j["t_s"] = map.t_s;
+    putTime(j, outputTimeOf(map));
     j["nodes"] = nlohmann::ordered_json::array();
     for (const NodeEstimate &node : map.nodes) {
-        j["nodes"].push_back(nodeJson(node, map.t_s));
+        j["nodes"].push_back(nodeJson(node, outputTimeOf(map)));
     }
-    j["robot"] = map.robot ? robotJson(*map.robot, map.t_s) : nlohmann::ordered_json(nullptr);
+    j["robot"] = map.robot ? robotJson(*map.robot, outputTimeOf(map)) : nlohmann::ordered_json(nullptr);
     j["links"] = nlohmann::ordered_json::array();
     for (const LinkEstimate &link : map.links) {
         j["links"].push_back(linkJson(link));
     }
-    j["health"] = healthJson(map.health, map.t_s);
+    j["health"] = healthJson(map.health, outputTimeOf(map));
     return j;
 }
 
 nlohmann::ordered_json componentsJson(const NodeComponents &c)
 {
     nlohmann::ordered_json j;
+    j["schema"] = kOutputSchemaVersion;
     j["id"] = c.id;
+    j["id_hex"] = nodeIdHex(c.id);
     j["components"] = nlohmann::ordered_json::array();
     for (const SogComponent &g : c.components) {
         nlohmann::ordered_json one;
         one["center_id"] = g.center_id;
+        one["center_id_hex"] = nodeIdHex(g.center_id);
         one["x_m"] = g.x_m;
         one["y_m"] = g.y_m;
         one["var_x_m2"] = g.var_x_m2;

@@ -322,20 +322,20 @@ void MqttPublisher::onUpdate(const MapState &map, int64_t event_us)
         }
         next_due_us_[node.id] = event_us + period_us;
         last_node_[node.id] = node;
-        publish(topic("nodes/" + std::to_string(node.id)), JsonLinesWriter::line(nodeJson(node, map.t_s)), true);
+        publish(topic("nodes/" + nodeIdHex(node.id)), JsonLinesWriter::line(nodeJson(node, outputTimeOf(map))), true);
     }
     if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
         last_robot_ = map.robot;
-        publish(topic("robot"), JsonLinesWriter::line(robotJson(*map.robot, map.t_s)), true);
+        publish(topic("robot"), JsonLinesWriter::line(robotJson(*map.robot, outputTimeOf(map))), true);
     }
 }
 
-void MqttPublisher::publishHealth(const Health &health, double t_s)
+void MqttPublisher::publishHealth(const Health &health, OutputTime time)
 {
     if (mosq_ == nullptr) {
         return;
     }
-    publish(topic("health"), JsonLinesWriter::line(healthJson(health, t_s)), true);
+    publish(topic("health"), JsonLinesWriter::line(healthJson(health, time)), true);
 }
 
 bool MqttPublisher::flushed() const { return connected_ && mosq_ != nullptr && !mosquitto_want_write(mosq_); }

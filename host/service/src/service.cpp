@@ -245,6 +245,13 @@ double Service::tSeconds(int64_t event_unix_us) const
     return static_cast<double>(event_unix_us - run_start_unix_us_) * 1e-6;
 }
 
+OutputTime Service::outputTime(int64_t event_unix_us) const
+{
+    // Divided rather than multiplied by 1e-6: the correctly rounded quotient prints as the
+    // microseconds it came from.
+    return {tSeconds(event_unix_us), static_cast<double>(event_unix_us) / 1e6};
+}
+
 Health Service::health(int64_t now_event_unix_us) const
 {
     Health h;
@@ -277,6 +284,7 @@ MapState Service::currentMap() const
         hooks_.map->fill(map);
     }
     map.t_s = tSeconds(now_us);
+    map.t_unix_s = outputTime(now_us).t_unix_s;
     map.health = health(now_us);
     return map;
 }
@@ -295,6 +303,7 @@ void Service::afterFrame(int64_t event_unix_us)
     MapState map;
     hooks_.map->fill(map);
     map.t_s = tSeconds(event_unix_us);
+    map.t_unix_s = outputTime(event_unix_us).t_unix_s;
     jsonl_.onUpdate(map, event_unix_us);
     mqtt_.onUpdate(map, event_unix_us);
 }
@@ -391,9 +400,9 @@ void Service::healthTick()
     }
     const int64_t now_us = nowEventUnixUs();
     const Health h = health(now_us);
-    jsonl_.writeHealth(h, tSeconds(now_us));
+    jsonl_.writeHealth(h, outputTime(now_us));
     jsonl_.flush();
-    mqtt_.publishHealth(h, tSeconds(now_us));
+    mqtt_.publishHealth(h, outputTime(now_us));
     loop_.addTimerAfter(secondsToUs(config_.output.health_period_s), [this] { healthTick(); });
 }
 
@@ -407,11 +416,13 @@ void Service::httpTick()
     // Rates and wall time move on their own; publish when the picture (less t_s) changed.
     nlohmann::ordered_json comparable = mapJson(map);
     comparable.erase("t_s");
+    comparable.erase("t_unix_s");
     comparable["health"].erase("t_s");
+    comparable["health"].erase("t_unix_s");
     std::string key = comparable.dump();
     if (key != last_published_map_) {
         last_published_map_ = std::move(key);
-        store_.publish(std::move(map_json), healthJson(map.health, map.t_s).dump());
+        store_.publish(std::move(map_json), healthJson(map.health, outputTimeOf(map)).dump());
     }
     map_dirty_ = false;
     loop_.addTimerAfter(std::max<int64_t>(secondsToUs(config_.http.update_period_s), 10'000), [this] { httpTick(); });
@@ -514,14 +525,14 @@ void Service::shutdown(const std::string &why)
         const MapState map = currentMap();
         jsonl_.finish(map);
         if (config_.output.health_period_s > 0.0) {
-            jsonl_.writeHealth(map.health, map.t_s);
+            jsonl_.writeHealth(map.health, outputTimeOf(map));
         }
         writeCheckpointNow();
         if (http_) {
-            store_.publish(mapJson(map).dump(), healthJson(map.health, map.t_s).dump());
+            store_.publish(mapJson(map).dump(), healthJson(map.health, outputTimeOf(map)).dump());
         }
         mqtt_.onUpdate(map, nowEventUnixUs());
-        mqtt_.publishHealth(map.health, map.t_s);
+        mqtt_.publishHealth(map.health, outputTimeOf(map));
     }
     shut_down_ = true;
     // 3. Outputs flushed and closed.

@@ -25,7 +25,9 @@ const REASONS = {
   'unsettled': 'its estimate is still moving',
 };
 
+// Ids as the service writes them in `id_hex` and in its logs (docs/outputs.md, "Node ids").
 function hexId(id) { return '0x' + id.toString(16).toUpperCase().padStart(4, '0'); }
+function nodeLabel(n) { return n.id_hex || hexId(n.id); }
 
 // 2x2 covariance -> ellipse radii (sigma) and angle (rad) of the major axis.
 function covarianceEllipse(vxx, vxy, vyy) {
@@ -115,25 +117,31 @@ function render(map) {
     if (n.id === selectedId) cls.push('selected');
     const g = el('g', { class: cls.join(' '), 'data-id': n.id, 'data-reason': n.reason || '' }, nodes);
     el('circle', { cx: view.x(n.x_m), cy: view.y(n.y_m), r: 7 }, g);
-    el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = hexId(n.id);
-    el('title', {}, g).textContent = `${hexId(n.id)} (${n.id}): x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
+    el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = nodeLabel(n);
+    el('title', {}, g).textContent = `${nodeLabel(n)}: x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
+      (n.z_m !== null && n.z_m !== undefined ? `, z ${n.z_m.toFixed(3)} m` : '') +
       (n.reason ? ` - not converged: ${REASONS[n.reason] || n.reason}` : '');
     g.addEventListener('click', () => selectNode(n.id));
   }
   const list = document.getElementById('unplaced');
-  list.textContent = unplaced.length ? 'Not placed yet: ' + unplaced.map((n) => hexId(n.id)).join(', ') : '';
+  list.textContent = unplaced.length ? 'Not placed yet: ' + unplaced.map(nodeLabel).join(', ') : '';
 
   const robot = clear('robot');
   if (map.robot) {
     const r = map.robot, x = view.x(r.x_m), y = view.y(r.y_m), h = -r.heading_rad;
     const pts = [[14, 0], [-8, 7], [-8, -7]].map(([u, v]) =>
       `${x + u * Math.cos(h) - v * Math.sin(h)},${y + u * Math.sin(h) + v * Math.cos(h)}`).join(' ');
-    el('polygon', { class: 'robot', points: pts, 'data-id': r.id }, robot);
+    const shape = el('polygon', { class: 'robot', points: pts, 'data-id': r.id, 'data-frame': r.frame || '' }, robot);
+    el('title', {}, shape).textContent = `robot ${nodeLabel(r)} (${r.frame || 'odometry'} frame): ` +
+      `x ${r.x_m.toFixed(3)} m, y ${r.y_m.toFixed(3)} m, heading ${r.heading_rad.toFixed(3)} rad`;
   }
 
   drawComponents(view);
   renderHealth(map.health);
   document.getElementById('t-s').textContent = map.t_s.toFixed(1);
+  if (typeof map.t_unix_s === 'number') {
+    document.getElementById('clock').title = new Date(map.t_unix_s * 1000).toISOString();
+  }
 }
 
 function drawComponents(view) {

@@ -1,6 +1,6 @@
 // progress.hpp: `cdro-hostd --progress`: one line on stderr every second of wall time (a
 // timer on the service's loop, so it reads the engine on the loop thread): link state, good
-// and rejected frames, ranges the map took, nodes placed and converged.
+// and rejected frames, ranges the map took, nodes placed and converged, the live map's address.
 #pragma once
 
 #include <cstdio>

@@ -40,7 +40,7 @@ public:
     void onUpdate(const MapState &map, int64_t event_us);
     // At the end of a run: with rate_hz > 0, the estimates updated since the last period.
     void finish(const MapState &map);
-    void writeHealth(const Health &health, double t_s);
+    void writeHealth(const Health &health, OutputTime time);
     void flush();
     void close();
 

@@ -23,10 +23,17 @@ namespace cdro::service {
 enum class LinkState { Disconnected, Handshaking, Connected, Incompatible, Replay };
 const char *linkStateName(LinkState state);
 
+// The version of the output objects (`schema` in every JSON object, docs/outputs.md). Keys are
+// only ever added within a version; a key that changes meaning or goes away makes a new one.
+constexpr int kOutputSchemaVersion = 2;
+
+// Node ids as Pozyx users see them on devices and in every log line: "0x6001".
+std::string nodeIdHex(uint16_t id);
+
 struct NodeEstimate {
     uint16_t id = 0;          // Pozyx network id
-    double x_m = 0.0;         // m
-    double y_m = 0.0;         // m
+    double x_m = 0.0;         // m; written as null while the node is not placed
+    double y_m = 0.0;         // m; likewise
     double var_x_m2 = 0.0;    // m^2
     double cov_xy_m2 = 0.0;   // m^2
     double var_y_m2 = 0.0;    // m^2
@@ -38,6 +45,7 @@ struct NodeEstimate {
     std::string reason;       // why placed but not converged: "too few links", "ambiguous", "foldable",
                               // "flexible", "unsettled"; empty otherwise
     std::vector<uint16_t> hinge; // foldable: the one or two nodes its part hangs on
+    std::optional<double> z_m;   // m, the node's height where it is known (heights CSV, config)
 };
 
 struct RobotPose {
@@ -48,6 +56,16 @@ struct RobotPose {
     double var_x_m2 = 0.0;    // m^2
     double cov_xy_m2 = 0.0;   // m^2
     double var_y_m2 = 0.0;    // m^2
+    std::string frame = "odometry";   // the frame of the pose: "odometry" or "map" (docs/engine.md, "Stage 2")
+    double var_heading_rad2 = 0.0;    // rad^2
+    double cov_x_heading_m_rad = 0.0; // m rad
+    double cov_y_heading_m_rad = 0.0; // m rad
+    uint32_t heading_hypotheses = 0;  // heading hypotheses alive (1 once decided)
+    // The range model the robot's filter estimates: measured = scale x true + offset.
+    std::optional<double> range_scale;          // dimensionless
+    std::optional<double> range_scale_sigma;    // dimensionless, 1 sigma
+    std::optional<double> range_offset_m;       // m
+    std::optional<double> range_offset_sigma_m; // m, 1 sigma
 };
 
 // A pair of nodes that ranged to each other, with the last range.
@@ -86,6 +104,7 @@ struct Health {
 
 struct MapState {
     double t_s = 0.0;             // s, event time since the run started
+    double t_unix_s = 0.0;        // s since the Unix epoch: the same event time, absolute
     std::vector<NodeEstimate> nodes;   // sorted by id
     std::optional<RobotPose> robot;
     std::vector<LinkEstimate> links;   // sorted by (a, b)
@@ -108,12 +127,22 @@ public:
 bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b);
 bool sameEstimate(const RobotPose &a, const RobotPose &b);
 
-// The JSON objects of docs/outputs.md (keys in its order). t_s is passed in.
-nlohmann::ordered_json nodeJson(const NodeEstimate &node, double t_s);
-nlohmann::ordered_json robotJson(const RobotPose &robot, double t_s);
-nlohmann::ordered_json healthJson(const Health &health, double t_s);
+// The event time every line carries: since the run started, and since the Unix epoch. Both come
+// from the event time (the frames' receive time, on replay the capture's), never from a clock read
+// when the line is written, so a replay writes the live run's times.
+struct OutputTime {
+    double t_s = 0.0;      // s since the run started
+    double t_unix_s = 0.0; // s since the Unix epoch (UTC)
+};
+inline OutputTime outputTimeOf(const MapState &map) { return {map.t_s, map.t_unix_s}; }
+
+// The JSON objects of docs/outputs.md (keys in its order).
+nlohmann::ordered_json nodeJson(const NodeEstimate &node, OutputTime time);
+nlohmann::ordered_json robotJson(const RobotPose &robot, OutputTime time);
+nlohmann::ordered_json healthJson(const Health &health, OutputTime time);
 nlohmann::ordered_json linkJson(const LinkEstimate &link);
-// The whole map for the JSON API: {"t_s", "nodes": [...], "robot": {...}|null, "links": [...], "health": {...}}
+// The whole map for the JSON API: {"schema", "t_s", "t_unix_s", "nodes": [...], "robot": {...}|null,
+// "links": [...], "health": {...}}
 nlohmann::ordered_json mapJson(const MapState &map);
 nlohmann::ordered_json componentsJson(const NodeComponents &components);
 

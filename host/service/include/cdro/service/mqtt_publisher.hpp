@@ -2,7 +2,7 @@
 // through libmosquitto, the way RTLS systems hand positions to other machines.
 //
 // Topics (prefix = mqtt.topic_prefix), payloads are the JSON objects of docs/outputs.md:
-//   <prefix>/nodes/<id>  a node line, retained          (<id> in decimal)
+//   <prefix>/nodes/<id>  a node line, retained          (<id> as 0x6001, as in the logs)
 //   <prefix>/robot       the robot line, retained
 //   <prefix>/health      the health line, retained
 //   <prefix>/status      "online" (retained) once connected; "offline" (retained) on a clean
@@ -63,7 +63,7 @@ public:
     // After an update at event time event_us: the nodes (and robot) that changed, at most
     // rate_hz per node.
     void onUpdate(const MapState &map, int64_t event_us);
-    void publishHealth(const Health &health, double t_s);
+    void publishHealth(const Health &health, OutputTime time);
 
     // Subscribes to topic (an exact topic, no wildcards) on every connect; handler gets each
     // message's payload on the loop thread. Call before start().

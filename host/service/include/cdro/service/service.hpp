@@ -111,6 +111,7 @@ private:
     Health health(int64_t now_event_unix_us) const;
     int64_t nowEventUnixUs() const;
     double tSeconds(int64_t event_unix_us) const;
+    OutputTime outputTime(int64_t event_unix_us) const;
     void healthTick();
     void httpTick();
     void checkpointTick();
