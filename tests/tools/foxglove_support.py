@@ -2,7 +2,8 @@
 independent of the code under test (which writes through foxglove-sdk and mcap-ros2-support):
 
 - a Foxglove WebSocket client (github.com/foxglove/ws-protocol docs/spec.md, subprotocol
-  `foxglove.websocket.v1`): JSON text messages `serverInfo`, `advertise` (channels with `id`,
+  `foxglove.websocket.v1`; foxglove-sdk's server names the same protocol `foxglove.sdk.v1` and
+  accepts only that name, so the client offers both): JSON text messages `serverInfo`, `advertise` (channels with `id`,
   `topic`, `encoding`, `schemaName`, `schema`, `schemaEncoding`); the client sends `subscribe`
   (`subscriptions`: `id`, `channelId`); message data arrive as binary frames: opcode 0x01,
   uint32 LE subscription id, uint64 LE receive time (ns), payload;
@@ -20,7 +21,7 @@ import time
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.json_format import MessageToDict
 
-SUBPROTOCOL = "foxglove.websocket.v1"
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]   # one protocol, two names
 OP_MESSAGE_DATA = 0x01
 
 
@@ -50,8 +51,11 @@ class FoxgloveClient:
     def __init__(self, url: str, guard_s: float):
         from websockets.sync.client import connect
 
-        self.connection = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=guard_s, max_size=None)
-        assert self.connection.subprotocol == SUBPROTOCOL
+        # No keepalive pings: a test that reads nothing for a while would see its pong queued behind
+        # the data and the connection closed.
+        self.connection = connect(url, subprotocols=SUBPROTOCOLS, open_timeout=guard_s, max_size=None,
+                                  ping_interval=None).__enter__()  # closed by close()
+        assert self.connection.subprotocol in SUBPROTOCOLS
         self.server_info: dict | None = None
         self.channels: dict[int, dict] = {}          # channel id -> advertised channel
         self.subscriptions: dict[int, int] = {}      # subscription id -> channel id

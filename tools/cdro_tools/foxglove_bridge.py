@@ -83,10 +83,9 @@ class Bridge:
         with self.lock:
             if not self.updates:
                 return
-            t_ns = now_ns()
-            self.channels.nodes(self.state, t_ns)
-            self.channels.builder.last_robot_key = None
-            self.channels.robot(self.state, t_ns)
+            self.channels.nodes(self.state, now_ns())
+            # The robot keeps its own time when the stream gave one.
+            self.channels.robot(self.state, now_ns(self.state.robot), repeat=True)
 
 
 def follow_file(path: str, stop: threading.Event, follow: bool):
@@ -137,7 +136,7 @@ def run_jsonl(bridge: Bridge, source: str, follow: bool, stop: threading.Event, 
             return
 
 
-def run_mqtt(bridge: Bridge, url: str, prefix: str, stop: threading.Event, tally: Tally) -> None:
+def run_mqtt(bridge: Bridge, url: str, prefix: str, qos: int, stop: threading.Event, tally: Tally) -> None:
     import paho.mqtt.client as mqtt  # only this source needs it
 
     parsed = urllib.parse.urlparse(url)
@@ -149,7 +148,7 @@ def run_mqtt(bridge: Bridge, url: str, prefix: str, stop: threading.Event, tally
     def on_connect(client, userdata, flags, reason_code, properties):
         log(f"connected to {url}: {reason_code}; subscribing to {', '.join(topics)}")
         for topic in topics:
-            client.subscribe(topic)
+            client.subscribe(topic, qos=qos)
 
     def on_message(client, userdata, message):
         obj = parse_jsonl_line(message.payload.decode("utf-8", errors="replace"), f"mqtt {message.topic}", tally)
@@ -175,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
     source.add_argument("--jsonl", metavar="FILE", help="cdro-hostd's JSON Lines: a file (followed as it grows) or -")
     source.add_argument("--mqtt", metavar="URL", help="mqtt://host[:port] of the broker cdro-hostd publishes to")
     parser.add_argument("--mqtt-prefix", default="cdro", help="mqtt.topic_prefix of the service (default cdro)")
+    parser.add_argument("--mqtt-qos", type=int, choices=(0, 1, 2), default=1,
+                        help="subscription QoS (default 1; a message arrives at the lower of this and "
+                             "the service's mqtt.qos: at 0 a busy broker may drop updates)")
     parser.add_argument("--no-follow", action="store_true", help="--jsonl FILE: read it once, do not wait for more")
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8765, help="TCP port of the WebSocket server (default 8765; 0 = any)")
@@ -216,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             elif args.jsonl:
                 run_jsonl(bridge, args.jsonl, not args.no_follow, stop, tally)
             else:
-                run_mqtt(bridge, args.mqtt, args.mqtt_prefix, stop, tally)
+                run_mqtt(bridge, args.mqtt, args.mqtt_prefix, args.mqtt_qos, stop, tally)
             if not stop.is_set():
                 log("the input ended; still serving the last state until SIGINT/SIGTERM")
         except (OSError, ValueError) as error:

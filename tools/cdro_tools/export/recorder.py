@@ -44,8 +44,8 @@ class FoxgloveChannels:
         if links is not None:
             self._log(self.links_channel, scene.TOPIC_LINKS, links, t_ns)
 
-    def robot(self, state: MapState, t_ns: int) -> None:
-        built = self.builder.robot(state, t_ns)
+    def robot(self, state: MapState, t_ns: int, repeat: bool = False) -> None:
+        built = self.builder.robot(state, t_ns, repeat)
         if built is None:
             return
         pose, path, robot_scene, transforms = built

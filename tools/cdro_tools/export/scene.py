@@ -173,22 +173,25 @@ class SceneBuilder:
                                                         color=colour(LINK_COLOUR))])
         return fm.SceneUpdate(entities=[entity])
 
-    def robot(self, state: MapState, t_ns: int):
+    def robot(self, state: MapState, t_ns: int, repeat: bool = False):
         """(PoseInFrame, PosesInFrame, SceneUpdate, FrameTransforms) of the robot, or None when
-        there is no robot or it did not change."""
+        there is no robot or it did not change (repeat: the same again, for late viewers; the
+        path does not grow)."""
         robot = state.robot
         if robot is None:
             return None
         key = (robot.get("t_s"), robot["x_m"], robot["y_m"], robot.get("heading_rad"))
-        if key == self.last_robot_key:
+        changed = key != self.last_robot_key
+        if not changed and not repeat:
             return None
         self.last_robot_key = key
         heading = float(robot.get("heading_rad") or 0.0)
         frame = ODOM_FRAME if robot_frame(robot) == "odometry" else MAP_FRAME
         x, y = float(robot["x_m"]), float(robot["y_m"])
         pose = fm.Pose(position=fm.Vector3(x=x, y=y, z=0.0), orientation=quaternion_z(heading))
-        self.path.append(pose)
-        del self.path[:-PATH_POSES]
+        if changed:
+            self.path.append(pose)
+            del self.path[:-PATH_POSES]
         stamp = timestamp(t_ns)
         ellipse = [fm.Point3(x=px, y=py, z=pz) for px, py, pz in ellipse_points(x, y, 0.0, covariance_2x2(robot))]
         scene = fm.SceneUpdate(entities=[fm.SceneEntity(
