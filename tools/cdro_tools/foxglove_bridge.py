@@ -18,7 +18,6 @@ examples:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import signal
 import sys
@@ -233,7 +232,6 @@ def main(argv: list[str] | None = None) -> int:
         log(message)
     log(tally.summary())
     return 2 if failure else 0
-    return code
 
 
 if __name__ == "__main__":

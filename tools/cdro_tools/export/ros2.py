@@ -1,4 +1,5 @@
-"""The map state as ROS 2 messages (plain dicts shaped like the message types), written CDR-encoded
+"""The map state as ROS 2 messages (plain dicts shaped like the message types; standard library
+only, so that tools/ros2/cdro_ros2_relay.py can fill rclpy messages from them), written CDR-encoded
 into MCAP by mcap-ros2-support with the message definitions of ROS 2 Humble (which Iron and Jazzy
 share for these types) taken from rosbags' type store. `ros2 bag play -s mcap FILE.mcap` plays it;
 Foxglove opens it too.
@@ -10,9 +11,7 @@ from __future__ import annotations
 
 import math
 
-from rosbags.typesys import Stores, get_typestore
-
-from .scene import (BASE_FRAME, LINK_COLOUR, MAP_FRAME, NODE_DIAMETER_M, ODOM_FRAME, SIGMAS, TEXT_COLOUR,
+from .style import (BASE_FRAME, LINK_COLOUR, MAP_FRAME, NODE_DIAMETER_M, ODOM_FRAME, SIGMAS, TEXT_COLOUR,
                     ellipse_points, hex_id, node_colour, node_label, node_z_m)
 from .stream import MapState, covariance_2x2, node_placed, robot_covariance_3x3, robot_frame
 
@@ -37,6 +36,8 @@ UNKNOWN_VARIANCE = 1e6                 # rad^2: a heading variance the stream do
 
 def message_definitions() -> dict[str, str]:
     """The ros2msg text (with its dependencies) of each type written."""
+    from rosbags.typesys import Stores, get_typestore  # here: the ROS 2 relay does not need it
+
     store = get_typestore(Stores.ROS2_HUMBLE)
     return {name: store.generate_msgdef(name, ros_version=2)[0] for name in (POSE_TYPE, MARKERS_TYPE, TF_TYPE,
                                                                              STRING_TYPE)}

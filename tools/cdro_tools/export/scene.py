@@ -14,11 +14,9 @@ import math
 
 from foxglove import messages as fm
 
-from .stream import MapState, covariance_2x2, node_placed, node_status, robot_frame
-
-MAP_FRAME = "map"
-ODOM_FRAME = "odom"
-BASE_FRAME = "base_link"
+from .stream import MapState, covariance_2x2, node_placed, robot_frame
+from .style import (BASE_FRAME, LINK_COLOUR, MAP_FRAME, NODE_DIAMETER_M, ODOM_FRAME, PATH_POSES, ROBOT_COLOUR,
+                    ROBOT_DIAMETER_M, TEXT_COLOUR, ellipse_points, hex_id, node_colour, node_label, node_z_m)
 
 TOPIC_NODES = "/cdro/nodes"            # foxglove.SceneUpdate
 TOPIC_LINKS = "/cdro/links"            # foxglove.SceneUpdate (live map events only)
@@ -28,30 +26,6 @@ TOPIC_ROBOT_SCENE = "/cdro/robot/scene"  # foxglove.SceneUpdate: the robot's 2-s
 TOPIC_TF = "/tf"                       # foxglove.FrameTransforms
 TOPIC_HEALTH = "/cdro/health"          # JSON: the health object as the service wrote it
 TOPIC_RANGES = "/cdro/ranges"          # JSON: one RANGE frame of a capture
-
-SIGMAS = 2.0                           # ellipses at 2 sigma, as on the live map
-ELLIPSE_POINTS = 48                    # vertices of an ellipse's line loop
-NODE_DIAMETER_M = 0.25
-ROBOT_DIAMETER_M = 0.35
-PATH_POSES = 2000                      # poses kept in the robot's path (the oldest go first)
-
-# RGBA 0..1, the live map's palette (host/service/web/style.css).
-STATUS_COLOURS = {
-    "converged": (0.18, 0.52, 0.25, 1.0),   # green
-    "placed": (0.85, 0.86, 0.90, 1.0),      # white-grey: placed, not converged
-    "settling": (0.79, 0.54, 0.0, 1.0),     # amber: moved, settling
-    "moving": (0.85, 0.28, 0.06, 1.0),      # orange
-    "unplaced": (0.5, 0.5, 0.5, 0.5),       # grey (not drawn: no position)
-}
-FOLDABLE_COLOUR = (0.48, 0.12, 0.64, 1.0)   # purple: its side cannot be told
-ROBOT_COLOUR = (0.48, 0.12, 0.64, 1.0)
-LINK_COLOUR = (0.60, 0.64, 0.71, 0.8)
-TEXT_COLOUR = (1.0, 1.0, 1.0, 1.0)
-
-
-def hex_id(node_id: int) -> str:
-    return f"0x{node_id:04x}"
-
 
 def timestamp(t_ns: int) -> fm.Timestamp:
     return fm.Timestamp(t_ns // 1_000_000_000, t_ns % 1_000_000_000)
@@ -66,46 +40,6 @@ def quaternion_z(yaw_rad: float) -> fm.Quaternion:
 
 
 IDENTITY = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-
-
-def ellipse_axes(var_x_m2: float, cov_xy_m2: float, var_y_m2: float) -> tuple[float, float, float]:
-    """1-sigma semi-axes (m, major first) and the major axis' angle (rad) of a 2x2 covariance."""
-    mean = (var_x_m2 + var_y_m2) / 2.0
-    spread = math.hypot((var_x_m2 - var_y_m2) / 2.0, cov_xy_m2)
-    major = math.sqrt(max(mean + spread, 0.0))
-    minor = math.sqrt(max(mean - spread, 0.0))
-    angle = 0.5 * math.atan2(2.0 * cov_xy_m2, var_x_m2 - var_y_m2)
-    return major, minor, angle
-
-
-def ellipse_points(x_m: float, y_m: float, z_m: float, cov, sigmas: float = SIGMAS) -> list[tuple[float, float, float]]:
-    """The sigmas-sigma ellipse as a closed polygon in the map frame (m)."""
-    major, minor, angle = ellipse_axes(*cov)
-    c, s = math.cos(angle), math.sin(angle)
-    points = []
-    for k in range(ELLIPSE_POINTS):
-        t = 2.0 * math.pi * k / ELLIPSE_POINTS
-        u, v = sigmas * major * math.cos(t), sigmas * minor * math.sin(t)
-        points.append((x_m + c * u - s * v, y_m + s * u + c * v, z_m))
-    return points
-
-
-def node_z_m(node: dict) -> float:
-    z = node.get("z_m")
-    return float(z) if isinstance(z, (int, float)) and not isinstance(z, bool) and math.isfinite(z) else 0.0
-
-
-def node_colour(node: dict) -> tuple:
-    status = node_status(node)
-    if status == "placed" and node.get("foldable"):
-        return FOLDABLE_COLOUR
-    return STATUS_COLOURS.get(status, STATUS_COLOURS["placed"])
-
-
-def node_label(node: dict) -> str:
-    status = node_status(node)
-    reason = node.get("reason") or ""
-    return f"{hex_id(node['id'])} {status}" + (f" ({reason})" if reason else "")
 
 
 def node_entity(node: dict, t_ns: int) -> fm.SceneEntity:
