@@ -102,7 +102,7 @@ def main(argv=None) -> int:
     source.add_argument("--jsonl", metavar="FILE", help="cdro-hostd's JSON Lines: - for stdin, or a file read once")
     args, ros_args = parser.parse_known_args(argv)
 
-    rclpy.init(args=ros_args)
+    rclpy.init(args=[sys.argv[0], *ros_args])  # rcl takes the first argument as the program
     relay = Relay()
     tally = Tally(args.sse or args.jsonl)
     stop = threading.Event()
