@@ -74,6 +74,8 @@ def make_stream(seed: int) -> tuple[list[str], list[dict]]:
             if step % 2:  # a newer service's heading terms (optional keys)
                 obj.update(var_heading_rad2=rng.uniform(0.001, 0.1), cov_x_heading_m_rad=rng.uniform(-1e-3, 1e-3),
                            cov_y_heading_m_rad=rng.uniform(-1e-3, 1e-3), frame=rng.choice(["map", "odometry"]))
+                if step % 4 == 1:  # position-heading terms that make it no covariance (docs/outputs.md)
+                    obj["cov_x_heading_m_rad"] = 10 * math.sqrt(vx * obj["var_heading_rad2"])
         else:
             obj = {"type": "health", "t_s": round(t_s, 3), "link": "connected",
                    "counters": {"frames_delivered": step * 10, "crc_errors": step % 3}}
@@ -261,6 +263,7 @@ def test_jsonl_to_ros2_mcap(stream, tmp_path):
             assert mahalanobis2((p.x, p.y), (node["x_m"], node["y_m"]), cov) == pytest.approx(4.0, rel=1e-6)
         assert node["status"] in by_ns["cdro/labels"].text
 
+    not_psd_seen = []
     for robot, (log_time, message), tf in zip(robots, poses, tfs):
         assert log_time == t_ns(robot)
         assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == t_ns(robot)
@@ -271,17 +274,26 @@ def test_jsonl_to_ros2_mcap(stream, tmp_path):
         cov = np.asarray(message.pose.covariance).reshape(6, 6)
         assert cov[0, 0] == robot["var_x_m2"] and cov[1, 1] == robot["var_y_m2"]
         assert cov[0, 1] == cov[1, 0] == robot["cov_xy_m2"]
-        if "var_heading_rad2" in robot:  # x, y, yaw are rows/columns 0, 1, 5
+        given = np.array([[robot["var_x_m2"], robot["cov_xy_m2"], robot.get("cov_x_heading_m_rad", 0)],
+                          [robot["cov_xy_m2"], robot["var_y_m2"], robot.get("cov_y_heading_m_rad", 0)],
+                          [robot.get("cov_x_heading_m_rad", 0), robot.get("cov_y_heading_m_rad", 0),
+                           robot.get("var_heading_rad2", 0)]])
+        if "var_heading_rad2" in robot and np.linalg.eigvalsh(given).min() >= 0:  # x, y, yaw: rows 0, 1, 5
             assert cov[5, 5] == robot["var_heading_rad2"]
             assert cov[0, 5] == cov[5, 0] == robot["cov_x_heading_m_rad"]
             assert cov[1, 5] == cov[5, 1] == robot["cov_y_heading_m_rad"]
+        elif "var_heading_rad2" in robot:  # no covariance as given: the cross terms are left out
+            assert cov[5, 5] == robot["var_heading_rad2"] and cov[0, 5] == cov[1, 5] == 0.0
+            not_psd_seen.append(robot["t_s"])
         else:
             assert cov[5, 5] >= 1e6 and cov[0, 5] == cov[1, 5] == 0.0  # unknown, not certain
         assert np.count_nonzero(cov[2:5, :]) == 0  # z, roll, pitch: not estimated
+        assert np.linalg.eigvalsh(cov).min() >= -1e-12
         frames = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
         assert frames == [("map", "odom"), ("odom", "base_link")]
         base = tf.transforms[1].transform
         assert (base.translation.x, base.translation.y) == pytest.approx((robot["x_m"], robot["y_m"]), abs=1e-12)
+    assert not_psd_seen, "the stream should hold a robot line whose 3x3 is no covariance"
 
 
 def test_bad_input_is_refused_with_a_reason(tmp_path):

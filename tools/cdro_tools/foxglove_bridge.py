@@ -11,7 +11,7 @@ that connects later sees the map at once. Bad input is reported, counted and ski
 
 examples:
   cdro-foxglove --sse http://127.0.0.1:8080/
-  cdro-hostd --config my.yaml | cdro-foxglove --jsonl -
+  cdro-hostd --config config/cdro-hostd.example.yaml | cdro-foxglove --jsonl -
   cdro-foxglove --jsonl /var/lib/cdro/estimates.jsonl --port 8766
   cdro-foxglove --mqtt mqtt://127.0.0.1:1883 --mqtt-prefix cdro
 """

@@ -19,7 +19,7 @@ cdro_tools.export.stream and .ros2, which need nothing beyond the standard libra
 
   source /opt/ros/humble/setup.bash
   PYTHONPATH=/path/to/cdro-slam/tools python3 tools/ros2/cdro_ros2_relay.py --sse http://127.0.0.1:8080/
-  cdro-hostd --config my.yaml | PYTHONPATH=... python3 tools/ros2/cdro_ros2_relay.py --jsonl -
+  cdro-hostd --config config/cdro-hostd.example.yaml | PYTHONPATH=... python3 tools/ros2/cdro_ros2_relay.py --jsonl -
 """
 from __future__ import annotations
 

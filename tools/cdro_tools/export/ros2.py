@@ -111,13 +111,29 @@ def markers(state: MapState, t_ns: int, only: set[int] | None = None) -> dict:
     return {"markers": result}
 
 
+def positive_semidefinite(m: list[list[float]], tolerance: float = 1e-12) -> bool:
+    """A symmetric 3x3 is positive semi-definite when every principal minor is >= 0."""
+    minors = [m[0][0], m[1][1], m[2][2],
+              m[0][0] * m[1][1] - m[0][1] * m[1][0], m[0][0] * m[2][2] - m[0][2] * m[2][0],
+              m[1][1] * m[2][2] - m[1][2] * m[2][1],
+              m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+              + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])]
+    return all(minor >= -tolerance for minor in minors)
+
+
 def robot_pose(robot: dict, t_ns: int) -> dict:
     """PoseWithCovarianceStamped: 6x6 row-major over (x, y, z, roll, pitch, yaw); z, roll and pitch
     are not estimated (0, and variance 0: the robot is on the floor plane), yaw's terms come from
-    the stream when it has them, else its variance is UNKNOWN_VARIANCE."""
+    the stream when it has them (without the x/y-yaw terms when those make it no covariance),
+    else its variance is UNKNOWN_VARIANCE."""
     cov3, have_heading = robot_covariance_3x3(robot)
     if not have_heading:
         cov3[2][2] = UNKNOWN_VARIANCE
+    elif not positive_semidefinite(cov3):
+        # The service documents that its position-heading terms are not always in the map's
+        # frame yet; a consumer (robot_localization, Nav2) must not get a matrix that is no
+        # covariance: keep the blocks, drop the cross terms.
+        cov3[0][2] = cov3[2][0] = cov3[1][2] = cov3[2][1] = 0.0
     index = (0, 1, 5)  # x, y, yaw in the 6x6
     covariance = [0.0] * 36
     for i in range(3):
