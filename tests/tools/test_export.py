@@ -23,7 +23,7 @@ from foxglove_support import read_mcap
 from cdro_tools.codec import read_capture
 
 GUARD_S = 120.0                    # s of wall clock: a hang guard, never an expectation
-START_UNIX_S = 1_764_000_000.0     # --start-unix-s given to the exports of JSON Lines
+START_UNIX_S = 1_764_000_000      # --start-unix-s given to the exports of JSON Lines
 NODE_IDS = [0x6001, 0x6002, 0x6003, 0x6004, 0x6005, 0x6006]
 ROBOT_ID = 0x6001
 
@@ -100,7 +100,7 @@ def stream(tmp_path):
 
 
 def t_ns(obj: dict) -> int:
-    return round((START_UNIX_S + obj["t_s"]) * 1e9)
+    return START_UNIX_S * 10**9 + round(obj["t_s"] * 1e9)
 
 
 def mahalanobis2(point, centre, cov) -> float:
@@ -388,12 +388,12 @@ def test_a_capture_to_mcap_carries_the_replayed_estimates_and_the_ranges(build_d
             final[line["id"]] = line
     placed = {i: n for i, n in final.items() if n["placed"]}
     assert len(placed) >= 5
-    created_s = read_capture(capture).header.created_unix_us / 1e6
+    created_us = read_capture(capture).header.created_unix_us
     _, messages = read_mcap(out)
     updates = [(t, d) for topic, _, _, t, d in messages if topic == "/cdro/nodes"]
     last_time, last = updates[-1]
     last_node_t = max(n["t_s"] for n in final.values())
-    assert last_time == round((created_s + last_node_t) * 1e9)
+    assert last_time == created_us * 1000 + round(last_node_t * 1e9)
     assert sorted(e["id"] for e in last["entities"]) == sorted(f"node-0x{i:04x}" for i in placed)
     for entity in last["entities"]:
         check_node_entity(entity, placed[int(entity["id"][5:], 16)])
@@ -402,3 +402,46 @@ def test_a_capture_to_mcap_carries_the_replayed_estimates_and_the_ranges(build_d
     assert [(r["from"], r["to"], r["range_m"]) for r in ranges] == [(int(a), int(b), float(m)) for _, a, b, m in sim_rows]
     healths = [d for topic, _, _, _, d in messages if topic == "/cdro/health"]
     assert healths == [line for line in lines if line["type"] == "health"]
+
+
+def test_schema_2_keys_are_used_when_present(tmp_path):
+    """A newer service's lines (docs/outputs.md schema 2: t_unix_s, z_m, null positions of an
+    unplaced node, the robot's frame and 3x3): stamps from t_unix_s, heights from z_m, the unplaced
+    node never drawn, nothing dropped."""
+    lines = [
+        {"type": "node", "schema": 2, "t_s": 12.5, "t_unix_s": 1700000012.5, "id": 24577, "id_hex": "0x6001",
+         "x_m": 3.214, "y_m": -0.502, "z_m": 1.25, "var_x_m2": 0.0041, "cov_xy_m2": -0.0003, "var_y_m2": 0.0052,
+         "converged": True, "moving": False, "placed": True, "foldable": False, "status": "converged", "reason": "",
+         "hinge": [], "hinge_hex": []},
+        {"type": "node", "schema": 2, "t_s": 12.6, "t_unix_s": 1700000012.625, "id": 24582, "id_hex": "0x6006",
+         "x_m": None, "y_m": None, "z_m": None, "var_x_m2": None, "cov_xy_m2": None, "var_y_m2": None,
+         "converged": False, "moving": False, "placed": False, "foldable": False, "status": "unplaced", "reason": "",
+         "hinge": [], "hinge_hex": []},
+        {"type": "robot", "schema": 2, "t_s": 12.7, "t_unix_s": 1700000012.75, "id": 24600, "id_hex": "0x6018",
+         "frame": "map", "x_m": 1.5, "y_m": 2.5, "heading_rad": 0.25, "var_x_m2": 0.01, "cov_xy_m2": 0.0,
+         "var_y_m2": 0.02, "var_heading_rad2": 0.003, "cov_x_heading_m_rad": 0.001, "cov_y_heading_m_rad": -0.002,
+         "heading_hypotheses": 1, "range_scale": 1.0625, "range_scale_sigma": 0.0125, "range_offset_m": 0.25,
+         "range_offset_sigma_m": 0.05},
+    ]
+    path = tmp_path / "schema2.jsonl"
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    for ros2 in (False, True):
+        out = tmp_path / f"schema2-{ros2}.mcap"
+        done = export(path, "-o", out, "--rate-hz", "0", *(["--ros2"] if ros2 else []))
+        assert "none dropped" in done.stderr and "no t_unix_s" not in done.stderr, done.stderr
+        _, messages = read_mcap(out)
+        stamps = {topic: t for topic, _, _, t, _ in messages}
+        if ros2:
+            markers = [m for topic, _, _, _, m in messages if topic == "/cdro/markers"]
+            sphere = next(m for m in markers[0].markers if m.ns == "cdro/nodes")
+            assert sphere.pose.position.z == 1.25
+            assert all(m.action == 2 for m in markers[1].markers)  # the unplaced node: DELETE only
+            pose = next(m for topic, _, _, _, m in messages if topic == "/cdro/robot/pose")
+            assert pose.pose.covariance[5] == 0.001 and pose.pose.covariance[35] == 0.003
+            assert stamps["/cdro/robot/pose"] == 1700000012750000000
+        else:
+            updates = [d for topic, _, _, _, d in messages if topic == "/cdro/nodes"]
+            assert updates[0]["entities"][0]["spheres"][0]["pose"]["position"]["z"] == 1.25
+            assert not updates[1]["entities"] and not updates[1]["deletions"]  # never drawn: nothing to delete
+            assert stamps["/cdro/robot/pose"] == 1700000012750000000
+        assert min(t for _, _, _, t, _ in messages) == 1700000012500000000

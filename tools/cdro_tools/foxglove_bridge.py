@@ -28,7 +28,7 @@ import urllib.parse
 import foxglove
 
 from .export.recorder import FoxgloveChannels
-from .export.stream import MapState, Tally, follow_sse, parse_jsonl_line
+from .export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns
 
 PROG = "cdro-foxglove"
 
@@ -41,7 +41,7 @@ def now_ns(obj: dict | None = None) -> int:
     """The message time: the stream's t_unix_s when it has one, else the time it arrived."""
     t_unix = (obj or {}).get("t_unix_s")
     if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool):
-        return round(t_unix * 1e9)
+        return seconds_to_ns(t_unix)
     return time.time_ns()
 
 

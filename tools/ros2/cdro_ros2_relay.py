@@ -37,7 +37,7 @@ from tf2_ros import TransformBroadcaster
 from visualization_msgs.msg import MarkerArray
 
 from cdro_tools.export import ros2
-from cdro_tools.export.stream import MapState, Tally, follow_sse, parse_jsonl_line
+from cdro_tools.export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns
 
 
 def filled(message_type, fields: dict):
@@ -61,7 +61,7 @@ class Relay(Node):
         """The stream's t_unix_s when it has one, else this node's clock."""
         t_unix = (obj or {}).get("t_unix_s")
         if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool):
-            return round(t_unix * 1e9)
+            return seconds_to_ns(t_unix)
         return self.get_clock().now().nanoseconds
 
     def publish_robot(self) -> None:

@@ -29,7 +29,7 @@ from ..codec import CaptureError, read_capture
 from ..codec.capture_file import MAGIC
 from .ranges import RANGES_CSV_HEADER, RangeTally, capture_ranges, format_row
 from .recorder import FoxgloveRecorder, Ros2Recorder, record_stream
-from .stream import StreamError, Tally, read_jsonl
+from .stream import StreamError, Tally, read_jsonl, seconds_to_ns
 
 PROG = "cdro-export"
 
@@ -100,15 +100,15 @@ def export_ranges_csv(args) -> int:
 def export_mcap(args) -> int:
     tally = Tally("stdin" if args.input == "-" else args.input)
     capture = None
-    start_unix_s = args.start_unix_s
+    start_ns = seconds_to_ns(args.start_unix_s) if args.start_unix_s is not None else None
     with tempfile.TemporaryDirectory(prefix="cdro-export-") as scratch_dir:
         if is_capture(args.input):
             capture = read_capture(args.input)
             if capture.corrupt_bytes or capture.truncated_tail_bytes:
                 log(f"{args.input}: {capture.corrupt_bytes} corrupt byte(s) skipped between records, "
                     f"{capture.truncated_tail_bytes} byte(s) of a cut-short last record dropped")
-            if start_unix_s is None:
-                start_unix_s = capture.header.created_unix_us / 1e6
+            if start_ns is None:
+                start_ns = capture.header.created_unix_us * 1000
             jsonl_path = replay_capture(args, args.input, pathlib.Path(scratch_dir))
             source = open(jsonl_path, encoding="utf-8", errors="replace")
         else:
@@ -118,12 +118,12 @@ def export_mcap(args) -> int:
             objects = read_jsonl(source, "stdin" if args.input == "-" else args.input, tally)
             range_tally = RangeTally()
             ranges = capture_ranges(capture, range_tally) if capture is not None and not args.no_ranges else None
-            written = record_stream(recorder, objects, ranges, args.rate_hz, start_unix_s)
+            written = record_stream(recorder, objects, ranges, args.rate_hz, start_ns)
         finally:
             recorder.close()
             if source is not sys.stdin:
                 source.close()
-    if start_unix_s is None and not written.saw_unix_time:
+    if start_ns is None and not written.saw_unix_time:
         log("the stream has no t_unix_s: message times are t_s after the Unix epoch (give --start-unix-s)")
     log(tally.summary())
     if ranges is not None:

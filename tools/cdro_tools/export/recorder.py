@@ -13,7 +13,7 @@ from foxglove import channels as fc
 
 from . import ros2, scene
 from .ranges import RangeRow
-from .stream import MapState
+from .stream import MapState, seconds_to_ns
 
 
 class FoxgloveChannels:
@@ -130,17 +130,18 @@ class Written:
     saw_unix_time: bool
 
 
-def _t_ns(obj: dict, start_unix_s: float | None) -> tuple[int, bool]:
+def _t_ns(obj: dict, start_ns: int | None) -> tuple[int, bool]:
     """(message time in ns since the Unix epoch, whether the line said so itself)."""
     t_unix = obj.get("t_unix_s")
     if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool) and math.isfinite(t_unix):
-        return round(t_unix * 1e9), True
-    return round(((start_unix_s or 0.0) + float(obj.get("t_s") or 0.0)) * 1e9), False
+        return seconds_to_ns(t_unix), True
+    return (start_ns or 0) + seconds_to_ns(float(obj.get("t_s") or 0.0)), False
 
 
 def record_stream(sink, objects: Iterable[dict], ranges: Iterator[RangeRow] | None, rate_hz: float,
-                  start_unix_s: float | None) -> Written:
-    """Feeds a stream of checked JSON Lines objects (in stream order) into sink.
+                  start_ns: int | None) -> Written:
+    """Feeds a stream of checked JSON Lines objects (in stream order) into sink; start_ns (ns since
+    the epoch at t_s = 0) stamps lines without t_unix_s.
 
     rate_hz 0: each node line gives an update of that node, each robot line a pose (and path and
     transforms), each health line a health message. rate_hz > 0: per period of 1/rate_hz s of
@@ -157,9 +158,8 @@ def record_stream(sink, objects: Iterable[dict], ranges: Iterator[RangeRow] | No
 
     def emit_ranges_until(t_ns: int | None) -> None:
         nonlocal pending_range
-        base = start_unix_s or 0.0
         while pending_range is not None:
-            range_ns = round((base + pending_range.t_s) * 1e9)
+            range_ns = (start_ns or 0) + seconds_to_ns(pending_range.t_s)
             if t_ns is not None and range_ns > t_ns:
                 return
             sink.range(pending_range, range_ns)
@@ -174,7 +174,7 @@ def record_stream(sink, objects: Iterable[dict], ranges: Iterator[RangeRow] | No
         dirty_nodes = dirty_robot = False
 
     for obj in objects:
-        t_ns, said = _t_ns(obj, start_unix_s)
+        t_ns, said = _t_ns(obj, start_ns)
         saw_unix = saw_unix or said
         if period_s:
             index = math.floor(float(obj.get("t_s") or 0.0) / period_s)

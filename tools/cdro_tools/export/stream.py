@@ -53,6 +53,14 @@ class Tally:
         return f"{self.name}: {self.taken} object(s) taken, {self.dropped_total} dropped ({reasons})"
 
 
+def seconds_to_ns(t_s: float) -> int:
+    """s (float) to integer ns at the service's resolution, the microsecond (its clocks are us;
+    t_unix_s is written to the us). Whole seconds and the fraction apart: an epoch time in a
+    double is only good to ~0.2 us, and t x 1e9 would carry that error into the ns."""
+    whole = math.floor(t_s)
+    return whole * 1_000_000_000 + round((t_s - whole) * 1e6) * 1000
+
+
 def _finite(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
