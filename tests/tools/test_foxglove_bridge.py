@@ -2,8 +2,9 @@
 (cdro-sim on a pseudo-terminal, the demo scenario), the robot's odometry sent over UDP, its live
 map followed by one bridge (--sse) and its MQTT topics (a real mosquitto) by another (--mqtt);
 a WebSocket client speaking the Foxglove protocol (foxglove_support.py, from the spec) checks
-what each bridge serves against the service's own JSON output. A third test follows a JSON Lines
-file as it grows, with bad lines in it.
+what each bridge serves against the service's own JSON output; the run's capture then goes
+through `cdro-export --ros2` and gives back the live run's robot path. A second test follows a
+JSON Lines file as it grows, with bad lines in it.
 
 Timeouts are hang guards only; nothing depends on how fast the machine is.
 """
@@ -24,7 +25,7 @@ import urllib.request
 
 import pytest
 
-from foxglove_support import FoxgloveClient
+from foxglove_support import FoxgloveClient, read_mcap
 
 GUARD_S = 120.0                    # s of wall clock: reached only when something is broken
 ROBOT = 0x6001                     # the demo's own tag, made the robot (movement.robot_id)
@@ -160,13 +161,13 @@ def test_live_service_in_foxglove_over_sse_and_mqtt(build_dir, tmp_path, broker)
     assert hostd_bin.exists(), f"{hostd_bin} missing: build the native tree first"
     seed = int(os.environ.get("CDRO_TEST_SEED", "1"))
     print(f"cdro-sim demo, seed {seed} (set CDRO_TEST_SEED to change it)")
-    link, jsonl = tmp_path / "tty", tmp_path / "live.jsonl"
+    link, jsonl, capture = tmp_path / "tty", tmp_path / "live.jsonl", tmp_path / "live.cdrocap"
     http_port, odometry_port = free_port(), free_port(socket.SOCK_DGRAM)
     config = tmp_path / "hostd.yaml"
     config.write_text(f"""
 serial: {{device: {link}, reconnect_min_s: 0.05, reconnect_max_s: 0.4, hello_timeout_s: 0.3, hello_retries: 20}}
 nodes: {{ids: [], unknown: reject}}
-capture: {{path: ''}}
+capture: {{path: {capture}}}
 output: {{jsonl: {jsonl}, health_period_s: 0.5}}
 http: {{port: {http_port}, update_period_s: 0.1}}
 mqtt: {{url: 'mqtt://127.0.0.1:{broker}', rate_hz: 0, qos: 1}}
@@ -276,6 +277,16 @@ movement: {{robot_id: {ROBOT}}}
             client.close()
         for process in reversed(processes):
             process.kill()
+    # The run's capture (odometry records included) as a ROS 2 recording: every robot line of the
+    # live run, in order, the replay giving the live run's lines (docs/service.md).
+    recording = tmp_path / "live-ros2.mcap"
+    done = subprocess.run([sys.executable, "-m", "cdro_tools.export.cli", str(capture), "-o", str(recording), "--ros2",
+                           "--rate-hz", "0", "--hostd", str(hostd_bin)], capture_output=True, text=True, timeout=GUARD_S)
+    assert done.returncode == 0, done.stderr
+    _, messages = read_mcap(recording)
+    poses = [m for topic, _, _, _, m in messages if topic == "/cdro/robot/pose"]
+    assert [(p.pose.pose.position.x, p.pose.pose.position.y) for p in poses] == \
+           [(r["x_m"], r["y_m"]) for r in robot_lines]
 
 
 def test_a_growing_json_lines_file_with_bad_lines(tmp_path):
