@@ -397,6 +397,17 @@ def test_a_capture_to_mcap_carries_the_replayed_estimates_and_the_ranges(build_d
     assert sorted(e["id"] for e in last["entities"]) == sorted(f"node-0x{i:04x}" for i in placed)
     for entity in last["entities"]:
         check_node_entity(entity, placed[int(entity["id"][5:], 16)])
+    # Links: every pair ranged, between the placed nodes, drawn from where the nodes are.
+    pairs = {tuple(sorted((int(a), int(b)))) for _, a, b, _ in csv_rows(sim_ranges)}
+    last_links = [d for topic, _, _, _, d in messages if topic == "/cdro/links"][-1]
+    points = last_links["entities"][0]["lines"][0]["points"]
+    drawn_pairs = set()
+    for start, end in zip(points[0::2], points[1::2]):
+        ends = []
+        for point in (start, end):
+            ends += [i for i, n in placed.items() if (n["x_m"], n["y_m"]) == (point["x"], point["y"])]
+        drawn_pairs.add(tuple(sorted(ends)))
+    assert drawn_pairs == {p for p in pairs if p[0] in placed and p[1] in placed} and len(points) == 2 * len(drawn_pairs)
     ranges = [d for topic, _, _, _, d in messages if topic == "/cdro/ranges"]
     sim_rows = csv_rows(sim_ranges)
     assert [(r["from"], r["to"], r["range_m"]) for r in ranges] == [(int(a), int(b), float(m)) for _, a, b, m in sim_rows]

@@ -147,7 +147,8 @@ def record_stream(sink, objects: Iterable[dict], ranges: Iterator[RangeRow] | No
     transforms), each health line a health message. rate_hz > 0: per period of 1/rate_hz s of
     stream time (t_s) in which something changed, the whole map once (and the robot once), at the
     time of the period's last node (robot) line; health lines always pass. Ranges (from a capture) go in at
-    their own times, merged in time order."""
+    their own times, merged in time order, and make the links (the pairs ranged so far) that the
+    nodes' messages then carry."""
     state = MapState()
     saw_unix = False
     period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
@@ -155,14 +156,22 @@ def record_stream(sink, objects: Iterable[dict], ranges: Iterator[RangeRow] | No
     dirty_nodes = dirty_robot = False
     nodes_t_ns = robot_t_ns = 0                # ns: the time of the last node / robot line
     pending_range = next(ranges, None) if ranges is not None else None
+    links: dict[tuple[int, int], dict] = {}    # the pairs ranged so far, as the live map lists them
+    if ranges is not None:
+        state.links = []
 
     def emit_ranges_until(t_ns: int | None) -> None:
         nonlocal pending_range
         while pending_range is not None:
-            range_ns = (start_ns or 0) + seconds_to_ns(pending_range.t_s)
+            row = pending_range
+            range_ns = (start_ns or 0) + seconds_to_ns(row.t_s)
             if t_ns is not None and range_ns > t_ns:
                 return
-            sink.range(pending_range, range_ns)
+            sink.range(row, range_ns)
+            pair = (min(row.from_id, row.to_id), max(row.from_id, row.to_id))
+            count = links[pair]["range_count"] + 1 if pair in links else 1
+            links[pair] = {"a": pair[0], "b": pair[1], "last_range_m": row.distance_mm / 1000, "range_count": count}
+            state.links = list(links.values())
             pending_range = next(ranges, None)
 
     def flush() -> None:

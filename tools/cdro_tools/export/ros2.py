@@ -95,12 +95,13 @@ def node_markers(node: dict, t_ns: int) -> list[dict]:
 
 
 def markers(state: MapState, t_ns: int, only: set[int] | None = None) -> dict:
-    """MarkerArray of the nodes (all, or those in `only`) and, from live map events, the links."""
+    """MarkerArray of the nodes (all, or those in `only`) and the links (live map events; a
+    capture's ranged pairs)."""
     result = []
     for node_id in sorted(state.nodes if only is None else only):
         if node_id in state.nodes:
             result.extend(node_markers(state.nodes[node_id], t_ns))
-    if state.links is not None and only is None:
+    if state.links is not None:
         points = []
         for link in state.links:
             a, b = state.nodes.get(link["a"]), state.nodes.get(link["b"])
