@@ -456,3 +456,33 @@ def test_schema_2_keys_are_used_when_present(tmp_path):
             assert not updates[1]["entities"] and not updates[1]["deletions"]  # never drawn: nothing to delete
             assert stamps["/cdro/robot/pose"] == 1700000012750000000
         assert min(t for _, _, _, t, _ in messages) == 1700000012500000000
+
+
+HOSTILE_LINES = [
+    '{"type": "node", "t_s": 1, "t_unix_s": NaN, "id": 24577, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"type": "node", "t_s": -5, "id": 24577, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"type": "node", "t_s": 1, "t_unix_s": 1e20, "id": 24577, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"type": "robot", "t_s": 1, "id": 24577, "x_m": 1, "y_m": 2, "heading_rad": "north"}',
+    '{"type": "robot", "t_s": 1, "id": 24577, "x_m": Infinity, "y_m": 2, "heading_rad": 0}',
+    '{"type": "node", "t_s": 1, "id": 24577, "x_m": "1", "y_m": 2, "placed": true}',
+    '{"type": "node", "t_s": 1, "id": 0, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"type": "node", "t_s": 1, "id": 70000, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"type": "node", "t_s": 1, "id": true, "x_m": 1, "y_m": 2, "placed": true}',
+    '{"t_s": 1, "id": 24577, "x_m": 1, "y_m": 2}',
+    '[1, 2]',
+    '{"type": "health", "t_s": 1, "counters": [1, 2]}',
+]
+
+
+def test_hostile_lines_are_dropped_counted_and_the_export_goes_on(tmp_path):
+    good = {"type": "node", "t_s": 2.0, "id": 0x6003, "x_m": 4.0, "y_m": 5.0, "var_x_m2": 0.01, "cov_xy_m2": 0.0,
+            "var_y_m2": 0.01, "placed": True, "status": "converged"}
+    path = tmp_path / "hostile.jsonl"
+    path.write_text("\n".join(HOSTILE_LINES + [json.dumps(good)]) + "\n")
+    for ros2 in (False, True):
+        out = tmp_path / f"hostile-{ros2}.mcap"
+        done = export(path, "-o", out, "--rate-hz", "0", *(["--ros2"] if ros2 else []))
+        assert f"1 object(s) taken, {len(HOSTILE_LINES)} dropped" in done.stderr, done.stderr
+        assert "Traceback" not in done.stderr
+        _, messages = read_mcap(out)
+        assert [topic for topic, *_ in messages] == ["/cdro/markers" if ros2 else "/cdro/nodes"]

@@ -309,7 +309,11 @@ def test_a_growing_json_lines_file_with_bad_lines(tmp_path):
         robot = {"type": "robot", "t_s": 2.1, "t_unix_s": 1_764_000_002.1, "frame": "odometry", "id": 0x6001,
                  "x_m": 0.5, "y_m": 0.25, "heading_rad": 0.3, "var_x_m2": 0.01, "cov_xy_m2": 0.0, "var_y_m2": 0.01}
         with open(path, "a") as f:
-            f.write("\n".join(json.dumps(o) for o in (moved, other, robot)) + "\n" + '{"type": "node", "id": 24' + "\n")
+            # Values that are JSON but no time, heading or position: dropped, the bridge goes on.
+            hostile = ['{"type": "robot", "t_s": 2, "t_unix_s": NaN, "id": 24577, "x_m": 1, "y_m": 2}',
+                       '{"type": "robot", "t_s": 2, "id": 24577, "x_m": 1, "y_m": 2, "heading_rad": "north"}']
+            f.write("\n".join(hostile + [json.dumps(o) for o in (moved, other, robot)]) + "\n" +
+                    '{"type": "node", "id": 24' + "\n")
         latest = client.wait_for(lambda: [d for d in client.of_topic("/cdro/nodes") if len(d["entities"]) == 2],
                                  "both nodes", GUARD_S)[-1]
         check_scene_matches(latest, {moved["id"]: moved, other["id"]: other}, "after the append")
@@ -330,4 +334,4 @@ def test_a_growing_json_lines_file_with_bad_lines(tmp_path):
             client.close()
         code = process.stop()
     assert code == 0, process.log()
-    assert "2 dropped" in process.log() and "not JSON" in process.log(), process.log()
+    assert "4 dropped" in process.log() and "not JSON" in process.log() and "not a time" in process.log(), process.log()

@@ -28,7 +28,7 @@ import urllib.parse
 import foxglove
 
 from .export.recorder import FoxgloveChannels
-from .export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns
+from .export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns, unix_time_s
 
 PROG = "cdro-foxglove"
 
@@ -39,42 +39,48 @@ def log(message: str) -> None:
 
 def now_ns(obj: dict | None = None) -> int:
     """The message time: the stream's t_unix_s when it has one, else the time it arrived."""
-    t_unix = (obj or {}).get("t_unix_s")
-    if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool):
-        return seconds_to_ns(t_unix)
-    return time.time_ns()
+    t_unix = unix_time_s(obj)
+    return seconds_to_ns(t_unix) if t_unix is not None else time.time_ns()
 
 
 class Bridge:
     """The map state and its Foxglove channels; every method may be called from any thread."""
 
-    def __init__(self):
+    def __init__(self, tally: Tally):
         self.state = MapState()
         self.channels = FoxgloveChannels()
         self.lock = threading.Lock()
+        self.tally = tally
         self.updates = 0
 
-    def line(self, obj: dict) -> None:
+    def line(self, obj: dict, where: str) -> None:
         """One checked JSON Lines object."""
         t_ns = now_ns(obj)
         with self.lock:
             kind = self.state.apply(obj)
-            if kind == "node":
-                self.channels.nodes(self.state, t_ns, {obj["id"]})
-            elif kind == "robot":
-                self.channels.robot(self.state, t_ns)
-            else:
-                self.channels.health(self.state, t_ns)
+            try:
+                if kind == "node":
+                    self.channels.nodes(self.state, t_ns, {obj["id"]})
+                elif kind == "robot":
+                    self.channels.robot(self.state, t_ns)
+                else:
+                    self.channels.health(self.state, t_ns)
+            except (ValueError, TypeError, OverflowError) as error:
+                # A value the checks let through that no message can hold: this line only.
+                self.tally.drop(where, f"cannot be sent ({error})")
             self.updates += 1
 
-    def map_event(self, event: dict, tally: Tally, where: str) -> None:
+    def map_event(self, event: dict, where: str) -> None:
         """One live map event: the whole map."""
         with self.lock:
-            self.state.apply_map(event, tally, where)
+            self.state.apply_map(event, self.tally, where)
             t_ns = now_ns(event)
-            self.channels.nodes(self.state, t_ns)
-            self.channels.robot(self.state, t_ns)
-            self.channels.health(self.state, t_ns)
+            try:
+                self.channels.nodes(self.state, t_ns)
+                self.channels.robot(self.state, t_ns)
+                self.channels.health(self.state, t_ns)
+            except (ValueError, TypeError, OverflowError) as error:
+                self.tally.drop(where, f"cannot be sent ({error})")
             self.updates += 1
 
     def republish(self) -> None:
@@ -128,9 +134,10 @@ def run_jsonl(bridge: Bridge, source: str, follow: bool, stop: threading.Event, 
     lines = sys.stdin if source == "-" else follow_file(source, stop, follow)
     name = "stdin" if source == "-" else source
     for number, text in enumerate(lines, start=1):
-        obj = parse_jsonl_line(text, f"{name}:{number}", tally)
+        where = f"{name}:{number}"
+        obj = parse_jsonl_line(text, where, tally)
         if obj is not None:
-            bridge.line(obj)
+            bridge.line(obj, where)
         if stop.is_set():
             return
 
@@ -150,9 +157,10 @@ def run_mqtt(bridge: Bridge, url: str, prefix: str, qos: int, stop: threading.Ev
             client.subscribe(topic, qos=qos)
 
     def on_message(client, userdata, message):
-        obj = parse_jsonl_line(message.payload.decode("utf-8", errors="replace"), f"mqtt {message.topic}", tally)
+        where = f"mqtt {message.topic}"
+        obj = parse_jsonl_line(message.payload.decode("utf-8", errors="replace"), where, tally)
         if obj is not None:
-            bridge.line(obj)
+            bridge.line(obj, where)
 
     client.on_connect = on_connect
     client.on_message = on_message
@@ -190,7 +198,6 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for number in (signal.SIGINT, signal.SIGTERM):
         signal.signal(number, lambda *_: stop.set())
-    bridge = Bridge()
     try:
         server = foxglove.start_server(name=PROG, host=args.host, port=args.port)
     except Exception as error:  # the SDK raises its own error types for a port in use or a bad address
@@ -198,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     log(f"serving ws://{args.host}:{server.port} (Foxglove: Open connection -> Foxglove WebSocket)")
     tally = Tally(args.sse or args.jsonl or args.mqtt)
+    bridge = Bridge(tally)
 
     def republish():
         while not stop.wait(args.republish_s):
@@ -213,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if args.sse:
                 for number, event in enumerate(follow_sse(args.sse, tally, stop.is_set, log), start=1):
-                    bridge.map_event(event, tally, f"event {number}")
+                    bridge.map_event(event, f"event {number}")
             elif args.jsonl:
                 run_jsonl(bridge, args.jsonl, not args.no_follow, stop, tally)
             else:

@@ -37,7 +37,7 @@ from tf2_ros import TransformBroadcaster
 from visualization_msgs.msg import MarkerArray
 
 from cdro_tools.export import ros2
-from cdro_tools.export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns
+from cdro_tools.export.stream import MapState, Tally, follow_sse, parse_jsonl_line, seconds_to_ns, unix_time_s
 
 
 def filled(message_type, fields: dict):
@@ -59,10 +59,8 @@ class Relay(Node):
 
     def stamp_ns(self, obj: dict | None) -> int:
         """The stream's t_unix_s when it has one, else this node's clock."""
-        t_unix = (obj or {}).get("t_unix_s")
-        if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool):
-            return seconds_to_ns(t_unix)
-        return self.get_clock().now().nanoseconds
+        t_unix = unix_time_s(obj)
+        return seconds_to_ns(t_unix) if t_unix is not None else self.get_clock().now().nanoseconds
 
     def publish_robot(self) -> None:
         robot = self.state.robot

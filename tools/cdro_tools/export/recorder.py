@@ -13,7 +13,7 @@ from foxglove import channels as fc
 
 from . import ros2, scene
 from .ranges import RangeRow
-from .stream import MapState, seconds_to_ns
+from .stream import MapState, seconds_to_ns, unix_time_s
 
 
 class FoxgloveChannels:
@@ -132,8 +132,8 @@ class Written:
 
 def _t_ns(obj: dict, start_ns: int | None) -> tuple[int, bool]:
     """(message time in ns since the Unix epoch, whether the line said so itself)."""
-    t_unix = obj.get("t_unix_s")
-    if isinstance(t_unix, (int, float)) and not isinstance(t_unix, bool) and math.isfinite(t_unix):
+    t_unix = unix_time_s(obj)
+    if t_unix is not None:
         return seconds_to_ns(t_unix), True
     return (start_ns or 0) + seconds_to_ns(float(obj.get("t_s") or 0.0)), False
 

@@ -53,6 +53,12 @@ class Tally:
         return f"{self.name}: {self.taken} object(s) taken, {self.dropped_total} dropped ({reasons})"
 
 
+def unix_time_s(obj: dict | None) -> float | None:
+    """The object's t_unix_s when it is a usable time, else None."""
+    value = (obj or {}).get("t_unix_s")
+    return float(value) if _finite(value) and 0 <= value < 2**32 else None
+
+
 def seconds_to_ns(t_s: float) -> int:
     """s (float) to integer ns at the service's resolution, the microsecond (its clocks are us;
     t_unix_s is written to the us). Whole seconds and the fraction apart: an epoch time in a
@@ -73,16 +79,22 @@ def check_object(obj) -> str:
     if kind not in KINDS:
         return f"unknown type {kind!r}"
     if kind == "health":
+        if obj.get("t_unix_s") is not None and not (_finite(obj["t_unix_s"]) and 0 <= obj["t_unix_s"] < 2**32):
+            return "health t_unix_s is not a time (a number of s, 0 .. 2^32)"
         return "" if isinstance(obj.get("counters", {}), dict) else "health counters are not an object"
     if not isinstance(obj.get("id"), int) or isinstance(obj.get("id"), bool) or not 0 < obj["id"] <= 0xFFFF:
         return f"{kind} without a node id (1..65535)"
-    if "t_s" in obj and not _finite(obj["t_s"]):
-        return f"{kind} t_s is not a number"
+    for key in ("t_s", "t_unix_s"):
+        # Times go into unsigned 32-bit seconds (ROS and Foxglove stamps): 0 .. 2^32 s.
+        if obj.get(key) is not None and not (_finite(obj[key]) and 0 <= obj[key] < 2**32):
+            return f"{kind} {key} is not a time (a number of s, 0 .. 2^32)"
     if kind == "node" and not node_placed(obj):
         return ""  # an unplaced node's position is not looked at (0, 0 today, null later)
     for key in ("x_m", "y_m"):
         if not _finite(obj.get(key)):
             return f"{kind} {key} is not a number"
+    if kind == "robot" and obj.get("heading_rad") is not None and not _finite(obj["heading_rad"]):
+        return "robot heading_rad is not a number"
     return ""
 
 
@@ -210,8 +222,8 @@ class MapState:
     def _clock(self, obj: dict) -> None:
         if _finite(obj.get("t_s")):
             self.t_s = float(obj["t_s"])
-        if _finite(obj.get("t_unix_s")):
-            self.t_unix_s = float(obj["t_unix_s"])
+        if unix_time_s(obj) is not None:
+            self.t_unix_s = unix_time_s(obj)
 
 
 def parse_jsonl_line(text: str, where: str, tally: Tally) -> dict | None:
