@@ -301,6 +301,8 @@ def test_bad_input_is_refused_with_a_reason(tmp_path):
     empty.write_text("")
     missing = export(tmp_path / "absent.jsonl", "-o", tmp_path / "x.mcap", check=False)
     assert missing.returncode == 2 and "absent.jsonl" in missing.stderr
+    nowhere = export(empty, "-o", tmp_path / "no-such-dir" / "x.mcap", check=False)
+    assert nowhere.returncode == 2 and "no-such-dir/x.mcap" in nowhere.stderr, nowhere.stderr
     ranges = export(empty, "--format", "ranges-csv", "-o", tmp_path / "r.csv", check=False)
     assert ranges.returncode == 2 and "ranges come from a capture" in ranges.stderr
 

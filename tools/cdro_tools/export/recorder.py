@@ -71,7 +71,10 @@ class FoxgloveRecorder(FoxgloveChannels):
 
     def __init__(self, path: str):
         self._foxglove_context = foxglove.Context()
-        self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self._foxglove_context)
+        try:
+            self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self._foxglove_context)
+        except OSError as error:  # the SDK's message does not name the file
+            raise OSError(f"{path}: {error}") from error
         super().__init__(self._foxglove_context)
 
     def close(self) -> None:
