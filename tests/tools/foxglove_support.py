@@ -135,7 +135,7 @@ def read_mcap(path) -> tuple[str, list[tuple[str, str, str, int, object]]]:
     classes: dict[int, object] = {}
     out = []
     with open(path, "rb") as f:
-        reader = make_reader(f)
+        reader = make_reader(f, validate_crcs=True)
         profile = reader.get_header().profile
         for schema, channel, message in reader.iter_messages(log_time_order=True):
             if schema.encoding == "protobuf":
