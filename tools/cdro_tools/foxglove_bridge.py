@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mqtt-prefix", default="cdro", help="mqtt.topic_prefix of the service (default cdro)")
     parser.add_argument("--mqtt-qos", type=int, choices=(0, 1, 2), default=1,
                         help="subscription QoS (default 1; a message arrives at the lower of this and "
-                             "the service's mqtt.qos: at 0 a busy broker may drop updates)")
+                             "the service's mqtt.qos; QoS 0 is at most once)")
     parser.add_argument("--no-follow", action="store_true", help="--jsonl FILE: read it once, do not wait for more")
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8765, help="TCP port of the WebSocket server (default 8765; 0 = any)")
