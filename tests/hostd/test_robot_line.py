@@ -85,9 +85,6 @@ def test_a_replay_writes_the_same_times_and_estimates_every_time(build_dir, capt
     assert replay(build_dir, path) == replay(build_dir, path)
 
 
-@pytest.mark.xfail(strict=True, reason="the engine turns the position block of the robot's covariance into the "
-                   "output frame but leaves the position-heading terms in the filter's frame "
-                   "(MovementStage::robot, host/engine/src/movement.cpp), so the 3x3 is not always a covariance")
 def test_the_full_covariance_is_a_covariance(build_dir, capture):
     path, _ = capture
     robot = [json.loads(line) for line in replay(build_dir, path) if line.startswith('{"type":"robot"')]

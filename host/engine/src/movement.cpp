@@ -605,8 +605,14 @@ std::optional<RobotOutput> MovementStage::robot() const
     const Pose2 pose = filter.pose();
     const Vector2 position = transform.apply(Vector2(pose.x_m, pose.y_m));
     out.pose = Pose2{position.x(), position.y(), headingOf(transform.rotation, pose.heading_rad)};
-    out.covariance = filter.poseCovariance();
-    out.covariance.topLeftCorner<2, 2>() = transform.applyToCovariance(out.covariance.topLeftCorner<2, 2>());
+    // The whole pose covariance into the output frame: J P J^T with J = diag(R, det R), since the
+    // heading turns with the rotation (a reflection mirrors it: d heading' / d heading = -1).
+    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
+    jacobian.topLeftCorner<2, 2>() = transform.rotation;
+    const Matrix2 &r = transform.rotation;
+    jacobian(2, 2) = r(0, 0) * r(1, 1) - r(0, 1) * r(1, 0) < 0.0 ? -1.0 : 1.0;
+    const Eigen::Matrix3d turned = jacobian * filter.poseCovariance() * jacobian.transpose();
+    out.covariance = 0.5 * (turned + turned.transpose());
     out.localized = true;
     out.placed = true;
     out.frame = own_frame_ ? RobotFrame::Odometry : RobotFrame::Map;

@@ -131,9 +131,8 @@ def robot_pose(robot: dict, t_ns: int) -> dict:
     if not have_heading:
         cov3[2][2] = UNKNOWN_VARIANCE
     elif not positive_semidefinite(cov3):
-        # The service documents that its position-heading terms are not always in the map's
-        # frame yet; a consumer (robot_localization, Nav2) must not get a matrix that is no
-        # covariance: keep the blocks, drop the cross terms.
+        # A consumer (robot_localization, Nav2) must not get a matrix that is no covariance,
+        # whoever wrote the stream: keep the blocks, drop the cross terms.
         cov3[0][2] = cov3[2][0] = cov3[1][2] = cov3[2][1] = 0.0
     index = (0, 1, 5)  # x, y, yaw in the 6x6
     covariance = [0.0] * 36
