@@ -228,6 +228,13 @@ void report(const char *what, const RoundTrip &trip)
 // after every 50th range ends at most 2.3 mm apart once the two maps are aligned (0.6 mm to
 // 2.3 mm), and in a named frame its outputs end at most 2.2 mm apart. Asserted: 1 cm.
 constexpr double kContinuedToleranceM = 0.01;
+// The output frame of a map without a frame triangle is fitted onto its converged nodes. Measured
+// (the covariance that widens around links reading off): PLANT resumed after every 100th range
+// ends at most 22 mm apart in the output frame (9 mm aligned): the checkpoint keeps millimetres,
+// and a node at the edge of the convergence test may end on the other side of it, which moves
+// the fit by a couple of centimetres. Asserted: 5 cm; the bug this guards against moved the map
+// by metres.
+constexpr double kContinuedFrameToleranceM = 0.05;
 
 TEST(Checkpoint, RestoredEngineMatchesToTheLayoutsResolutionAndContinuesClose)
 {
@@ -335,7 +342,7 @@ TEST(Checkpoint, PlantResumedEndsWithTheSameOutputs)
     CDRO_NEED_PLANT(plant, where);
     // After 50, 150, ..., 1150 ranges (50 and 550 were among the cuts that displaced the map).
     const RoundTrip worst = resumedPlant(*plant, engine::EngineParams{}, 50, 100);
-    EXPECT_LT(worst.after_continuing.output_m, kContinuedToleranceM);
+    EXPECT_LT(worst.after_continuing.output_m, kContinuedFrameToleranceM);
 }
 
 TEST(Checkpoint, ASnapshotWithoutTheEngineBlockIsRefused)
