@@ -215,11 +215,13 @@ movement: {{robot_id: {ROBOT}}}
 
         # The map holds still once the device is gone: take the service's final word.
         def settled():
-            # The live map stamps every node with the map's time (t_s goes on while nothing
-            # changes): compare the rest.
+            # The live map stamps every node with the map's time (t_s and t_unix_s go on while
+            # nothing changes): compare the rest.
+            clock = ("t_s", "t_unix_s")
+
             def estimates(m):
-                return ([{k: v for k, v in n.items() if k != "t_s"} for n in m["nodes"]],
-                        m["robot"] and {k: v for k, v in m["robot"].items() if k != "t_s"}, m["links"])
+                return ([{k: v for k, v in n.items() if k not in clock} for n in m["nodes"]],
+                        m["robot"] and {k: v for k, v in m["robot"].items() if k not in clock}, m["links"])
             first = get_json(f"http://127.0.0.1:{http_port}/api/map")
             time.sleep(0.5)
             second = get_json(f"http://127.0.0.1:{http_port}/api/map")
