@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <map>
 
 namespace cdro::engine {
 
@@ -59,8 +58,8 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
         return;
     }
     // A grid of cells one radius wide: close pairs are in the same or a neighbouring cell. The
-    // occupied cells as one sorted array (cell, then node): the pairs come out in the order of
-    // the cells, then of the nodes, whatever the hashing, and without a container per cell.
+    // occupied cells as one sorted array (cell, then node), without a container per cell: the
+    // pairs come out ordered by cell, then by node, so the sums over them are the same every run.
     // A position that is not finite, or so far out that its cell number would not fit (a map
     // a solve step threw away), has no close pair to check: it is left out, not cast.
     constexpr double kFarthestCell = 1e15;

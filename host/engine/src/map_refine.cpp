@@ -16,8 +16,8 @@ namespace {
 
 using SparseMatrix = Eigen::SparseMatrix<double>;
 using Triplet = Eigen::Triplet<double>;
-// The unit vector from b to a in D dimensions, on the stack (the normal equations need one per
-// link per iteration); false where the two coincide.
+// The unit vector from b to a in D dimensions and their distance, on the stack (the normal
+// equations need one per link per iteration); u stays 0 where the two coincide.
 struct Direction {
     std::array<double, kMaxEmbeddingDimensions> u{};
     double distance = 0.0;
@@ -33,6 +33,10 @@ Direction directionBetween(const Eigen::MatrixXd &positions, uint32_t a, uint32_
         squared += delta * delta;
     }
     out.distance = std::sqrt(squared);
+    if (!(out.distance > 0.0)) {
+        out.u.fill(0.0);
+        return out;
+    }
     for (Eigen::Index d = 0; d < dims; ++d) {
         out.u[static_cast<size_t>(d)] /= out.distance;
     }
