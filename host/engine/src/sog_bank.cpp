@@ -104,9 +104,10 @@ void SogBank::update(MapState &map, uint32_t link, uint32_t center_node, double 
     counters_.ekf_gated += result.gated;
     // A ring that has taken kSettledRingUpdates ranges has settled on one arc (eq. 15 keeps its
     // weights around the heaviest component): the other nodes' ranges re-weigh it on every
-    // kSettledReweightEvery-th range of the ring (and on every full update), not on each. Half
-    // of the per-range work at PLANT's size, for weights that no longer move; a young ring (a new
-    // link, or one generated again after its node moved) takes every range.
+    // kSettledReweightEvery-th range of the ring (and on every full update), not on each. The
+    // re-weighting was half of the per-range time at PLANT's size (docs/bench.md), for weights
+    // that no longer move; a young ring (a new link, or one generated again after its node moved)
+    // takes every range.
     if (ring.updateCount() >= kSettledRingUpdates && !full &&
         ring.updateCount() % kSettledReweightEvery != 0) {
         ++counters_.weight_updates_deferred;
