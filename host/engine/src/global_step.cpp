@@ -255,6 +255,7 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     // The range offsets come with the best map (its positions explain the corrected ranges).
     const bool offsets = chosen == &solved.best && solved.offsets.adopted;
     const MapProblem corrected = offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
+    model_error.range_offset_spread_sigma_m = offsets ? kRangeOffsetSpreadSigmaM : 0.0;
     const MapCovariance confidence = mapCovariance(offsets ? corrected : problem, map_estimate, likelihood_, model_error);
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         map.nodes[built.node_of[i]].range_offset_m = offsets ? solved.offsets.offset_m[i] : 0.0;

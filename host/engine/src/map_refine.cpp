@@ -353,7 +353,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         out.gauge_free = false;
         return out;
     }
-    const auto size = static_cast<Eigen::Index>(2 * free_count);
+    const auto positions_size = static_cast<Eigen::Index>(2 * free_count);
     const double variance = problem.sigma_m * problem.sigma_m;
     Eigen::MatrixXd positions(problem.nodeCount(), 2);
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
@@ -363,6 +363,61 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     Eigen::VectorXd descent;
     normalEquations(problem, estimate.placed, positions, likelihood, number, static_cast<Eigen::Index>(free_count),
                     variance, true, triplets, descent);
+    // Range offsets estimated with the map are unknowns too (after the positions, one per placed
+    // node, fixed nodes included): a link reads d + b_a + b_b, so its Jacobian row has a 1 for each
+    // end's offset. Their prior is the one they were estimated under: deviations of
+    // range_offset_spread_sigma_m around a common part that nothing but the links decides (flat),
+    // which is the precision (I - 1 1^T / M) / sigma^2 over the M offsets. Without them the map
+    // would be as sure as if the radios had been calibrated.
+    std::vector<int> offset_number(problem.nodeCount(), -1);
+    Eigen::Index offset_count = 0;
+    if (model_error.range_offset_spread_sigma_m > 0.0) {
+        for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+            if (estimate.placed[node] != 0 && !problem.node_links[node].empty()) {
+                offset_number[node] = static_cast<int>(positions_size + offset_count++);
+            }
+        }
+    }
+    const Eigen::Index size = positions_size + offset_count;
+    if (offset_count > 0) {
+        const double prior = 1.0 / (model_error.range_offset_spread_sigma_m * model_error.range_offset_spread_sigma_m);
+        for (Eigen::Index i = positions_size; i < size; ++i) {
+            for (Eigen::Index k = positions_size; k < size; ++k) {
+                const double value = prior * ((i == k ? 1.0 : 0.0) - 1.0 / static_cast<double>(offset_count));
+                triplets.emplace_back(static_cast<int>(i), static_cast<int>(k), value);
+            }
+        }
+        for (const MapLink &link : problem.links) {
+            if (estimate.placed[link.a] == 0 || estimate.placed[link.b] == 0) {
+                continue;
+            }
+            const Vector2 delta = estimate.position_m[link.a] - estimate.position_m[link.b];
+            const double distance = delta.norm();
+            if (distance < 1e-9) {
+                continue;
+            }
+            const Vector2 u = delta / distance;
+            const double weight = likelihood.evaluate(link.range_m - distance, variance).inlier_probability / variance;
+            const int oa = offset_number[link.a];
+            const int ob = offset_number[link.b];
+            // The row (u at a, -u at b, 1 at o_a, 1 at o_b), times its weight, outer product.
+            for (const int o : {oa, ob}) {
+                for (const int p : {oa, ob}) {
+                    triplets.emplace_back(o, p, weight);
+                }
+                for (int d = 0; d < 2; ++d) {
+                    if (number[link.a] >= 0) {
+                        triplets.emplace_back(o, 2 * number[link.a] + d, weight * u[d]);
+                        triplets.emplace_back(2 * number[link.a] + d, o, weight * u[d]);
+                    }
+                    if (number[link.b] >= 0) {
+                        triplets.emplace_back(o, 2 * number[link.b] + d, -weight * u[d]);
+                        triplets.emplace_back(2 * number[link.b] + d, o, -weight * u[d]);
+                    }
+                }
+            }
+        }
+    }
     SparseMatrix information(size, size);
     information.setFromTriplets(triplets.begin(), triplets.end());
     // The variance factor: weighted squared residuals of the line-of-sight links over their
@@ -435,6 +490,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     struct LinkJacobian {
         int na = -1;
         int nb = -1;
+        int oa = -1; // offset unknowns (rows of the inverse), -1 without
+        int ob = -1;
         Vector2 u = Vector2::Zero();
         double weight = 0.0;
     };
@@ -448,6 +505,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         if (j.nb >= 0) {
             effect -= inverse.middleCols<2>(2 * j.nb) * j.u;
         }
+        for (const int o : {j.oa, j.ob}) {
+            if (o >= 0) {
+                effect += inverse.col(o);
+            }
+        }
         return effect;
     };
     for (uint32_t index = 0; index < problem.links.size(); ++index) {
@@ -458,9 +520,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         LinkJacobian &j = jacobians[index];
         j.na = number[link.a];
         j.nb = number[link.b];
+        j.oa = offset_number[link.a];
+        j.ob = offset_number[link.b];
         const Vector2 delta = estimate.position_m[link.a] - estimate.position_m[link.b];
         const double distance = delta.norm();
-        if ((j.na < 0 && j.nb < 0) || distance < 1e-9) {
+        if ((j.na < 0 && j.nb < 0 && j.oa < 0 && j.ob < 0) || distance < 1e-9) {
             continue;
         }
         j.u = delta / distance;
@@ -472,6 +536,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         }
         if (j.nb >= 0) {
             leverage -= j.u.dot(effect.segment<2>(2 * j.nb));
+        }
+        for (const int o : {j.oa, j.ob}) {
+            if (o >= 0) {
+                leverage += effect[o];
+            }
         }
         out.link_redundancy[index] = std::clamp(1.0 - j.weight * leverage, 0.0, 1.0);
     }

@@ -12,7 +12,6 @@ namespace cdro::engine {
 
 namespace {
 
-constexpr double kSpreadSigmaM = 0.5;   // m, how far a node's offset strays from the common part
 constexpr double kCommonMinM = -0.3;    // m, the common part searched (radios read long, rarely short)
 constexpr double kCommonMaxM = 1.5;     // m
 constexpr uint32_t kGoldenSteps = 8;    // the common part to (1.8 m) 0.618^8 = 0.04 m
@@ -28,13 +27,13 @@ struct Trial {
 };
 
 // The node offsets' deviations from `common_m` given the map: IRLS over the links' robust cost,
-// each deviation a Gaussian prior of kSpreadSigmaM.
+// each deviation a Gaussian prior of kRangeOffsetSpreadSigmaM.
 void solveDeviations(const MapProblem &problem, const MapEstimate &map, const RangeLikelihood &likelihood,
                      double common_m, std::vector<double> &deviation_m)
 {
     const auto n = static_cast<Eigen::Index>(problem.nodeCount());
     const double variance = problem.sigma_m * problem.sigma_m;
-    const double prior = 1.0 / (kSpreadSigmaM * kSpreadSigmaM);
+    const double prior = 1.0 / (kRangeOffsetSpreadSigmaM * kRangeOffsetSpreadSigmaM);
     Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> solver;
     bool analysed = false;
     for (uint32_t iteration = 0; iteration < kOffsetIterations; ++iteration) {
@@ -104,7 +103,7 @@ Trial tryCommon(const MapProblem &problem, const MapEstimate &start, const Range
     double prior_nats = 0.0;
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (start.placed[node] != 0) {
-            prior_nats += 0.5 * deviation[node] * deviation[node] / (kSpreadSigmaM * kSpreadSigmaM);
+            prior_nats += 0.5 * deviation[node] * deviation[node] / (kRangeOffsetSpreadSigmaM * kRangeOffsetSpreadSigmaM);
         }
     }
     trial.cost_nats = mapCost(withRangeOffsets(problem, trial.offset_m), trial.estimate, likelihood) + prior_nats;

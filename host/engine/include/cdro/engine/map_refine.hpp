@@ -86,6 +86,10 @@ struct MapCovariance {
 // relative; 0 with a frame fixed by known coordinates).
 struct MapModelError {
     double scale_sigma = 0.0; // relative std of the map's size
+    // > 0: the links' ranges were corrected by range offsets estimated with the map
+    // (range_offsets.hpp), each node's a deviation of this std (m) around a common part; their
+    // uncertainty goes into the positions' covariance. 0: the ranges' offsets are known.
+    double range_offset_spread_sigma_m = 0.0;
 };
 
 // The covariance of the placed nodes from the information of every link at the solution (line-

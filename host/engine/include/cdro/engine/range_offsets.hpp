@@ -8,7 +8,7 @@
 //
 // The estimate: the map is refined under the corrected ranges r - b_a - b_b while the offsets
 // are solved from the map (IRLS over the robust likelihood, each offset a prior N(common,
-// kSpreadSigmaM^2) around a common part); the common part, which a map can absorb by growing,
+// kRangeOffsetSpreadSigmaM^2) around a common part); the common part, which a map can absorb by growing,
 // is searched explicitly (golden section over [kCommonMinM, kCommonMaxM]). The offsets are
 // adopted only when they explain the links better by more than kNatsPerOffset per offset
 // estimated (a model-selection margin): in walled buildings the NLOS excess of a node behind
@@ -21,6 +21,8 @@
 #include "cdro/engine/map_problem.hpp"
 
 namespace cdro::engine {
+
+constexpr double kRangeOffsetSpreadSigmaM = 0.5; // m, how far a node's offset strays from the common part
 
 struct RangeOffsets {
     bool adopted = false;
