@@ -12,17 +12,26 @@ scripts/setup.sh
 
 JOBS=$(nproc)
 step() { printf '\n=== %s\n' "$*"; }
+# CTest's own lines, then its ten slowest tests, so a test that grows slow is seen.
+ctest_timed() {
+  local log
+  log=$(mktemp)
+  ctest "$@" | tee "$log"
+  echo "slowest:"
+  grep -E 'Test +#[0-9]+: .* sec$' "$log" | awk '{print $(NF-1), $4}' | sort -rn | head -n 10 | sed 's/^/  /'
+  rm -f "$log"
+}
 
 step "1/5 native build + tests"
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo > /dev/null
 cmake --build build -j "$JOBS"
-ctest --test-dir build --output-on-failure -j "$JOBS"
+ctest_timed --test-dir build --output-on-failure -j "$JOBS"
 
 step "2/5 ASan + UBSan build + tests"
 cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCDRO_SANITIZE=ON > /dev/null
 cmake --build build-asan -j "$JOBS"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-  ctest --test-dir build-asan --output-on-failure -j "$JOBS" -LE no-sanitize
+  ctest_timed --test-dir build-asan --output-on-failure -j "$JOBS"
 
 step "3/5 AVR cross builds: Uno (ATmega328P, budget enforced) and Mega 2560"
 cmake -S . -B build-avr -G Ninja --toolchain cmake/avr-gcc.cmake -DCMAKE_BUILD_TYPE=MinSizeRel > /dev/null
@@ -45,6 +54,6 @@ fi
 grep -E "^Done [0-9]+ runs" build-fuzz/fuzz.log
 
 step "5/5 pytest"
-CDRO_BUILD_DIR="$PWD/build" CDRO_AVR_BUILD_DIR="$PWD/build-avr" .venv/bin/python -m pytest -q tests
+CDRO_BUILD_DIR="$PWD/build" CDRO_AVR_BUILD_DIR="$PWD/build-avr" .venv/bin/python -m pytest -q --durations=10 tests
 
 printf '\nAll tests passed.\n'
