@@ -39,6 +39,7 @@ engine::EngineParams unusual()
     p.range.sigma_m = 0.123456789012345678;
     p.range.max_range_m = 87.654321098765432;
     p.range.window = 7;
+    p.range.unknown_height_spread_m = 0.8765432109876543;
     p.likelihood.robust = false;
     p.likelihood.nlos_fraction = 0.2345678901234567;
     p.likelihood.nlos_mean_excess_m = 1.7777777777777777;
@@ -183,7 +184,7 @@ TEST(EngineConfig, AnUnknownKeyNamesFileLineKeyAndTheKnownKeys)
     EXPECT_NE(message.find("test.yaml:4"), std::string::npos) << message;
     EXPECT_NE(message.find("'sigmaa_m'"), std::string::npos) << message;
     EXPECT_NE(message.find("engine.range"), std::string::npos) << message;
-    EXPECT_NE(message.find("known keys: max_range_m, sigma_m, window"), std::string::npos) << message;
+    EXPECT_NE(message.find("known keys: max_range_m, sigma_m, unknown_height_spread_m, window"), std::string::npos) << message;
     const std::string group = errorOf("engine:\n  rnage:\n    sigma_m: 0.2\n");
     EXPECT_NE(group.find("test.yaml:2"), std::string::npos) << group;
     EXPECT_NE(group.find("'rnage'"), std::string::npos) << group;

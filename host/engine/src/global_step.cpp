@@ -256,6 +256,11 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     const bool offsets = chosen == &solved.best && solved.offsets.adopted;
     const MapProblem corrected = offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
     model_error.range_offset_spread_sigma_m = offsets ? kRangeOffsetSpreadSigmaM : 0.0;
+    model_error.height_spread_m = params_.range.unknown_height_spread_m;
+    model_error.height_unknown.resize(problem.nodeCount());
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        model_error.height_unknown[i] = map.nodes[built.node_of[i]].height_m ? 0 : 1;
+    }
     const MapCovariance confidence = mapCovariance(offsets ? corrected : problem, map_estimate, likelihood_, model_error);
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         map.nodes[built.node_of[i]].range_offset_m = offsets ? solved.offsets.offset_m[i] : 0.0;

@@ -569,6 +569,45 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             sandwich.noalias() += j.weight * (excess - 1.0) * effect * effect.transpose();
         }
     }
+    // Unknown heights: link l of node i reads e_l = (z_i - z_j)^2 / 2 d_l long. With the heights
+    // independent, of std s, Var e_l = 2 s^4 / d_l^2 when both heights are unknown, and two links of
+    // a node share a covariance of s^4 / 2 d_l d_m. The map moves by f_l = X j_l w_l per metre of
+    // e_l; per node of unknown height g_i = sum over its links of f_l / d_l, and s^4 g_i g_i^T
+    // summed over the nodes is exact on each link's own variance and twice the shared part
+    // (conservative), in one product.
+    if (model_error.height_spread_m > 0.0 && model_error.height_unknown.size() == problem.nodeCount()) {
+        std::vector<uint32_t> unknown_nodes;
+        for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+            if (model_error.height_unknown[node] != 0 && estimate.placed[node] != 0) {
+                unknown_nodes.push_back(node);
+            }
+        }
+        if (!unknown_nodes.empty()) {
+            std::vector<int> column(problem.nodeCount(), -1);
+            for (size_t k = 0; k < unknown_nodes.size(); ++k) {
+                column[unknown_nodes[k]] = static_cast<int>(k);
+            }
+            Eigen::MatrixXd spread_effect = Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
+            for (uint32_t index = 0; index < problem.links.size(); ++index) {
+                const LinkJacobian &j = jacobians[index];
+                const MapLink &link = problem.links[index];
+                if (j.weight <= 0.0 || out.link_redundancy[index] < 0.0 || (column[link.a] < 0 && column[link.b] < 0)) {
+                    continue;
+                }
+                const double distance = (estimate.position_m[link.a] - estimate.position_m[link.b]).norm();
+                const Eigen::VectorXd moved = effectOf(j) * (j.weight / distance);
+                for (const uint32_t end : {link.a, link.b}) {
+                    if (column[end] >= 0) {
+                        spread_effect.col(column[end]) += moved;
+                    }
+                }
+            }
+            const double spread_m2 = model_error.height_spread_m * model_error.height_spread_m;
+            // A model error in m^2, not scaled by the variance factor the covariance gets below.
+            sandwich.noalias() += spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0) * spread_effect *
+                                  spread_effect.transpose();
+        }
+    }
     // The main part: the largest group of nodes joined by links that other links check (and
     // that are line of sight). Its placement defines the frame the covariances are given in
     // (an S-transformation): what hangs on it by weak links is uncertain relative to it, and the

@@ -47,6 +47,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
     using P = engine::EngineParams;
     static const std::vector<Key<P>> keys = {
         CDRO_REAL("range", "sigma_m", 0.001, 100.0, range.sigma_m),
+        CDRO_REAL("range", "unknown_height_spread_m", 0.0, 100.0, range.unknown_height_spread_m),
         CDRO_REAL("range", "max_range_m", 0.1, 1e6, range.max_range_m),
         CDRO_COUNT("range", "window", 1, engine::RangeWindow::kCapacity, range.window),
         CDRO_FLAG("likelihood", "robust", likelihood.robust),

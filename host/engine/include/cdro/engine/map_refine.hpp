@@ -90,6 +90,12 @@ struct MapModelError {
     // (range_offsets.hpp), each node's a deviation of this std (m) around a common part; their
     // uncertainty goes into the positions' covariance. 0: the ranges' offsets are known.
     double range_offset_spread_sigma_m = 0.0;
+    // Nodes whose height is not known (problem numbering; empty: all known) range in 3D and are
+    // mapped in the plane: a link reads about (z_a - z_b)^2 / 2d long. With the heights random, of
+    // std height_spread_m, that excess varies from link to link by sqrt(2) s^2 / d and is
+    // correlated between the links of a node; it goes into the covariance as a model error.
+    std::vector<uint8_t> height_unknown;
+    double height_spread_m = 0.0;
 };
 
 // The covariance of the placed nodes from the information of every link at the solution (line-

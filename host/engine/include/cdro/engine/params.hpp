@@ -16,6 +16,9 @@ struct RangeParams {
     double sigma_m = 0.10;          // m, line-of-sight range noise (Pozyx nominal 0.1 m)
     double max_range_m = 100.0;     // m, longer ranges are absurd (Pozyx's maximum) and rejected
     uint32_t window = 15;           // ranges per link in its median (1..32)
+    double unknown_height_spread_m = 0.5; // m, std of the heights of the nodes whose height is not
+                                    // given: their ranges are used as read (3D), and the map's
+                                    // ellipses carry what the height differences may add to them
 };
 
 struct SogUpdateParams {
