@@ -15,6 +15,8 @@ import math
 import os
 import pathlib
 import socket
+import urllib.error
+import urllib.request
 
 import pytest
 
@@ -144,6 +146,10 @@ web:
                for n in snapshot["nodes"])
     floor = harness.api("/api/floor-plan")
     assert (floor["width_px"], floor["height_px"], floor["metres_per_pixel"]) == (PLAN_PX, PLAN_PX, PLAN_M_PER_PX)
+    assert (floor["origin_x_m"], floor["origin_y_m"], floor["rotation_rad"]) == (*PLAN_ORIGIN_M, 0.0)
+    with urllib.request.urlopen(f"http://127.0.0.1:{harness.port}{floor['url']}", timeout=5) as response:
+        assert response.headers["Content-Type"] == "image/png"
+        assert response.read() == plan.read_bytes()
 
     browser.get(f"http://127.0.0.1:{harness.port}/")
     browser.wait("return document.querySelectorAll('#nodes g.node.converged').length === 3", "three converged nodes")
@@ -314,8 +320,6 @@ def test_a_floor_plan_that_cannot_be_used_stops_the_service_at_start(harness_bin
 def test_without_a_floor_plan_the_api_says_so(harness_bin, tmp_path):
     harness = Harness(harness_bin, tmp_path)
     wait_until(lambda: harness.api("/api/map") is not None, "the live map")
-    import urllib.error
-    import urllib.request
     with pytest.raises(urllib.error.HTTPError) as error:
         urllib.request.urlopen(f"http://127.0.0.1:{harness.port}/api/floor-plan", timeout=5)
     assert error.value.code == 404 and b"web.floor_plan.path" in error.value.read()

@@ -82,7 +82,7 @@ function makeView(map) {
   };
 }
 
-// For tests and the console: the current transform and the world point of a viewBox point.
+// For tests and the console: the transform now in use.
 window.cdroLiveMap = {
   view: () => ({ follow: viewState.follow, center_x_m: viewState.cx, center_y_m: viewState.cy,
                  scale_px_per_m: viewState.scale, width_px: WIDTH, height_px: HEIGHT }),
