@@ -1,6 +1,8 @@
 #include "harness_map.hpp"
 
+#include <algorithm>
 #include <cinttypes>
+#include <vector>
 #include <cmath>
 
 #include "cdro/fixed.h"
@@ -12,6 +14,7 @@ namespace {
 constexpr double kCircleRadiusM = 5.0; // m, the placeholder layout
 constexpr double kPi = 3.14159265358979323846;
 constexpr uint16_t kHarnessExtensionTag = 0x0E01;
+constexpr size_t kRecentRanges = 9; // ranges a link's median is taken over
 } // namespace
 
 HarnessEngine::HarnessEngine(const std::string &received_path)
@@ -50,6 +53,10 @@ void HarnessEngine::onRange(const cdro_range_t &r, const FrameContext &c)
     ++nodes_[r.to_id].ranges;
     Link &link = links_[{std::min(r.from_id, r.to_id), std::max(r.from_id, r.to_id)}];
     link.last_range_m = static_cast<double>(r.distance_mm) * 1e-3;
+    link.recent_m.push_back(link.last_range_m);
+    if (link.recent_m.size() > kRecentRanges) {
+        link.recent_m.erase(link.recent_m.begin());
+    }
     ++link.count;
     ++ranges_;
     ++revision_;
@@ -175,7 +182,18 @@ void HarnessEngine::fill(MapState &map) const
         map.nodes.push_back(estimate);
     }
     for (const auto &[pair, link] : links_) {
-        map.links.push_back({pair.first, pair.second, link.last_range_m, link.count});
+        LinkEstimate out;
+        out.a = pair.first;
+        out.b = pair.second;
+        out.last_range_m = link.last_range_m;
+        out.range_count = link.count;
+        if (!link.recent_m.empty()) {
+            std::vector<double> sorted = link.recent_m;
+            std::sort(sorted.begin(), sorted.end());
+            const size_t half = sorted.size() / 2;
+            out.range_median_m = sorted.size() % 2 == 1 ? sorted[half] : 0.5 * (sorted[half - 1] + sorted[half]);
+        }
+        map.links.push_back(out);
     }
     if (have_robot_) {
         // The variance grows with the steps taken, as dead reckoning's does.
@@ -263,8 +281,10 @@ void HarnessEngine::restore(const SogSnapshot &s)
         }
     }
     for (const SogSnapshot::Pair &p : s.pairs) {
-        links_[{p.pair.center_id, p.pair.target_id}] = {static_cast<double>(p.pair.last_range_mm) * 1e-3,
-                                                       p.pair.range_count};
+        Link &link = links_[{p.pair.center_id, p.pair.target_id}];
+        link.last_range_m = static_cast<double>(p.pair.last_range_mm) * 1e-3;
+        link.count = p.pair.range_count;
+        link.recent_m = {link.last_range_m};
     }
     ++revision_;
 }

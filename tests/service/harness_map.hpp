@@ -1,15 +1,17 @@
 // The harness's stand-in for the engine: it records every frame and odometry message it is
 // given (one JSON line each, for the tests to compare) and keeps a map built from what arrived. It estimates
 // nothing: nodes are laid out on a 5 m circle in id order, their variance shrinks with the
-// ranges they took part in, links carry the last range; a node's "components" are rings of
-// 8 Gaussians around its neighbours at the last range; the robot (the device's own node, once
-// odometry has come) is dead-reckoned from the odometry steps. Enough for every output to
-// have real content that follows the input.
+// ranges they took part in, links carry the last range and the median of the last 9 (the
+// live map's residual is that median minus the distance on the circle); a node's "components"
+// are rings of 8 Gaussians around its neighbours at the last range; the robot (the device's own
+// node, once odometry has come) is dead-reckoned from the odometry steps. Enough for every
+// output to have real content that follows the input.
 #pragma once
 
 #include <cstdio>
 #include <map>
 #include <string>
+#include <vector>
 
 #include "cdro/service/checkpoint.hpp"
 #include "cdro/service/consumer.hpp"
@@ -48,6 +50,7 @@ private:
     struct Link {
         double last_range_m = 0.0;
         uint32_t count = 0;
+        std::vector<double> recent_m; // m, the last ranges, for the link's median
     };
     void record(const std::string &line);
     void position(uint16_t id, double *x_m, double *y_m) const;

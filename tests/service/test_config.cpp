@@ -238,3 +238,63 @@ TEST(Config, OdometryCommandLine)
     ServiceConfig config_bad;
     EXPECT_THROW(applyOverrides(config_bad, wild), ConfigError);
 }
+
+namespace {
+// A PNG's first 24 bytes (signature, IHDR length and type, width, height) and a little more.
+void writePngHeader(const std::string &path, uint32_t width_px, uint32_t height_px)
+{
+    std::string bytes = std::string("\x89PNG\r\n\x1A\n", 8) + std::string("\0\0\0\x0DIHDR", 8);
+    for (const uint32_t v : {width_px, height_px}) {
+        for (int shift = 24; shift >= 0; shift -= 8) {
+            bytes.push_back(static_cast<char>((v >> shift) & 0xFFU));
+        }
+    }
+    bytes += std::string("\x08\x02\0\0\0", 5);
+    std::ofstream(path, std::ios::binary) << bytes;
+}
+} // namespace
+
+TEST(Config, WebFloorPlanKeysAndItsImage)
+{
+    cdro::test::TempDir dir;
+    const std::string png = dir.file("plan.png");
+    writePngHeader(png, 640, 480);
+    const ServiceConfig defaults = parseServiceConfig("", "empty");
+    EXPECT_TRUE(defaults.web.floor_plan.path.empty());
+    EXPECT_DOUBLE_EQ(defaults.web.floor_plan.metres_per_pixel, 0.05);
+    const ServiceConfig c = parseServiceConfig("web:\n  floor_plan: {path: " + png +
+                                                   ", metres_per_pixel: 0.02, origin_x_m: -3.5, origin_y_m: 2,"
+                                                   " rotation_rad: 0.5}\n",
+                                               "web.yaml");
+    EXPECT_EQ(c.web.floor_plan.path, png);
+    EXPECT_DOUBLE_EQ(c.web.floor_plan.metres_per_pixel, 0.02);
+    EXPECT_DOUBLE_EQ(c.web.floor_plan.origin_x_m, -3.5);
+    EXPECT_DOUBLE_EQ(c.web.floor_plan.origin_y_m, 2.0);
+    EXPECT_DOUBLE_EQ(c.web.floor_plan.rotation_rad, 0.5);
+    const FloorPlanImage image = readFloorPlan(png);
+    EXPECT_EQ(image.width_px, 640U);
+    EXPECT_EQ(image.height_px, 480U);
+    EXPECT_EQ(image.png.size(), 29U);
+}
+
+TEST(Config, AFloorPlanThatCannotBeUsedIsAnErrorNamingTheKey)
+{
+    cdro::test::TempDir dir;
+    const auto errorWith = [&](const std::string &path) { return errorOf("web: {floor_plan: {path: " + path + "}}"); };
+    EXPECT_NE(errorWith(dir.file("missing.png")).find("web.floor_plan.path: cannot read '" + dir.file("missing.png")),
+              std::string::npos);
+    std::ofstream(dir.file("text.png")) << "just some text, more than twenty-four bytes of it";
+    EXPECT_NE(errorWith(dir.file("text.png")).find("is not a PNG image"), std::string::npos);
+    std::ofstream(dir.file("short.png"), std::ios::binary) << std::string("\x89PNG\r\n\x1A\n", 8);
+    EXPECT_NE(errorWith(dir.file("short.png")).find("is not a PNG image"), std::string::npos);
+    writePngHeader(dir.file("huge.png"), 20000, 10);
+    EXPECT_NE(errorWith(dir.file("huge.png")).find("20000 x 10 px"), std::string::npos);
+    writePngHeader(dir.file("empty.png"), 0, 10);
+    EXPECT_NE(errorWith(dir.file("empty.png")).find("0 x 10 px"), std::string::npos);
+    EXPECT_NE(errorWith(dir.path()).find("web.floor_plan.path"), std::string::npos); // a directory
+    EXPECT_NE(errorOf("web: {floor_plan: {pth: x.png}}").find("unknown key 'pth' in section 'web.floor_plan'"),
+              std::string::npos);
+    EXPECT_NE(errorOf("web: {floorplan: {}}").find("unknown key 'floorplan' in section 'web'"), std::string::npos);
+    EXPECT_NE(errorOf("web: {floor_plan: {metres_per_pixel: 0}}").find("web.floor_plan.metres_per_pixel"),
+              std::string::npos);
+}

@@ -109,7 +109,10 @@ TEST(JsonOutput, TheMapObjectCarriesTheSchemaAndBothTimes)
     MapState map = twoNodes(1.0);
     map.t_s = 2.5;
     map.t_unix_s = 1700000002.5;
-    map.links.push_back({24577, 24578, 3.5, 7});
+    LinkEstimate link;
+    link.a = 24577;
+    link.b = 24578;
+    map.links.push_back(link);
     const nlohmann::json j = nlohmann::json::parse(mapJson(map).dump());
     EXPECT_EQ(j["schema"], 2);
     EXPECT_EQ(j["t_unix_s"], 1700000002.5);
@@ -118,6 +121,43 @@ TEST(JsonOutput, TheMapObjectCarriesTheSchemaAndBothTimes)
     EXPECT_EQ(j["links"][0]["b_hex"], "0x6002");
     EXPECT_EQ(j["health"]["t_unix_s"], 1700000002.5);
     EXPECT_TRUE(j["health"]["device_node_id_hex"].is_null()); // not known yet
+}
+
+TEST(JsonOutput, TheMapsLinksCarryTheirResidualAndItsNodesTheirUpdateTime)
+{
+    // Node 0x6001 at (1, -0.502), 0x6002 at (1, 2): 2.502 m apart in the plane.
+    MapState map = twoNodes(1.0);
+    map.updated_unix_s[24577] = 1700000001.25;
+    LinkEstimate link;
+    link.a = 24577;
+    link.b = 24578;
+    link.range_median_m = 3.0;
+    link.inlier_probability = 0.25;
+    map.links.push_back(link);
+    link.b = 24579; // 0x6003 is not in the map
+    link.range_median_m.reset();
+    link.inlier_probability.reset();
+    map.links.push_back(link);
+    const nlohmann::json j = nlohmann::json::parse(mapJson(map).dump());
+    EXPECT_EQ(j["nodes"][0]["t_updated_unix_s"], 1700000001.25);
+    EXPECT_TRUE(j["nodes"][1]["t_updated_unix_s"].is_null());
+    const nlohmann::json &l = j["links"][0];
+    EXPECT_DOUBLE_EQ(l["range_median_m"].get<double>(), 3.0);
+    EXPECT_DOUBLE_EQ(l["inlier_probability"].get<double>(), 0.25);
+    EXPECT_DOUBLE_EQ(l["fitted_distance_m"].get<double>(), 2.502);
+    EXPECT_DOUBLE_EQ(l["residual_m"].get<double>(), 3.0 - 2.502);
+    for (const char *key : {"range_median_m", "inlier_probability", "fitted_distance_m", "residual_m"}) {
+        EXPECT_TRUE(j["links"][1][key].is_null()) << key;
+    }
+    // An end that is not placed: no distance, no residual, whatever the range says.
+    map.nodes[1].placed = false;
+    const nlohmann::json unplaced = nlohmann::json::parse(mapJson(map).dump());
+    EXPECT_TRUE(unplaced["links"][0]["fitted_distance_m"].is_null());
+    EXPECT_TRUE(unplaced["links"][0]["residual_m"].is_null());
+    EXPECT_DOUBLE_EQ(unplaced["links"][0]["range_median_m"].get<double>(), 3.0);
+    // The node lines of JSON Lines and MQTT do not carry it: a line's t_unix_s is its update.
+    const nlohmann::json line = nlohmann::json::parse(JsonLinesWriter::line(nodeJson(map.nodes[0], {1.0, 2.0})));
+    EXPECT_FALSE(line.contains("t_updated_unix_s"));
 }
 
 TEST(JsonOutput, EveryUpdateWritesOnlyTheNodesThatChanged)

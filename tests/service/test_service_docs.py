@@ -6,7 +6,8 @@ import re
 
 import yaml
 
-SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "mqtt", "http", "checkpoint", "odometry", "logging")
+SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "mqtt", "http", "checkpoint", "odometry", "logging",
+            "web")
 
 
 def config_keys(repo_root):
@@ -15,7 +16,8 @@ def config_keys(repo_root):
     for section, struct in [("serial", "SerialConfig"), ("nodes", "NodesConfig"), ("schedule", "ScheduleConfig"),
                             ("capture", "CaptureConfig"), ("output", "OutputConfig"), ("mqtt", "MqttConfig"),
                             ("http", "HttpConfig"), ("checkpoint", "CheckpointConfig"),
-                            ("odometry", "OdometryConfig"), ("logging", "LoggingConfig")]:
+                            ("odometry", "OdometryConfig"), ("logging", "LoggingConfig"),
+                            ("web.floor_plan", "FloorPlanConfig")]:
         body = re.search(rf"struct {struct} \{{(.*?)\n\}};", header, re.S).group(1)
         keys[section] = re.findall(r"^\s+[\w:<>]+ (\w+)(?: = [^;]*)?;", body, re.M)
     return keys
@@ -37,4 +39,7 @@ def test_every_config_key_is_documented_and_in_the_example(repo_root):
         assert keys, section
         for key in keys:
             assert f"| `{section}.{key}` |" in doc, f"{section}.{key} missing from docs/service.md"
-            assert key in example[section], f"{section}.{key} missing from the example config"
+            in_example = example
+            for part in section.split("."):
+                in_example = in_example[part]
+            assert key in in_example, f"{section}.{key} missing from the example config"

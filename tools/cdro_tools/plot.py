@@ -16,9 +16,19 @@ the aligned estimates with their 2-sigma ellipses, the links that were ranged, t
 moving nodes (truth dashed, estimates solid), and the robot's path. The numbers (aligned
 RMSE, per-node errors) are printed as one JSON object on stdout.
 
+Two views need no truth: --residuals (with --ranges, and --heights where heights are known)
+draws every link's residual, the median of its ranges minus the distance between its nodes'
+final estimates, on the map and as bars (a link without line of sight reads long; a misplaced
+node has residuals of one sign on all its links); --convergence draws every node's 2-sigma
+radius over time and the number of converged nodes over time, from JSON Lines or from the
+engine's trace (cdro-hostd --trace-csv, given as ESTIMATES; over its t column when every row
+has one, else over the ranges processed).
+
 examples:
   cdro-plot estimates.jsonl --truth truth.csv --tracks tracks.csv --ranges ranges.csv --map map.png --rmse rmse.png
   cdro-plot nodes.csv --trajectory trajectory.csv --truth truth.csv --tracks tracks.csv --map map.png
+  cdro-plot nodes.csv --ranges ranges.csv --heights heights.csv --residuals residuals.png
+  cdro-plot trace.csv --convergence convergence.png
 """
 from __future__ import annotations
 
@@ -33,7 +43,8 @@ import sys
 
 import numpy as np
 
-from .evaluation import drawing
+from .evaluation import diagnostics, drawing
+from .evaluation import inputs as csv_inputs
 from .evaluation.alignment import align, rigid_fit, rmse  # noqa: F401  (rigid_fit: part of this module's API)
 from .cli import entry_point
 
@@ -59,7 +70,8 @@ class Estimates:
     robot: dict[int, list[Estimate]] = dataclasses.field(default_factory=lambda: collections.defaultdict(list))
     dropped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # unusable lines
     skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # fine, nothing to draw
-    timed: bool = False             # JSON Lines: estimates over time
+    timed: bool = False             # JSON Lines or a trace: estimates over time
+    axis: str = "t_s"               # what t_s counts: "t_s" (seconds) or "ranges" (a trace without times)
 
 
 def _cov(var_x, cov_xy, var_y) -> np.ndarray:
@@ -158,6 +170,22 @@ def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> E
     return out
 
 
+def read_trace_csv(path: str) -> Estimates:
+    """The engine's trace (cdro-hostd --trace-csv): a snapshot of every placed node after every
+    K-th range. Over its `t` column (s) when every row has one, else over the ranges processed."""
+    out = Estimates(timed=True)
+    rows = _csv_rows(path, ["ranges", "id", "x", "y", "var_x", "cov_xy", "var_y", "converged"], out.dropped, ("t",))
+    timed = bool(rows) and all((row["t"] or "").strip() for row in rows)
+    out.axis = "t_s" if timed else "ranges"
+    for row in rows:
+        t = float(row["t"]) if timed else row["ranges"]
+        out.nodes[int(row["id"])].append(Estimate(t, row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"]),
+                                                  bool(row["converged"])))
+    for series in out.nodes.values():
+        series.sort(key=lambda e: e.t_s)
+    return out
+
+
 def read_estimates(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
     with open(path) as f:
         head = f.read(4096).lstrip()
@@ -165,6 +193,10 @@ def read_estimates(path: str, trajectory: str | None, robot_id: int | None) -> E
         if trajectory:
             raise InputError("--trajectory goes with a nodes CSV; JSON Lines carry the robot's own lines")
         return read_json_lines(path)
+    if head.split("\n", 1)[0].split(",")[0].strip() == "ranges":
+        if trajectory:
+            raise InputError("--trajectory goes with a nodes CSV, not with a trace")
+        return read_trace_csv(path)
     return read_nodes_csv(path, trajectory, robot_id)
 
 
@@ -282,6 +314,35 @@ def plot_rmse(path: str, series, title: str) -> None:
     drawing.finish(fig, ax, path, title, xlabel="t (s)", ylabel="error (m)", equal=False)
 
 
+def residuals_of(est: Estimates, ranges_csv: str, heights_csv: str | None):
+    """Every link's residual against the final estimates, and the notes to print."""
+    bad: list[csv_inputs.BadRow] = []
+    try:
+        ranges = csv_inputs.read_ranges(ranges_csv, bad)
+        heights = csv_inputs.read_heights(heights_csv, bad) if heights_csv else {}
+    except csv_inputs.InputError as error:
+        raise InputError(str(error)) from None
+    notes = [f"{row.path}:{row.line}: {row.reason} (row skipped)" for row in bad[:10]]
+    if len(bad) > 10:
+        notes.append(f"{len(bad) - 10} more bad row(s) skipped")
+    if heights:
+        projection = csv_inputs.project_ranges(ranges, heights)
+        ranges = projection.ranges
+        if projection.without_height:
+            notes.append(f"{projection.without_height} range(s) left as measured: no height for "
+                         + ", ".join(drawing.node_label(i) for i in projection.nodes_without_height[:10]))
+    positions = {i: (series[-1].x_m, series[-1].y_m) for i, series in est.nodes.items() if series}
+    residuals, left_out = diagnostics.link_residuals(ranges.links(), positions)
+    if left_out:
+        notes.append(f"{left_out} link(s) without an estimate at one end: no residual")
+    return residuals, positions, notes
+
+
+def convergence_of(est: Estimates):
+    series = {i: [diagnostics.Sample(e.t_s, e.cov_m2, e.converged) for e in s] for i, s in est.nodes.items() if s}
+    return series, diagnostics.converged_counts(series)
+
+
 def read_links(path: str) -> set[tuple[int, int]]:
     links = set()
     for row in _csv_rows(path, ["from", "to"]):
@@ -300,8 +361,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--truth", help="truth nodes CSV id,x,y,z")
     parser.add_argument("--tracks", help="truth tracks CSV t,id,x,y")
     parser.add_argument("--ranges", help="ranges CSV t,from,to,range_m (draws the links)")
-    parser.add_argument("--map", required=True, metavar="PNG", help="map output")
+    parser.add_argument("--map", metavar="PNG", help="map output")
     parser.add_argument("--rmse", metavar="PNG", help="RMSE-over-time output (needs timed estimates and truth)")
+    parser.add_argument("--residuals", metavar="PNG",
+                        help="per-link residual output: median range - distance on the map (needs --ranges)")
+    parser.add_argument("--heights", metavar="CSV", help="known heights id,z (m): ranges projected for --residuals")
+    parser.add_argument("--convergence", metavar="PNG",
+                        help="2-sigma radius per node and converged nodes over time (JSON Lines or a trace)")
     parser.add_argument("--step-s", type=float, default=0.5, help="RMSE curve step, s (default 0.5)")
     parser.add_argument("--time-offset-s", type=float, default=0.0,
                         help="truth time = estimate time + this (the service's t_s starts when it started)")
@@ -309,6 +375,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.step_s > 0:
         parser.error("--step-s must be above 0")
+    if not (args.map or args.rmse or args.residuals or args.convergence):
+        parser.error("nothing to draw: give --map, --rmse, --residuals or --convergence")
+    if args.residuals and not args.ranges:
+        parser.error("--residuals needs --ranges (t,from,to,range_m)")
+    if args.heights and not args.residuals:
+        parser.error("--heights goes with --residuals")
 
     def fail(message: str) -> int:
         print(f"cdro-plot: {message}", file=sys.stderr)
@@ -326,6 +398,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cdro-plot: dropped {count} line(s) that cannot be used: {reason}", file=sys.stderr)
     if not est.nodes:
         return fail(f"{args.estimates}: no node estimates")
+    if args.convergence and not est.timed:
+        return fail("--convergence needs estimates over time: JSON Lines or a trace (cdro-hostd --trace-csv)")
+    if args.rmse and est.axis != "t_s":
+        return fail("--rmse needs times: a trace without a t column counts ranges, not seconds")
     if args.rmse and not (est.timed or est.robot):
         return fail("--rmse needs estimates over time: JSON Lines, or a trajectory CSV")
     if args.rmse and not (truth.start or truth.tracks):
@@ -348,10 +424,33 @@ def main(argv: list[str] | None = None) -> int:
                 result["robot_rmse_m"] = round(math.sqrt(sum(e * e for e in robot_errors) / len(robot_errors)), 6)
     else:
         rotation, translation = np.eye(2), np.zeros(2)
-        print("cdro-plot: no truth for these nodes: the map shows the estimates in the engine's frame", file=sys.stderr)
+        if args.map:
+            print("cdro-plot: no truth for these nodes: the map shows the estimates in the engine's frame",
+                  file=sys.stderr)
     title = args.title or args.estimates
     try:
-        plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title, final_t)
+        if args.map:
+            plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title, final_t)
+        if args.residuals:
+            residuals, positions, notes = residuals_of(est, args.ranges, args.heights)
+            for note in notes:
+                print(f"cdro-plot: note: {note}", file=sys.stderr)
+            if not residuals:
+                return fail("--residuals: no link has estimates at both ends")
+            diagnostics.plot_residuals(args.residuals, residuals, positions, title, drawing.node_label)
+            result["link_residuals"] = [
+                {"a": r.a, "b": r.b, "a_hex": f"0x{r.a:04X}", "b_hex": f"0x{r.b:04X}", "ranges": r.ranges,
+                 "range_median_m": round(r.range_median_m, 6), "fitted_distance_m": round(r.fitted_distance_m, 6),
+                 "residual_m": round(r.residual_m, 6), "band": r.band} for r in residuals]
+        if args.convergence:
+            samples, counts = convergence_of(est)
+            xlabel = "t (s)" if est.axis == "t_s" else "ranges processed"
+            diagnostics.plot_convergence(args.convergence, samples, counts, xlabel, title, drawing.node_label)
+            result["convergence"] = {
+                "axis": est.axis, "points": len(counts), "final_converged": counts[-1][1] if counts else 0,
+                "converged_over_time": [[round(t, 6), c] for t, c in counts],
+                "final_two_sigma_m": {f"0x{i:04X}": round(diagnostics.two_sigma_radius_m(s[-1].cov_m2), 6)
+                                      for i, s in sorted(samples.items())}}
         if args.rmse:
             if est.timed:
                 series = rmse_series(est, truth, args.step_s, args.time_offset_s)
@@ -366,7 +465,7 @@ def main(argv: list[str] | None = None) -> int:
             plot_rmse(args.rmse, series, title)
             result["rmse_over_time"] = {"points": len(series), "first_m": round(series[0][1], 6),
                                         "last_m": round(series[-1][1], 6)}
-    except OSError as error:
+    except (OSError, InputError) as error:
         return fail(str(error))
     print(json.dumps(result))
     return 0

@@ -201,6 +201,8 @@ void EngineAdapter::fill(service::MapState &map) const
         out.b = link.b;
         out.last_range_m = link.last_range_m;
         out.range_count = link.range_count;
+        out.range_median_m = link.range_m;
+        out.inlier_probability = link.inlier_probability;
         map.links.push_back(out);
     }
     map.robot.reset();

@@ -1,11 +1,15 @@
 #include "cdro/service/config.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <set>
 #include <sstream>
 #include <type_traits>
+
+#include <sys/stat.h>
 
 #include <yaml-cpp/yaml.h>
 
@@ -119,6 +123,69 @@ void parseLogging(Section &s, LoggingConfig &c)
     s.read<double>("drop_log_per_s", c.drop_log_per_s, 0.0, 1e6);
 }
 
+void parseWeb(Section &s, WebConfig &c)
+{
+    const YAML::Node node = s.child("floor_plan");
+    Section plan(node, s.name() + ".floor_plan", s.origin());
+    plan.readString("path", c.floor_plan.path);
+    plan.read<double>("metres_per_pixel", c.floor_plan.metres_per_pixel, 1e-6, 1e3);
+    plan.read<double>("origin_x_m", c.floor_plan.origin_x_m, -1e6, 1e6);
+    plan.read<double>("origin_y_m", c.floor_plan.origin_y_m, -1e6, 1e6);
+    plan.read<double>("rotation_rad", c.floor_plan.rotation_rad, -7.0, 7.0);
+    plan.rejectUnknownKeys();
+}
+
+// The PNG signature and the IHDR chunk that must follow it (ISO/IEC 15948, 5.2 and 11.2.2).
+constexpr unsigned char kPngSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+constexpr size_t kPngHeaderBytes = 24;                  // signature, IHDR length and type, width, height
+constexpr uint32_t kMaxFloorPlanPixels = 16384;         // px per side; a browser draws no more
+constexpr std::streamoff kMaxFloorPlanBytes = 64 << 20; // bytes; the server keeps the file in memory
+
+FloorPlanImage floorPlan(const std::string &path, bool whole)
+{
+    const std::string key = "web.floor_plan.path: ";
+    struct stat status {};
+    if (::stat(path.c_str(), &status) == 0 && !S_ISREG(status.st_mode)) {
+        throw ConfigError(key + "'" + path + "' is not a file (a PNG image is needed)");
+    }
+    std::ifstream in(path, std::ios::binary);
+    if (!in) {
+        throw ConfigError(key + "cannot read '" + path + "' (missing, or not readable by this user?)");
+    }
+    in.seekg(0, std::ios::end);
+    const std::streamoff size = in.tellg();
+    in.seekg(0, std::ios::beg);
+    if (size > kMaxFloorPlanBytes) {
+        throw ConfigError(key + "'" + path + "' is " + std::to_string(size) + " bytes; at most " +
+                          std::to_string(kMaxFloorPlanBytes) + " (scale the image down)");
+    }
+    std::string bytes(whole ? static_cast<size_t>(std::max<std::streamoff>(size, 0)) : kPngHeaderBytes, '\0');
+    in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    bytes.resize(static_cast<size_t>(in.gcount()));
+    const auto u8 = [&bytes](size_t i) { return static_cast<unsigned char>(bytes[i]); };
+    const auto u32 = [&u8](size_t i) {
+        return static_cast<uint32_t>(u8(i)) << 24 | static_cast<uint32_t>(u8(i + 1)) << 16 |
+               static_cast<uint32_t>(u8(i + 2)) << 8 | static_cast<uint32_t>(u8(i + 3));
+    };
+    if (bytes.size() < kPngHeaderBytes || std::memcmp(bytes.data(), kPngSignature, sizeof kPngSignature) != 0 ||
+        bytes.compare(12, 4, "IHDR") != 0) {
+        throw ConfigError(key + "'" + path + "' is not a PNG image (the floor plan must be a PNG)");
+    }
+    FloorPlanImage image;
+    image.width_px = u32(16);
+    image.height_px = u32(20);
+    if (image.width_px == 0 || image.height_px == 0 || image.width_px > kMaxFloorPlanPixels ||
+        image.height_px > kMaxFloorPlanPixels) {
+        throw ConfigError(key + "'" + path + "' is " + std::to_string(image.width_px) + " x " +
+                          std::to_string(image.height_px) + " px; each side must be 1.." +
+                          std::to_string(kMaxFloorPlanPixels));
+    }
+    if (whole) {
+        image.png = std::move(bytes);
+    }
+    return image;
+}
+
 template <typename Parse, typename Value>
 void section(const YAML::Node &root, const char *name, const std::string &origin, Parse parse, Value &value)
 {
@@ -133,9 +200,14 @@ void section(const YAML::Node &root, const char *name, const std::string &origin
 const std::vector<std::string> &serviceSectionNames()
 {
     static const std::vector<std::string> names = {"serial", "nodes",      "schedule", "capture", "output",
-                                                   "mqtt",   "http",       "checkpoint", "odometry", "logging"};
+                                                   "mqtt",   "http",       "checkpoint", "odometry", "logging",
+                                                   "web"};
     return names;
 }
+
+FloorPlanImage readFloorPlanHeader(const std::string &path) { return floorPlan(path, false); }
+
+FloorPlanImage readFloorPlan(const std::string &path) { return floorPlan(path, true); }
 
 const char *unknownNodePolicyName(UnknownNodePolicy policy)
 {
@@ -212,6 +284,9 @@ void validateServiceConfig(const ServiceConfig &c)
     if (!(c.odometry.max_velocity_gap_s > 0.0)) {
         throw ConfigError("odometry.max_velocity_gap_s must be > 0 s");
     }
+    if (!c.web.floor_plan.path.empty()) {
+        readFloorPlanHeader(c.web.floor_plan.path);
+    }
 }
 
 std::string odometryMqttTopic(const ServiceConfig &c)
@@ -249,6 +324,7 @@ ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string
     section(root, "checkpoint", origin, parseCheckpoint, config.checkpoint);
     section(root, "odometry", origin, parseOdometry, config.odometry);
     section(root, "logging", origin, parseLogging, config.logging);
+    section(root, "web", origin, parseWeb, config.web);
     validateServiceConfig(config);
     return config;
 }

@@ -14,7 +14,10 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <nlohmann/json.hpp>
+
 #include "cdro/service/log.hpp"
+#include "cdro/service/map_state.hpp"
 #include "web_assets.hpp"
 
 namespace cdro::service {
@@ -584,7 +587,25 @@ private:
             askComponents(c, static_cast<uint16_t>(std::stoul(digits)));
             return;
         }
+        if (routeFloorPlan(c, path)) {
+            return;
+        }
         respond(c, 404, "application/json", errorJson("not found"));
+    }
+
+    bool routeFloorPlan(Connection &c, const std::string &path)
+    {
+        if (path != "/api/floor-plan" && path != "/floor-plan.png") {
+            return false;
+        }
+        if (owner_.floor_plan_png_.empty()) {
+            respond(c, 404, "application/json", errorJson("no floor plan configured (web.floor_plan.path)"));
+        } else if (path == "/floor-plan.png") {
+            respond(c, 200, "image/png", owner_.floor_plan_png_);
+        } else {
+            respond(c, 200, "application/json", owner_.floor_plan_json_);
+        }
+        return true;
     }
 
     void askComponents(Connection &c, uint16_t id)
@@ -804,6 +825,29 @@ HttpServer::HttpServer(EventLoop &loop, const HttpConfig &config, MapSnapshotSto
 }
 
 HttpServer::~HttpServer() { stop(); }
+
+void HttpServer::setFloorPlan(const FloorPlanConfig &config)
+{
+    floor_plan_png_.clear();
+    floor_plan_json_.clear();
+    if (config.path.empty()) {
+        return;
+    }
+    FloorPlanImage image = readFloorPlan(config.path);
+    nlohmann::ordered_json j;
+    j["schema"] = kOutputSchemaVersion;
+    j["url"] = "/floor-plan.png";
+    j["width_px"] = image.width_px;
+    j["height_px"] = image.height_px;
+    j["metres_per_pixel"] = config.metres_per_pixel;
+    j["origin_x_m"] = config.origin_x_m;
+    j["origin_y_m"] = config.origin_y_m;
+    j["rotation_rad"] = config.rotation_rad;
+    floor_plan_json_ = j.dump();
+    floor_plan_png_ = std::move(image.png);
+    log()->info("http: floor plan {} ({} x {} px, {} m per pixel)", config.path, image.width_px, image.height_px,
+                config.metres_per_pixel);
+}
 
 std::string HttpServer::url() const
 {

@@ -1,7 +1,9 @@
 #include "cdro/service/map_state.hpp"
 
+#include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <map>
 
 #include <nlohmann/json.hpp>
 
@@ -158,18 +160,46 @@ nlohmann::ordered_json linkJson(const LinkEstimate &l)
     return j;
 }
 
+nlohmann::ordered_json mapLinkJson(const LinkEstimate &l, const NodeEstimate *a, const NodeEstimate *b)
+{
+    nlohmann::ordered_json j = linkJson(l);
+    j["range_median_m"] = orNull(l.range_median_m);
+    j["inlier_probability"] = orNull(l.inlier_probability);
+    std::optional<double> fitted_m;
+    std::optional<double> residual_m;
+    if (a != nullptr && b != nullptr && a->placed && b->placed) {
+        fitted_m = std::hypot(a->x_m - b->x_m, a->y_m - b->y_m);
+        if (l.range_median_m) {
+            residual_m = *l.range_median_m - *fitted_m;
+        }
+    }
+    j["fitted_distance_m"] = orNull(fitted_m);
+    j["residual_m"] = orNull(residual_m);
+    return j;
+}
+
 nlohmann::ordered_json mapJson(const MapState &map)
 {
     nlohmann::ordered_json j;
     putTime(j, outputTimeOf(map));
     j["nodes"] = nlohmann::ordered_json::array();
+    std::map<uint16_t, const NodeEstimate *> by_id;
     for (const NodeEstimate &node : map.nodes) {
-        j["nodes"].push_back(nodeJson(node, outputTimeOf(map)));
+        nlohmann::ordered_json one = nodeJson(node, outputTimeOf(map));
+        const auto updated = map.updated_unix_s.find(node.id);
+        one["t_updated_unix_s"] = updated != map.updated_unix_s.end() ? nlohmann::ordered_json(updated->second)
+                                                                       : nlohmann::ordered_json(nullptr);
+        j["nodes"].push_back(std::move(one));
+        by_id[node.id] = &node;
     }
     j["robot"] = map.robot ? robotJson(*map.robot, outputTimeOf(map)) : nlohmann::ordered_json(nullptr);
     j["links"] = nlohmann::ordered_json::array();
+    const auto find = [&by_id](uint16_t id) -> const NodeEstimate * {
+        const auto it = by_id.find(id);
+        return it == by_id.end() ? nullptr : it->second;
+    };
     for (const LinkEstimate &link : map.links) {
-        j["links"].push_back(linkJson(link));
+        j["links"].push_back(mapLinkJson(link, find(link.a), find(link.b)));
     }
     j["health"] = healthJson(map.health, outputTimeOf(map));
     return j;

@@ -176,6 +176,7 @@ void Service::start()
             }
             return componentsJson(*components).dump();
         });
+        http_->setFloorPlan(config_.web.floor_plan);
         http_->start();
     }
 
@@ -286,7 +287,28 @@ MapState Service::currentMap() const
     map.t_s = tSeconds(now_us);
     map.t_unix_s = outputTime(now_us).t_unix_s;
     map.health = health(now_us);
+    stampUpdates(map);
     return map;
+}
+
+void Service::noteUpdates(const MapState &map, int64_t event_unix_us)
+{
+    for (const NodeEstimate &node : map.nodes) {
+        const auto it = node_updates_.find(node.id);
+        if (it == node_updates_.end() || !sameEstimate(it->second.first, node)) {
+            node_updates_[node.id] = {node, event_unix_us};
+        }
+    }
+}
+
+void Service::stampUpdates(MapState &map) const
+{
+    for (const NodeEstimate &node : map.nodes) {
+        const auto it = node_updates_.find(node.id);
+        if (it != node_updates_.end()) {
+            map.updated_unix_s[node.id] = outputTime(it->second.second).t_unix_s;
+        }
+    }
 }
 
 void Service::afterFrame(int64_t event_unix_us)
@@ -304,6 +326,7 @@ void Service::afterFrame(int64_t event_unix_us)
     hooks_.map->fill(map);
     map.t_s = tSeconds(event_unix_us);
     map.t_unix_s = outputTime(event_unix_us).t_unix_s;
+    noteUpdates(map, event_unix_us);
     jsonl_.onUpdate(map, event_unix_us);
     mqtt_.onUpdate(map, event_unix_us);
 }

@@ -38,8 +38,14 @@ function covarianceEllipse(vxx, vxy, vyy) {
   return { r1: Math.sqrt(l1), r2: Math.sqrt(l2), angle: 0.5 * Math.atan2(2 * vxy, vxx - vyy) };
 }
 
-// World (m, y up) to SVG (px, y down), fitted to everything that is placed.
-function makeView(map) {
+// The view: world (m, y up) to SVG viewBox (px, y down), px = WIDTH/2 + (x - cx) * scale.
+// It follows the map (fitted to everything placed) until the user zooms or pans; "fit" follows
+// again. The SVG carries the transform in data attributes (data-scale-px-per-m,
+// data-center-x-m, data-center-y-m), so that a test can check what is drawn against it.
+const viewState = { follow: true, cx: 0, cy: 0, scale: 50 };
+const MIN_SCALE = 0.5, MAX_SCALE = 5000; // px/m
+
+function fitView(map) {
   let xs = [], ys = [];
   for (const n of map.nodes) {
     if (!n.placed) continue;
@@ -54,13 +60,45 @@ function makeView(map) {
   let x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
   if (x1 - x0 < 1) { x0 -= 0.5; x1 += 0.5; }
   if (y1 - y0 < 1) { y0 -= 0.5; y1 += 0.5; }
-  const scale = Math.min((WIDTH - 2 * MARGIN) / (x1 - x0), (HEIGHT - 2 * MARGIN) / (y1 - y0)); // px/m
-  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  viewState.scale = Math.min((WIDTH - 2 * MARGIN) / (x1 - x0), (HEIGHT - 2 * MARGIN) / (y1 - y0));
+  viewState.cx = (x0 + x1) / 2;
+  viewState.cy = (y0 + y1) / 2;
+}
+
+function makeView(map) {
+  if (viewState.follow) fitView(map);
+  const { cx, cy, scale } = viewState;
+  const svg = document.getElementById('map');
+  svg.dataset.scalePxPerM = String(scale);
+  svg.dataset.centerXM = String(cx);
+  svg.dataset.centerYM = String(cy);
+  document.getElementById('view-mode').textContent = viewState.follow ? 'following the map' : 'zoomed or panned (fit: follow again)';
   return {
     scale,
     x: (x) => WIDTH / 2 + (x - cx) * scale,
     y: (y) => HEIGHT / 2 - (y - cy) * scale,
+    worldX: (px) => cx + (px - WIDTH / 2) / scale,
+    worldY: (py) => cy - (py - HEIGHT / 2) / scale,
   };
+}
+
+// For tests and the console: the transform now in use.
+window.cdroLiveMap = {
+  view: () => ({ follow: viewState.follow, center_x_m: viewState.cx, center_y_m: viewState.cy,
+                 scale_px_per_m: viewState.scale, width_px: WIDTH, height_px: HEIGHT }),
+};
+
+// The nicest step of 1, 2 or 5 x 10^k metres that is at least min_px on screen.
+function niceStep(scale, minPx) {
+  const raw = minPx / scale;
+  const decade = Math.pow(10, Math.floor(Math.log10(raw)));
+  for (const f of [1, 2, 5, 10]) if (f * decade >= raw) return f * decade;
+  return 10 * decade;
+}
+
+function metresText(value) {
+  const digits = Math.max(0, -Math.floor(Math.log10(Math.abs(value) || 1)));
+  return `${value.toFixed(Math.min(digits, 3))} m`;
 }
 
 function drawEllipse(parent, view, x, y, vxx, vxy, vyy, sigmas, cls, opacity) {
@@ -77,21 +115,176 @@ function drawEllipse(parent, view, x, y, vxx, vxy, vyy, sigmas, cls, opacity) {
 
 function clear(id) { const g = document.getElementById(id); while (g.firstChild) g.removeChild(g.firstChild); return g; }
 
+// Grid lines at a round number of metres, labelled along the bottom and the left edge.
 function drawGrid(view) {
   const g = clear('grid');
-  const step = Math.pow(10, Math.floor(Math.log10(200 / view.scale))); // m between lines
-  const xw0 = (0 - WIDTH / 2) / view.scale, xw1 = (WIDTH - WIDTH / 2) / view.scale;
-  for (let k = -200; k <= 200; ++k) {
-    const px = view.x(k * step), py = view.y(k * step);
-    if (px >= 0 && px <= WIDTH) el('line', { class: 'grid', x1: px, y1: 0, x2: px, y2: HEIGHT }, g);
-    if (py >= 0 && py <= HEIGHT) el('line', { class: 'grid', x1: 0, y1: py, x2: WIDTH, y2: py }, g);
+  const labels = clear('grid-labels');
+  const step = niceStep(view.scale, 60); // m between lines
+  const x0 = view.worldX(0), x1 = view.worldX(WIDTH), y0 = view.worldY(HEIGHT), y1 = view.worldY(0);
+  for (let k = Math.ceil(x0 / step); k <= Math.floor(x1 / step); ++k) {
+    const px = view.x(k * step);
+    el('line', { class: k === 0 ? 'grid axis' : 'grid', x1: px, y1: 0, x2: px, y2: HEIGHT }, g);
+    el('text', { class: 'grid-label', x: px + 2, y: HEIGHT - 4 }, labels).textContent = metresText(k * step);
   }
-  void xw0; void xw1;
+  for (let k = Math.ceil(y0 / step); k <= Math.floor(y1 / step); ++k) {
+    const py = view.y(k * step);
+    el('line', { class: k === 0 ? 'grid axis' : 'grid', x1: 0, y1: py, x2: WIDTH, y2: py }, g);
+    el('text', { class: 'grid-label', x: 2, y: py - 2 }, labels).textContent = metresText(k * step);
+  }
+}
+
+// A bar of a round length (1, 2 or 5 x 10^k m) of 60..150 px, bottom right.
+function drawScaleBar(view) {
+  const g = clear('scale-bar');
+  const lengthM = niceStep(view.scale, 60);
+  const lengthPx = lengthM * view.scale;
+  const x1 = WIDTH - 20, x0 = x1 - lengthPx, y = HEIGHT - 24;
+  el('rect', { class: 'scale-backdrop', x: x0 - 6, y: y - 18, width: lengthPx + 12, height: 28 }, g);
+  el('line', { id: 'scale-bar-line', class: 'scale', x1: x0, y1: y, x2: x1, y2: y,
+    'data-length-m': lengthM, 'data-length-px': lengthPx }, g);
+  el('line', { class: 'scale', x1: x0, y1: y - 5, x2: x0, y2: y + 5 }, g);
+  el('line', { class: 'scale', x1: x1, y1: y - 5, x2: x1, y2: y + 5 }, g);
+  el('text', { id: 'scale-bar-label', class: 'scale-label', x: (x0 + x1) / 2, y: y - 6 }, g).textContent = metresText(lengthM);
+}
+
+// ---- floor plan (web.floor_plan) ------------------------------------------------------------
+let floorPlan = null; // /api/floor-plan, or null
+
+function drawFloorPlan(view) {
+  const g = clear('underlay');
+  if (!floorPlan) return;
+  const f = floorPlan;
+  const wM = f.width_px * f.metres_per_pixel, hM = f.height_px * f.metres_per_pixel;
+  const ox = view.x(f.origin_x_m), oy = view.y(f.origin_y_m);
+  // The image's bottom-left corner sits at the origin; its top-left is hM above it on the map.
+  el('image', { id: 'floor-plan', href: f.url, x: ox, y: oy - hM * view.scale, width: wM * view.scale,
+    height: hM * view.scale, preserveAspectRatio: 'none',
+    transform: `rotate(${-f.rotation_rad * 180 / Math.PI} ${ox} ${oy})` }, g);
+}
+
+async function loadFloorPlan() {
+  const state = document.getElementById('floor-plan-state');
+  try {
+    const response = await fetch('/api/floor-plan');
+    if (response.status === 404) { state.textContent = ''; return; }
+    if (!response.ok) throw new Error(`HTTP ${response.status}`);
+    floorPlan = await response.json();
+    state.textContent = `floor plan ${floorPlan.width_px} x ${floorPlan.height_px} px, ${floorPlan.metres_per_pixel} m/px`;
+    if (lastMap) render(lastMap);
+  } catch (error) {
+    state.textContent = `floor plan unavailable (${error.message})`;
+  }
+}
+
+// ---- trails and 2-sigma history, kept by the page from the maps it received ----------------
+const ROBOT_TRAIL_POINTS = 2000, NODE_TRAIL_POINTS = 500, SIGMA_SAMPLES = 600;
+let robotTrail = [], robotTrailFrame = null;
+const nodeTrails = new Map(); // id -> [[x, y], ...] while the node moved
+const sigmaHistory = new Map(); // id -> [[t_s, r_m], ...]
+
+function pushBounded(list, item, limit) {
+  list.push(item);
+  if (list.length > limit) list.splice(0, list.length - limit);
+}
+
+function samePoint(a, b) { return a && b && a[0] === b[0] && a[1] === b[1]; }
+
+function twoSigmaRadius(n) { return 2 * covarianceEllipse(n.var_x_m2, n.cov_xy_m2, n.var_y_m2).r1; }
+
+function remember(map) {
+  if (map.robot) {
+    if (map.robot.frame !== robotTrailFrame) { robotTrail = []; robotTrailFrame = map.robot.frame; }
+    const p = [map.robot.x_m, map.robot.y_m];
+    if (!samePoint(robotTrail[robotTrail.length - 1], p)) pushBounded(robotTrail, p, ROBOT_TRAIL_POINTS);
+  }
+  for (const n of map.nodes) {
+    if (!n.placed) continue;
+    const p = [n.x_m, n.y_m];
+    let trail = nodeTrails.get(n.id);
+    if (n.moving || n.status === 'settling') {
+      if (!trail) { trail = []; nodeTrails.set(n.id, trail); }
+      if (!samePoint(trail[trail.length - 1], p)) pushBounded(trail, p, NODE_TRAIL_POINTS);
+    }
+    let history = sigmaHistory.get(n.id);
+    if (!history) { history = []; sigmaHistory.set(n.id, history); }
+    const last = history[history.length - 1];
+    if (!last || map.t_s > last[0]) pushBounded(history, [map.t_s, twoSigmaRadius(n)], SIGMA_SAMPLES);
+  }
+}
+
+function drawTrails(view) {
+  const g = clear('trails');
+  const points = (list) => list.map(([x, y]) => `${view.x(x)},${view.y(y)}`).join(' ');
+  for (const [id, trail] of nodeTrails) {
+    if (trail.length >= 2) el('polyline', { class: 'trail node-trail', 'data-id': id, points: points(trail) }, g);
+  }
+  if (robotTrail.length >= 2) el('polyline', { class: 'trail robot-trail', points: points(robotTrail) }, g);
+}
+
+function drawSigmaChart() {
+  const svg = document.getElementById('sigma-chart');
+  while (svg.firstChild) svg.removeChild(svg.firstChild);
+  const W = 360, H = 150, L = 44, B = 20, T = 8, R = 8;
+  let t0 = Infinity, t1 = -Infinity, r1 = 0;
+  for (const h of sigmaHistory.values()) {
+    for (const [t, r] of h) { t0 = Math.min(t0, t); t1 = Math.max(t1, t); r1 = Math.max(r1, r); }
+  }
+  if (!(t1 > t0) || !(r1 > 0)) {
+    el('text', { class: 'chart-label', x: L, y: H / 2 }, svg).textContent = 'waiting for two maps…';
+    return;
+  }
+  const x = (t) => L + (t - t0) / (t1 - t0) * (W - L - R);
+  const y = (r) => H - B - r / r1 * (H - B - T);
+  el('line', { class: 'chart-axis', x1: L, y1: H - B, x2: W - R, y2: H - B }, svg);
+  el('line', { class: 'chart-axis', x1: L, y1: T, x2: L, y2: H - B }, svg);
+  el('text', { class: 'chart-label', x: L - 4, y: T + 8, 'text-anchor': 'end' }, svg).textContent = metresText(r1);
+  el('text', { class: 'chart-label', x: L - 4, y: H - B, 'text-anchor': 'end' }, svg).textContent = '0 m';
+  el('text', { class: 'chart-label', x: L, y: H - 4 }, svg).textContent = `t ${t0.toFixed(0)} s`;
+  el('text', { class: 'chart-label', x: W - R, y: H - 4, 'text-anchor': 'end' }, svg).textContent = `${t1.toFixed(0)} s`;
+  const ordered = [...sigmaHistory.entries()].sort(([a], [b]) => (a === selectedId) - (b === selectedId));
+  for (const [id, h] of ordered) {
+    if (h.length < 1) continue;
+    el('polyline', { class: id === selectedId ? 'sigma-line selected' : 'sigma-line', 'data-id': id,
+      points: h.map(([t, r]) => `${x(t)},${y(r)}`).join(' ') }, svg);
+  }
+}
+
+// ---- link residuals -----------------------------------------------------------------------
+const RESIDUAL_WARN_M = 0.15, RESIDUAL_BAD_M = 0.5;
+
+function residualClass(l) {
+  if (typeof l.residual_m !== 'number') return 'residual-unknown';
+  const r = Math.abs(l.residual_m);
+  return r < RESIDUAL_WARN_M ? 'residual-ok' : r < RESIDUAL_BAD_M ? 'residual-warn' : 'residual-bad';
+}
+
+function fixed(value, digits) { return typeof value === 'number' ? value.toFixed(digits) : '–'; }
+
+function renderLinkTable(links) {
+  const body = document.querySelector('#links-table tbody');
+  while (body.firstChild) body.removeChild(body.firstChild);
+  const sorted = [...links].sort((p, q) => Math.abs(q.residual_m ?? -1) - Math.abs(p.residual_m ?? -1));
+  for (const l of sorted) {
+    const row = document.createElement('tr');
+    row.dataset.a = l.a; row.dataset.b = l.b;
+    const cells = [`${hexId(l.a)} – ${hexId(l.b)}`, fixed(l.range_median_m, 3), fixed(l.fitted_distance_m, 3),
+      (typeof l.residual_m === 'number' && l.residual_m > 0 ? '+' : '') + fixed(l.residual_m, 3)];
+    cells.forEach((text, k) => {
+      const cell = document.createElement('td');
+      cell.textContent = text;
+      if (k > 0) cell.className = 'value';
+      if (k === 3) cell.classList.add(residualClass(l));
+      row.appendChild(cell);
+    });
+    if (typeof l.inlier_probability === 'number') row.title = `line-of-sight probability ${l.inlier_probability.toFixed(2)}`;
+    body.appendChild(row);
+  }
 }
 
 function render(map) {
   lastMap = map;
   const view = makeView(map);
+  drawFloorPlan(view);
   drawGrid(view);
   const byId = new Map(map.nodes.map((n) => [n.id, n]));
 
@@ -99,10 +292,13 @@ function render(map) {
   for (const l of map.links) {
     const a = byId.get(l.a), b = byId.get(l.b);
     if (!a || !b || !a.placed || !b.placed) continue;
-    const line = el('line', { class: 'link', 'data-a': l.a, 'data-b': l.b,
+    const line = el('line', { class: `link ${residualClass(l)}`, 'data-a': l.a, 'data-b': l.b,
+      'data-residual-m': typeof l.residual_m === 'number' ? l.residual_m : '',
       x1: view.x(a.x_m), y1: view.y(a.y_m), x2: view.x(b.x_m), y2: view.y(b.y_m) }, links);
-    el('title', {}, line).textContent = `${hexId(l.a)} – ${hexId(l.b)}: ${l.last_range_m.toFixed(3)} m (${l.range_count} ranges)`;
+    el('title', {}, line).textContent = `${hexId(l.a)} – ${hexId(l.b)}: last ${l.last_range_m.toFixed(3)} m (${l.range_count} ranges)` +
+      (typeof l.residual_m === 'number' ? `, median ${l.range_median_m.toFixed(3)} m, on the map ${l.fitted_distance_m.toFixed(3)} m, residual ${l.residual_m.toFixed(3)} m` : '');
   }
+  drawTrails(view);
 
   const ellipses = clear('ellipses');
   const nodes = clear('nodes');
@@ -120,8 +316,10 @@ function render(map) {
     el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = nodeLabel(n);
     el('title', {}, g).textContent = `${nodeLabel(n)}: x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
       (n.z_m !== null && n.z_m !== undefined ? `, z ${n.z_m.toFixed(3)} m` : '') +
-      (n.reason ? ` - not converged: ${REASONS[n.reason] || n.reason}` : '');
-    g.addEventListener('click', () => selectNode(n.id));
+      (n.reason ? ` - not converged: ${REASONS[n.reason] || n.reason}` : '') +
+      (typeof n.t_updated_unix_s === 'number' && typeof map.t_unix_s === 'number'
+        ? ` (estimate changed ${(map.t_unix_s - n.t_updated_unix_s).toFixed(1)} s ago)` : '');
+    g.addEventListener('click', () => { if (!dragMoved) selectNode(n.id); });
   }
   const list = document.getElementById('unplaced');
   list.textContent = unplaced.length ? 'Not placed yet: ' + unplaced.map(nodeLabel).join(', ') : '';
@@ -137,6 +335,9 @@ function render(map) {
   }
 
   drawComponents(view);
+  drawScaleBar(view);
+  drawSigmaChart();
+  renderLinkTable(map.links);
   renderHealth(map.health);
   document.getElementById('t-s').textContent = map.t_s.toFixed(1);
   if (typeof map.t_unix_s === 'number') {
@@ -211,7 +412,7 @@ async function selectNode(id) {
 async function loadOnce() {
   try {
     const response = await fetch('/api/map');
-    if (response.ok) render(await response.json());
+    if (response.ok) onMap(await response.json());
   } catch (error) { /* the event stream will bring the map */ }
 }
 
@@ -222,10 +423,79 @@ function follow() {
   source.addEventListener('map', (event) => {
     updates += 1;
     document.getElementById('update-count').textContent = String(updates);
-    render(JSON.parse(event.data));
+    onMap(JSON.parse(event.data));
   });
   source.addEventListener('error', () => { stream.textContent = 'reconnecting'; });
 }
 
+function onMap(map) {
+  remember(map);
+  render(map);
+}
+
+// ---- zoom and pan ---------------------------------------------------------------------------
+let drag = null, dragMoved = false;
+
+// A client (screen) point in viewBox px.
+function toViewBox(clientX, clientY) {
+  const svg = document.getElementById('map');
+  const p = svg.createSVGPoint();
+  p.x = clientX; p.y = clientY;
+  const q = p.matrixTransform(svg.getScreenCTM().inverse());
+  return [q.x, q.y];
+}
+
+// Zooms by `factor` keeping the world point under viewBox point (px, py) where it is.
+function zoomAt(factor, px, py) {
+  if (!lastMap) return;
+  const view = makeView(lastMap);
+  const wx = view.worldX(px), wy = view.worldY(py);
+  viewState.follow = false;
+  viewState.scale = Math.min(MAX_SCALE, Math.max(MIN_SCALE, viewState.scale * factor));
+  viewState.cx = wx - (px - WIDTH / 2) / viewState.scale;
+  viewState.cy = wy + (py - HEIGHT / 2) / viewState.scale;
+  render(lastMap);
+}
+
+function setUpViewControls() {
+  const svg = document.getElementById('map');
+  svg.addEventListener('wheel', (event) => {
+    event.preventDefault();
+    const [px, py] = toViewBox(event.clientX, event.clientY);
+    zoomAt(Math.exp(-event.deltaY * 0.0015), px, py);
+  }, { passive: false });
+  svg.addEventListener('pointerdown', (event) => {
+    if (event.button !== 0) return;
+    drag = { last: toViewBox(event.clientX, event.clientY), id: event.pointerId };
+    dragMoved = false;
+  });
+  svg.addEventListener('pointermove', (event) => {
+    if (!drag || !lastMap) return;
+    const p = toViewBox(event.clientX, event.clientY);
+    const dx = p[0] - drag.last[0], dy = p[1] - drag.last[1];
+    if (!dragMoved && Math.hypot(dx, dy) < 3) return; // a click, not yet a drag
+    if (!dragMoved) {
+      try { svg.setPointerCapture(drag.id); } catch (error) { /* a synthetic pointer: nothing to capture */ }
+    }
+    dragMoved = true;
+    drag.last = p;
+    viewState.follow = false;
+    viewState.cx -= dx / viewState.scale;
+    viewState.cy += dy / viewState.scale;
+    render(lastMap);
+  });
+  const endDrag = () => { drag = null; setTimeout(() => { dragMoved = false; }, 0); };
+  svg.addEventListener('pointerup', endDrag);
+  svg.addEventListener('pointercancel', endDrag);
+  document.getElementById('zoom-in').addEventListener('click', () => zoomAt(1.5, WIDTH / 2, HEIGHT / 2));
+  document.getElementById('zoom-out').addEventListener('click', () => zoomAt(1 / 1.5, WIDTH / 2, HEIGHT / 2));
+  document.getElementById('zoom-fit').addEventListener('click', () => {
+    viewState.follow = true;
+    if (lastMap) render(lastMap);
+  });
+}
+
+setUpViewControls();
+loadFloorPlan();
 loadOnce();
 follow();

@@ -103,6 +103,18 @@ struct LoggingConfig {
     double drop_log_per_s = 5.0;         // most "dropped frame" log lines per second per reason
 };
 
+struct FloorPlanConfig {                 // web.floor_plan: an image under the live map
+    std::string path;                    // PNG file; "" = none
+    double metres_per_pixel = 0.05;      // m on the map per image pixel
+    double origin_x_m = 0.0;             // m, where the image's bottom-left corner lies on the map
+    double origin_y_m = 0.0;             // m
+    double rotation_rad = 0.0;           // rad, counter-clockwise about that corner
+};
+
+struct WebConfig {                       // the live map page (the server is http:)
+    FloorPlanConfig floor_plan;
+};
+
 struct ServiceConfig {
     SerialConfig serial;
     NodesConfig nodes;
@@ -114,6 +126,7 @@ struct ServiceConfig {
     CheckpointConfig checkpoint;
     OdometryConfig odometry;
     LoggingConfig logging;
+    WebConfig web;
 };
 
 // The odometry topic the service subscribes to: odometry.mqtt_topic, or its default under
@@ -136,6 +149,18 @@ void validateServiceConfig(const ServiceConfig &config);
 // Names used in the YAML and the docs.
 const char *unknownNodePolicyName(UnknownNodePolicy policy);
 const char *scheduleModeName(uint8_t mode);
+
+// A floor-plan image as the live map serves it: the PNG's bytes and its size.
+struct FloorPlanImage {
+    std::string png;                     // the file's bytes
+    uint32_t width_px = 0;
+    uint32_t height_px = 0;
+};
+// The size of the PNG at `path` from its header, checked to be a PNG; throws ConfigError naming
+// web.floor_plan.path and what is wrong (missing, unreadable, not a PNG, too large).
+FloorPlanImage readFloorPlanHeader(const std::string &path);
+// The whole file, checked as above.
+FloorPlanImage readFloorPlan(const std::string &path);
 
 // mqtt://host[:port] split into its parts; throws ConfigError for anything else.
 struct MqttUrl {

@@ -7,6 +7,8 @@
 //   GET /api/nodes/<id>/components  {"id", "components": [{center_id, x_m, ..., weight}]}
 //   GET /api/events                 server-sent events: "event: map" with /api/map's JSON,
 //                                   whenever a new snapshot is published
+//   GET /api/floor-plan             the floor plan's placement (web.floor_plan), 404 if none
+//   GET /floor-plan.png             its image, read once from web.floor_plan.path at start
 //
 // Why not a library's server: the one Debian ships (cpp-httplib 0.11) gives every connection a
 // worker thread from a fixed pool while it reads the request, with no deadline on the request
@@ -19,7 +21,8 @@
 //   - no endpoint takes a body: a request announcing one (Content-Length above 0, or any
 //     Transfer-Encoding) is answered 413 and its body is never stored;
 //   - only GET and HEAD (else 405), only the paths above, matched exactly (no file system is
-//     ever read: the page is compiled in); anything else is 404, a malformed request 400;
+//     read while serving: the page is compiled in, the floor plan read at start); anything else
+//     is 404, a malformed request 400;
 //   - at most max_connections open connections and max_per_client from one address: when a
 //     new one would exceed a cap, the oldest connection still sending its head (of that
 //     address, then of any) is closed to make room, so that the newest request, a health
@@ -111,6 +114,10 @@ public:
     HttpServer(const HttpServer &) = delete;
     HttpServer &operator=(const HttpServer &) = delete;
 
+    // The floor plan to serve (before start): reads the PNG whole now, so that the server never
+    // touches the file system later. Throws ConfigError as readFloorPlan does.
+    void setFloorPlan(const FloorPlanConfig &config);
+
     // Binds (port 0 = any free port, for tests) and starts serving. Throws ConfigError if the
     // address cannot be bound.
     void start();
@@ -134,6 +141,8 @@ private:
     std::thread thread_;
     std::atomic<size_t> open_connections_{0};
     int port_ = 0;
+    std::string floor_plan_png_;        // empty = no floor plan
+    std::string floor_plan_json_;       // /api/floor-plan
 };
 
 } // namespace cdro::service

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -74,6 +75,11 @@ struct LinkEstimate {
     uint16_t b = 0;            // larger id
     double last_range_m = 0.0; // m, as measured (3D)
     uint32_t range_count = 0;  // ranges seen on this link
+    // m, the range the map fits on this link: the median of its recent ranges, projected onto
+    // the plane where both heights are known; unset where the source has none
+    std::optional<double> range_median_m;
+    // [0, 1], how likely the link is line of sight at the map's last refinement; unset likewise
+    std::optional<double> inlier_probability;
 };
 
 // One Gaussian of a node's sum of Gaussians (the ring SoG_ij centred on node i).
@@ -109,6 +115,9 @@ struct MapState {
     std::optional<RobotPose> robot;
     std::vector<LinkEstimate> links;   // sorted by (a, b)
     Health health;
+    // Per node id: s since the Unix epoch, the event time at which its estimate last changed in
+    // this run (the service keeps it, for the live map's `t_updated_unix_s`)
+    std::map<uint16_t, double> updated_unix_s;
 };
 
 // Implemented by the engine adapter (part B) and by the test harness.
@@ -141,8 +150,14 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &node, OutputTime time);
 nlohmann::ordered_json robotJson(const RobotPose &robot, OutputTime time);
 nlohmann::ordered_json healthJson(const Health &health, OutputTime time);
 nlohmann::ordered_json linkJson(const LinkEstimate &link);
+// A link of the live map: linkJson plus what the map makes of it, from the two nodes' positions
+// (a or b null when not placed): `fitted_distance_m` (their distance in the plane) and
+// `residual_m` (range_median_m minus that distance: a link that reads long, as a link without
+// line of sight does, has a positive residual). Both null when either end is not placed or
+// the link has no median range.
+nlohmann::ordered_json mapLinkJson(const LinkEstimate &link, const NodeEstimate *a, const NodeEstimate *b);
 // The whole map for the JSON API: {"schema", "t_s", "t_unix_s", "nodes": [...], "robot": {...}|null,
-// "links": [...], "health": {...}}
+// "links": [...], "health": {...}}; nodes carry `t_updated_unix_s`, links are mapLinkJson's.
 nlohmann::ordered_json mapJson(const MapState &map);
 nlohmann::ordered_json componentsJson(const NodeComponents &components);
 

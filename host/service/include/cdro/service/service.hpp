@@ -28,6 +28,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -106,6 +107,8 @@ private:
 
     class ConsumerTap;
     void afterFrame(int64_t event_unix_us);
+    void noteUpdates(const MapState &map, int64_t event_unix_us);
+    void stampUpdates(MapState &map) const;
     void afterBatch();
     void rearmSession();
     Health health(int64_t now_event_unix_us) const;
@@ -144,6 +147,9 @@ private:
     uint64_t last_map_revision_ = 0;
     bool map_dirty_ = false;
     std::string last_published_map_;
+    // Per node: the estimate last seen and the event time (us since the epoch) it changed at,
+    // for the live map's `t_updated_unix_s`.
+    std::map<uint16_t, std::pair<NodeEstimate, int64_t>> node_updates_;
     EventLoop::TimerId session_timer_ = 0;
     int64_t session_timer_deadline_us_ = INT64_MAX;
     bool checkpoint_warned_ = false;
