@@ -7,6 +7,7 @@
 //   GET /api/nodes/<id>/components  {"id", "components": [{center_id, x_m, ..., weight}]}
 //   GET /api/events                 server-sent events: "event: map" with /api/map's JSON,
 //                                   whenever a new snapshot is published
+//   GET /metrics                    the counters and rates for Prometheus (metrics.hpp)
 //
 // Why not a library's server: the one Debian ships (cpp-httplib 0.11) gives every connection a
 // worker thread from a fixed pool while it reads the request, with no deadline on the request
