@@ -190,15 +190,15 @@ TEST(JsonOutput, ThePerNodeLimitHoldsAChangeBackUntilItsIntervalAndWritesTheLast
     config.limits.max_node_rate_hz = 2.0; // a line per node per 0.5 s of event time
     JsonLinesWriter writer(config, counters);
     writer.open();
-    // The first node moves every 0.1 s for 1 s; the second stays.
-    for (int i = 0; i <= 10; ++i) {
+    // The first node moves every 0.1 s for 1.1 s; the second stays.
+    for (int i = 0; i <= 11; ++i) {
         MapState map = twoNodes(0.1 * i);
         map.t_s = 0.1 * i;
         writer.onUpdate(map, 100'000 * i);
     }
-    MapState last = twoNodes(1.5);
-    last.t_s = 1.05;
-    writer.finish(last); // held back: the last estimate must still come out
+    MapState at_exit = twoNodes(1.5);
+    at_exit.t_s = 2.0;
+    writer.finish(at_exit); // the held-back update at 1.1 s comes out as of 1.1 s
     writer.close();
     const auto lines = readLines(config.jsonl);
     std::vector<double> first_node_t_s;
@@ -207,13 +207,14 @@ TEST(JsonOutput, ThePerNodeLimitHoldsAChangeBackUntilItsIntervalAndWritesTheLast
             first_node_t_s.push_back(line["t_s"].get<double>());
         }
     }
-    // 0, 0.5 and 1.0 s (every 5th update), then the end.
+    // 0, 0.5 and 1.0 s (every 5th update), then what 1.1 s held back.
     ASSERT_EQ(first_node_t_s.size(), 4U);
     EXPECT_DOUBLE_EQ(first_node_t_s[1], 0.5);
     EXPECT_DOUBLE_EQ(first_node_t_s[2], 1.0);
-    EXPECT_EQ(lines.back()["x_m"], 1.5);
+    EXPECT_DOUBLE_EQ(first_node_t_s[3], 1.1);
+    EXPECT_DOUBLE_EQ(lines.back()["x_m"].get<double>(), 0.1 * 11);
     EXPECT_EQ(lines.size(), 5U); // the second node once
-    EXPECT_EQ(counters.jsonl_lines_held, 8U);
+    EXPECT_EQ(counters.jsonl_lines_held, 9U);
 }
 
 TEST(JsonOutput, AFileIsAppendedToAndRotatedBeforeItGrowsPastTheLimit)

@@ -126,6 +126,7 @@ void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
 
 void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool limited)
 {
+    bool held = false;
     for (const NodeEstimate &node : map.nodes) {
         auto it = last_node_.find(node.id);
         if (it != last_node_.end() && sameEstimate(it->second, node)) {
@@ -135,6 +136,7 @@ void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool l
             auto when = last_node_us_.find(node.id);
             if (when != last_node_us_.end() && event_us - when->second < node_interval_us_) {
                 ++counters_.jsonl_lines_held;
+                held = true;
                 continue;
             }
         }
@@ -145,11 +147,20 @@ void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool l
     if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
         if (limited && node_interval_us_ > 0 && last_robot_ && event_us - last_robot_us_ < node_interval_us_) {
             ++counters_.jsonl_lines_held;
-            return;
+            held = true;
+        } else {
+            append(line(robotJson(*map.robot, outputTimeOf(map))));
+            last_robot_ = map.robot;
+            last_robot_us_ = event_us;
         }
-        append(line(robotJson(*map.robot, outputTimeOf(map))));
-        last_robot_ = map.robot;
-        last_robot_us_ = event_us;
+    }
+    // What is held back goes out at the end as of the last update, stamped with its event time,
+    // so that a replay ends with the same lines as the live run it replays.
+    if (held) {
+        held_map_ = map;
+        held_event_us_ = event_us;
+    } else if (limited) {
+        held_map_.reset();
     }
 }
 
@@ -161,9 +172,11 @@ void JsonLinesWriter::finish(const MapState &map)
     if (period_us_ > 0 && dirty_) {
         dirty_ = false;
         writeAll(map);
-    } else if (period_us_ == 0 && node_interval_us_ > 0) {
+    } else if (period_us_ == 0 && held_map_) {
         // What the rate limit held back: the last estimates must not be lost at the end.
-        writeChanged(map, INT64_MAX, false);
+        const MapState held = *held_map_;
+        held_map_.reset();
+        writeChanged(held, held_event_us_, false);
     }
 }
 

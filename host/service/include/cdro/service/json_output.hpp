@@ -7,7 +7,8 @@
 //                 lines per node (and for the robot) per second: a change within 1/max_node_rate_hz
 //                 of that node's last line is held back and goes out with the first update
 //                 after the interval (the node's estimate then, which may have moved on), or at
-//                 the end of the run; held-back updates are counted in jsonl_lines_held;
+//                 the end of the run (finish(): the last update's estimates with its event
+//                 time, so a replay ends as the live run did); counted in jsonl_lines_held;
 //   rate_hz > 0   every 1/rate_hz s of event time in which something was updated, a line for
 //                 every node (and the robot).
 // Health lines are written by the service's health timer (writeHealth); they describe the
@@ -48,7 +49,8 @@ public:
 
     // After an update at event time event_us (map.t_s is already set).
     void onUpdate(const MapState &map, int64_t event_us);
-    // At the end of a run: with rate_hz > 0, the estimates updated since the last period.
+    // At the end of a run: with rate_hz > 0, the estimates updated since the last period (map);
+    // with the per-node limit, what the last update held back (as of that update).
     void finish(const MapState &map);
     void writeHealth(const Health &health, OutputTime time);
     void flush();
@@ -80,6 +82,8 @@ private:
     int64_t node_interval_us_ = 0;                // 1/max_node_rate_hz; 0 = no limit
     std::map<uint16_t, int64_t> last_node_us_;    // id -> event time of its last line
     int64_t last_robot_us_ = INT64_MIN;
+    std::optional<MapState> held_map_;            // the last update, when it held something back
+    int64_t held_event_us_ = 0;
     uint64_t file_bytes_ = 0;                     // bytes in the current file
     uint64_t rotate_bytes_ = 0;
     bool reopen_pending_ = false;                 // a rotation could not start its new file
