@@ -29,12 +29,16 @@ RUNTIME_PACKAGES=(
   python3 python3-venv python3-pip
   libeigen3-dev
   libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
+  # sd_notify (Type=notify, the watchdog): config/cdro-hostd.service
   libmosquitto-dev
+  libsystemd-dev
 )
-# Everything the build, the tests, the demo and the firmware need besides.
+# Everything the build, the tests, the demo and the firmware need besides (mosquitto, openssl:
+# the MQTT tests' broker and its certificate; systemd: systemd-analyze verify of the unit).
 DEVELOPMENT_PACKAGES=(
   libgtest-dev libgmock-dev
-  mosquitto
+  mosquitto openssl
+  systemd
   clang libclang-rt-14-dev
   gcc-avr avr-libc arduino-core-avr binutils-avr avrdude
   simavr libsimavr-dev libelf-dev

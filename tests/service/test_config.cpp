@@ -138,7 +138,28 @@ TEST(Config, MqttUrls)
     EXPECT_EQ(parseMqttUrl("mqtt://broker.local").port, 1883);
     EXPECT_THROW(parseMqttUrl("mqtt://:80"), ConfigError);
     EXPECT_THROW(parseMqttUrl("mqtt://host:99999"), ConfigError);
-    EXPECT_THROW(parseMqttUrl("mqtts://host"), ConfigError);
+    EXPECT_EQ(parseMqttUrl("mqtts://host").port, 8883); // TLS, mqtt_auth: for its files
+    EXPECT_TRUE(parseMqttUrl("mqtts://host:8884").tls);
+    EXPECT_FALSE(parseMqttUrl("mqtt://host").tls);
+    EXPECT_THROW(parseMqttUrl("ssl://host"), ConfigError);
+    EXPECT_THROW(parseMqttUrl("mqtts://"), ConfigError);
+}
+
+TEST(Config, MqttAuthNeedsAUserForAPasswordAndTlsForCertificates)
+{
+    const auto errorOf = [](const std::string &yaml) {
+        try {
+            parseServiceConfig(yaml, "c.yaml");
+        } catch (const ConfigError &error) {
+            return std::string(error.what());
+        }
+        return std::string();
+    };
+    EXPECT_NE(errorOf("mqtt_auth: {password_file: pw}\n").find("username is empty"), std::string::npos);
+    EXPECT_NE(errorOf("mqtt_auth: {cert_file: c.pem}\n").find("go together"), std::string::npos);
+    EXPECT_NE(errorOf("mqtt: {url: 'mqtt://b'}\nmqtt_auth: {ca_file: ca.pem}\n").find("mqtts://"), std::string::npos);
+    EXPECT_NE(errorOf("mqtt_auth: {usename: x}\n").find("unknown key 'usename'"), std::string::npos);
+    EXPECT_EQ(errorOf("mqtt: {url: 'mqtts://b'}\nmqtt_auth: {username: u, password_file: pw, ca_file: ca.pem}\n"), "");
 }
 
 TEST(Config, CommandLineOverridesTheFile)

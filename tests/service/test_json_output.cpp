@@ -220,3 +220,95 @@ TEST(JsonOutput, StdoutAndOffAreSupported)
     JsonLinesWriter broken(bad, counters);
     EXPECT_THROW(broken.open(), ConfigError);
 }
+
+TEST(JsonOutput, ThePerNodeLimitHoldsAChangeBackUntilItsIntervalAndWritesTheLastAtTheEnd)
+{
+    cdro::test::TempDir dir;
+    ServiceCounters counters;
+    OutputConfig config;
+    config.jsonl = dir.file("out.jsonl");
+    config.limits.max_node_rate_hz = 2.0; // a line per node per 0.5 s of event time
+    JsonLinesWriter writer(config, counters);
+    writer.open();
+    // The first node moves every 0.1 s for 1.1 s; the second stays.
+    for (int i = 0; i <= 11; ++i) {
+        MapState map = twoNodes(0.1 * i);
+        map.t_s = 0.1 * i;
+        writer.onUpdate(map, 100'000 * i);
+    }
+    MapState at_exit = twoNodes(1.5);
+    at_exit.t_s = 2.0;
+    writer.finish(at_exit); // the held-back update at 1.1 s comes out as of 1.1 s
+    writer.close();
+    const auto lines = readLines(config.jsonl);
+    std::vector<double> first_node_t_s;
+    for (const auto &line : lines) {
+        if (line["id"] == 24577) {
+            first_node_t_s.push_back(line["t_s"].get<double>());
+        }
+    }
+    // 0, 0.5 and 1.0 s (every 5th update), then what 1.1 s held back.
+    ASSERT_EQ(first_node_t_s.size(), 4U);
+    EXPECT_DOUBLE_EQ(first_node_t_s[1], 0.5);
+    EXPECT_DOUBLE_EQ(first_node_t_s[2], 1.0);
+    EXPECT_DOUBLE_EQ(first_node_t_s[3], 1.1);
+    EXPECT_DOUBLE_EQ(lines.back()["x_m"].get<double>(), 0.1 * 11);
+    EXPECT_EQ(lines.size(), 5U); // the second node once
+    EXPECT_EQ(counters.jsonl_lines_held, 9U);
+}
+
+TEST(JsonOutput, AFileIsAppendedToAndRotatedBeforeItGrowsPastTheLimit)
+{
+    cdro::test::TempDir dir;
+    ServiceCounters counters;
+    OutputConfig config;
+    config.jsonl = dir.file("out.jsonl");
+    config.limits.max_node_rate_hz = 0.0;
+    config.limits.rotate_mib = 2000.0 / (1024.0 * 1024.0); // 2000 bytes
+    config.limits.keep = 2;
+    {
+        std::ofstream earlier(config.jsonl);
+        earlier << "{\"earlier\":true}\n";
+    }
+    JsonLinesWriter writer(config, counters);
+    writer.open();
+    for (int i = 0; i < 40; ++i) {
+        MapState map = twoNodes(0.01 * i);
+        map.t_s = 1.0 * i;
+        writer.onUpdate(map, 1'000'000 * i);
+        writer.flush();
+    }
+    writer.close();
+    std::vector<nlohmann::json> all;
+    for (const std::string &name : {config.jsonl + ".2", config.jsonl + ".1", config.jsonl}) {
+        std::ifstream in(name, std::ios::binary | std::ios::ate);
+        ASSERT_TRUE(in) << name;
+        EXPECT_LE(static_cast<long>(in.tellg()), 2000L) << name;
+        const auto lines = readLines(name);
+        all.insert(all.end(), lines.begin(), lines.end());
+    }
+    EXPECT_FALSE(std::ifstream(config.jsonl + ".3"));
+    EXPECT_GE(counters.jsonl_rotations, 3U); // the oldest file (and the earlier line) fell off the end
+    EXPECT_EQ(all.back()["x_m"], 0.39);
+    EXPECT_LT(all.size(), 40U + 1U);
+}
+
+TEST(JsonOutput, AnEarlierFileIsKeptWhenNothingRotates)
+{
+    cdro::test::TempDir dir;
+    ServiceCounters counters;
+    OutputConfig config;
+    config.jsonl = dir.file("out.jsonl");
+    {
+        std::ofstream earlier(config.jsonl);
+        earlier << "{\"earlier\":true}\n";
+    }
+    JsonLinesWriter writer(config, counters);
+    writer.open();
+    MapState map = twoNodes(3.0);
+    writer.onUpdate(map, 1'000'000);
+    writer.close();
+    const auto lines = readLines(config.jsonl);
+    ASSERT_EQ(lines.size(), 3U);
+    EXPECT_EQ(lines[0]["earlier"], true);
+}

@@ -143,7 +143,7 @@ TEST(OutputFiles, WorldWritableDirectoriesAreRefusedWithTheReason)
     EXPECT_EQ(cdro::test::listDirectory(open_dir).size(), 0U);
 }
 
-TEST(OutputFiles, AnOrdinaryFileIsReplacedAsBefore)
+TEST(OutputFiles, AnOrdinaryFileIsAppendedTo)
 {
     cdro::test::TempDir dir;
     const std::string path = dir.file("estimates.jsonl");
@@ -155,7 +155,7 @@ TEST(OutputFiles, AnOrdinaryFileIsReplacedAsBefore)
     writer.open();
     writer.writeHealth(Health{}, {1.0, 1700000001.0});
     writer.close();
-    EXPECT_EQ(readFile(path).find("old run"), std::string::npos);
+    EXPECT_EQ(readFile(path).find("old run\n"), 0U); // a restart continues the file (docs/service.md)
     EXPECT_NE(readFile(path).find("\"type\":\"health\""), std::string::npos);
     EXPECT_NO_THROW(checkOutputPath("/dev/null", "output.jsonl")); // a device is not a directory entry we write
 }

@@ -36,7 +36,9 @@ def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path):
     try:
         listener = Listener(build_dir, broker.port, "cdro/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
-        replay = Harness(build_dir, tmp_path, name="replay", extra_config="mqtt: {rate_hz: 0}",
+        # A JSON line per update, as MQTT publishes with rate_hz 0: jsonl's per-node limit off.
+        replay = Harness(build_dir, tmp_path, name="replay",
+                         extra_config="mqtt: {rate_hz: 0}\njsonl: {max_node_rate_hz: 0}",
                          args=["--replay", str(live.capture), "--speed", "max", "--mqtt",
                                f"mqtt://127.0.0.1:{broker.port}", "--jsonl", str(tmp_path / "replay.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
@@ -111,7 +113,8 @@ def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
         listener = Listener(build_dir, broker.port, "cdro/nodes/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
         replay = Harness(build_dir, tmp_path, name="replay",
-                         extra_config="mqtt: {rate_hz: 0, reconnect_min_s: 0.5, reconnect_max_s: 1.0}",
+                         extra_config="mqtt: {rate_hz: 0, reconnect_min_s: 0.5, reconnect_max_s: 1.0}\n"
+                                      "jsonl: {max_node_rate_hz: 0}",  # a JSON line per update, as MQTT
                          args=["--replay", str(live.capture), "--speed", "max", "--mqtt",
                                f"mqtt://127.0.0.1:{forwarder.port}", "--jsonl", str(tmp_path / "replay.jsonl")])
         time.sleep(1.0)

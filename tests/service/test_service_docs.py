@@ -6,20 +6,25 @@ import re
 
 import yaml
 
-SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "mqtt", "http", "checkpoint", "odometry", "logging",
-            "web")
+SECTIONS = ("serial", "nodes", "schedule", "capture", "output", "jsonl", "mqtt", "mqtt_auth", "http", "checkpoint",
+            "odometry", "logging", "web")
+# A section of its own whose values live in another section's struct (JsonlLimits in OutputConfig):
+# the member is the section, not a key.
+NESTED = {"JsonlLimits", "MqttAuthConfig"}
 
 
 def config_keys(repo_root):
     header = (repo_root / "host/service/include/cdro/service/config.hpp").read_text()
     keys = {}
     for section, struct in [("serial", "SerialConfig"), ("nodes", "NodesConfig"), ("schedule", "ScheduleConfig"),
-                            ("capture", "CaptureConfig"), ("output", "OutputConfig"), ("mqtt", "MqttConfig"),
+                            ("capture", "CaptureConfig"), ("output", "OutputConfig"), ("jsonl", "JsonlLimits"),
+                            ("mqtt", "MqttConfig"), ("mqtt_auth", "MqttAuthConfig"),
                             ("http", "HttpConfig"), ("checkpoint", "CheckpointConfig"),
                             ("odometry", "OdometryConfig"), ("logging", "LoggingConfig"),
                             ("web.floor_plan", "FloorPlanConfig")]:
         body = re.search(rf"struct {struct} \{{(.*?)\n\}};", header, re.S).group(1)
-        keys[section] = re.findall(r"^\s+[\w:<>]+ (\w+)(?: = [^;]*)?;", body, re.M)
+        keys[section] = [name for kind, name in re.findall(r"^\s+([\w:<>]+) (\w+)(?: = [^;]*)?;", body, re.M)
+                         if kind not in NESTED]
     return keys
 
 

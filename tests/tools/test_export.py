@@ -378,10 +378,11 @@ def test_a_capture_to_mcap_carries_the_replayed_estimates_and_the_ranges(build_d
     out = tmp_path / "demo.mcap"
     env_build = ["--hostd", hostd]
     export(capture, "-o", out, *env_build)
-    # The service's own estimates for the same capture.
+    # The service's own estimates for the same capture, every update (as cdro-export replays it).
     jsonl = tmp_path / "replay.jsonl"
     run = subprocess.run([str(hostd), "--replay", str(capture), "--speed", "max", "--jsonl", str(jsonl), "--capture",
-                          "", "--checkpoint", ""], capture_output=True, text=True, timeout=GUARD_S)
+                          "", "--checkpoint", "", "--set", "jsonl.max_node_rate_hz=0"], capture_output=True, text=True,
+                         timeout=GUARD_S)
     assert run.returncode == 0, run.stderr
     final = {}
     lines = [json.loads(line) for line in jsonl.read_text().splitlines()]

@@ -170,6 +170,7 @@ serial: {{device: {link}, reconnect_min_s: 0.05, reconnect_max_s: 0.4, hello_tim
 nodes: {{ids: [], unknown: reject}}
 capture: {{path: {capture}}}
 output: {{jsonl: {jsonl}, health_period_s: 0.5}}
+jsonl: {{max_node_rate_hz: 0}}   # every update: the file is compared with the live map while the service runs
 http: {{port: {http_port}, update_period_s: 0.1}}
 mqtt: {{url: 'mqtt://127.0.0.1:{broker}', rate_hz: 0, qos: 1}}
 checkpoint: {{path: ''}}

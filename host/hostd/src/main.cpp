@@ -2,7 +2,8 @@
 //
 //   cdro-hostd [--config FILE] [service options]           serial link (or --replay FILE)
 //   cdro-hostd --ranges-csv FILE ... --out-csv OUT          offline (offline.hpp)
-//   cdro-hostd --print-config [--config FILE] [--set ...]   the engine settings in effect
+//   cdro-hostd --print-config [--config FILE] [options]     the whole configuration in effect
+//   cdro-hostd --version                                    release, protocol, layout hashes
 //
 // docs/service.md documents the service, docs/engine.md the engine and its parameters.
 #include <cstdio>
@@ -24,6 +25,7 @@
 #include "cdro/service/config_cli.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
+#include "cdro/service/version.hpp"
 #include "cdro/service/yaml_section.hpp"
 
 namespace {
@@ -119,7 +121,7 @@ int main(int argc, char **argv)
                  "Replay:   cdro-hostd --replay run.cdrocap --speed max --jsonl out/estimates.jsonl\n"
                  "Offline:  cdro-hostd --ranges-csv ../shared/data/plant/ranges.csv \\\n"
                  "              --heights-csv ../shared/data/plant/nodes.csv --out-csv out/plant.csv\n"};
-    app.set_version_flag("--version", "cdro-hostd 0.1.0");
+    app.set_version_flag("--version", cdro::service::versionText("cdro-hostd"));
     cdro::service::ServiceOverrides service_overrides;
     cdro::service::addServiceOptions(app, service_overrides);
     cdro::hostd::EngineOverrides engine_overrides;
@@ -148,7 +150,9 @@ int main(int argc, char **argv)
     app.add_flag("--verbose", offline.verbose, "offline: the engine's decisions (placements, motion, ...) on stderr")
         ->needs(ranges_option);
     bool print_config = false;
-    app.add_flag("--print-config", print_config, "print the engine settings in effect (YAML) and exit");
+    app.add_flag("--print-config", print_config,
+                 "print the whole configuration in effect (YAML: every section and key, defaults, the file and "
+                 "the options applied) and exit");
     bool progress = false;
     app.add_flag("--progress", progress,
                  "a progress line on stderr every second (link, frames, map); the default when stdout is a "
@@ -167,17 +171,29 @@ int main(int argc, char **argv)
         cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);
         cdro::hostd::applySwitches(params, switches);
         cdro::engine::MovementParams movement = cdro::hostd::parseMovementParams(document.root, document.origin);
-        if (print_config) {
-            std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
-            std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
-            return 0;
-        }
         cdro::hostd::KnownGeometry geometry = cdro::hostd::parseKnownGeometry(document.root, document.origin);
         if (!offline.heights_csv.empty()) {
             geometry.heights_csv = offline.heights_csv;
         }
         if (!offline.fixed_csv.empty()) {
             geometry.fixed_csv = offline.fixed_csv;
+        }
+        if (print_config) {
+            // What a run with these arguments would use, as a file --config reads back.
+            cdro::service::ServiceConfig config =
+                document.service_text.empty() ? cdro::service::ServiceConfig{}
+                                              : cdro::service::parseServiceConfig(document.service_text, document.origin);
+            cdro::service::applyOverrides(config, service_overrides);
+            YAML::Emitter map;
+            map << YAML::BeginMap << YAML::Key << "map" << YAML::Value << YAML::BeginMap << YAML::Key << "heights_csv"
+                << YAML::Value << geometry.heights_csv << YAML::Key << "fixed_csv" << YAML::Value << geometry.fixed_csv
+                << YAML::EndMap << YAML::EndMap;
+            std::fputs(cdro::service::serviceConfigYaml(config).c_str(), stdout);
+            std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
+            std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
+            std::fputs(map.c_str(), stdout);
+            std::fputs("\n", stdout);
+            return 0;
         }
         if (!offline.ranges_csv.empty()) {
             offline.heights_csv = geometry.heights_csv;

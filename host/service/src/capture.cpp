@@ -65,7 +65,7 @@ CaptureWriter::~CaptureWriter() { close(); }
 
 std::string CaptureWriter::rotatedName(const std::string &path, uint32_t index)
 {
-    return index == 0 ? path : path + "." + std::to_string(index);
+    return rotatedFileName(path, index);
 }
 
 void CaptureWriter::open(int64_t created_unix_us)
@@ -123,18 +123,7 @@ void CaptureWriter::rotate(int64_t created_unix_us)
         ::close(fd_);
         fd_ = -1;
     }
-    // path.<keep> falls off the end; then every file moves up by one.
-    if (config_.keep == 0) {
-        ::unlink(config_.path.c_str());
-    } else {
-        ::unlink(rotatedName(config_.path, config_.keep).c_str());
-        for (uint32_t index = config_.keep; index >= 1; --index) {
-            const std::string from = rotatedName(config_.path, index - 1);
-            if (fileExists(from)) {
-                ::rename(from.c_str(), rotatedName(config_.path, index).c_str());
-            }
-        }
-    }
+    rotateFiles(config_.path, config_.keep);
     ++counters_.capture_rotations;
     log()->info("capture: rotated {} (keeping {} older files)", config_.path, config_.keep);
     openFresh(created_unix_us);

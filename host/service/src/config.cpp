@@ -1,6 +1,7 @@
 #include "cdro/service/config.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -68,6 +69,22 @@ void parseOutput(Section &s, OutputConfig &c)
     s.readString("jsonl", c.jsonl);
     s.read<double>("rate_hz", c.rate_hz, 0.0, 1000.0);
     s.read<double>("health_period_s", c.health_period_s, 0.0, kMaxSeconds);
+}
+
+void parseJsonl(Section &s, JsonlLimits &c)
+{
+    s.read<double>("rotate_mib", c.rotate_mib, 0.01, 1024.0 * 1024.0);
+    s.read<uint32_t>("keep", c.keep, 0, 10000);
+    s.read<double>("max_node_rate_hz", c.max_node_rate_hz, 0.0, 1000.0);
+}
+
+void parseMqttAuth(Section &s, MqttAuthConfig &c)
+{
+    s.readString("username", c.username);
+    s.readString("password_file", c.password_file);
+    s.readString("ca_file", c.ca_file);
+    s.readString("cert_file", c.cert_file);
+    s.readString("key_file", c.key_file);
 }
 
 void parseMqtt(Section &s, MqttConfig &c)
@@ -199,8 +216,9 @@ void section(const YAML::Node &root, const char *name, const std::string &origin
 
 const std::vector<std::string> &serviceSectionNames()
 {
-    static const std::vector<std::string> names = {"serial", "nodes",      "schedule", "capture", "output",
-                                                   "mqtt",   "http",       "checkpoint", "odometry", "logging",
+    static const std::vector<std::string> names = {"serial", "nodes",    "schedule",  "capture",
+                                                   "output", "jsonl",    "mqtt",      "mqtt_auth",
+                                                   "http",   "checkpoint", "odometry", "logging",
                                                    "web"};
     return names;
 }
@@ -218,15 +236,20 @@ const char *scheduleModeName(uint8_t mode) { return mode == CDRO_SCHEDULE_DIRECT
 
 MqttUrl parseMqttUrl(const std::string &url)
 {
-    const std::string scheme = "mqtt://";
-    if (url.compare(0, scheme.size(), scheme) != 0) {
-        throw ConfigError("mqtt.url: '" + url + "' must look like mqtt://host[:port] (TLS is not supported)");
+    MqttUrl out;
+    std::string rest;
+    if (url.compare(0, 7, "mqtt://") == 0) {
+        rest = url.substr(7);
+    } else if (url.compare(0, 8, "mqtts://") == 0) {
+        rest = url.substr(8);
+        out.tls = true;
+        out.port = 8883;
+    } else {
+        throw ConfigError("mqtt.url: '" + url + "' must look like mqtt://host[:port] or, with TLS, mqtts://host[:port]");
     }
-    std::string rest = url.substr(scheme.size());
     while (!rest.empty() && rest.back() == '/') {
         rest.pop_back();
     }
-    MqttUrl out;
     const size_t colon = rest.rfind(':');
     if (colon != std::string::npos && rest.find(']') == std::string::npos) {
         const std::string port_text = rest.substr(colon + 1);
@@ -239,7 +262,7 @@ MqttUrl parseMqttUrl(const std::string &url)
         out.port = static_cast<uint16_t>(port);
     }
     if (rest.empty() || rest.find('/') != std::string::npos) {
-        throw ConfigError("mqtt.url: no host in '" + url + "' (expected mqtt://host[:port])");
+        throw ConfigError("mqtt.url: no host in '" + url + "' (expected mqtt://host[:port] or mqtts://host[:port])");
     }
     out.host = rest;
     return out;
@@ -269,6 +292,19 @@ void validateServiceConfig(const ServiceConfig &c)
         if (c.mqtt.topic_prefix.empty() || c.mqtt.topic_prefix.find_first_of("#+") != std::string::npos) {
             throw ConfigError("mqtt.topic_prefix '" + c.mqtt.topic_prefix + "' must be non-empty, without # or +");
         }
+    }
+    const MqttAuthConfig &auth = c.mqtt.auth;
+    if (!auth.password_file.empty() && auth.username.empty()) {
+        throw ConfigError("mqtt_auth.password_file is set but mqtt_auth.username is empty (a broker takes a password "
+                          "only with a user name)");
+    }
+    if (auth.cert_file.empty() != auth.key_file.empty()) {
+        throw ConfigError("mqtt_auth.cert_file and mqtt_auth.key_file go together: a client certificate needs its key");
+    }
+    if (!c.mqtt.url.empty() && !parseMqttUrl(c.mqtt.url).tls &&
+        !(auth.ca_file.empty() && auth.cert_file.empty())) {
+        throw ConfigError("mqtt_auth: ca_file or cert_file is set, but mqtt.url '" + c.mqtt.url +
+                          "' is not TLS; use mqtts://host[:port]");
     }
     if (c.http.port != 0 && c.http.bind.empty()) {
         throw ConfigError("http.bind is empty");
@@ -319,7 +355,9 @@ ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string
     section(root, "schedule", origin, parseSchedule, config.schedule);
     section(root, "capture", origin, parseCapture, config.capture);
     section(root, "output", origin, parseOutput, config.output);
+    section(root, "jsonl", origin, parseJsonl, config.output.limits);
     section(root, "mqtt", origin, parseMqtt, config.mqtt);
+    section(root, "mqtt_auth", origin, parseMqttAuth, config.mqtt.auth);
     section(root, "http", origin, parseHttp, config.http);
     section(root, "checkpoint", origin, parseCheckpoint, config.checkpoint);
     section(root, "odometry", origin, parseOdometry, config.odometry);
@@ -327,6 +365,116 @@ ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string
     section(root, "web", origin, parseWeb, config.web);
     validateServiceConfig(config);
     return config;
+}
+
+std::string serviceConfigYaml(const ServiceConfig &c)
+{
+    YAML::Emitter out;
+    out << YAML::BeginMap;
+    const auto begin = [&out](const char *name) { out << YAML::Key << name << YAML::Value << YAML::BeginMap; };
+    const auto end = [&out] { out << YAML::EndMap; };
+    const auto key = [&out](const char *name, const auto &value) { out << YAML::Key << name << YAML::Value << value; };
+    const auto number = [&out](const char *name, double value) {
+        // The shortest text that reads back as the same double: 0.1, not 0.10000000000000001.
+        char text[32];
+        const std::to_chars_result written = std::to_chars(text, text + sizeof text, value);
+        out << YAML::Key << name << YAML::Value << std::string(text, written.ptr);
+    };
+    const auto integer = [&out](const char *name, uint64_t value) { out << YAML::Key << name << YAML::Value << value; };
+
+    begin("serial");
+    key("device", c.serial.device);
+    integer("baud", c.serial.baud);
+    number("reconnect_min_s", c.serial.reconnect_min_s);
+    number("reconnect_max_s", c.serial.reconnect_max_s);
+    number("hello_timeout_s", c.serial.hello_timeout_s);
+    integer("hello_retries", c.serial.hello_retries);
+    number("command_timeout_s", c.serial.command_timeout_s);
+    integer("command_retries", c.serial.command_retries);
+    number("keepalive_period_s", c.serial.keepalive_period_s);
+    integer("keepalive_misses", c.serial.keepalive_misses);
+    end();
+    begin("nodes");
+    out << YAML::Key << "ids" << YAML::Value << YAML::Flow << YAML::BeginSeq;
+    for (uint16_t id : c.nodes.ids) {
+        out << id;
+    }
+    out << YAML::EndSeq;
+    key("unknown", std::string(unknownNodePolicyName(c.nodes.unknown)));
+    end();
+    begin("schedule");
+    integer("slot_period_ms", c.schedule.slot_period_ms);
+    key("mode", std::string(scheduleModeName(c.schedule.mode)));
+    integer("motion_poll_ms", c.schedule.motion_poll_ms);
+    integer("moving_boost", c.schedule.moving_boost);
+    integer("status_period_ms", c.schedule.status_period_ms);
+    integer("max_retries", c.schedule.max_retries);
+    end();
+    begin("capture");
+    key("path", c.capture.path);
+    number("rotate_mib", c.capture.rotate_mib);
+    integer("keep", c.capture.keep);
+    end();
+    begin("output");
+    key("jsonl", c.output.jsonl);
+    number("rate_hz", c.output.rate_hz);
+    number("health_period_s", c.output.health_period_s);
+    end();
+    begin("jsonl");
+    number("rotate_mib", c.output.limits.rotate_mib);
+    integer("keep", c.output.limits.keep);
+    number("max_node_rate_hz", c.output.limits.max_node_rate_hz);
+    end();
+    begin("mqtt");
+    key("url", c.mqtt.url);
+    key("topic_prefix", c.mqtt.topic_prefix);
+    integer("qos", static_cast<uint64_t>(c.mqtt.qos));
+    key("client_id", c.mqtt.client_id);
+    integer("keepalive_s", c.mqtt.keepalive_s);
+    number("rate_hz", c.mqtt.rate_hz);
+    number("reconnect_min_s", c.mqtt.reconnect_min_s);
+    number("reconnect_max_s", c.mqtt.reconnect_max_s);
+    end();
+    begin("mqtt_auth");
+    key("username", c.mqtt.auth.username);
+    key("password_file", c.mqtt.auth.password_file);
+    key("ca_file", c.mqtt.auth.ca_file);
+    key("cert_file", c.mqtt.auth.cert_file);
+    key("key_file", c.mqtt.auth.key_file);
+    end();
+    begin("http");
+    key("bind", c.http.bind);
+    integer("port", c.http.port);
+    number("update_period_s", c.http.update_period_s);
+    integer("max_event_clients", c.http.max_event_clients);
+    end();
+    begin("checkpoint");
+    key("path", c.checkpoint.path);
+    number("period_s", c.checkpoint.period_s);
+    end();
+    begin("odometry");
+    key("udp_bind", c.odometry.udp_bind);
+    integer("udp_port", c.odometry.udp_port);
+    // Unset means "<topic_prefix>/odometry": printed as what it stands for.
+    key("mqtt_topic", c.odometry.mqtt_topic ? *c.odometry.mqtt_topic : c.mqtt.topic_prefix + "/odometry");
+    number("max_velocity_gap_s", c.odometry.max_velocity_gap_s);
+    end();
+    begin("logging");
+    key("level", c.logging.level);
+    key("file", c.logging.file);
+    number("drop_log_per_s", c.logging.drop_log_per_s);
+    end();
+    begin("web");
+    begin("floor_plan");
+    key("path", c.web.floor_plan.path);
+    number("metres_per_pixel", c.web.floor_plan.metres_per_pixel);
+    number("origin_x_m", c.web.floor_plan.origin_x_m);
+    number("origin_y_m", c.web.floor_plan.origin_y_m);
+    number("rotation_rad", c.web.floor_plan.rotation_rad);
+    end();
+    end();
+    out << YAML::EndMap;
+    return std::string(out.c_str()) + "\n";
 }
 
 ServiceConfig loadServiceConfig(const std::string &path)

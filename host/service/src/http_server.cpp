@@ -18,6 +18,7 @@
 
 #include "cdro/service/log.hpp"
 #include "cdro/service/map_state.hpp"
+#include "cdro/service/metrics.hpp"
 #include "web_assets.hpp"
 
 namespace cdro::service {
@@ -571,6 +572,12 @@ private:
         }
         if (path == "/api/events") {
             startStream(c);
+            return;
+        }
+        if (path == "/metrics") {
+            const MapSnapshotStore::Snapshot snapshot = owner_.store_.latest();
+            respond(c, 200, "text/plain; version=0.0.4; charset=utf-8",
+                    prometheusText(snapshot.map_json, snapshot.health_json));
             return;
         }
         const std::string prefix = "/api/nodes/";

@@ -1,11 +1,13 @@
 #include "cdro/service/json_output.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
 
 #include <fcntl.h>
 #include <poll.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <nlohmann/json.hpp>
@@ -20,7 +22,10 @@ JsonLinesWriter::JsonLinesWriter(const OutputConfig &config, ServiceCounters &co
 {
     if (config_.rate_hz > 0.0) {
         period_us_ = static_cast<int64_t>(std::llround(1e6 / config_.rate_hz));
+    } else if (config_.limits.max_node_rate_hz > 0.0) {
+        node_interval_us_ = static_cast<int64_t>(std::llround(1e6 / config_.limits.max_node_rate_hz));
     }
+    rotate_bytes_ = static_cast<uint64_t>(std::llround(config_.limits.rotate_mib * 1024.0 * 1024.0));
 }
 
 JsonLinesWriter::~JsonLinesWriter() { close(); }
@@ -42,8 +47,42 @@ void JsonLinesWriter::open()
         owns_fd_ = false;
         return;
     }
-    fd_ = openOutputFile(config_.jsonl, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, "output.jsonl");
+    // Appended to: what an earlier run (or the run before a restart) wrote stays.
+    fd_ = openOutputFile(config_.jsonl, O_WRONLY | O_CREAT | O_APPEND, "output.jsonl");
     owns_fd_ = true;
+    struct stat st {};
+    // Only a regular file is rotated: /dev/null or a FIFO never fills.
+    rotating_ = ::fstat(fd_, &st) == 0 && S_ISREG(st.st_mode);
+    file_bytes_ = rotating_ ? static_cast<uint64_t>(st.st_size) : 0;
+}
+
+bool JsonLinesWriter::writable() { return fd_ >= 0 || reopen_pending_; }
+
+void JsonLinesWriter::startNewFile()
+{
+    if (fd_ >= 0) {
+        ::close(fd_);
+        fd_ = -1;
+        rotateFiles(config_.jsonl, config_.limits.keep);
+        ++counters_.jsonl_rotations;
+        log()->info("output: rotated {} (keeping {} older files)", config_.jsonl, config_.limits.keep);
+    }
+    try {
+        // O_EXCL: whatever was at the path has just been rotated away.
+        fd_ = openOutputFile(config_.jsonl, O_WRONLY | O_CREAT | O_EXCL | O_APPEND, "output.jsonl");
+        file_bytes_ = 0;
+        if (reopen_pending_) {
+            log()->info("output: writing JSON lines to {} again", config_.jsonl);
+        }
+        reopen_pending_ = false;
+    } catch (const ConfigError &error) {
+        if (!reopen_pending_) {
+            log()->error("{}; JSON lines are lost and counted in jsonl_write_errors until a new file can be started "
+                         "(tried at every flush; it will be logged)",
+                         error.what());
+        }
+        reopen_pending_ = true;
+    }
 }
 
 void JsonLinesWriter::append(const std::string &text)
@@ -67,7 +106,7 @@ void JsonLinesWriter::writeAll(const MapState &map)
 
 void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
 {
-    if (fd_ < 0) {
+    if (!writable()) {
         return;
     }
     if (period_us_ > 0) {
@@ -82,31 +121,68 @@ void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
         writeAll(map);
         return;
     }
+    writeChanged(map, event_us, true);
+}
+
+void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool limited)
+{
+    bool held = false;
     for (const NodeEstimate &node : map.nodes) {
         auto it = last_node_.find(node.id);
         if (it != last_node_.end() && sameEstimate(it->second, node)) {
             continue;
         }
+        if (limited && node_interval_us_ > 0) {
+            auto when = last_node_us_.find(node.id);
+            if (when != last_node_us_.end() && event_us - when->second < node_interval_us_) {
+                ++counters_.jsonl_lines_held;
+                held = true;
+                continue;
+            }
+        }
         append(line(nodeJson(node, outputTimeOf(map))));
         last_node_[node.id] = node;
+        last_node_us_[node.id] = event_us;
     }
     if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
-        append(line(robotJson(*map.robot, outputTimeOf(map))));
-        last_robot_ = map.robot;
+        if (limited && node_interval_us_ > 0 && last_robot_ && event_us - last_robot_us_ < node_interval_us_) {
+            ++counters_.jsonl_lines_held;
+            held = true;
+        } else {
+            append(line(robotJson(*map.robot, outputTimeOf(map))));
+            last_robot_ = map.robot;
+            last_robot_us_ = event_us;
+        }
+    }
+    // What is held back goes out at the end as of the last update, stamped with its event time,
+    // so that a replay ends with the same lines as the live run it replays.
+    if (held) {
+        held_map_ = map;
+        held_event_us_ = event_us;
+    } else if (limited) {
+        held_map_.reset();
     }
 }
 
 void JsonLinesWriter::finish(const MapState &map)
 {
-    if (fd_ >= 0 && period_us_ > 0 && dirty_) {
+    if (!writable()) {
+        return;
+    }
+    if (period_us_ > 0 && dirty_) {
         dirty_ = false;
         writeAll(map);
+    } else if (period_us_ == 0 && held_map_) {
+        // What the rate limit held back: the last estimates must not be lost at the end.
+        const MapState held = *held_map_;
+        held_map_.reset();
+        writeChanged(held, held_event_us_, false);
     }
 }
 
 void JsonLinesWriter::writeHealth(const Health &health, OutputTime time)
 {
-    if (fd_ < 0) {
+    if (!writable()) {
         return;
     }
     append(line(healthJson(health, time)));
@@ -114,12 +190,49 @@ void JsonLinesWriter::writeHealth(const Health &health, OutputTime time)
 
 void JsonLinesWriter::flush()
 {
-    if (fd_ < 0 || pending_.empty()) {
-        pending_.clear();
-        return;
+    size_t start = 0;
+    while (start < pending_.size()) {
+        size_t end = pending_.size();
+        if (rotating_) {
+            end = wholeLinesThatFit(start);
+            if (end == start && (file_bytes_ > 0 || fd_ < 0)) {
+                startNewFile(); // rotates the full file away, or retries after a failed rotation
+                if (fd_ < 0) {
+                    counters_.jsonl_write_errors += static_cast<uint64_t>(
+                        std::count(pending_.begin() + static_cast<std::ptrdiff_t>(start), pending_.end(), '\n'));
+                    break;
+                }
+                continue;
+            }
+            if (end == start) {
+                end = pending_.find('\n', start) + 1; // a line longer than the limit gets a file of its own
+            }
+        }
+        if (fd_ < 0 || !writeRange(start, end)) {
+            break;
+        }
+        start = end;
     }
-    const char *data = pending_.data();
-    size_t left = pending_.size();
+    pending_.clear();
+}
+
+size_t JsonLinesWriter::wholeLinesThatFit(size_t start) const
+{
+    const uint64_t room = file_bytes_ < rotate_bytes_ ? rotate_bytes_ - file_bytes_ : 0;
+    if (fd_ < 0 || room == 0) {
+        return start;
+    }
+    if (pending_.size() - start <= room) {
+        return pending_.size();
+    }
+    const size_t last_newline = pending_.rfind('\n', start + static_cast<size_t>(room) - 1);
+    return last_newline == std::string::npos || last_newline < start ? start : last_newline + 1;
+}
+
+bool JsonLinesWriter::writeRange(size_t start, size_t end)
+{
+    const char *data = pending_.data() + start;
+    size_t left = end - start;
     while (left > 0) {
         const ssize_t n = ::write(fd_, data, left);
         if (n < 0 && errno == EINTR) {
@@ -139,12 +252,13 @@ void JsonLinesWriter::flush()
                 log()->error("output: cannot write JSON lines to {}: {} (counted in jsonl_write_errors)",
                              config_.jsonl == "-" ? "stdout" : config_.jsonl, std::strerror(errno));
             }
-            break;
+            return false;
         }
         data += n;
         left -= static_cast<size_t>(n);
+        file_bytes_ += static_cast<uint64_t>(n);
     }
-    pending_.clear();
+    return true;
 }
 
 void JsonLinesWriter::close()
@@ -155,6 +269,8 @@ void JsonLinesWriter::close()
     }
     fd_ = -1;
     owns_fd_ = false;
+    reopen_pending_ = false;
+    rotating_ = false;
 }
 
 } // namespace cdro::service

@@ -1,8 +1,14 @@
 #include "cdro/service/log.hpp"
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <mutex>
 
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <spdlog/sinks/base_sink.h>
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 
@@ -13,7 +19,67 @@ namespace cdro::service {
 namespace {
 std::mutex g_logger_mutex;
 std::shared_ptr<spdlog::logger> g_logger;
+
+// syslog(3) priorities, as sd-daemon.h's SD_ERR etc. spell them for stderr: "<3>text".
+int journalPriority(spdlog::level::level_enum level)
+{
+    switch (level) {
+    case spdlog::level::critical: return 2; // SD_CRIT
+    case spdlog::level::err: return 3;      // SD_ERR
+    case spdlog::level::warn: return 4;     // SD_WARNING
+    case spdlog::level::info: return 6;     // SD_INFO
+    default: return 7;                      // SD_DEBUG (debug, trace)
+    }
+}
+
+// stderr for journald: every line starts with its priority, and without a time stamp or level
+// name (the journal records both), so that `journalctl -p warning` finds the warnings.
+class JournalStderrSink final : public spdlog::sinks::base_sink<std::mutex> {
+protected:
+    void sink_it_(const spdlog::details::log_msg &message) override
+    {
+        spdlog::memory_buf_t text;
+        formatter_->format(message, text);
+        std::string line = "<" + std::to_string(journalPriority(message.level)) + ">";
+        line.append(text.data(), text.size());
+        std::fwrite(line.data(), 1, line.size(), stderr);
+    }
+    void flush_() override { std::fflush(stderr); }
+};
+
+std::shared_ptr<spdlog::logger> stderrLogger()
+{
+    if (stderrIsJournal()) {
+        auto logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<JournalStderrSink>());
+        logger->set_pattern("%v");
+        return logger;
+    }
+    auto logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+    logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
+    return logger;
+}
 } // namespace
+
+bool stderrIsJournal()
+{
+    // systemd sets $JOURNAL_STREAM to "<device>:<inode>" of the stream it connected to stdout and
+    // stderr; a process whose stderr was redirected since (a shell in ExecStart=) keeps the
+    // variable but not the stream, so both are compared (sd_journal_stream_fd(3)).
+    const char *stream = std::getenv("JOURNAL_STREAM");
+    if (stream == nullptr) {
+        return false;
+    }
+    unsigned long long device = 0;
+    unsigned long long inode = 0;
+    if (std::sscanf(stream, "%llu:%llu", &device, &inode) != 2) {
+        return false;
+    }
+    struct stat st {};
+    if (::fstat(STDERR_FILENO, &st) != 0) {
+        return false;
+    }
+    return static_cast<unsigned long long>(st.st_dev) == device && static_cast<unsigned long long>(st.st_ino) == inode;
+}
 
 void setupLogging(const LoggingConfig &config)
 {
@@ -23,16 +89,16 @@ void setupLogging(const LoggingConfig &config)
     }
     try {
         if (config.file.empty()) {
-            logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+            logger = stderrLogger();
         } else {
             logger = std::make_shared<spdlog::logger>(
                 "cdro", std::make_shared<spdlog::sinks::basic_file_sink_mt>(config.file, false));
+            logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
         }
     } catch (const spdlog::spdlog_ex &error) {
         throw ConfigError("logging.file: cannot open '" + config.file + "': " + error.what());
     }
     logger->set_level(spdlog::level::from_str(config.level));
-    logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
     logger->flush_on(spdlog::level::info);
     std::lock_guard<std::mutex> lock(g_logger_mutex);
     g_logger = logger;
@@ -42,8 +108,7 @@ std::shared_ptr<spdlog::logger> log()
 {
     std::lock_guard<std::mutex> lock(g_logger_mutex);
     if (!g_logger) {
-        g_logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
-        g_logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
+        g_logger = stderrLogger();
     }
     return g_logger;
 }

@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <mutex>
 
 #include <mosquitto.h>
@@ -41,6 +42,7 @@ void MqttPublisher::start()
     if (mosq_ == nullptr) {
         throw ConfigError("mqtt: cannot create a client (client_id '" + config_.client_id + "')");
     }
+    configureSecurity(url.tls);
     const std::string will_topic = topic("status");
     mosquitto_will_set(mosq_, will_topic.c_str(), 7, "offline", config_.qos, true);
     mosquitto_connect_callback_set(mosq_, &MqttPublisher::connectCallback);
@@ -49,6 +51,45 @@ void MqttPublisher::start()
     mosquitto_subscribe_callback_set(mosq_, &MqttPublisher::subscribeCallback);
     mosquitto_publish_callback_set(mosq_, &MqttPublisher::publishCallback);
     connect();
+}
+
+void MqttPublisher::configureSecurity(bool tls)
+{
+    const MqttAuthConfig &auth = config_.auth;
+    if (!auth.username.empty()) {
+        std::string password;
+        if (!auth.password_file.empty()) {
+            std::ifstream in(auth.password_file);
+            if (!in) {
+                throw ConfigError("mqtt_auth.password_file: cannot read '" + auth.password_file +
+                                  "': " + std::strerror(errno));
+            }
+            std::getline(in, password);
+            if (!password.empty() && password.back() == '\r') {
+                password.pop_back();
+            }
+        }
+        const int rc = mosquitto_username_pw_set(mosq_, auth.username.c_str(),
+                                                 auth.password_file.empty() ? nullptr : password.c_str());
+        if (rc != MOSQ_ERR_SUCCESS) {
+            throw ConfigError(std::string("mqtt_auth.username: ") + mosquitto_strerror(rc));
+        }
+    }
+    if (!tls) {
+        return;
+    }
+    // Without a CA file, the system's certificates (a broker with a certificate from a public CA).
+    const char *ca_file = auth.ca_file.empty() ? nullptr : auth.ca_file.c_str();
+    const char *ca_path = auth.ca_file.empty() ? "/etc/ssl/certs" : nullptr;
+    const int rc = mosquitto_tls_set(mosq_, ca_file, ca_path, auth.cert_file.empty() ? nullptr : auth.cert_file.c_str(),
+                                     auth.key_file.empty() ? nullptr : auth.key_file.c_str(), nullptr);
+    if (rc != MOSQ_ERR_SUCCESS) {
+        throw ConfigError("mqtt_auth: cannot use the TLS files (ca_file '" + auth.ca_file + "', cert_file '" +
+                          auth.cert_file + "', key_file '" + auth.key_file + "'): " +
+                          (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+    }
+    // The broker's certificate must name the host of mqtt.url (never switched off here).
+    mosquitto_tls_insecure_set(mosq_, false);
 }
 
 void MqttPublisher::connect()
@@ -216,9 +257,19 @@ void MqttPublisher::dropInFlight(const std::string &why)
 void MqttPublisher::onConnected(int rc)
 {
     if (rc != 0) {
+        // 4: bad user name or password, 5: not authorised. Retrying will not fix credentials, but
+        // the broker's password file may be fixed meanwhile: an error (not the outage warning),
+        // once, naming the settings to check, and the retries go on.
+        if ((rc == 4 || rc == 5) && !auth_error_logged_) {
+            auth_error_logged_ = true;
+            log()->error("mqtt: the broker {}:{} refused the credentials: {} (check mqtt_auth.username and "
+                         "mqtt_auth.password_file); retrying with backoff, estimates keep flowing elsewhere",
+                         host_, port_, mosquitto_connack_string(rc));
+        }
         onLost(std::string("the broker refused the connection: ") + mosquitto_connack_string(rc));
         return;
     }
+    auth_error_logged_ = false;
     connected_ = true;
     outage_logged_ = false;
     backoff_us_ = secondsToUs(config_.reconnect_min_s);

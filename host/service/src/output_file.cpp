@@ -85,4 +85,26 @@ int createTempNextTo(const std::string &path, const std::string &what, std::stri
     return fd;
 }
 
+std::string rotatedFileName(const std::string &path, uint32_t index)
+{
+    return index == 0 ? path : path + "." + std::to_string(index);
+}
+
+void rotateFiles(const std::string &path, uint32_t keep)
+{
+    if (keep == 0) {
+        ::unlink(path.c_str());
+        return;
+    }
+    // path.<keep> falls off the end; then every file moves up by one.
+    ::unlink(rotatedFileName(path, keep).c_str());
+    for (uint32_t index = keep; index >= 1; --index) {
+        const std::string from = rotatedFileName(path, index - 1);
+        struct stat st {};
+        if (::lstat(from.c_str(), &st) == 0) { // a link counts, whatever it points at
+            ::rename(from.c_str(), rotatedFileName(path, index).c_str());
+        }
+    }
+}
+
 } // namespace cdro::service

@@ -194,7 +194,12 @@ void Service::start()
         loop_.addTimerAfter(secondsToUs(config_.checkpoint.period_s), [this] { checkpointTick(); });
     }
 
+    if (systemd_.watchdogPeriodUs() > 0) {
+        loop_.addTimerAfter(systemd_.watchdogPeriodUs(), [this] { watchdogTick(); });
+    }
+
     started_ = true;
+    systemd_.ready(statusLine());
     if (replay_) {
         if (!config_.mqtt.url.empty()) {
             replay_->setGate([this] { return replayMayGoOn(); });
@@ -377,6 +382,7 @@ bool Service::sendCommand(cdro_frame_t &frame)
 void Service::onSessionState(LinkState state, const std::string &detail)
 {
     log()->info("link: {} ({})", linkStateName(state), detail);
+    systemd_.status(statusLine());
     if (state == LinkState::Connected && link_) {
         link_->resetBackoff();
     }
@@ -426,7 +432,36 @@ void Service::healthTick()
     jsonl_.writeHealth(h, outputTime(now_us));
     jsonl_.flush();
     mqtt_.publishHealth(h, outputTime(now_us));
+    systemd_.status(statusLine());
     loop_.addTimerAfter(secondsToUs(config_.output.health_period_s), [this] { healthTick(); });
+}
+
+void Service::watchdogTick()
+{
+    if (shut_down_) {
+        return;
+    }
+    // From the loop itself: if the loop hangs, the pings stop and systemd restarts the service.
+    systemd_.watchdog();
+    loop_.addTimerAfter(systemd_.watchdogPeriodUs(), [this] { watchdogTick(); });
+}
+
+std::string Service::statusLine() const
+{
+    std::string line = std::string(linkStateName(linkState()));
+    if (replay_) {
+        line += " " + replay_->source();
+    } else if (link_) {
+        line += " " + link_->description();
+    }
+    line += ", " + std::to_string(counters_.frames_delivered) + " frames";
+    if (counters_.chunks_rejected > 0) {
+        line += ", " + std::to_string(counters_.chunks_rejected) + " rejected";
+    }
+    if (http_) {
+        line += "; live map " + http_->url();
+    }
+    return line;
 }
 
 void Service::httpTick()
@@ -528,6 +563,7 @@ void Service::shutdown(const std::string &why)
     }
     if (started_) {
         log()->info("stopping ({}): final checkpoint, flushing outputs, closing the capture", why);
+        systemd_.stopping("stopping (" + why + ")");
     }
     // 1. No more input.
     if (link_) {

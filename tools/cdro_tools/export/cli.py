@@ -70,6 +70,9 @@ def replay_capture(args, capture: str, scratch: pathlib.Path) -> pathlib.Path:
                "--checkpoint", "", "--log-level", "warn"]
     if args.config:
         command += ["--config", args.config]
+    # Every update, as the engine made it: --rate-hz thins them here, not the service's per-node
+    # limit on its JSON Lines file (jsonl.max_node_rate_hz).
+    command += ["--set", "jsonl.max_node_rate_hz=0"]
     if args.heights_csv:
         command += ["--heights-csv", args.heights_csv]
     command += args.hostd_arg

@@ -59,10 +59,30 @@ struct CaptureConfig {
     uint32_t keep = 5;                   // rotated files kept: path.1 .. path.<keep>
 };
 
+// The `jsonl:` section: what keeps a long-running JSON Lines file bounded. A file is appended
+// to across restarts (never truncated) and rotated like the capture.
+struct JsonlLimits {
+    double rotate_mib = 64.0;            // MiB; a file is rotated before it grows past this
+    uint32_t keep = 5;                   // rotated files kept: path.1 .. path.<keep>
+    double max_node_rate_hz = 2.0;       // Hz of event time, most lines per node (and robot)
+                                         // when output.rate_hz is 0; 0 = a line per update
+};
+
 struct OutputConfig {
     std::string jsonl = "-";             // JSON Lines path, "-" = stdout, "" = off
     double rate_hz = 0.0;                // Hz, all nodes at this rate; 0 = a line per update
     double health_period_s = 1.0;        // s of event time between health lines; 0 = off
+    JsonlLimits limits;                  // the `jsonl:` section
+};
+
+// The `mqtt_auth:` section: credentials and TLS for the broker of mqtt.url.
+struct MqttAuthConfig {
+    std::string username;                // "" = connect without credentials
+    std::string password_file;           // first line is the password; "" = none (needs username)
+    std::string ca_file;                 // PEM CA certificate(s) to check the broker with (mqtts://);
+                                         // "" = the system's (/etc/ssl/certs)
+    std::string cert_file;               // PEM client certificate, for brokers that ask for one
+    std::string key_file;                // its PEM private key (unencrypted)
 };
 
 struct MqttConfig {
@@ -74,6 +94,7 @@ struct MqttConfig {
     double rate_hz = 10.0;               // Hz, most publishes per node per second; 0 = every update
     double reconnect_min_s = 1.0;        // s
     double reconnect_max_s = 30.0;       // s
+    MqttAuthConfig auth;                 // the `mqtt_auth:` section
 };
 
 struct HttpConfig {
@@ -139,6 +160,10 @@ const std::vector<std::string> &serviceSectionNames();
 // Parses YAML text (origin names it in messages, e.g. the file path). Throws ConfigError.
 ServiceConfig parseServiceConfig(const std::string &yaml_text, const std::string &origin = "<config>");
 
+// The whole configuration as YAML, every key of every section with its value (defaults
+// included), in the order of the docs; parseServiceConfig reads it back to the same values.
+std::string serviceConfigYaml(const ServiceConfig &config);
+
 // Reads and parses a file. Throws ConfigError (also when the file cannot be read).
 ServiceConfig loadServiceConfig(const std::string &path);
 
@@ -162,10 +187,12 @@ FloorPlanImage readFloorPlanHeader(const std::string &path);
 // The whole file, checked as above.
 FloorPlanImage readFloorPlan(const std::string &path);
 
-// mqtt://host[:port] split into its parts; throws ConfigError for anything else.
+// mqtt://host[:port] (plain, port 1883) or mqtts://host[:port] (TLS, port 8883) split into
+// its parts; throws ConfigError for anything else.
 struct MqttUrl {
     std::string host;
     uint16_t port = 1883;
+    bool tls = false;
 };
 MqttUrl parseMqttUrl(const std::string &url);
 

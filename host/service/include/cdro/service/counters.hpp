@@ -69,6 +69,8 @@ namespace cdro::service {
     X(odometry_rejected_too_long, "odometry dropped: a message longer than 1024 bytes")           \
     X(jsonl_lines, "JSON lines written")                                                             \
     X(jsonl_write_errors, "JSON lines that could not be written")                                   \
+    X(jsonl_rotations, "JSON Lines files rotated (jsonl.rotate_mib)")                                \
+    X(jsonl_lines_held, "node and robot updates held back by jsonl.max_node_rate_hz")               \
     X(mqtt_published, "MQTT messages handed to the broker connection")                              \
     X(mqtt_dropped, "MQTT messages not sent because the broker was unreachable")                   \
     X(mqtt_connects, "MQTT connections established")                                                \

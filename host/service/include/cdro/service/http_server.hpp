@@ -9,6 +9,7 @@
 //                                   whenever a new snapshot is published
 //   GET /api/floor-plan             the floor plan's placement (web.floor_plan), 404 if none
 //   GET /floor-plan.png             its image, read once from web.floor_plan.path at start
+//   GET /metrics                    the counters and rates for Prometheus (metrics.hpp)
 //
 // Why not a library's server: the one Debian ships (cpp-httplib 0.11) gives every connection a
 // worker thread from a fixed pool while it reads the request, with no deadline on the request

@@ -1,7 +1,10 @@
 // log.hpp: the service's spdlog logger and a rate limiter for messages that bad input could
 // otherwise repeat thousands of times per second (dropped frames).
 //
-// Logs go to stderr or a file, never to stdout, which may carry the JSON Lines stream.
+// Logs go to stderr or a file, never to stdout, which may carry the JSON Lines stream. Under
+// systemd (stderr is the journal stream named by $JOURNAL_STREAM), a stderr line is
+// "<N>message" with N the syslog priority (3 error, 4 warning, 6 info, 7 debug), which journald
+// stores as the line's priority; elsewhere it is "date time level message".
 // The logger is thread-safe (spdlog _mt sinks); RateLimiter is not (one per owner thread).
 #pragma once
 
@@ -19,6 +22,9 @@ namespace cdro::service {
 // Installs the "cdro" logger from the logging: section (level, file). Throws ConfigError if
 // the file cannot be opened. Safe to call again (replaces the logger).
 void setupLogging(const LoggingConfig &config);
+
+// True when stderr is the journal stream systemd gave the process ($JOURNAL_STREAM matches it).
+bool stderrIsJournal();
 
 // The "cdro" logger (a stderr logger at info until setupLogging is called).
 std::shared_ptr<spdlog::logger> log();

@@ -22,6 +22,12 @@
 // Retained messages are ignored: a retained odometry step is an old one, replayed by the
 // broker to every new subscriber.
 //
+// Credentials and TLS (the mqtt_auth: section): a user name and a password read from a file
+// (mosquitto_username_pw_set), and for an mqtts:// URL a TLS connection that checks the broker's
+// certificate against mqtt_auth.ca_file (or the system's CAs) and the URL's host name, with an
+// optional client certificate (mosquitto_tls_set). Refused credentials are logged as an error
+// once per outage; the service keeps running and retrying like for a broker that is away.
+//
 // Threading: loop thread only.
 #pragma once
 
@@ -76,6 +82,7 @@ public:
 
 private:
     void connect();
+    void configureSecurity(bool tls); // mqtt_auth: user name and password, TLS; throws ConfigError
     void scheduleReconnect();
     void onSocketEvents(short revents);
     void updateInterest();
@@ -102,6 +109,7 @@ private:
     bool connected_ = false;
     bool first_connect_ = true;
     bool outage_logged_ = false;
+    bool auth_error_logged_ = false;
     bool stopping_ = false;
     int64_t backoff_us_ = 0;
     EventLoop::TimerId retry_timer_ = 0;

@@ -11,6 +11,7 @@
 // user can plant in a directory of ours.
 #pragma once
 
+#include <cstdint>
 #include <string>
 
 namespace cdro::service {
@@ -27,5 +28,13 @@ int openOutputFile(const std::string &path, int flags, const std::string &what);
 // A new, empty file with an unpredictable name next to `path` ("<path>.tmp.XXXXXX"), created
 // with O_EXCL; *temp_path receives its name. Throws ConfigError.
 int createTempNextTo(const std::string &path, const std::string &what, std::string *temp_path);
+
+// Rotation of a size-bounded output file (the capture and the JSON Lines file): path.<keep>
+// is deleted, path.<i> becomes path.<i+1>, path becomes path.1 (keep == 0: path is deleted).
+// Links are renamed as they are, never followed. Leaves nothing at path.
+void rotateFiles(const std::string &path, uint32_t keep);
+
+// The name of the index-th rotated file: path for 0, else "path.<index>".
+std::string rotatedFileName(const std::string &path, uint32_t index);
 
 } // namespace cdro::service

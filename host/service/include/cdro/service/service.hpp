@@ -18,6 +18,9 @@
 // record) -> OdometryIntake -> capture record -> hooks.odometry -> the same outputs. Timers publish health (output.health_period_s), push the live map
 // (http.update_period_s) and write checkpoints (checkpoint.period_s).
 //
+// Under systemd (systemd_notify.hpp): READY=1 at the end of start(), STATUS= every health
+// period, WATCHDOG=1 from a loop timer, STOPPING=1 when the shutdown begins.
+//
 // On SIGTERM/SIGINT (through the self-pipe), the replay's end or requestStop(): the input
 // stops, the last estimates and a health line are written, a final checkpoint is written,
 // outputs are flushed, the capture is closed (fsync), MQTT says "offline", the HTTP server
@@ -50,6 +53,7 @@
 #include "cdro/service/replay.hpp"
 #include "cdro/service/serial_link.hpp"
 #include "cdro/service/session.hpp"
+#include "cdro/service/systemd_notify.hpp"
 
 namespace cdro::service {
 
@@ -118,6 +122,8 @@ private:
     void healthTick();
     void httpTick();
     void checkpointTick();
+    void watchdogTick();
+    std::string statusLine() const; // systemd's STATUS=: link, frames, nodes, the live map
     bool replayMayGoOn();
     void shutdown(const std::string &why);
 
@@ -139,6 +145,7 @@ private:
     MqttPublisher mqtt_;
     MapSnapshotStore store_;
     std::unique_ptr<HttpServer> http_;
+    SystemdNotifier systemd_;
 
     std::string capture_context_;
     int64_t run_start_unix_us_ = 0;

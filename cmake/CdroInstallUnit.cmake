@@ -1,0 +1,26 @@
+# Run by `cmake --install` (install(SCRIPT) in CdroInstall.cmake, after the CDRO_DIRS_* were set):
+# writes config/systemd/cdro-hostd.service.in with the absolute paths of this installation's
+# prefix and installs it. Relative directories are under CMAKE_INSTALL_PREFIX; the configuration
+# directory follows GNUInstallDirs (/etc for the prefixes / and /usr, else PREFIX/etc).
+set(prefix "${CMAKE_INSTALL_PREFIX}")
+function(cdro_full out dir)
+  if(IS_ABSOLUTE "${dir}")
+    set(${out} "${dir}" PARENT_SCOPE)
+  else()
+    set(${out} "${prefix}/${dir}" PARENT_SCOPE)
+  endif()
+endfunction()
+cdro_full(CDRO_FULL_BINDIR "${CDRO_DIRS_BINDIR}")
+cdro_full(CDRO_FULL_DOCDIR "${CDRO_DIRS_DOCDIR}")
+cdro_full(CDRO_FULL_SYSUSERSDIR "${CDRO_DIRS_SYSUSERSDIR}")
+cdro_full(CDRO_FULL_EXAMPLEDIR "${CDRO_DIRS_EXAMPLEDIR}")
+cdro_full(unit_dir "${CDRO_DIRS_SYSTEMD_UNITDIR}")
+if(IS_ABSOLUTE "${CDRO_DIRS_SYSCONFDIR}")
+  set(CDRO_FULL_SYSCONFDIR "${CDRO_DIRS_SYSCONFDIR}")
+elseif(prefix STREQUAL "/" OR prefix STREQUAL "/usr")
+  set(CDRO_FULL_SYSCONFDIR "/etc")
+else()
+  set(CDRO_FULL_SYSCONFDIR "${prefix}/${CDRO_DIRS_SYSCONFDIR}")
+endif()
+configure_file("${CDRO_UNIT_TEMPLATE}" "${CDRO_UNIT_BUILD_DIR}/cdro-hostd.service" @ONLY)
+file(INSTALL DESTINATION "${unit_dir}" TYPE FILE FILES "${CDRO_UNIT_BUILD_DIR}/cdro-hostd.service")
