@@ -14,13 +14,6 @@ GUARD_S = 60
 NODES = {1: (0.0, 0.0), 2: (8.0, 1.0), 3: (3.0, 7.0), 4: (10.0, 9.0)}
 
 
-@pytest.fixture(scope="module")
-def hostd(build_dir):
-    binary = build_dir / "bin" / "cdro-hostd"
-    assert binary.is_file(), f"{binary} not found: build first (scripts/test.sh), or set CDRO_BUILD_DIR"
-    return binary
-
-
 def run(hostd, *args):
     return subprocess.run([str(hostd), *map(str, args)], capture_output=True, text=True, timeout=GUARD_S)
 

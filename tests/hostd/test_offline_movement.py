@@ -38,13 +38,6 @@ BEACONS_GOAL_M = 0.5
 
 
 @pytest.fixture(scope="module")
-def hostd(build_dir):
-    binary = build_dir / "bin" / "cdro-hostd"
-    assert binary.is_file(), f"{binary} not found: build first (scripts/test.sh), or set CDRO_BUILD_DIR"
-    return binary
-
-
-@pytest.fixture(scope="module")
 def data_dir(repo_root):
     return pathlib.Path(os.environ.get("CDRO_DATA_DIR", repo_root.parent / "shared" / "data"))
 

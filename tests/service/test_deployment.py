@@ -28,14 +28,6 @@ VERSION_TAIL = (f"(protocol {CONSTANTS['CDRO_PROTOCOL_VERSION']}, frame layout 0
                 f"checkpoint layout 0x{CONSTANTS['CDRO_SOG_LAYOUT_HASH']:04X})")
 
 
-@pytest.fixture
-def hostd(build_dir):
-    binary = build_dir / "bin" / "cdro-hostd"
-    if not binary.exists():
-        pytest.fail(f"{binary} missing: build the native tree first (cmake --build build)")
-    return binary
-
-
 def quiet_service_args(tmp_path, **overrides):
     """A live service with no board (it waits for one), nothing written but what a test asks."""
     args = {"--device": str(tmp_path / "no-board"), "--capture": "", "--checkpoint": "", "--jsonl": "",
