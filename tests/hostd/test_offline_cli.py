@@ -13,6 +13,7 @@ import subprocess
 
 import pytest
 import yaml
+from cdro_tools.evaluation.alignment import align
 
 GUARD_S = 60
 HEADER = "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
@@ -20,13 +21,6 @@ TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,status,reason,t"
 
 # Six nodes (m) that all range to each other: every one of them can be placed.
 NODES = {1: (0.0, 0.0), 2: (8.0, 1.0), 3: (3.0, 7.0), 4: (10.0, 9.0), 5: (-2.0, 5.0), 6: (6.0, -4.0)}
-
-
-@pytest.fixture(scope="module")
-def hostd(build_dir):
-    binary = build_dir / "bin" / "cdro-hostd"
-    assert binary.is_file(), f"{binary} not found: build first (scripts/test.sh), or set CDRO_BUILD_DIR"
-    return binary
 
 
 def run(hostd, *args):
@@ -51,10 +45,15 @@ def exact_rows(rounds=3):
 
 def noisy_network(seed, nodes=10):
     """A seeded network with range noise (0.1 m) and NLOS readings (8 %, 0.5-2 m too long)."""
+    return noisy_network_and_truth(seed, nodes)[0]
+
+
+def noisy_network_and_truth(seed, nodes=10, side_m=25.0):
+    """noisy_network's ranges (nodes in a square of side_m), and the true positions (m) by id."""
     rng = random.Random(seed)
     positions = {}
     while len(positions) < nodes:
-        p = (rng.uniform(0, 25), rng.uniform(0, 25))
+        p = (rng.uniform(0, side_m), rng.uniform(0, side_m))
         if all(math.dist(p, q) > 2.0 for q in positions.values()):
             positions[100 + len(positions)] = p
     links = [(a, b) for a in positions for b in positions if a < b and math.dist(positions[a], positions[b]) < 14.0]
@@ -66,7 +65,7 @@ def noisy_network(seed, nodes=10):
             if rng.random() < 0.08:
                 r += rng.uniform(0.5, 2.0)
             rows.append(f"{a},{b},{r:.4f}")
-    return rows
+    return rows, positions
 
 
 def write(path, lines):
@@ -440,10 +439,11 @@ def test_that_a_malformed_set_is_an_error(hostd, tmp_path, setting, message):
     assert not (tmp_path / "out.csv").exists()
 
 
-def test_that_the_ablation_switches_change_the_output(hostd, tmp_path):
+def test_that_the_ablation_switches_reach_the_engine(hostd, tmp_path):
     # Fixture
     seed = seed_of(63)
-    ranges = write(tmp_path / "ranges.csv", ["from,to,range_m", *noisy_network(seed)])
+    rows, truth_m = noisy_network_and_truth(seed, side_m=15.0)  # dense: most pairs in range
+    ranges = write(tmp_path / "ranges.csv", ["from,to,range_m", *rows])
     switches = ["--no-weight-transfer", "--no-cooperative", "--no-refinement"]
 
     # Act
@@ -457,8 +457,15 @@ def test_that_the_ablation_switches_change_the_output(hostd, tmp_path):
         assert len(rows) == 10 and all(r["x"] != "" for r in rows), switch
 
     # Assert
-    for switch in switches:
-        assert outputs[switch] != outputs[""], switch
+    # Where the direction is known on any network: without the refinement the merged SoGs are the
+    # map, metres off where the refined map is centimetres off. With the refinement on, weight
+    # transfer and the cooperative weights often change nothing (the links decide; docs/results.md):
+    # their directions are asserted on the paper's filter alone, over seeded networks, in
+    # tests/engine (Engine.AblationSwitchesGoTheWayTheyAreKnownTo).
+    def rmse_of(switch):
+        estimates = {int(r["id"]): (float(r["x"]), float(r["y"])) for r in read_rows(tmp_path / f"out{switch}.csv")}
+        return align(estimates, truth_m).rmse_m
+    assert rmse_of("") < 0.2 < rmse_of("--no-refinement"), (rmse_of(""), rmse_of("--no-refinement"))
     printed = yaml.safe_load(print_config(hostd, *switches))["engine"]
     assert printed["sog"]["weight_transfer"] is False
     assert printed["sog"]["cooperative"] is False
