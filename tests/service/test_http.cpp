@@ -104,6 +104,10 @@ TEST_F(HttpTest, ComponentsAreFetchedOnTheLoopThread)
     EXPECT_EQ(fetch_thread.load(), loop_thread.get_id());
     EXPECT_EQ(c.Get("/api/nodes/7/components")->status, 404);
     EXPECT_EQ(c.Get("/api/nodes/70000/components")->status, 400);
+    // The id as the page, the topics and the logs show it.
+    auto hex = c.Get("/api/nodes/0x64/components");
+    ASSERT_EQ(hex->status, 200);
+    EXPECT_EQ(nlohmann::json::parse(hex->body), json);
 }
 
 TEST_F(HttpTest, EventsCarryEachNewSnapshot)
@@ -317,7 +321,9 @@ TEST_F(HttpTest, NodeIdsOutsideTheirRangeAre400)
 {
     auto c = client();
     for (const char *path : {"/api/nodes/99999999999999999999/components", "/api/nodes/65536/components",
-                             "/api/nodes/0/components", "/api/nodes/000000000000000000001/components"}) {
+                             "/api/nodes/0/components", "/api/nodes/000000000000000000001/components",
+                             "/api/nodes/0x10000/components", "/api/nodes/0x/components", "/api/nodes/0x0/components",
+                             "/api/nodes/0xg1/components"}) {
         auto response = c.Get(path);
         ASSERT_TRUE(response) << path;
         EXPECT_EQ(response->status, 400) << path;

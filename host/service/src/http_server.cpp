@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cstring>
 #include <map>
+#include <optional>
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -22,6 +23,28 @@
 #include "web_assets.hpp"
 
 namespace cdro::service {
+
+namespace {
+
+// A node id as a path gives it: decimal (6001... as in JSON) or hex with 0x (0x6001, as in the
+// topics, the logs and on the page). At most 5 decimal or 4 hex digits, so no number can overflow
+// whatever reads it; 0 is no node.
+std::optional<uint16_t> nodeIdOfPath(const std::string &text)
+{
+    const bool hex = text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
+    const std::string digits = hex ? text.substr(2) : text;
+    const char *allowed = hex ? "0123456789abcdefABCDEF" : "0123456789";
+    if (digits.empty() || digits.size() > (hex ? 4U : 5U) || digits.find_first_not_of(allowed) != std::string::npos) {
+        return std::nullopt;
+    }
+    const unsigned long value = std::stoul(digits, nullptr, hex ? 16 : 10);
+    if (value == 0 || value > 65535) {
+        return std::nullopt;
+    }
+    return static_cast<uint16_t>(value);
+}
+
+} // namespace
 
 // ---- snapshot store --------------------------------------------------------------------------
 
@@ -584,14 +607,13 @@ private:
         const std::string suffix = "/components";
         if (path.size() > prefix.size() + suffix.size() && path.compare(0, prefix.size(), prefix) == 0 &&
             path.compare(path.size() - suffix.size(), suffix.size(), suffix) == 0) {
-            const std::string digits = path.substr(prefix.size(), path.size() - prefix.size() - suffix.size());
-            // At most 5 digits, so that no number can overflow whatever reads it.
-            if (digits.empty() || digits.size() > 5 || digits.find_first_not_of("0123456789") != std::string::npos ||
-                std::stoul(digits) == 0 || std::stoul(digits) > 65535) {
-                refuse(c, 400, "node ids are 1..65535");
+            const std::optional<uint16_t> id =
+                nodeIdOfPath(path.substr(prefix.size(), path.size() - prefix.size() - suffix.size()));
+            if (!id) {
+                refuse(c, 400, "node ids are 1..65535, decimal or 0x hex");
                 return;
             }
-            askComponents(c, static_cast<uint16_t>(std::stoul(digits)));
+            askComponents(c, *id);
             return;
         }
         if (routeFloorPlan(c, path)) {
