@@ -29,8 +29,8 @@ if(CDRO_AVR_BOARD STREQUAL "mega")
 elseif(CDRO_AVR_BOARD STREQUAL "uno")
   set(_variant standard)
   set(_board_define ARDUINO_AVR_UNO)
-  set(_flash_default 24576)  # issue 7: 24 KB of the 32 KB (0.5 KB go to Optiboot)
-  set(_ram_default 1228)     # issue 7: 1.2 KB of the 2 KB, the rest is stack
+  set(_flash_default 24576)  # budget: 24 KB of the 32 KB (0.5 KB go to Optiboot)
+  set(_ram_default 1228)     # budget: 1.2 KB of the 2 KB, the rest is stack
   set(_max_nodes 10)
   set(_programmer arduino)   # Optiboot
 else()

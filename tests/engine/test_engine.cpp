@@ -115,9 +115,9 @@ INSTANTIATE_TEST_SUITE_P(RandomNetworks, NoiseFreeRecovery,
                                            PropertyCase{1003, 30, 9.0, false}, PropertyCase{1000, 40, 10.0, true},
                                            PropertyCase{1000, 40, 8.0, true}));
 
-// Former failures (engine as of 3646197, all fixed since: the joint solve of the initialization
-// that runs again, the NLOS term ramped in at e = 0, eq. 16's average restarted when settling
-// ends), same generator and stream. Measured over seeds
+// Hard cases, same generator and stream: these seeds fail without the joint solve of the
+// initialization that runs again, the NLOS term ramped in at e = 0 and eq. 16's average
+// restarted when settling ends. Without those three, over seeds
 // 1000..1029 per configuration: 8 nodes/degree 6, 16/8: 0 of 30 fail; 12/7: 1; 20/10: 2; 25/8:
 // 2; 30/9: 1; 40/10: 3; 40/8: 14; 40/6: 28 of 30. Three kinds:
 //  - 1028 (12/7), 1014 (20/10): the map is exact (RMSE < 1e-6 m) but a node is not converged
@@ -376,13 +376,14 @@ TEST(Engine, TwoOrMoreFixedNodesStayExactlyWhereGivenAndDefineTheFrame)
     }
 }
 
-// Regression test. Was a bug (engine as of 3646197, fixed since): with exactly two fixed nodes nothing else is ever placed. Every
+// Regression test: with exactly two fixed nodes the rest of the map must still be placed. Every
 // node with two placed neighbours has two mirror-image candidates, and the MDS tie break that
 // would decide needs three placed nodes to align its layout (alignedMdsLayout returns nothing
-// for fewer); the re-initialization keeps the same placement. On PLANT with nodes 1 and 2 fixed
-// (`--fixed-csv` with their surveyed x, y) the output has those 2 nodes placed and 26 empty;
-// with 1, 2 and 3 fixed all 28 are placed. Two known points fix the frame up to the reflection
-// through them, and either image is a valid answer.
+// for fewer); the re-initialization keeps the same placement. An engine that waits for that tie
+// break places nothing else: on PLANT with nodes 1 and 2 fixed (`--fixed-csv` with their
+// surveyed x, y) its output has those 2 nodes placed and 26 empty, while with 1, 2 and 3 fixed
+// all 28 are placed. Two known points fix the frame up to the reflection through them, and
+// either image is a valid answer.
 TEST(Engine, TwoFixedNodesGiveTheFrameUpToTheMirrorThroughThem)
 {
     const uint64_t seed = testSeed(3504);
@@ -685,9 +686,9 @@ TEST(Engine, WithoutRefinementTheEstimateIsTheMergedSog)
 
 // ---- bugs found -----------------------------------------------------------------------------
 
-// Regression test. Was a bug (engine as of 3646197, fixed since): while the map is still sparse, the re-initialization's MDS-MAP
-// candidate is adopted and places nodes that have fewer than two placed neighbours (here node
-// 4434 with none at all). A node with a single placed link takes its one ring's merged mean,
+// Regression test: while the map is still sparse, the re-initialization's MDS-MAP candidate must
+// not place nodes that have fewer than two placed neighbours (here node 4434 would have none at
+// all). If it does, a node with a single placed link takes its one ring's merged mean,
 // and two such nodes linked to each other walk away together, about 11 m per range: after 8
 // ranges of a 25 m network the outputs are 700 m from the origin, after 14 ranges 2.6 km. The
 // aligned map is fine later on, but the output coordinates of a live run are absurd meanwhile,
@@ -724,8 +725,8 @@ TEST(Engine, OutputsStayNearTheNetworkWhileItIsBuilt)
     }
 }
 
-// Regression test. Was a bug (engine as of 3646197, fixed since): with refinement off (`--no-refinement`, the paper's filter alone)
-// the map never comes to rest. Each neighbour update re-weights and re-merges, nodes keep moving
+// Regression test: with refinement off (`--no-refinement`, the paper's filter alone) the map must
+// still come to rest. Otherwise each neighbour update re-weights and re-merges, nodes keep moving
 // by more than relax_threshold_m, settle() always spends its whole budget, and no node is ever
 // converged: on this network with exact ranges the whole map walks 97 m per 2000 updates
 // (aligned RMSE 1.16 m); with noisy ranges it cycles. On PLANT `cdro-hostd --no-refinement`
@@ -760,13 +761,13 @@ TEST(Engine, WithoutRefinementTheMapComesToRest)
     EXPECT_EQ(alignedError(engine.estimates(), network.ids, network.truth_m).placed, network.ids.size());
 }
 
-// Regression test. Was a bug (engine as of 3646197, fixed since), with OutputsStayNearTheNetworkWhileItIsBuilt: engine.hpp says the
-// output frame is the named frame, else the frame triangle's (origin at (0, 0), x-axis node on
-// +x, third on +y). When the re-initialization adopts its MDS-MAP candidate before a frame
-// triangle was placed, frameNodes() stays empty for good and outputTransform() is the identity:
-// the outputs are in the engine's internal frame, wherever MDS and the refinement put it. In 7
-// of 12 eight-node networks (seeds 3500..3511) and on PLANT (no node is output at (0, 0)) there
-// is no frame triangle at the end.
+// Regression test, with OutputsStayNearTheNetworkWhileItIsBuilt: engine.hpp says the output
+// frame is the named frame, else the frame triangle's (origin at (0, 0), x-axis node on +x,
+// third on +y). When the re-initialization adopts its MDS-MAP candidate before a frame triangle
+// was placed, frameNodes() must not stay empty for good: with an identity outputTransform() the
+// outputs are in the engine's internal frame, wherever MDS and the refinement put it. An engine
+// that picks the frame triangle only from the first placements has none at the end in 7 of 12
+// eight-node networks (seeds 3500..3511) and on PLANT (no node is output at (0, 0)).
 TEST(Engine, DefaultOutputFrameIsTheFrameTriangles)
 {
     Random random(3506);

@@ -197,12 +197,12 @@ TEST(RangeLikelihood, NonPositiveVarianceIsGuarded)
     }
 }
 
-// Regression test. The robust density used to jump at e = 0 (engine as of 3646197): The NLOS term
-// eps lambda exp(-lambda e) is added for e > 0 only, so p(0+) - p(0-) = eps lambda (0.1 / m by
-// default): a residual of +1 nm is 0.027 nats cheaper than an exact fit, and the line-of-sight
-// probability drops from 1.00 to 0.973. A map whose links all read a little long therefore
-// costs less than the exact one (mapCost), which the noise-free property test shows
-// (NoiseFreeRecovery, seed 1005). The NLOS term now ramps in over one standard deviation.
+// Regression test: the robust density must be continuous at e = 0. An NLOS term
+// eps lambda exp(-lambda e) added for e > 0 only makes p(0+) - p(0-) = eps lambda (0.1 / m by
+// default): a residual of +1 nm is then 0.027 nats cheaper than an exact fit, and the
+// line-of-sight probability drops from 1.00 to 0.973. A map whose links all read a little long
+// would cost less than the exact one (mapCost), which the noise-free property test shows
+// (NoiseFreeRecovery, seed 1005). So the NLOS term ramps in over one standard deviation.
 TEST(RangeLikelihood, DensityIsContinuousAtZero)
 {
     const RangeLikelihood likelihood;

@@ -346,7 +346,7 @@ def test_measurements_are_consistent(run):
     assert loop["worst_us"] < 875_000 + 20_000, "within CDRO_FW_LONGEST_OPERATION_MS + 20 ms"
 
     # The stack's worst case over the whole scenario (every instruction's stack pointer,
-    # interrupts included) leaves at least 256 B of the Uno's 2 KB untouched (issue 15), and the
+    # interrupts included) leaves at least 256 B of the Uno's 2 KB untouched, and the
     # firmware's own figure (STATUS free_ram_bytes, the painted low-water mark) is never below it.
     stack = s["stack"]
     print(f"stack: deepest {stack['deepest_bytes']} B, headroom {stack['headroom_bytes']} B, painted free "

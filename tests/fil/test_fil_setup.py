@@ -1,4 +1,4 @@
-"""The Pozyx set-up on the unmodified Uno image (issue 15): cdro-pozyx drives the firmware in
+"""The Pozyx set-up on the unmodified Uno image: cdro-pozyx drives the firmware in
 simavr (cdro-fil, tests/fil/bench_setup.yaml, the real device's behaviour) through the bench
 checklist (DIAGNOSE), a move of every node to other UWB settings (SET_UWB) and a read-back; the
 run's summary then has the stack's worst case over all of it, which must leave 256 B free.
@@ -18,7 +18,7 @@ from fil_support import avr_elf
 
 HERE = pathlib.Path(__file__).resolve().parent
 SCENARIO = HERE / "bench_setup.yaml"
-STACK_HEADROOM_B = 256   # issue 15: at least this much RAM never touched by the stack
+STACK_HEADROOM_B = 256   # at least this much RAM never touched by the stack
 GUARD_S = 60.0           # s of wall-clock time per step; only reached when something is broken
 
 

@@ -267,7 +267,7 @@ TEST_F(Driver, RemoteRangeIgnoresOtherNodesMessagesWhileWaitingForTheResult)
     EXPECT_EQ(r.distance_mm, 8000U);
 }
 
-// Issue 15, the remote-ranging race. Node B is carried 8 -> 9 -> 10 -> 11 m away from node A
+// The remote-ranging race. Node B is carried 8 -> 9 -> 10 -> 11 m away from node A
 // between attempts; every remote-to-remote range must be B's distance at that attempt. The
 // driver once kept an RX_DATA bit seen before A's acknowledgement and took the acknowledgement
 // for A's result message (same sender), then read A's stored range while A was still ranging:

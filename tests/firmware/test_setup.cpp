@@ -1,4 +1,4 @@
-// The firmware's Pozyx set-up (issue 15): identification retried with backoff, the Pozyx
+// The firmware's Pozyx set-up: identification retried with backoff, the Pozyx
 // firmware check, every node's settings read and compared (NODE_INFO), SET_UWB, the stuck-bus
 // recoveries in STATUS, and the bench diagnostics (DIAGNOSE). The real device's behaviour.
 #include <gtest/gtest.h>

@@ -421,7 +421,7 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
                 static_cast<double>(bench.longestStepUs) / 1000.0);
 }
 
-// Issue 15 at the level of the device: a node carried at 2 m/s while replies and result messages
+// The remote-ranging race at the level of the device: a node carried at 2 m/s while replies and result messages
 // now and then arrive late (into the next attempt), with the real device's behaviour (replies
 // raise RX_DATA with FUNC, busy nodes, collisions). Every RANGE is where the nodes were when it
 // was ranged, never where they were at an earlier attempt (0.3 s earlier is 0.6 m away).

@@ -224,7 +224,7 @@ void report(const char *what, const RoundTrip &trip)
                 trip.after_continuing.output_m, trip.after_continuing.aligned_m);
 }
 
-// Measured (engine as of 3646197): the random network below ends 1.1 mm apart; PLANT resumed
+// Measured: the random network below ends 1.1 mm apart; PLANT resumed
 // after every 50th range ends at most 2.3 mm apart once the two maps are aligned (0.6 mm to
 // 2.3 mm), and in a named frame its outputs end at most 2.2 mm apart. Asserted: 1 cm.
 constexpr double kContinuedToleranceM = 0.01;
@@ -328,12 +328,13 @@ TEST(Checkpoint, PlantResumedInANamedFrameEndsWithTheSameOutputs)
     EXPECT_LT(worst.after_continuing.output_m, kContinuedToleranceM);
 }
 
-// Regression test. Was a bug (engine as of 3646197, fixed since), the default output frame again (see tests/engine,
-// Engine.DefaultOutputFrameIsTheFrameTriangles): on PLANT there is no frame triangle,
-// so the outputs are in the engine's internal frame. A run resumed from a checkpoint ends with
-// the same map (2.3 mm apart once aligned) but displaced as a whole: by 3.35 m when resumed
-// after 50 ranges, 4.93 m after 550, 0.73 m after 400, 0.17 m after 600. Whoever reads the
-// outputs sees the map jump by metres on a restart.
+// Regression test, the default output frame again (see tests/engine,
+// Engine.DefaultOutputFrameIsTheFrameTriangles): a resumed run must end with the same outputs,
+// not only the same map. Where PLANT has no frame triangle the outputs are in the engine's
+// internal frame, and a run resumed from a checkpoint ends with the same map (2.3 mm apart once
+// aligned) but displaced as a whole: by 3.35 m when resumed after 50 ranges, 4.93 m after 550,
+// 0.73 m after 400, 0.17 m after 600. Whoever reads the outputs would see the map jump by
+// metres on a restart.
 TEST(Checkpoint, PlantResumedEndsWithTheSameOutputs)
 {
     CDRO_SKIP_WHEN_SANITIZED(); // 12 resumed PLANT runs: minutes in the sanitized build; native only

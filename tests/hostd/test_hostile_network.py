@@ -1,4 +1,4 @@
-"""cdro-hostd on a hostile link (issue 16, "Keep the harness"): cdro-sim plays the device, the
+"""cdro-hostd on a hostile link: cdro-sim plays the device, the
 seeded cdro-fault-proxy damages its frames one fault class per run, and cdro-hostd's counters
 must say exactly what was injected, with no phantom node on the map and the map's aligned RMSE
 bounded. One short run per class (the demo scenario's first 15 simulated s at 4x real time).
@@ -36,7 +36,7 @@ CLASSES = {
     "drop": dict(faults={"drop": 0.1}),
     # A link 3 s slow for 7 s (wall), from 2 s after the start: keepalives are missed, the
     # handshake starts over, and the answers to two HELLO_REQUESTs come late, one after the
-    # other; but the device never resets (it used to count 2 resets here).
+    # other; but the device never resets (the late HELLOs must not count as 2 resets).
     "slow": dict(faults={"slow": 1.0}, speed=2.0, duration_s=26.0, slow=(2.0, 7.0, 3.0)),  # before the carry (28 s)
 }
 

@@ -1,5 +1,5 @@
-"""cdro-hostd's offline mode and configuration against input that is not what it should be
-(issue 16, 7 and 9-11): files with no usable row, a directory, an endless device, a byte-order
+"""cdro-hostd's offline mode and configuration against input that is not what it should be:
+files with no usable row, a directory, an endless device, a byte-order
 mark, node id 0, a misspelt section name, an output path that is a link; and the reading rate.
 
 The binary is the native build's (CDRO_BUILD_DIR; default ./build). Every timeout is a deadlock

@@ -1,4 +1,4 @@
-"""A capture replays to the live run's map on its own (issue 16, 13): cdro-hostd records in the
+"""A capture replays to the live run's map on its own: cdro-hostd records in the
 capture's header what the map depends on (the known heights, the fixed nodes, the engine and
 movement settings), and a replay takes from there whatever its own command line does not give.
 A capture without that record (written before, or by cdro-sim) is replayed with a warning.

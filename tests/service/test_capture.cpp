@@ -208,7 +208,7 @@ TEST(Capture, NotACaptureIsAClearError)
     EXPECT_THROW(CaptureReader(dir.file("missing")), CaptureError);
 }
 
-// Issue 16, 8: a full disk. The file-size limit (RLIMIT_FSIZE) makes write() fail with EFBIG
+// A full disk. The file-size limit (RLIMIT_FSIZE) makes write() fail with EFBIG
 // exactly as ENOSPC would, for this process only, and can be lifted again as freeing space
 // would: records written while it holds are lost and counted, the file stays readable (a record
 // cut by the limit is removed again), and once writes succeed again the log says so.

@@ -1,4 +1,4 @@
-"""Files that cannot be hijacked (issue 16, 7), on the real processes: a link planted where the
+"""Files that cannot be hijacked, on the real processes: a link planted where the
 service writes its JSON Lines or its checkpoint's temporary file, a world-writable output
 directory (docs/service.md, "Security model"; cdro-hostd's offline CSV outputs:
 tests/hostd/test_offline_hostile_input.py).

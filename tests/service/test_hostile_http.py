@@ -1,6 +1,6 @@
 """The live map's HTTP server against hostile clients, on the real service (cdro-service-harness
 with a device streaming): slow request heads, big bodies, many connections, path traversal
-(issue 16, 4-6; docs/service.md, "Security model").
+(docs/service.md, "Security model").
 
 Each case runs for a few seconds; every wait is a deadlock guard, nothing depends on how fast
 the machine is.

@@ -1,4 +1,4 @@
-"""The service on a hostile link (issue 16, "Keep the harness"), without the engine so that it
+"""The service on a hostile link, without the engine so that it
 runs under ASan/UBSan too (tests/service is run again against the sanitized build): cdro-sim
 plays the device, the seeded cdro-fault-proxy mixes every fault class into its frames, and the
 service's counters must say exactly what was injected. tests/hostd/test_hostile_network.py runs

@@ -140,7 +140,7 @@ TEST_F(HttpTest, EventsCarryEachNewSnapshot)
     EXPECT_NE(received.find("event: map\ndata: {"), std::string::npos);
 }
 
-// ---- hostile clients (issue 16, 4-6) ----------------------------------------------------------
+// ---- hostile clients (docs/service.md, "Security model") --------------------------------------
 
 namespace {
 
@@ -207,8 +207,9 @@ std::string statusLine(const std::string &response) { return response.substr(0, 
 
 } // namespace
 
-// Issue 16, 4: forty connections sending their headers a byte at a time held every worker of
-// the old server; the health endpoint failed for as long as they kept going.
+// Forty connections sending their headers a byte at a time must not starve the others: with a
+// worker per connection (cpp-httplib's pool) they hold every worker, and the health endpoint
+// fails for as long as they keep going.
 TEST_F(HttpTest, SlowHeadersDoNotStarveTheHealthEndpoint)
 {
     store.publish(mapText(1), R"({"type":"health","link":"connected"})");
@@ -287,7 +288,7 @@ TEST_F(HttpTest, ConnectionsPerClientAndInTotalAreCappedAndTheNewestIsServed)
     EXPECT_LE(server->connectionsFrom("127.0.2.1"), limits.max_per_client);
 }
 
-// Issue 16, 5: request bodies were read into memory whole (24 POSTs of 64 MiB took the service
+// Request bodies must not be read into memory whole (24 POSTs of 64 MiB would take the service
 // to 1.55 GiB). No endpoint takes a body: it is refused from its announced length, unread.
 TEST_F(HttpTest, BodiesAreRefusedUnreadAndHugeHeadsAre431)
 {
@@ -316,7 +317,7 @@ TEST_F(HttpTest, BodiesAreRefusedUnreadAndHugeHeadsAre431)
     EXPECT_EQ(statusLine(nonsense.receive(10000)), "HTTP/1.1 400 Bad Request");
 }
 
-// Issue 16, 6: an id too large for std::stoul made the old handler throw: HTTP 500.
+// An id too large for std::stoul must be a 400, not an exception (HTTP 500).
 TEST_F(HttpTest, NodeIdsOutsideTheirRangeAre400)
 {
     auto c = client();

@@ -239,7 +239,7 @@ TEST(Intake, ResetsAreDetectedByBootHelloTimeAndUnexpectedHello)
     EXPECT_EQ(f.counters.duplicate_frames, 0U);
 }
 
-// Issue 16, 3: a slow link answers two HELLO_REQUESTs late, one after the other. Both HELLOs
+// A slow link answers two HELLO_REQUESTs late, one after the other. Both HELLOs
 // were asked for: neither is a reset. A third, unasked, is.
 TEST(Intake, EveryOutstandingHelloRequestMakesOneHelloExpected)
 {
@@ -299,7 +299,7 @@ TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
     EXPECT_EQ(reject.counters.nodes_learned, 0U);
 }
 
-// Issue 16, 1: frames whose CRC passes with a corrupted node id (the proxy's phantom ids) must
+// Frames whose CRC passes with a corrupted node id (the proxy's phantom ids) must
 // not create nodes. Once the device's node list is known (nodes.ids, or a NODE_LIST), an id
 // outside it is rejected under the default policy too, however often it comes.
 TEST(Intake, IdsOutsideTheDevicesNodeListAreRejectedEvenWhenLearning)
@@ -405,8 +405,8 @@ TEST(Intake, FramesOfAnotherProtocolVersionInARowMarkTheDeviceIncompatible)
               std::string::npos);
 }
 
-// Issue 16, 2: one frame with a valid checksum claiming another version (a corruption the CRC missed)
-// used to mark the device incompatible for good, and every data frame after it was dropped.
+// One frame with a valid checksum claiming another version (a corruption the CRC missed) must
+// not mark the device incompatible for good: every data frame after it would be dropped.
 TEST(Intake, StrayFramesOfAnotherVersionAreCountedAndLockNothingOut)
 {
     Fixture f;

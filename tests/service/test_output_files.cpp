@@ -1,4 +1,4 @@
-// Output and temporary files that cannot be hijacked (issue 16, 7): JSON Lines, checkpoints and
+// Output and temporary files that cannot be hijacked (docs/service.md, "Security model"): JSON Lines, checkpoints and
 // captures are opened without following a symbolic link, temporary names cannot be predicted,
 // and a directory that every user may write to is refused with a message that says why.
 #include <fstream>

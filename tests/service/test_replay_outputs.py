@@ -1,4 +1,4 @@
-"""Replays that lose nothing and touch nothing they were not asked to (issue 16, 12 and 14): a
+"""Replays that lose nothing and touch nothing they were not asked to: a
 replay at full speed publishes every MQTT message (or says what it dropped and why), writes no
 checkpoint and opens no live map unless its command line asks, and a resumed run's time goes on
 from where the checkpoint left it."""
@@ -104,7 +104,7 @@ class LateForwarder:
 
 def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
     # The replay of a capture takes milliseconds; the broker connection is made in the loop,
-    # after the start. The replay used to be over before the broker answered: all dropped.
+    # after the start. A replay that does not wait is over before the broker answers: all dropped.
     live = live_capture(build_dir, tmp_path)
     broker = Broker(tmp_path)
     forwarder = LateForwarder(broker.port)

@@ -168,7 +168,7 @@ TEST(LibSerialConfiguration, BytesThatArriveWhileThePortIsConfiguredAreKept)
     ::close(master);
 }
 
-// ---- first errors that help (issue 15) -------------------------------------------------------
+// ---- first errors that help ------------------------------------------------------------------
 
 // A port the user may not open: the reason says what to do, not LibSerial's "Bad file
 // descriptor". On a real pseudo-terminal whose node the user has no rights to (as root the test

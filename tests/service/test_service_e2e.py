@@ -1,6 +1,6 @@
 """End-to-end tests of the service (cdro-service-harness: the real event loop, serial link,
 session, intake, capture, outputs, live map and checkpoints, with a recording consumer) against
-a scripted device on a real pseudo-terminal. Each fault of issue 5 is played on the wire; in
+a scripted device on a real pseudo-terminal. Each link fault is played on the wire; in
 every case the service does not crash, the counters say what happened, nothing invalid reaches
 the consumer, and the capture stays readable.
 """
@@ -167,7 +167,7 @@ def test_other_protocol_version_in_frame_headers(harness_bin, tmp_path):
 
 
 def test_a_port_streaming_bytes_that_are_not_our_frames_is_named(harness_bin, tmp_path):
-    # Issue 15: another sketch's text on the port. The link says so (within 2 s of the first
+    # Another sketch's text on the port. The link says so (within 2 s of the first
     # byte), before the session has even given up waiting for a HELLO.
     # A pseudo-terminal that only ever writes text (FakeDevice would answer HELLO_REQUEST).
     master, slave = os.openpty()

@@ -214,9 +214,9 @@ TEST(Session, IncompatibleDeviceIsLeftAloneUntilACompatibleHello)
     EXPECT_EQ(f.sink.sent.size(), 1U);
 }
 
-// Issue 16, 2: an incompatible device was never asked again: a HELLO that only looked
-// incompatible (or a device reflashed without a reset) locked the service out until the device
-// rebooted by itself. HELLO_REQUEST keeps going out, with a doubling delay.
+// An incompatible device is asked again: otherwise a HELLO that only looked incompatible (or a
+// device reflashed without a reset) would lock the service out until the device rebooted by
+// itself. HELLO_REQUEST keeps going out, with a doubling delay.
 TEST(Session, IncompatibleDeviceIsAskedAgainWithBackoff)
 {
     Fixture f;
@@ -240,7 +240,7 @@ TEST(Session, IncompatibleDeviceIsAskedAgainWithBackoff)
     EXPECT_EQ(f.sink.sent.back().type, CDRO_FRAME_SET_NODES);
 }
 
-// Issue 16, 3: the late answer to an earlier HELLO_REQUEST is not a reason to configure again.
+// The late answer to an earlier HELLO_REQUEST is not a reason to configure again.
 TEST(Session, ALateHelloWhileRunningOrConfiguringChangesNothing)
 {
     Fixture f;

@@ -1,7 +1,8 @@
 // checkpoint.hpp: filter-state checkpoints in common/'s fixed-point SoG snapshot format
 // (sog_layout.h), written atomically and loaded for --resume.
 //
-// What goes into a snapshot is the engine's business: the engine adapter (part B) implements
+// What goes into a snapshot is the engine's business: the engine adapter
+// (host/hostd/src/engine_adapter.cpp) implements
 // CheckpointProvider (engine -> SogSnapshot with its own extension blocks, and back). This file
 // only encodes through cdro_sog_writer_t, decodes through cdro_sog_reader_t, and does the file
 // handling:
@@ -56,7 +57,7 @@ struct ServiceCheckpointInfo {
 std::vector<uint8_t> encodeServiceInfo(const ServiceCheckpointInfo &info);
 bool decodeServiceInfo(const std::vector<uint8_t> &bytes, ServiceCheckpointInfo *info);
 
-// Implemented by the engine adapter (part B). Called on the loop thread.
+// Implemented by the engine adapter (host/hostd/src/engine_adapter.cpp). Called on the loop thread.
 class CheckpointProvider {
 public:
     virtual ~CheckpointProvider() = default;

@@ -1,4 +1,4 @@
-// config_cli.hpp: CLI11 options for the service's settings, for cdro-hostd's main (part B).
+// config_cli.hpp: CLI11 options for the service's settings, for cdro-hostd's main (host/hostd/src/main.cpp).
 //
 // The command line overrides the configuration file. Because the file is named on the same
 // command line (--config), options are parsed first into ServiceOverrides (each one optional)

@@ -1,7 +1,8 @@
 // consumer.hpp: how validated frames reach the estimator.
 //
-// The engine adapter (part B) implements FrameConsumer. The intake calls it on the event loop
-// thread, in the order the frames arrived, with frames that passed COBS, CRC, version, length
+// The engine adapter (host/hostd/src/engine_adapter.cpp) implements FrameConsumer. The intake
+// calls it on the event loop thread,
+// in the order the frames arrived, with frames that passed COBS, CRC, version, length
 // and value checks (cdro_frame_validate) and the node-id policy: a value out of range never
 // gets here. The same calls, with the same arguments in the same order, happen when a capture
 // is replayed (at any speed), which is what makes replay deterministic: a consumer must not

@@ -14,7 +14,7 @@
 // Why not a library's server: the one Debian ships (cpp-httplib 0.11) gives every connection a
 // worker thread from a fixed pool while it reads the request, with no deadline on the request
 // head and no bound on a body, so forty clients sending their headers slowly starved the live
-// map, and large bodies were read into memory whole (issue 16). This server reads every
+// map, and large bodies were read into memory whole. This server reads every
 // connection non-blocking in one poll() loop on its own thread, so that a slow client costs a
 // descriptor and a buffer, never a thread, and it enforces Limits:
 //   - the request head (request line and headers) must be complete within head_deadline_s

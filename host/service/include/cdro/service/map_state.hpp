@@ -1,5 +1,6 @@
 // map_state.hpp: what the outputs publish (JSON Lines, MQTT, live map), as a plain value, and
-// the MapSource interface through which the engine adapter (part B) provides it.
+// the MapSource interface through which the engine adapter (host/hostd/src/engine_adapter.cpp)
+// provides it.
 //
 // Ownership and threads: the event loop thread asks the MapSource for the map (fill) and for
 // a node's SoG components (components), so the engine is only ever touched on that thread.
@@ -120,7 +121,7 @@ struct MapState {
     std::map<uint16_t, double> updated_unix_s;
 };
 
-// Implemented by the engine adapter (part B) and by the test harness.
+// Implemented by the engine adapter (host/hostd/src/engine_adapter.cpp) and by the test harness.
 class MapSource {
 public:
     virtual ~MapSource() = default;

@@ -1,5 +1,5 @@
 // output_file.hpp: opening the files the service writes (JSON Lines, checkpoints, captures, the
-// log) so that another user cannot redirect them (issue 16, 7; docs/service.md, "Security
+// log) so that another user cannot redirect them (docs/service.md, "Security
 // model"):
 //   - never through a symbolic link: the file is opened with O_NOFOLLOW (a link planted at the
 //     path is refused with a message, its target never touched), and files that must not exist

@@ -2,11 +2,14 @@
 // the replay source), the intake, the device session, the capture, the JSON Lines writer, the
 // MQTT publisher, the live map and the checkpoints; the estimator plugs in through ServiceHooks.
 //
-// cdro-hostd's main (part B) does, in this order:
+// cdro-hostd's main (host/hostd/src/main.cpp) does, in this order:
 //     ServiceConfig config = ...;                      // config.hpp / config_cli.hpp
 //     setupLogging(config.logging);
 //     EngineAdapter adapter(...);                      // FrameConsumer + MapSource + CheckpointProvider
-//     Service service(config, run_options, {&adapter, &adapter, &adapter});
+//                                                      // + OdometryConsumer
+//     SystemClock clock;
+//     Service service(config, run_options, {&adapter, &adapter, &adapter, &adapter}, clock);
+//     service.setCaptureContext(...);                  // what a replay needs (before start())
 //     service.start();                                 // throws on a startup problem: exit non-zero
 //     std::cerr << "live map: " << service.liveMapUrl() << "\n";
 //     return service.run();                            // 0 after SIGTERM/SIGINT or the replay's end
