@@ -342,7 +342,12 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
                             const MapModelError &model_error)
 {
     MapCovariance out;
-    out.covariance_m2.assign(problem.nodeCount(), Matrix2::Zero());
+    // Filled element by element: GCC 12 at -O1 (the sanitizer build) takes a temporary
+    // Matrix2::Zero() here for maybe-uninitialized.
+    out.covariance_m2.resize(problem.nodeCount());
+    for (Matrix2 &covariance_m2 : out.covariance_m2) {
+        covariance_m2.setZero();
+    }
     uint32_t free_count = 0;
     const std::vector<int> number = freeNumbers(problem, estimate.placed, &free_count);
     if (free_count == 0) {
