@@ -18,7 +18,8 @@ ctest_timed() {
   log=$(mktemp)
   ctest "$@" | tee "$log"
   echo "slowest:"
-  grep -E 'Test +#[0-9]+: .* sec$' "$log" | awk '{print $(NF-1), $4}' | sort -rn | head -n 10 | sed 's/^/  /'
+  # sed reads to the end (head would close the pipe early: SIGPIPE under pipefail)
+  grep -E 'Test +#[0-9]+: .* sec$' "$log" | awk '{print $(NF-1), $4}' | sort -rn | sed -n '1,10s/^/  /p'
   rm -f "$log"
 }
 
