@@ -1,9 +1,12 @@
 // alignment: fitRigid recovers a rotation and translation, a reflection when allowed, and its
 // rms error is that of the transform it returns, no larger than the true transform's.
 #include <cmath>
+#include <fstream>
+#include <sstream>
 
 #include <Eigen/LU>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "cdro/engine/alignment.hpp"
 #include "support.hpp"
@@ -124,16 +127,47 @@ TEST(Alignment, RmsErrorOfNoisyPointsIsThatOfTheReturnedTransform)
     }
 }
 
-TEST(Alignment, TooFewOrMismatchedPointsGiveTheIdentity)
+TEST(Alignment, NoPointsOrMismatchedGiveTheIdentityOnePointTheShift)
 {
     const RigidTransform none = fitRigid({}, {}, true);
     EXPECT_EQ(none.rotation, Matrix2::Identity());
     EXPECT_EQ(none.translation_m, Vector2::Zero());
     const RigidTransform one = fitRigid({Vector2(1.0, 1.0)}, {Vector2(5.0, 5.0)}, true);
     EXPECT_EQ(one.rotation, Matrix2::Identity());
-    EXPECT_EQ(one.translation_m, Vector2::Zero());
+    EXPECT_EQ(one.translation_m, Vector2(4.0, 4.0));
     const RigidTransform mismatched = fitRigid({Vector2(1.0, 1.0), Vector2(2.0, 0.0)}, {Vector2(5.0, 5.0)}, true);
     EXPECT_EQ(mismatched.rotation, Matrix2::Identity());
+}
+
+// One fit in two languages: the cases of tests/golden/alignment_cases.json (exact transforms, and
+// noisy ones with the Python fit's answer) give the same transform here as in the tools
+// (tests/tools/test_alignment_golden.py).
+TEST(Alignment, GivesTheGoldenCasesAsThePythonFitDoes)
+{
+    std::ifstream in(std::string(CDRO_GOLDEN_DIR) + "/alignment_cases.json");
+    ASSERT_TRUE(in) << "tests/golden/alignment_cases.json";
+    std::stringstream text;
+    text << in.rdbuf();
+    const nlohmann::json golden = nlohmann::json::parse(text.str());
+    ASSERT_GE(golden["cases"].size(), 5U);
+    for (const nlohmann::json &c : golden["cases"]) {
+        SCOPED_TRACE(c["name"].get<std::string>());
+        std::vector<Vector2> source;
+        std::vector<Vector2> target;
+        for (size_t i = 0; i < c["source_m"].size(); ++i) {
+            source.emplace_back(c["source_m"][i][0].get<double>(), c["source_m"][i][1].get<double>());
+            target.emplace_back(c["target_m"][i][0].get<double>(), c["target_m"][i][1].get<double>());
+        }
+        const RigidTransform fit = fitRigid(source, target, true);
+        for (int row = 0; row < 2; ++row) {
+            for (int col = 0; col < 2; ++col) {
+                EXPECT_NEAR(fit.rotation(row, col), c["rotation"][row][col].get<double>(), 1e-9);
+            }
+            EXPECT_NEAR(fit.translation_m[row], c["translation_m"][row].get<double>(), 1e-9);
+        }
+        EXPECT_NEAR(fit.rms_error_m, c["rmse_m"].get<double>(), 1e-9);
+        EXPECT_EQ(fit.reflected, fit.rotation.determinant() < 0.0);
+    }
 }
 
 } // namespace

@@ -296,21 +296,16 @@ def node_estimates(run: FilRun) -> dict[int, list[dict]]:
 def align_2d(estimated: dict[int, tuple[float, float]], truth: dict[int, tuple[float, float]]):
     """The rigid transform (rotation, translation, and a reflection if that fits better: a
     range-only map is known up to all three) taking estimated positions onto the truth, by least
-    squares. Returns (transform function, RMS residual in m)."""
-    import numpy as np
+    squares (the tools' one fit, cdro_tools.evaluation.alignment). Returns (transform function,
+    RMS residual in m)."""
+    from cdro_tools.evaluation.alignment import align
 
     ids = sorted(set(estimated) & set(truth))
     if len(ids) < 3:
         raise AssertionError(f"only {len(ids)} nodes to align")
-    p = np.array([estimated[i] for i in ids], dtype=float)
-    q = np.array([truth[i] for i in ids], dtype=float)
-    pc, qc = p.mean(axis=0), q.mean(axis=0)
-    u, _, vt = np.linalg.svd((p - pc).T @ (q - qc))
-    rotation = (u @ vt).T  # may include a reflection, which a range-only map cannot tell apart
-    residual = (p - pc) @ rotation.T + qc - q
-    rms = float(np.sqrt((residual ** 2).sum(axis=1).mean()))
+    fit = align(estimated, truth)
 
     def transform(xy):
-        return tuple(((np.asarray(xy, dtype=float) - pc) @ rotation.T + qc).tolist())
+        return tuple(fit.apply(xy).tolist())
 
-    return transform, rms
+    return transform, fit.rmse_m

@@ -48,8 +48,13 @@ RigidTransform fitProper(const std::vector<Vector2> &source, const std::vector<V
 RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<Vector2> &target_m,
                         bool allow_reflection)
 {
-    if (source_m.size() != target_m.size() || source_m.size() < 2) {
+    if (source_m.size() != target_m.size() || source_m.empty()) {
         return RigidTransform{};
+    }
+    if (source_m.size() == 1) {
+        RigidTransform shift; // one point fixes the translation only
+        shift.translation_m = target_m.front() - source_m.front();
+        return shift;
     }
     RigidTransform proper = fitProper(source_m, target_m, false);
     if (!allow_reflection) {

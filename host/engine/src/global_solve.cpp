@@ -111,12 +111,7 @@ void anchorToFixed(const MapProblem &problem, MapEstimate &estimate)
     if (source.empty()) {
         return;
     }
-    RigidTransform transform;
-    if (source.size() == 1) {
-        transform.translation_m = target.front() - source.front();
-    } else {
-        transform = fitRigid(source, target, true);
-    }
+    const RigidTransform transform = fitRigid(source, target, true);
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (estimate.placed[node] != 0) {
             estimate.position_m[node] =

@@ -4,8 +4,9 @@ An anchor-free solution is defined up to rotation, translation and, in 2D, refle
 every comparison with truth first fits R (orthogonal: a rotation or a reflection) and t to
 minimise sum_i |R p_i + t - g_i|^2 over the nodes that have both, with no scale (a wrong
 scale is an error of the map, not of its frame). The RMSE is then
-sqrt(mean_i |R p_i + t - g_i|^2). This module is the one implementation: cdro-plot and
-cdro-eval both use it.
+sqrt(mean_i |R p_i + t - g_i|^2). This module is the one implementation in Python (cdro-plot,
+cdro-eval, paper_algorithm1 and the firmware-in-the-loop tests use it); the engine's C++ fit
+(alignment.hpp) is held to the same answers by tests/golden/alignment_cases.json.
 """
 from __future__ import annotations
 

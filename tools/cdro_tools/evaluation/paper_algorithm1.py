@@ -36,6 +36,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from cdro_tools.evaluation.alignment import rigid_fit
+
 NODES = 5
 NOISE_VARIANCE_M2 = (0.3, 0.8)  # m^2, each link's range noise variance, drawn once per link
 TRANSFER_SIGMA_M = 0.5         # m, eq. 15's sigma (the paper's example)
@@ -125,12 +127,11 @@ def _transfer(ring: Ring) -> None:
 
 
 def aligned_rmse_m(estimate_m: np.ndarray, truth_m: np.ndarray) -> float:
-    """RMSE after the rigid fit (rotation, translation, reflection allowed, no scale)."""
-    a = estimate_m - estimate_m.mean(axis=0)
-    b = truth_m - truth_m.mean(axis=0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    rotation = (u @ vt).T
-    return float(np.sqrt(np.mean(np.sum((a @ rotation.T - b) ** 2, axis=1))))
+    """RMSE after the rigid fit (rotation, translation, reflection allowed, no scale): the one
+    fit of the tools (alignment.rigid_fit), rows in the same node order."""
+    rotation, translation = rigid_fit(estimate_m, truth_m)
+    moved = np.asarray(estimate_m, dtype=float) @ rotation.T + translation
+    return float(np.sqrt(np.mean(np.sum((moved - truth_m) ** 2, axis=1))))
 
 
 def run(seed: int, weight_transfer: bool, iterations: int = 100, reading: Reading = Reading()) -> np.ndarray:

@@ -22,8 +22,10 @@ struct RigidTransform {
     }
 };
 
-// Maps source onto target (same length, >= 2 points). allow_reflection: try both handednesses
-// and keep the better. With fewer than 2 points the identity is returned.
+// Maps source onto target (same length) by least squares. allow_reflection: try both
+// handednesses and keep the better. One point gives the translation only, none (or lengths that
+// differ) the identity. The tools' Python fit (cdro_tools/evaluation/alignment.py) is the same
+// fit: tests/golden/alignment_cases.json holds both to the same answers.
 RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<Vector2> &target_m,
                         bool allow_reflection);
 
