@@ -1,7 +1,8 @@
 # `cmake --install`: cdro-hostd, its systemd unit, the sysusers.d entry of its user, the udev rule
 # of the board, the example configuration and the docs the unit's Documentation= points at
-# (docs/deployment.md lists them). The Python tools are a package of their own (tools/, pip):
-# docs/deployment.md says how to install them next to it.
+# (docs/deployment.md lists them), and the Python tools (tools/) in a virtual environment of
+# their own with their commands linked into bin (component python-tools; off with
+# -DCDRO_INSTALL_PYTHON_TOOLS=OFF, for a packager who ships them in a package of their own).
 #
 # The systemd, sysusers.d and udev directories are under the prefix (lib/..., not the
 # multiarch CMAKE_INSTALL_LIBDIR): /usr/lib/... for --prefix /usr, /usr/local/lib/... for the
@@ -35,3 +36,22 @@ install(FILES ${CMAKE_SOURCE_DIR}/config/cdro-hostd.example.yaml DESTINATION ${C
 file(GLOB CDRO_DOC_PAGES CONFIGURE_DEPENDS ${CMAKE_SOURCE_DIR}/docs/*.md)
 install(FILES ${CDRO_DOC_PAGES} ${CMAKE_SOURCE_DIR}/README.md ${CMAKE_SOURCE_DIR}/LICENSE
         DESTINATION ${CMAKE_INSTALL_DOCDIR})
+
+# The Python tools: Debian 12 refuses pip into the system's Python (PEP 668), so they get an
+# environment under the prefix whose interpreter also sees the system's site-packages (Debian's
+# python3-numpy, ...). Nothing is downloaded (cmake/cdro_install_tools.py).
+option(CDRO_INSTALL_PYTHON_TOOLS "cmake --install also installs the Python tools (lib/cdro/venv, bin/cdro-*)" ON)
+set(CDRO_TOOLS_VENVDIR "lib/cdro/venv" CACHE PATH "the Python tools' virtual environment, relative to the prefix")
+set(CDRO_TOOLS_PYTHON "/usr/bin/python3" CACHE FILEPATH
+    "the Python the tools' environment is made from; its site-packages provide their dependencies")
+if(CDRO_INSTALL_PYTHON_TOOLS)
+  install(CODE "
+    set(CDRO_TOOLS_PYTHON \"${CDRO_TOOLS_PYTHON}\")
+    set(CDRO_TOOLS_INSTALLER \"${CMAKE_SOURCE_DIR}/cmake/cdro_install_tools.py\")
+    set(CDRO_TOOLS_SOURCE \"${CMAKE_SOURCE_DIR}/tools\")
+    set(CDRO_TOOLS_MANIFEST \"${CMAKE_BINARY_DIR}/install-python-tools.txt\")
+    set(CDRO_DIRS_BINDIR \"${CMAKE_INSTALL_BINDIR}\")
+    set(CDRO_DIRS_TOOLS_VENVDIR \"${CDRO_TOOLS_VENVDIR}\")
+  " COMPONENT python-tools)
+  install(SCRIPT ${CMAKE_SOURCE_DIR}/cmake/CdroInstallPythonTools.cmake COMPONENT python-tools)
+endif()
