@@ -27,6 +27,9 @@ if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
 RUNTIME_PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   python3 python3-venv python3-pip
+  # the Python tools' dependencies, which their environment from `cmake --install` takes from the
+  # system (docs/deployment.md, "The Python tools")
+  python3-numpy python3-scipy python3-matplotlib python3-serial python3-yaml python3-paho-mqtt
   libeigen3-dev
   libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
   # sd_notify (Type=notify, the watchdog): config/cdro-hostd.service
