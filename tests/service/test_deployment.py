@@ -1,5 +1,5 @@
-"""cdro-hostd as a system service (docs/deployment.md): what `cmake --install` puts where and the
-unit's check by systemd-analyze; the sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a
+"""cdro-hostd as a system service (docs/deployment.md): what `cmake --install` puts where (the
+Python tools' environment and commands too) and the unit's check by systemd-analyze; the sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a
 socket the test owns; journald priorities on stderr; `--version` here and in every Python tool;
 `--print-config`. Timeouts are deadlock guards only."""
 from __future__ import annotations
@@ -75,6 +75,63 @@ def test_that_install_puts_the_service_its_unit_user_udev_rule_config_and_docs_i
         assert 'SYMLINK+="cdro-tag"' in line and 'GROUP="dialout"' in line and 'MODE="0660"' in line
         assert 'ENV{ID_MM_DEVICE_IGNORE}="1"' in line
     assert any('ATTRS{idVendor}=="1a86", ATTRS{idProduct}=="7523"' in line for line in board_rules)  # CH340 clones
+
+
+def test_that_install_puts_every_python_tool_in_bin_pointing_at_the_final_prefix(staging):
+    # Fixture
+    venv = pathlib.Path("/usr/lib/cdro/venv")
+
+    # Act
+    links = {name: staging / "usr/bin" / name for name in PYTHON_TOOLS}
+    config = (staging / "usr/lib/cdro/venv/pyvenv.cfg").read_text()
+
+    # Assert
+    assert len(links) >= 11
+    for name, link in links.items():
+        assert link.is_symlink(), f"{link} is not installed"
+        target = pathlib.Path(os.path.normpath(pathlib.Path("/usr/bin") / os.readlink(link)))
+        assert target == venv / "bin" / name, (name, os.readlink(link))
+        script = staging / target.relative_to("/")
+        assert os.access(script, os.X_OK), script
+        assert script.read_text().splitlines()[0] == f"#!{venv}/bin/python", name
+    assert re.search(r"^include-system-site-packages = true$", config, re.M)   # Debian's numpy, scipy, ...
+    assert (staging / "usr/lib/cdro/venv/bin/python").is_symlink()
+    assert list((staging / "usr/lib/cdro/venv/lib").glob("python3.*/site-packages/cdro_tools-*.dist-info/METADATA"))
+    staging_path = str(staging).encode()
+    for path in (staging / "usr/lib/cdro/venv").rglob("*"):
+        if path.is_file() and not path.is_symlink():
+            assert staging_path not in path.read_bytes(), f"{path} names the staging root"
+
+
+def test_that_the_installed_python_tools_run_from_their_environment(build_dir, tmp_path):
+    # Fixture: the environment's paths are the final ones, so this install is where it runs
+    prefix = tmp_path / "prefix"
+    missing = subprocess.run(["/usr/bin/python3", "-c", "import numpy, scipy, serial, yaml"], capture_output=True, text=True)
+    if missing.returncode != 0:
+        pytest.fail("the tools' Debian dependencies are missing (scripts/setup.sh --runtime installs "
+                    f"python3-numpy, python3-serial, ...): {missing.stderr.strip()}")
+    install = subprocess.run(["cmake", "--install", str(build_dir), "--prefix", str(prefix), "--component",
+                              "python-tools"], capture_output=True, text=True, timeout=GUARD_S,
+                             env={k: v for k, v in os.environ.items() if k != "DESTDIR"})
+    assert install.returncode == 0, install.stdout + install.stderr
+
+    # Act
+    version = subprocess.run([str(prefix / "bin/cdro-eval"), "--version"], capture_output=True, text=True,
+                             timeout=GUARD_S, env={"PATH": "/usr/bin:/bin"})
+    usage = subprocess.run([str(prefix / "bin/cdro-sim"), "--help"], capture_output=True, text=True,
+                           timeout=GUARD_S, env={"PATH": "/usr/bin:/bin"})
+    where = subprocess.run([str(prefix / "lib/cdro/venv/bin/python"), "-c",
+                            "import cdro_tools, numpy; print(cdro_tools.__file__); print(numpy.__file__)"],
+                           capture_output=True, text=True, timeout=GUARD_S)
+
+    # Assert
+    assert version.returncode == 0, version.stderr
+    assert version.stdout.strip() == f"cdro-eval 0.1.0 {VERSION_TAIL}"
+    assert usage.returncode == 0, usage.stderr
+    assert usage.stdout.startswith("usage: cdro-sim") and "--version" in usage.stdout
+    package, numpy = where.stdout.split()
+    assert pathlib.Path(package).is_relative_to(prefix / "lib/cdro/venv")      # the installed copy, not tools/
+    assert not pathlib.Path(numpy).is_relative_to(prefix), numpy                 # the system's: nothing downloaded
 
 
 def test_that_systemd_analyze_verifies_the_installed_unit(staging, tmp_path):
