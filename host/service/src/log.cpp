@@ -4,7 +4,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <mutex>
+#include <string>
+#include <utility>
 
+#include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -19,6 +22,42 @@ namespace cdro::service {
 namespace {
 std::mutex g_logger_mutex;
 std::shared_ptr<spdlog::logger> g_logger;
+
+// The status line on stderr, and the lock every write to stderr by the log and by the status
+// line takes, so that a log line cannot land in the middle of the line's erase and redraw.
+std::mutex g_stderr_mutex;
+std::string g_status_text; // shown when g_status_rows > 0
+int g_status_rows = 0;     // terminal rows the shown status line takes (it wraps on a narrow one)
+
+int terminalColumns()
+{
+    struct winsize size {};
+    return ::ioctl(STDERR_FILENO, TIOCGWINSZ, &size) == 0 ? size.ws_col : 0;
+}
+
+// Back to the start of the status line and erase it, with the cursor left there.
+void eraseStatusLocked()
+{
+    if (g_status_rows == 0) {
+        return;
+    }
+    if (g_status_rows == 1) {
+        std::fputs("\r\x1b[K", stderr);
+    } else {
+        std::fprintf(stderr, "\r\x1b[%dA\x1b[J", g_status_rows - 1);
+    }
+}
+
+// Drawn from the start of an erased line whatever came before (the cursor is at a line's start
+// after the erase or a log line, so this only makes every draw look the same on the wire).
+void drawStatusLocked(const std::string &text)
+{
+    std::fputs("\r\x1b[K", stderr);
+    std::fputs(text.c_str(), stderr);
+    const int columns = terminalColumns();
+    const int length = static_cast<int>(text.size());
+    g_status_rows = columns > 0 && length > columns ? (length + columns - 1) / columns : 1;
+}
 
 // syslog(3) priorities, as sd-daemon.h's SD_ERR etc. spell them for stderr: "<3>text".
 int journalPriority(spdlog::level::level_enum level)
@@ -47,6 +86,41 @@ protected:
     void flush_() override { std::fflush(stderr); }
 };
 
+// stderr elsewhere: spdlog's (coloured on a terminal), with the status line erased before a log
+// line and drawn again under it.
+class StatusAwareStderrSink final : public spdlog::sinks::sink {
+public:
+    void log(const spdlog::details::log_msg &message) override
+    {
+        std::lock_guard<std::mutex> lock(g_stderr_mutex);
+        const bool status = g_status_rows > 0;
+        eraseStatusLocked();
+        inner_.log(message);
+        if (status) {
+            drawStatusLocked(g_status_text);
+        }
+        std::fflush(stderr);
+    }
+    void flush() override
+    {
+        std::lock_guard<std::mutex> lock(g_stderr_mutex);
+        inner_.flush();
+    }
+    void set_pattern(const std::string &pattern) override
+    {
+        std::lock_guard<std::mutex> lock(g_stderr_mutex);
+        inner_.set_pattern(pattern);
+    }
+    void set_formatter(std::unique_ptr<spdlog::formatter> formatter) override
+    {
+        std::lock_guard<std::mutex> lock(g_stderr_mutex);
+        inner_.set_formatter(std::move(formatter));
+    }
+
+private:
+    spdlog::sinks::stderr_color_sink_st inner_;
+};
+
 std::shared_ptr<spdlog::logger> stderrLogger()
 {
     if (stderrIsJournal()) {
@@ -54,7 +128,7 @@ std::shared_ptr<spdlog::logger> stderrLogger()
         logger->set_pattern("%v");
         return logger;
     }
-    auto logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<spdlog::sinks::stderr_color_sink_mt>());
+    auto logger = std::make_shared<spdlog::logger>("cdro", std::make_shared<StatusAwareStderrSink>());
     logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
     return logger;
 }
@@ -111,6 +185,26 @@ std::shared_ptr<spdlog::logger> log()
         g_logger = stderrLogger();
     }
     return g_logger;
+}
+
+void showStatusLine(const std::string &text)
+{
+    std::lock_guard<std::mutex> lock(g_stderr_mutex);
+    eraseStatusLocked();
+    g_status_text = text;
+    drawStatusLocked(text);
+    std::fflush(stderr);
+}
+
+void endStatusLine()
+{
+    std::lock_guard<std::mutex> lock(g_stderr_mutex);
+    if (g_status_rows > 0) {
+        std::fputs("\n", stderr);
+        std::fflush(stderr);
+    }
+    g_status_rows = 0;
+    g_status_text.clear();
 }
 
 bool RateLimiter::allow(const std::string &key, int64_t now_monotonic_us, uint64_t *suppressed)

@@ -29,6 +29,16 @@ bool stderrIsJournal();
 // The "cdro" logger (a stderr logger at info until setupLogging is called).
 std::shared_ptr<spdlog::logger> log();
 
+// A status line kept under the log on a terminal (cdro-hostd's progress): each call redraws it
+// in place on stderr (carriage return, erase, the text, no newline), and a log line written to
+// stderr meanwhile erases it first and redraws it after itself, so that the two never share a
+// line. Thread-safe with the logger. Only for a stderr that is a terminal; elsewhere (journald,
+// a file) a line that is overwritten only garbles the output, and the caller prints ordinary
+// lines there.
+void showStatusLine(const std::string &text);
+// Leaves the status line on the screen as an ordinary line (a newline) and stops redrawing it.
+void endStatusLine();
+
 // At most `per_s` messages per key per second of the given clock; the first message after a
 // quiet spell says how many were suppressed.
 class RateLimiter {
