@@ -1,7 +1,8 @@
 """cdro-hostd at a terminal, as a person first runs it: stdout and stderr on a real
 pseudo-terminal. The terminal gets the logs and a progress line, not a flood of JSON Lines;
 `--jsonl -` still puts them there, and a pipe gets them as it always did (docs/service.md,
-"Outputs"). Timeouts are deadlock guards only."""
+"Outputs"). On a terminal the progress line is redrawn in place under the log; elsewhere it is
+an ordinary line. Timeouts are deadlock guards only."""
 from __future__ import annotations
 
 import json
@@ -20,7 +21,10 @@ import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 GUARD_S = 60.0
-PROGRESS_WITH_NODES = re.compile(r"cdro-hostd: replay \| .* nodes [1-9][0-9]*:")
+PROGRESS = "cdro-hostd: replay |"
+PROGRESS_WITH_NODES = re.compile(r"cdro-hostd: replay \| [^\r\n]* nodes [1-9][0-9]*:")
+LOG_LINE = re.compile(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3} [a-z]+ ")
+COLOUR = re.compile(r"\x1b\[[0-9;]*m")
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +71,32 @@ def run_on_a_terminal(build_dir, capture, extra, until):
     return text
 
 
+def screen_lines(text: str) -> list[str]:
+    """The lines a terminal shows after `text`: carriage return, line feed, and the ANSI erase
+    (ESC[K to the end of the line, ESC[J to the end of the screen) and cursor-up (ESC[nA)
+    sequences; colours dropped."""
+    lines, row, column = [""], 0, 0
+    for token in re.split(r"(\r|\n|\x1b\[\d*[AJK])", COLOUR.sub("", text)):
+        if token == "\r":
+            column = 0
+        elif token == "\n":
+            row, column = row + 1, 0
+            if row == len(lines):
+                lines.append("")
+        elif token.startswith("\x1b["):
+            if token[-1] == "A":
+                row = max(0, row - int(token[2:-1] or 1))
+            else:
+                lines[row] = lines[row][:column]
+                if token[-1] == "J":
+                    del lines[row + 1:]
+        elif token:
+            line = lines[row].ljust(column)
+            lines[row] = line[:column] + token + line[column + len(token):]
+            column += len(token)
+    return lines
+
+
 def json_lines(text: str) -> list[str]:
     return [line for line in text.replace("\r", "").splitlines() if line.startswith('{"type"')]
 
@@ -87,6 +117,55 @@ def test_a_terminal_gets_a_progress_line_and_no_json_lines(build_dir, capture):
     progress = PROGRESS_WITH_NODES.search(text).group(0)
     line = text[text.index(progress):].splitlines()[0]
     assert "placed" in line and "converged" in line and f"| map http://127.0.0.1:{port}/" in line
+
+
+def test_on_a_terminal_the_progress_line_is_redrawn_in_place_under_the_log(build_dir, capture):
+    # Act: stopped after three updates, so that the shutdown's log lines come while it is shown
+    text = run_on_a_terminal(build_dir, capture, ["--http-port", "0"], lambda t: t.count(PROGRESS) >= 3)
+    screen = [line for line in screen_lines(text) if line.strip()]
+
+    # Assert
+    draws = [m.start() for m in re.finditer(re.escape(PROGRESS), text)]
+    assert len(draws) >= 3, text
+    assert all(text[:start].endswith("\r\x1b[K") for start in draws), text
+    between = [text[a:b] for a, b in zip(draws, draws[1:])]
+    quiet = [span for span in between if not LOG_LINE.search(COLOUR.sub("", span))]
+    assert quiet and all("\n" not in span for span in quiet), between
+    logs = [line for line in screen if LOG_LINE.search(line)]
+    assert any("stopping" in line for line in logs), screen
+    assert all(LOG_LINE.match(line) for line in logs), screen            # none glued to the progress line
+    assert all(line.startswith(PROGRESS) for line in screen if PROGRESS in line), screen
+    assert screen[-1].startswith(PROGRESS), screen                        # kept under the log, to the end
+    assert text.endswith("\n")                                            # and ended for what follows
+
+
+def test_off_a_terminal_the_progress_line_is_an_ordinary_line(build_dir, capture, tmp_path):
+    # Fixture
+    stderr_path = tmp_path / "stderr.txt"
+
+    # Act
+    with open(stderr_path, "w") as stderr:
+        process = subprocess.Popen([str(build_dir / "bin" / "cdro-hostd"), "--replay", str(capture), "--speed", "1",
+                                    "--progress", "--jsonl", "", "--http-port", "0"], stdin=subprocess.DEVNULL,
+                                   stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        deadline = time.monotonic() + GUARD_S
+        while stderr_path.read_text().count(PROGRESS) < 3:
+            assert time.monotonic() < deadline, f"deadlock guard:\n{stderr_path.read_text()}"
+            time.sleep(0.1)
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=GUARD_S) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+    text = stderr_path.read_text()
+
+    # Assert
+    assert "\r" not in text and "\x1b" not in text, repr(text)
+    lines = text.splitlines()
+    progress = [line for line in lines if PROGRESS in line]
+    assert len(progress) >= 3 and all(line.startswith(PROGRESS) for line in progress), lines
+    assert any("stopping" in line for line in lines) and text.endswith("\n")
 
 
 def test_json_lines_on_a_terminal_when_asked(build_dir, capture):
