@@ -224,10 +224,13 @@ void report(const char *what, const RoundTrip &trip)
                 trip.after_continuing.output_m, trip.after_continuing.aligned_m);
 }
 
-// Measured: the random network below ends 1.1 mm apart; PLANT resumed
-// after every 50th range ends at most 2.3 mm apart once the two maps are aligned (0.6 mm to
-// 2.3 mm), and in a named frame its outputs end at most 2.2 mm apart. Asserted: 1 cm.
-constexpr double kContinuedToleranceM = 0.01;
+// Measured: the random network below ends 1.0 mm apart; PLANT resumed after every 50th or 150th
+// range ends 0.5-0.9 mm apart once the two maps are aligned, except at a checkpoint after which
+// the resumed engine (its ranges stored to the millimetre) takes the other side of some
+// near-equal choice of the solve: there 8-9 mm (one of the eight checkpoints of every 150th
+// range; which one moves with any change to the solve). In a named frame the outputs end 0.5-7 mm
+// apart. Asserted: 2 cm, far below a map that differs.
+constexpr double kContinuedToleranceM = 0.02;
 // The output frame of a map without a frame triangle is fitted onto its converged nodes. Measured
 // (the covariance that widens around links reading off): PLANT resumed after every 100th range
 // ends at most 22 mm apart in the output frame (9 mm aligned): the checkpoint keeps millimetres,
