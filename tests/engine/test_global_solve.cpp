@@ -206,62 +206,6 @@ TEST(GlobalSolve, RecoversExactNetworksWhateverTheOrder)
     }
 }
 
-// A 3 x 3 grid, 5 m apart, every pair linked, and node 9 on two links only, to the two corners of
-// the bottom edge: it is at (2.5, 3) inside the grid or at its mirror image (2.5, -3) below it,
-// and its links cannot tell which.
-Exact twoLinkNode()
-{
-    Exact out;
-    for (int row = 0; row < 3; ++row) {
-        for (int column = 0; column < 3; ++column) {
-            out.truth_m.emplace_back(5.0 * column, 5.0 * row);
-        }
-    }
-    out.truth_m.emplace_back(2.5, 3.0);
-    for (uint32_t a = 0; a < 9; ++a) {
-        out.problem.ids.push_back(static_cast<NodeId>(100 + a));
-        for (uint32_t b = a + 1; b < 9; ++b) {
-            out.problem.links.push_back(MapLink{a, b, (out.truth_m[a] - out.truth_m[b]).norm()});
-        }
-    }
-    out.problem.ids.push_back(109);
-    for (uint32_t corner : {0U, 1U}) {
-        out.problem.links.push_back(MapLink{corner, 9, (out.truth_m[corner] - out.truth_m[9]).norm()});
-    }
-    out.problem.finish();
-    out.problem.listens.assign(out.problem.nodeCount(), 0);
-    return out;
-}
-
-TEST(GlobalSolve, ATwoLinkNodeTakesTheSideTheUnheardPairsOrTheMiddleOfTheMapSay)
-{
-    Exact exact = twoLinkNode();
-    const Vector2 inside(2.5, 3.0);
-    const Vector2 outside(2.5, -3.0);
-    MapEstimate estimate = truthEstimate(exact);
-    // Nothing but the links: the side nearer the middle of the map, from either side.
-    estimate.position_m[9] = outside;
-    EXPECT_EQ(chooseMirrorSides(exact.problem, estimate, likelihood(), MapGrowthParams{}, 2.0), 1U);
-    EXPECT_LT((estimate.position_m[9] - inside).norm(), 1e-9);
-    EXPECT_EQ(chooseMirrorSides(exact.problem, estimate, likelihood(), MapGrowthParams{}, 2.0), 0U);
-    EXPECT_LT((estimate.position_m[9] - inside).norm(), 1e-9);
-    // A solve whose current map has the node outside ends with it inside, as every other start
-    // would: the order the ranges came in no longer decides the side.
-    MapEstimate current = truthEstimate(exact);
-    current.position_m[9] = outside;
-    const GlobalSolveResult solved = solveGlobally(exact.problem, likelihood(), GlobalSolveParams{}, &current);
-    EXPECT_LT(alignedRmse(solved.best.estimate, exact.truth_m), kExactM);
-    EXPECT_GE(solved.counters.mirrored, 1U);
-    // Every node listened and none of the grid heard it: inside it would be 3.2 m from two nodes
-    // that never heard it, outside 8 m or more from all; the unheard pairs decide, from either side.
-    exact.problem.listens.assign(exact.problem.nodeCount(), 1);
-    exact.problem.unheard_radius_m = 10.0;
-    estimate.position_m[9] = inside;
-    EXPECT_EQ(chooseMirrorSides(exact.problem, estimate, likelihood(), MapGrowthParams{}, 2.0), 1U);
-    EXPECT_LT((estimate.position_m[9] - outside).norm(), 1e-9);
-    EXPECT_EQ(chooseMirrorSides(exact.problem, estimate, likelihood(), MapGrowthParams{}, 2.0), 0U);
-}
-
 TEST(MapCovariance, EllipsesCoverTheErrorsAsOftenAsTheyShould)
 {
     // Gaussian noise only, the robust solve started at the truth, 150 draws: the 2-sigma

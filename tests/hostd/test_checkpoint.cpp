@@ -227,8 +227,8 @@ void report(const char *what, const RoundTrip &trip)
 // Measured: the random network below ends 1.0 mm apart; PLANT resumed after every 50th or 150th
 // range ends 0.5-0.9 mm apart once the two maps are aligned, except at a checkpoint after which
 // the resumed engine (its ranges stored to the millimetre) takes the other side of some
-// near-equal choice of the solve: there 8-9 mm (one of the eight checkpoints of every 150th
-// range; which one moves with any change to the solve). In a named frame the outputs end 0.5-7 mm
+// near-equal choice of the solve: there 8-9 mm (three of the eight checkpoints of every
+// 150th range; which ones move with any change to the solve). In a named frame the outputs end 0.5-8 mm
 // apart. Asserted: 2 cm, far below a map that differs.
 constexpr double kContinuedToleranceM = 0.02;
 // The output frame of a map without a frame triangle is fitted onto its converged nodes. Measured

@@ -12,26 +12,6 @@
 
 namespace cdro::engine {
 
-namespace {
-
-// A node's links to placed nodes, as ranges from where those nodes are.
-std::vector<RangeConstraint> placedConstraints(const MapProblem &problem, const MapEstimate &estimate, uint32_t node)
-{
-    std::vector<RangeConstraint> constraints;
-    for (uint32_t link : problem.node_links[node]) {
-        const uint32_t other = problem.other(link, node);
-        if (estimate.placed[other] != 0) {
-            RangeConstraint constraint;
-            constraint.anchor_m = estimate.position_m[other];
-            constraint.range_m = problem.links[link].range_m;
-            constraints.push_back(constraint);
-        }
-    }
-    return constraints;
-}
-
-} // namespace
-
 uint32_t escapeNodeMinima(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
                           const MapGrowthParams &growth, double gap_nats)
 {
@@ -66,54 +46,6 @@ uint32_t escapeNodeMinima(const MapProblem &problem, MapEstimate &estimate, cons
         }
         if (best != here) {
             estimate.position_m[node] = best;
-            ++moved;
-        }
-    }
-    return moved;
-}
-
-uint32_t chooseMirrorSides(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
-                           const MapGrowthParams &growth, double gap_nats)
-{
-    Vector2 middle = Vector2::Zero();
-    double placed = 0.0;
-    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-        if (estimate.placed[node] != 0) {
-            middle += estimate.position_m[node];
-            placed += 1.0;
-        }
-    }
-    if (placed < 3.0) {
-        return 0;
-    }
-    middle /= placed;
-    uint32_t moved = 0;
-    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-        if (estimate.placed[node] == 0 || problem.fixed[node] != 0) {
-            continue;
-        }
-        const std::vector<RangeConstraint> constraints = placedConstraints(problem, estimate, node);
-        if (constraints.size() != 2) {
-            continue;
-        }
-        const Vector2 a = constraints[0].anchor_m;
-        const Vector2 axis = constraints[1].anchor_m - a;
-        if (axis.norm() < growth.min_baseline_m) {
-            continue;
-        }
-        const Vector2 unit = axis.normalized();
-        const Vector2 here = estimate.position_m[node];
-        const Vector2 foot = a + unit * unit.dot(here - a);
-        const Vector2 mirror = 2.0 * foot - here;
-        if ((mirror - here).norm() < growth.distinct_m) {
-            continue;
-        }
-        const double here_cost = nodeCost(problem, estimate, likelihood, node, here);
-        const double mirror_cost = nodeCost(problem, estimate, likelihood, node, mirror);
-        const bool cheaper = mirror_cost + gap_nats < here_cost;
-        const bool tied = std::abs(mirror_cost - here_cost) <= gap_nats;
-        if (cheaper || (tied && (mirror - middle).norm() < (here - middle).norm())) {
-            estimate.position_m[node] = mirror;
             ++moved;
         }
     }
@@ -250,8 +182,6 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             refined = refineMap(problem, hypothesis.estimate, likelihood, again);
             result.counters.refine_iterations += refined.iterations;
         }
-        result.counters.mirrored += chooseMirrorSides(problem, hypothesis.estimate, likelihood, params.growth,
-                                                      params.escape_gap_nats);
         hypothesis.cost = mapCost(problem, hypothesis.estimate, likelihood);
         hypotheses.push_back(std::move(hypothesis));
     };

@@ -175,7 +175,6 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     const GlobalSolveResult solved = solveGlobally(problem, likelihood_, solve, &current);
     counters_.solve_starts += solved.counters.starts;
     counters_.solve_escapes += solved.counters.escapes;
-    counters_.solve_mirrored += solved.counters.mirrored;
     if (solved.best.estimate.placedCount() < 3) {
         return outcome;
     }

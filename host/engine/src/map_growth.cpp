@@ -197,17 +197,7 @@ MapEstimate growMap(const MapProblem &problem, const std::vector<uint32_t> &part
         decision = Decision{};
         decision.valid = true;
         decision.placed_neighbours = placed_neighbours[node];
-        std::vector<RangeConstraint> constraints;
-        for (uint32_t link : problem.node_links[node]) {
-            const uint32_t other = problem.other(link, node);
-            if (estimate.placed[other] != 0) {
-                RangeConstraint constraint;
-                constraint.anchor_m = estimate.position_m[other];
-                constraint.range_m = problem.links[link].range_m;
-                constraint.link = link;
-                constraints.push_back(constraint);
-            }
-        }
+        const std::vector<RangeConstraint> constraints = placedConstraints(problem, estimate, node);
         std::vector<PlacementCandidate> candidates = placementCandidates(constraints, likelihood, solver, placement);
         if (candidates.empty()) {
             return;

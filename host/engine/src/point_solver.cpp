@@ -28,6 +28,22 @@ std::vector<RangeConstraint> placedConstraints(const MapState &map, uint32_t nod
     return constraints;
 }
 
+std::vector<RangeConstraint> placedConstraints(const MapProblem &problem, const MapEstimate &estimate, uint32_t node)
+{
+    std::vector<RangeConstraint> constraints;
+    for (uint32_t link : problem.node_links[node]) {
+        const uint32_t other = problem.other(link, node);
+        if (estimate.placed[other] != 0) {
+            RangeConstraint constraint;
+            constraint.anchor_m = estimate.position_m[other];
+            constraint.range_m = problem.links[link].range_m;
+            constraint.link = link;
+            constraints.push_back(constraint);
+        }
+    }
+    return constraints;
+}
+
 namespace {
 
 double residualVariance(const RangeConstraint &constraint, const RangePrediction &prediction, double sigma_m,

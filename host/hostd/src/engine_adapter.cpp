@@ -83,7 +83,7 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.convergence.ambiguous_nodes, &c.convergence.foldable_nodes, &c.convergence.flexible_nodes,
             &c.motion.motion_starts, &c.motion.motion_stops, &c.motion.motion_inferred, &c.motion.track_updates,
             &c.motion.track_refused, &c.solve.solve_refreshes, &c.solve.offsets_adopted,
-            &c.sogs.weight_updates_deferred, &c.solve.solve_mirrored};
+            &c.sogs.weight_updates_deferred};
 }
 
 // Doubles through the block: their bits, exactly.

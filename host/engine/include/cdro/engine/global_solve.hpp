@@ -55,7 +55,6 @@ struct MapHypothesis {
 struct GlobalSolveCounters {
     uint32_t starts = 0;
     uint32_t escapes = 0;            // single nodes moved to a better local optimum
-    uint32_t mirrored = 0;           // two-link nodes moved to their other side (chooseMirrorSides)
     uint32_t refine_iterations = 0;
     uint32_t offset_evaluations = 0; // maps refined searching the range offsets
 };
@@ -85,16 +84,5 @@ RangeLikelihoodParams learnNlosModel(const MapProblem &problem, const MapEstimat
 // when that is cheaper by gap_nats, counting the soft cost of unheard nodes; returns the moves.
 uint32_t escapeNodeMinima(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
                           const MapGrowthParams &growth, double gap_nats);
-
-// A node with exactly two placed neighbours (growth.min_baseline_m or more apart) can sit at
-// either of two mirror images across the line through them (growth.distinct_m or more apart:
-// closer, they are one place), and its links cannot tell which. The unheard pairs may: the mirror is taken
-// when it is cheaper by gap_nats. Where they do not tell either (the costs within gap_nats), the
-// side nearer the middle of the map is taken: the ranges leave it a coin toss, a node is more
-// likely among the others than beyond them, and the choice no longer depends on where the
-// order of the ranges happened to put it. Returns the nodes moved; the node stays ambiguous
-// (convergence.hpp: too few links) either way.
-uint32_t chooseMirrorSides(const MapProblem &problem, MapEstimate &estimate, const RangeLikelihood &likelihood,
-                           const MapGrowthParams &growth, double gap_nats);
 
 } // namespace cdro::engine

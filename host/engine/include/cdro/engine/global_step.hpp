@@ -61,7 +61,6 @@ struct GlobalStepCounters {
     uint64_t solve_escapes = 0;     // single nodes moved out of a local minimum, over all solves
     uint64_t solve_placed = 0;      // nodes the solve placed that the filter had not
     uint64_t offsets_adopted = 0;   // solves whose map came with the nodes' range offsets (range_offsets.hpp)
-    uint64_t solve_mirrored = 0;    // two-link nodes put on their other side (global_solve.hpp: chooseMirrorSides)
 };
 
 // The problem the solve sees, and which engine node each problem node is.

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "cdro/engine/map_problem.hpp"
 #include "cdro/engine/map_state.hpp"
 #include "cdro/engine/range_likelihood.hpp"
 
@@ -28,6 +29,8 @@ struct RangeConstraint {
 // The links of `node` to placed neighbours that are not moving, as constraints (in the order
 // of the node's links).
 std::vector<RangeConstraint> placedConstraints(const MapState &map, uint32_t node);
+// The same for a plain map problem: the links of `node` to the nodes `estimate` places.
+std::vector<RangeConstraint> placedConstraints(const MapProblem &problem, const MapEstimate &estimate, uint32_t node);
 
 struct PointSolution {
     Vector2 position_m = Vector2::Zero();           // m
