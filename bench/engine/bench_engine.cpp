@@ -482,7 +482,8 @@ struct PlantRun {
     Accuracy end_settled;
     StateSize state;
     long heap_kib = -1;             // heap in use by the engine after the last pass (mallinfo2)
-    EngineCounters counters;
+    EngineCounters after_first_counters; // the engine's counters after pass 1 ...
+    EngineCounters counters;             // ... and after pass N (before the final settle)
 };
 
 PlantRun runPlant(const Plant &plant, uint32_t passes)
@@ -498,6 +499,7 @@ PlantRun runPlant(const Plant &plant, uint32_t passes)
     double fed_wall_s = 0.0;
     run.first = feed(engine, plant.ranges, &timeline, &fed, &fed_wall_s);
     run.reinit_first = engine.counters().solve.solves;
+    run.after_first_counters = engine.counters();
     run.after_first = accuracy(engine, plant.truth_m);
     {
         Engine settled = engine;
@@ -509,14 +511,32 @@ PlantRun runPlant(const Plant &plant, uint32_t passes)
         run.steady_total += run.steady.back();
     }
     run.reinit_steady = engine.counters().solve.solves - run.reinit_first;
+    run.counters = engine.counters();
     run.end = accuracy(engine, plant.truth_m);
     run.first_map = firstMapJson(timeline, plant.truth_m.size(), run.end.placed, plant.ranges.size());
     run.state = stateSize(engine);
     run.heap_kib = memoryNow().heap_in_use_kib - heap_before_kib;
     engine.settle(settleBudget(engine));
     run.end_settled = accuracy(engine, plant.truth_m);
-    run.counters = engine.counters();
     return run;
+}
+
+// What the steady state does per range, from the counters before and after it: where its time
+// can go (each is a loop over a node's links or a ring's components).
+Json steadyWorkJson(const EngineCounters &before, const EngineCounters &after, uint64_t ranges)
+{
+    const double per = 1.0 / static_cast<double>(std::max<uint64_t>(ranges, 1));
+    auto rate = [per](uint64_t from, uint64_t to) { return static_cast<double>(to - from) * per; };
+    return Json{
+        {"ranges_used", rate(before.ranges_used, after.ranges_used)},
+        {"node_updates", rate(before.node_updates, after.node_updates)},
+        {"relaxations", rate(before.relaxations, after.relaxations)},
+        {"refinements", rate(before.refinement.refinements, after.refinement.refinements)},
+        {"ekf_component_updates", rate(before.sogs.ekf_component_updates, after.sogs.ekf_component_updates)},
+        {"weight_terms", rate(before.sogs.weight_terms, after.sogs.weight_terms)},
+        {"weight_updates_deferred", rate(before.sogs.weight_updates_deferred, after.sogs.weight_updates_deferred)},
+        {"global_solves", rate(before.solve.solves, after.solve.solves)},
+    };
 }
 
 Json plantJson(const Plant &plant, const std::vector<PlantRun> &runs, uint32_t passes, const Memory &before,
@@ -580,6 +600,7 @@ Json plantJson(const Plant &plant, const std::vector<PlantRun> &runs, uint32_t p
         {"first_complete_map", first_map},
         {"reinitializations_first_pass", last.reinit_first},
         {"reinitializations_steady", last.reinit_steady},
+        {"steady_work_per_range", steadyWorkJson(last.after_first_counters, last.counters, last.steady_total.ranges)},
         {"accuracy_after_first_pass", accuracyJson(last.after_first)},
         {"accuracy_after_first_pass_settled", accuracyJson(last.after_first_settled)},
         {"accuracy_end", accuracyJson(last.end)},
@@ -953,6 +974,12 @@ void printPlant(const Json &p)
                 1e3 * p["first_pass_s_median"].get<double>(), p["first_pass_us_per_range_median"].get<double>(),
                 p["first_pass_cpu_us_per_range_median"].get<double>(),
                 p["reinitializations_first_pass"].get<int>());
+    const Json &work = p["steady_work_per_range"];
+    std::printf("  steady-state work a range   %.2f node updates (%.2f neighbours), %.1f SoG component updates, "
+                "%.1f weight terms, %.2f weight updates deferred, %.2g global solves\n",
+                work["node_updates"].get<double>(), work["relaxations"].get<double>(),
+                work["ekf_component_updates"].get<double>(), work["weight_terms"].get<double>(),
+                work["weight_updates_deferred"].get<double>(), work["global_solves"].get<double>());
     const Json &complete = p["first_complete_map"];
     if (complete["reached"].get<bool>()) {
         std::printf("  first complete map          %s nodes placed after %d ranges (pass %.2f), %.1f ms of feeding\n",
