@@ -494,14 +494,13 @@ def test_that_metrics_parse_as_prometheus_text_with_the_counters_and_rates(hostd
 
 class SecureBroker:
     """mosquitto 2 with a password file and a TLS listener on localhost, its certificate
-    self-signed for localhost by openssl."""
+    self-signed for localhost by openssl (started by tests/conftest.py's start_mosquitto)."""
 
     USER, PASSWORD = "robot", "s3cret-pass"
 
-    def __init__(self, tmp_path: pathlib.Path):
-        mosquitto = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+    def __init__(self, tmp_path: pathlib.Path, start_mosquitto):
         passwd = shutil.which("mosquitto_passwd")
-        if not pathlib.Path(mosquitto).exists() or passwd is None or shutil.which("openssl") is None:
+        if passwd is None or shutil.which("openssl") is None:
             pytest.fail("mosquitto, mosquitto_passwd and openssl are needed (scripts/setup.sh installs them)")
         self.dir = tmp_path / "broker"
         self.dir.mkdir()
@@ -513,32 +512,14 @@ class SecureBroker:
         passwords = self.dir / "passwords"
         subprocess.run([passwd, "-c", "-b", str(passwords), self.USER, self.PASSWORD], check=True,
                        capture_output=True, timeout=GUARD_S)
-        self.port = free_port()
-        config = self.dir / "mosquitto.conf"
-        config.write_text(f"user root\npersistence false\nallow_anonymous false\npassword_file {passwords}\n"
-                          f"listener {self.port} 127.0.0.1\ncertfile {self.cert}\nkeyfile {key}\n")
-        self.log = self.dir / "mosquitto.log"
-        self.process = subprocess.Popen([mosquitto, "-c", str(config), "-v"], stdout=open(self.log, "w"),
-                                        stderr=subprocess.STDOUT)
-        wait_until(self._accepting, "mosquitto listening", GUARD_S)
-
-    def _accepting(self) -> bool:
-        try:
-            with socket.create_connection(("127.0.0.1", self.port), timeout=1):
-                return True
-        except OSError:
-            return False
-
-    def stop(self):
-        self.process.terminate()
-        self.process.wait(timeout=GUARD_S)
+        self.broker = start_mosquitto(f"allow_anonymous false\npassword_file {passwords}\n"
+                                      f"certfile {self.cert}\nkeyfile {key}\n")
+        self.port = self.broker.port
 
 
 @pytest.fixture
-def secure_broker(tmp_path):
-    broker = SecureBroker(tmp_path)
-    yield broker
-    broker.stop()
+def secure_broker(tmp_path, start_mosquitto):
+    return SecureBroker(tmp_path, start_mosquitto)
 
 
 def subscribe_tls(broker: SecureBroker, topics: list[str]):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import random
-import shutil
 import socket
 import subprocess
 import sys
@@ -20,7 +19,7 @@ import pytest
 
 from cdro_tools.codec import read_capture
 
-from service_support import (DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_port, free_udp_port,
+from service_support import (DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_udp_port,
                              start_running, wait_until)
 
 
@@ -142,46 +141,29 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
         assert "listening for UDP" not in replay.log()  # no live input during a replay
 
 
-def test_odometry_over_mqtt_reaches_the_consumer_and_the_capture(harness_bin, tmp_path):
-    mosquitto = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    broker_port = free_port()
-    (tmp_path / "mosquitto.conf").write_text(f"listener {broker_port} 127.0.0.1\nallow_anonymous true\n"
-                                             "persistence false\n")
-    broker = subprocess.Popen([mosquitto, "-c", str(tmp_path / "mosquitto.conf")], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
-    try:
-        def accepting():
-            try:
-                with socket.create_connection(("127.0.0.1", broker_port), timeout=1):
-                    return True
-            except OSError:
-                return False
-        wait_until(accepting, "mosquitto listening")
-        device, harness = start_running(
-            harness_bin, tmp_path, name="live",
-            extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{broker_port}', topic_prefix: lab}}\n")
-        wait_until(lambda: "mqtt: subscribed to 'lab/odometry'" in harness.log(), "the odometry subscription")
-        streaming = stream_ranges(device, 100, seed=3)
-        base = time.time() + 600.0
-        payloads = [json.dumps({"t": base + 0.1 * i, "distance_m": 0.02 * i, "dheading_rad": 0.0}) for i in range(20)]
-        payloads.insert(10, '{"t": "soon"}')
-        published = subprocess.run([str(harness_bin / "bin" / "cdro-mqtt-publish"), "127.0.0.1", str(broker_port),
-                                    "lab/odometry"], input="\n".join(payloads) + "\n", capture_output=True, text=True,
-                                   timeout=DEADLOCK_GUARD_S)
-        assert published.returncode == 0, published.stderr
-        streaming.join(timeout=DEADLOCK_GUARD_S)
-        h = harness.wait_health(lambda h: h["counters"]["odometry_received"] == 21 and
-                                h["counters"]["frames_delivered"] >= 101, "the odometry and the ranges")
-        assert harness.stop() == 0
-        device.vanish()
-        assert h["counters"]["odometry_accepted"] == 20 and h["counters"]["odometry_rejected_field"] == 1
-        assert h["counters"]["mqtt_received"] == 21
-        odometry = odometry_lines(harness.received_lines())
-        assert [l["distance_m"] for l in odometry] == [0.02 * i for i in range(20)]
-        records = [r.odometry_message() for r in read_capture(harness.capture).records if r.odometry]
-        assert [m["t"] for m in records] == [l["t_s"] for l in odometry]
-        assert {m["source"] for m in records} == {"mqtt:lab/odometry"}
-        assert "dropped a message from mqtt:lab/odometry: 't' is a string" in harness.log()
-    finally:
-        broker.terminate()
-        broker.wait(timeout=DEADLOCK_GUARD_S)
+def test_odometry_over_mqtt_reaches_the_consumer_and_the_capture(harness_bin, tmp_path, mosquitto):
+    device, harness = start_running(
+        harness_bin, tmp_path, name="live",
+        extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{mosquitto.port}', topic_prefix: lab}}\n")
+    wait_until(lambda: "mqtt: subscribed to 'lab/odometry'" in harness.log(), "the odometry subscription")
+    streaming = stream_ranges(device, 100, seed=3)
+    base = time.time() + 600.0
+    payloads = [json.dumps({"t": base + 0.1 * i, "distance_m": 0.02 * i, "dheading_rad": 0.0}) for i in range(20)]
+    payloads.insert(10, '{"t": "soon"}')
+    published = subprocess.run([str(harness_bin / "bin" / "cdro-mqtt-publish"), "127.0.0.1", str(mosquitto.port),
+                                "lab/odometry"], input="\n".join(payloads) + "\n", capture_output=True, text=True,
+                               timeout=DEADLOCK_GUARD_S)
+    assert published.returncode == 0, published.stderr
+    streaming.join(timeout=DEADLOCK_GUARD_S)
+    h = harness.wait_health(lambda h: h["counters"]["odometry_received"] == 21 and
+                            h["counters"]["frames_delivered"] >= 101, "the odometry and the ranges")
+    assert harness.stop() == 0
+    device.vanish()
+    assert h["counters"]["odometry_accepted"] == 20 and h["counters"]["odometry_rejected_field"] == 1
+    assert h["counters"]["mqtt_received"] == 21
+    odometry = odometry_lines(harness.received_lines())
+    assert [l["distance_m"] for l in odometry] == [0.02 * i for i in range(20)]
+    records = [r.odometry_message() for r in read_capture(harness.capture).records if r.odometry]
+    assert [m["t"] for m in records] == [l["t_s"] for l in odometry]
+    assert {m["source"] for m in records} == {"mqtt:lab/odometry"}
+    assert "dropped a message from mqtt:lab/odometry: 't' is a string" in harness.log()

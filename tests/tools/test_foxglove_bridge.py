@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -138,23 +137,12 @@ def check_scene_matches(update: dict, nodes: dict[int, dict], what: str) -> None
 
 
 @pytest.fixture
-def broker(tmp_path):
-    binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not os.path.exists(binary):
-        pytest.fail("mosquitto is not installed (scripts/setup.sh installs it)")
-    port = free_port()
-    config = tmp_path / "mosquitto.conf"
+def broker(start_mosquitto) -> int:
+    """The port of a real mosquitto (tests/conftest.py)."""
     # QoS 1 and no queue limit, so that the comparison below does not rest on QoS 0's "at most
     # once" or on the broker's queue limits for a subscriber that falls behind (the test passes at
     # QoS 0 too; nothing here relies on it).
-    config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nmax_queued_messages 0\n")
-    process = subprocess.Popen([binary, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        wait_until(lambda: accepting(port), "mosquitto listening")
-        yield port
-    finally:
-        process.terminate()
-        process.wait(timeout=GUARD_S)
+    return start_mosquitto("allow_anonymous true\nmax_queued_messages 0\n").port
 
 
 def test_live_service_in_foxglove_over_sse_and_mqtt(build_dir, tmp_path, broker):
