@@ -1,7 +1,8 @@
 """cdro-hostd as a system service (docs/deployment.md): what `cmake --install` puts where (the
-Python tools' environment and commands too) and the unit's check by systemd-analyze; the sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a
-socket the test owns; journald priorities on stderr; `--version` here and in every Python tool;
-`--print-config`. Timeouts are deadlock guards only."""
+Python tools' environment and commands too) and the unit's check by systemd-analyze; the
+sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a socket the test owns; journald
+priorities on stderr; `--version` here and in every Python tool; `--print-config`. Timeouts
+are deadlock guards only."""
 from __future__ import annotations
 
 import os
@@ -106,7 +107,8 @@ def test_that_install_puts_every_python_tool_in_bin_pointing_at_the_final_prefix
 def test_that_the_installed_python_tools_run_from_their_environment(build_dir, tmp_path):
     # Fixture: the environment's paths are the final ones, so this install is where it runs
     prefix = tmp_path / "prefix"
-    missing = subprocess.run(["/usr/bin/python3", "-c", "import numpy, scipy, serial, yaml"], capture_output=True, text=True)
+    missing = subprocess.run(["/usr/bin/python3", "-c", "import numpy, scipy, serial, yaml"], capture_output=True,
+                             text=True)
     if missing.returncode != 0:
         pytest.fail("the tools' Debian dependencies are missing (scripts/setup.sh --runtime installs "
                     f"python3-numpy, python3-serial, ...): {missing.stderr.strip()}")
