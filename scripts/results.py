@@ -187,7 +187,8 @@ def plaza(summary: dict) -> None:
                               "beacons_m": r["beacons"]["own_fit_rmse_m"],
                               "beacons_through_path_m": r["beacons"]["path_fit_rmse_m"],
                               "calibration": calibration[0].split("calibration: ")[1] if calibration else ""}
-            print(f"  {name} {label:16s} path {results[label]['path_m']:.3f} m (p95 {results[label]['path_p95_m']:.3f}), "
+            print(f"  {name} {label:16s} path {results[label]['path_m']:.3f} m "
+                  f"(p95 {results[label]['path_p95_m']:.3f}), "
                   f"beacons {results[label]['beacons_m']:.3f} m (through the path's fit "
                   f"{results[label]['beacons_through_path_m']:.3f} m) {results[label]['calibration']}")
         summary["plaza"][name] = results
@@ -195,8 +196,9 @@ def plaza(summary: dict) -> None:
 
 def cooperative_robot(summary: dict) -> None:
     summary["cooperative_robot"] = {}
-    for scenario, start_s, what in (("robot-corridor", 15.0, "8 anchors in a corridor, mostly out of range of each other"),
-                                    ("plaza-like", 20.0, "8 anchors that all range each other")):
+    for scenario, start_s, what in (
+            ("robot-corridor", 15.0, "8 anchors in a corridor, mostly out of range of each other"),
+            ("plaza-like", 20.0, "8 anchors that all range each other")):
         print(f"== Simulated robot, {scenario}: {what}")
         runs = []
         for seed in SEEDS[:5]:

@@ -92,7 +92,8 @@ def draw(family: str, seed: int, out: pathlib.Path, shuffles: int, heights: str,
     rmses = [r["rmse_m"] for r in runs.values() if r["rmse_m"] is not None]
     return {
         "family": family, "seed": seed, "heights": heights,
-        "world": next((line for line in about if line and not line.split()[0] in ("family", "seed", "order", "shuffle")), ""),
+        "world": next((line for line in about
+                       if line and line.split()[0] not in ("family", "seed", "order", "shuffle")), ""),
         "nodes": runs["file"]["nodes"] + runs["file"]["unplaced"],
         "links": sum(1 for _ in open(file_order / "links.csv")) - 1,
         "engine": runs,
@@ -122,13 +123,15 @@ def tables(rows: list[dict]) -> str:
             f"{r['links']} | {fmt(e['rmse_m'])} | {e['placed']} / {e['converged']} | {wrong} | "
             f"{fmt(100 * coverage, 0) + ' %' if coverage is not None else '-'} | "
             + " | ".join(fmt(r["baselines"][b]) for b in BASELINES)
-            + f" | {fmt(r['reference_m'])} | {fmt(min(rmses))}-{fmt(max(rmses))}, {fmt(100 * r['order_spread'], 0)} % |")
+            + f" | {fmt(r['reference_m'])} | {fmt(min(rmses))}-{fmt(max(rmses))}, "
+              f"{fmt(100 * r['order_spread'], 0)} % |")
     return "\n".join(lines)
 
 
 def summary(rows: list[dict]) -> str:
     lines = ["| family | draws | engine median (m) | best baseline median (m) | engine <= best baseline + 0.05 m | "
-             "reference median (m) | runs | converged | converged > 1 m off | ellipse coverage | order spread median / max |",
+             "reference median (m) | runs | converged | converged > 1 m off | ellipse coverage | "
+             "order spread median / max |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     keys = sorted({(r["family"], r["heights"]) for r in rows}, key=lambda k: (FAMILIES.index(k[0]), k[1]))
     for family, heights in keys:
@@ -189,7 +192,8 @@ def main() -> int:
         for future in concurrent.futures.as_completed(futures):
             row = future.result()
             e = row["engine"]["file"]
-            print(f"scorecard: {row['family']} seed {row['seed']} heights {row['heights']}: engine {fmt(e['rmse_m'])} m, "
+            print(f"scorecard: {row['family']} seed {row['seed']} heights {row['heights']}: "
+                  f"engine {fmt(e['rmse_m'])} m, "
                   f"{e['converged']} converged ({e['converged_wrong']} > 1 m off), best baseline "
                   f"{fmt(min(v for v in row['baselines'].values() if v is not None))} m, reference "
                   f"{fmt(row['reference_m'])} m", file=sys.stderr, flush=True)

@@ -4,8 +4,9 @@
 #   2. the same suites built with AddressSanitizer + UndefinedBehaviorSanitizer
 #   3. AVR cross builds with avr-gcc: the Uno image (with its flash/RAM budget) and the Mega image
 #   4. libFuzzer on the frame decoder: a short run with a fixed seed and a fixed number of inputs
-#   5. pytest: the Python tools, the end-to-end tests against the native build, and firmware in
-#      the loop (tests/fil: the Uno image of step 3 in simavr, cdro-fil of step 1)
+#   5. ruff (ruff.toml) over the Python of tools/, tests/, scripts/ and bench/, then pytest: the
+#      Python tools, the end-to-end tests against the native build, and firmware in the loop
+#      (tests/fil: the Uno image of step 3 in simavr, cdro-fil of step 1)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -54,7 +55,8 @@ if ! build-fuzz/bin/cdro-fuzz-decoder -seed=1 -runs=300000 -max_len=512 -artifac
 fi
 grep -E "^Done [0-9]+ runs" build-fuzz/fuzz.log
 
-step "5/5 pytest"
+step "5/5 ruff + pytest"
+.venv/bin/ruff check tools tests scripts bench
 CDRO_BUILD_DIR="$PWD/build" CDRO_AVR_BUILD_DIR="$PWD/build-avr" .venv/bin/python -m pytest -q --durations=10 tests
 
 printf '\nAll tests passed.\n'

@@ -17,7 +17,6 @@ import csv
 import dataclasses
 import json
 import math
-import os
 import pathlib
 import signal
 import subprocess
@@ -25,7 +24,6 @@ import time
 
 import yaml
 
-from cdro_tools.codec import CONSTANTS as C
 from cdro_tools.codec import FrameError, decode_frame, read_capture, validate_frame
 
 DEADLOCK_GUARD_S = 60.0  # s of wall-clock time beyond the scenario; only reached when something is broken
@@ -225,7 +223,7 @@ logging: {{level: info}}
             code = self.fil.wait(timeout=self.scenario.duration_s + DEADLOCK_GUARD_S)
         except subprocess.TimeoutExpired:
             self.fil.kill()
-            raise AssertionError(f"cdro-fil did not end:\n{self.fil_log()}")
+            raise AssertionError(f"cdro-fil did not end:\n{self.fil_log()}") from None
         finally:
             self._fil_log.close()
         assert code == 0, f"cdro-fil exited with {code}:\n{self.fil_log()}"

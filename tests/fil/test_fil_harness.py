@@ -87,7 +87,7 @@ def test_handshake_commands_and_keepalive(run):
         assert f"serial: node 0x{node:04X}: Pozyx firmware 1.1, channel 5" in host_log
 
     lists = run.device("NODE_LIST")
-    assert [l["source"] for l in lists] == [C["CDRO_NODE_SOURCE_DISCOVERY"], C["CDRO_NODE_SOURCE_HOST"]]
+    assert [frame["source"] for frame in lists] == [C["CDRO_NODE_SOURCE_DISCOVERY"], C["CDRO_NODE_SOURCE_HOST"]]
     assert sorted(lists[0]["node_ids"]) == sorted(remotes), "discovery found every node in range"
     assert lists[1]["node_ids"] == remotes, "SET_NODES took the host's list"
 
@@ -157,7 +157,8 @@ def test_ranges_cover_every_pair_and_agree_with_the_truth(run):
     performed = {}
     for row in run.sim_ranges:
         if row["result"] == "ok":
-            performed.setdefault((int(row["from"]), int(row["to"]), int(row["distance_mm"])), []).append(float(row["t"]))
+            key = (int(row["from"]), int(row["to"]), int(row["distance_mm"]))
+            performed.setdefault(key, []).append(float(row["t"]))
     for r in ranges:
         key = (r["from_id"], r["to_id"], r["distance_mm"])
         times = performed.get(key, [])
@@ -297,7 +298,8 @@ def test_counters_and_errors_agree_with_the_faults(run):
         assert off_s <= e["device_time_ms"] / 1000.0 <= on_s + STEP_S, e.frame.fields
         assert e["node_id"] in responders, e.frame.fields
     assert node in {e["node_id"] for e in ranging_errors}
-    pairs = [(run.scenario.own, node)] + [(a, b) for i, a in enumerate(remotes) for b in remotes[i + 1:] if node in (a, b)]
+    pairs = [(run.scenario.own, node)] + [(a, b) for i, a in enumerate(remotes) for b in remotes[i + 1:]
+                                          if node in (a, b)]
     back_bound_s = 8.0  # 4 whole rounds of backoff (under 1 s each here) and the round under way
     for a, b in pairs:
         assert any(on_s < r["device_time_ms"] / 1000.0 <= on_s + back_bound_s

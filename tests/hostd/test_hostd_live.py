@@ -27,8 +27,6 @@ import time
 import urllib.error
 import urllib.request
 
-import pytest
-
 from cdro_tools.codec import decode_sog, read_capture
 from cdro_tools.codec.capture_file import RECORD_OVERHEAD, CaptureWriter
 from cdro_tools.evaluation.alignment import align

@@ -17,7 +17,7 @@ import urllib.request
 import pytest
 
 from cdro_tools.evaluation.alignment import align
-from cdro_tools.simulation.hostile import GUARD_S, HostileLink, wait_until
+from cdro_tools.simulation.hostile import GUARD_S, HostileLink
 
 NODES = [0x6001 + i for i in range(7)]
 MAP_RMSE_M = 0.25   # aligned, the demo's first 15 s (measured 0.03-0.11 m; phantoms made it 0.07-3.97 m)

@@ -91,12 +91,12 @@ map: {{heights_csv: {tmp_path / 'heights.csv'}}}
 
     positions = {n["id"]: (n["x_m"], n["y_m"]) for n in snapshot["nodes"]}
     residuals = {}
-    for l in snapshot["links"]:
-        fitted = math.dist(positions[l["a"]], positions[l["b"]])
-        assert abs(l["fitted_distance_m"] - fitted) < 1e-9
-        assert abs(l["residual_m"] - (l["range_median_m"] - fitted)) < 1e-9
-        assert 0.0 <= l["inlier_probability"] <= 1.0
-        residuals[(l["a"], l["b"])] = l["residual_m"]
+    for edge in snapshot["links"]:
+        fitted = math.dist(positions[edge["a"]], positions[edge["b"]])
+        assert abs(edge["fitted_distance_m"] - fitted) < 1e-9
+        assert abs(edge["residual_m"] - (edge["range_median_m"] - fitted)) < 1e-9
+        assert 0.0 <= edge["inlier_probability"] <= 1.0
+        residuals[(edge["a"], edge["b"])] = edge["residual_m"]
     assert len(residuals) == 21
     print({f"0x{a:04X}-0x{b:04X}": round(r, 3) for (a, b), r in sorted(residuals.items(), key=lambda kv: -kv[1])})
     ranked = sorted(residuals, key=lambda k: -abs(residuals[k]))

@@ -407,7 +407,8 @@ def test_that_set_takes_effect_over_the_file(hostd, tmp_path):
     printed = yaml.safe_load(print_config(hostd, "--config", config, "--set", "engine.range.sigma_m=0.13"))
     from_file = yaml.safe_load(print_config(hostd, "--config", config))
     default = run(hostd, "--ranges-csv", ranges, "--out-csv", tmp_path / "default.csv")
-    changed = run(hostd, "--ranges-csv", ranges, "--out-csv", tmp_path / "set.csv", "--set", "engine.range.sigma_m=0.13")
+    changed = run(hostd, "--ranges-csv", ranges, "--out-csv", tmp_path / "set.csv",
+                  "--set", "engine.range.sigma_m=0.13")
 
     # Assert
     assert printed["engine"]["range"]["sigma_m"] == 0.13

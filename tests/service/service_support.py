@@ -116,8 +116,8 @@ class FakeDevice:
         if self.header_version != PROTOCOL_VERSION:
             payload = pack_fields(FRAME_TYPES["HELLO"]["fields"], dict(
                 device_time_ms=self.device_time_ms, firmware_version=0x0200, protocol_version=self.header_version,
-                layout_hash=0xABCD, node_id=self.node_id, capabilities=0x03, pozyx_firmware=0x12, max_nodes=20, pozyx_tries=1,
-                reset_cause=1))
+                layout_hash=0xABCD, node_id=self.node_id, capabilities=0x03, pozyx_firmware=0x12, max_nodes=20,
+                pozyx_tries=1, reset_cause=1))
             self.write(raw_frame(0x01, self.sequence & 0xFFFF, payload, version=self.header_version))
             self.sequence += 1
             return

@@ -1,7 +1,8 @@
 """cdro-hostd as a system service (docs/deployment.md): what `cmake --install` puts where (the
-Python tools' environment and commands too) and the unit's check by systemd-analyze; the sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a
-socket the test owns; journald priorities on stderr; `--version` here and in every Python tool;
-`--print-config`. Timeouts are deadlock guards only."""
+Python tools' environment and commands too) and the unit's check by systemd-analyze; the
+sd_notify protocol (READY=1, WATCHDOG=1, STOPPING=1) on a socket the test owns; journald
+priorities on stderr; `--version` here and in every Python tool; `--print-config`. Timeouts
+are deadlock guards only."""
 from __future__ import annotations
 
 import os
@@ -106,7 +107,8 @@ def test_that_install_puts_every_python_tool_in_bin_pointing_at_the_final_prefix
 def test_that_the_installed_python_tools_run_from_their_environment(build_dir, tmp_path):
     # Fixture: the environment's paths are the final ones, so this install is where it runs
     prefix = tmp_path / "prefix"
-    missing = subprocess.run(["/usr/bin/python3", "-c", "import numpy, scipy, serial, yaml"], capture_output=True, text=True)
+    missing = subprocess.run(["/usr/bin/python3", "-c", "import numpy, scipy, serial, yaml"], capture_output=True,
+                             text=True)
     if missing.returncode != 0:
         pytest.fail("the tools' Debian dependencies are missing (scripts/setup.sh --runtime installs "
                     f"python3-numpy, python3-serial, ...): {missing.stderr.strip()}")
@@ -494,14 +496,13 @@ def test_that_metrics_parse_as_prometheus_text_with_the_counters_and_rates(hostd
 
 class SecureBroker:
     """mosquitto 2 with a password file and a TLS listener on localhost, its certificate
-    self-signed for localhost by openssl."""
+    self-signed for localhost by openssl (started by tests/conftest.py's start_mosquitto)."""
 
     USER, PASSWORD = "robot", "s3cret-pass"
 
-    def __init__(self, tmp_path: pathlib.Path):
-        mosquitto = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+    def __init__(self, tmp_path: pathlib.Path, start_mosquitto):
         passwd = shutil.which("mosquitto_passwd")
-        if not pathlib.Path(mosquitto).exists() or passwd is None or shutil.which("openssl") is None:
+        if passwd is None or shutil.which("openssl") is None:
             pytest.fail("mosquitto, mosquitto_passwd and openssl are needed (scripts/setup.sh installs them)")
         self.dir = tmp_path / "broker"
         self.dir.mkdir()
@@ -513,32 +514,14 @@ class SecureBroker:
         passwords = self.dir / "passwords"
         subprocess.run([passwd, "-c", "-b", str(passwords), self.USER, self.PASSWORD], check=True,
                        capture_output=True, timeout=GUARD_S)
-        self.port = free_port()
-        config = self.dir / "mosquitto.conf"
-        config.write_text(f"user root\npersistence false\nallow_anonymous false\npassword_file {passwords}\n"
-                          f"listener {self.port} 127.0.0.1\ncertfile {self.cert}\nkeyfile {key}\n")
-        self.log = self.dir / "mosquitto.log"
-        self.process = subprocess.Popen([mosquitto, "-c", str(config), "-v"], stdout=open(self.log, "w"),
-                                        stderr=subprocess.STDOUT)
-        wait_until(self._accepting, "mosquitto listening", GUARD_S)
-
-    def _accepting(self) -> bool:
-        try:
-            with socket.create_connection(("127.0.0.1", self.port), timeout=1):
-                return True
-        except OSError:
-            return False
-
-    def stop(self):
-        self.process.terminate()
-        self.process.wait(timeout=GUARD_S)
+        self.broker = start_mosquitto(f"allow_anonymous false\npassword_file {passwords}\n"
+                                      f"certfile {self.cert}\nkeyfile {key}\n")
+        self.port = self.broker.port
 
 
 @pytest.fixture
-def secure_broker(tmp_path):
-    broker = SecureBroker(tmp_path)
-    yield broker
-    broker.stop()
+def secure_broker(tmp_path, start_mosquitto):
+    return SecureBroker(tmp_path, start_mosquitto)
 
 
 def subscribe_tls(broker: SecureBroker, topics: list[str]):

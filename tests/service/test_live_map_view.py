@@ -122,7 +122,11 @@ def test_live_map_view_transform_scale_bar_zoom_pan_floor_plan_and_residuals(har
     harness = Harness(harness_bin, tmp_path, device=link, nodes=NODES, extra_config=f"""
 odometry: {{udp_port: {odometry_port}}}
 web:
-  floor_plan: {{path: {plan}, metres_per_pixel: {PLAN_M_PER_PX}, origin_x_m: {PLAN_ORIGIN_M[0]}, origin_y_m: {PLAN_ORIGIN_M[1]}}}
+  floor_plan:
+    path: {plan}
+    metres_per_pixel: {PLAN_M_PER_PX}
+    origin_x_m: {PLAN_ORIGIN_M[0]}
+    origin_y_m: {PLAN_ORIGIN_M[1]}
 """)
     device.boot()
     harness.wait_connected()
@@ -136,12 +140,12 @@ web:
     # The service's residuals: the median range minus the distance between the map's positions.
     snapshot = harness.api("/api/map")
     positions = {n["id"]: (n["x_m"], n["y_m"]) for n in snapshot["nodes"]}
-    for l in snapshot["links"]:
-        fitted = math.dist(positions[l["a"]], positions[l["b"]])
-        assert l["fitted_distance_m"] == pytest.approx(fitted, abs=1e-9)
-        assert l["residual_m"] == pytest.approx(l["range_median_m"] - fitted, abs=1e-9)
-        expected_median = (NLOS_RANGE_MM + 10) / 1000 if (l["a"], l["b"]) == NLOS else round(SIDE_M * 1000) / 1000
-        assert l["range_median_m"] == pytest.approx(expected_median, abs=1e-9)
+    for edge in snapshot["links"]:
+        fitted = math.dist(positions[edge["a"]], positions[edge["b"]])
+        assert edge["fitted_distance_m"] == pytest.approx(fitted, abs=1e-9)
+        assert edge["residual_m"] == pytest.approx(edge["range_median_m"] - fitted, abs=1e-9)
+        expected_median = (NLOS_RANGE_MM + 10) / 1000 if (edge["a"], edge["b"]) == NLOS else round(SIDE_M * 1000) / 1000
+        assert edge["range_median_m"] == pytest.approx(expected_median, abs=1e-9)
     assert all(isinstance(n["t_updated_unix_s"], float) and n["t_updated_unix_s"] <= snapshot["t_unix_s"]
                for n in snapshot["nodes"])
     floor = harness.api("/api/floor-plan")
@@ -221,7 +225,8 @@ web:
     browser.run("""const [x, y] = arguments, svg = document.getElementById('map');
         const event = (type, dx, dy) => svg.dispatchEvent(new PointerEvent(type,
             {clientX: x + dx, clientY: y + dy, button: 0, pointerId: 1, isPrimary: true, bubbles: true}));
-        event('pointerdown', 0, 0); event('pointermove', 50, 25); event('pointermove', 100, 50); event('pointerup', 100, 50);""",
+        event('pointerdown', 0, 0); event('pointermove', 50, 25);
+        event('pointermove', 100, 50); event('pointerup', 100, 50);""",
                 *start)
     panned = view(browser)
     metres_per_css_px = 1 / (v["ctm"][0] * wheeled["scale"])
@@ -231,10 +236,11 @@ web:
 
     # A map update does not undo the user's view.
     updates = int(browser.run("return document.getElementById('update-count').textContent"))
-    for i in range(3):
+    for _ in range(3):
         device.range_frame(OWN, NODES[0], round(SIDE_M * 1000))
     browser.wait(f"return +document.getElementById('update-count').textContent > {updates}", "an update")
-    assert view(browser)["cx"] == pytest.approx(panned["cx"]) and view(browser)["scale"] == pytest.approx(panned["scale"])
+    assert view(browser)["cx"] == pytest.approx(panned["cx"])
+    assert view(browser)["scale"] == pytest.approx(panned["scale"])
 
     # "fit" follows the map again: the first transform, and the markers in place.
     browser.run("document.getElementById('zoom-fit').click()")
@@ -279,7 +285,8 @@ web:
           window.trailDone = true;
         });""", NODES[0], moved)
     browser.wait("return window.trailDone === true", "the synthetic maps")
-    trail = browser.run(f"const p = document.querySelector('#trails polyline.node-trail[data-id=\"{NODES[0]}\"]').points;"
+    trail = browser.run("const p = document.querySelector("
+                        f"'#trails polyline.node-trail[data-id=\"{NODES[0]}\"]').points;"
                         "return [...Array(p.numberOfItems).keys()].map(i => [p.getItem(i).x, p.getItem(i).y])")
     now = view(browser)
     expected = [[400 + (x - now["cx"]) * now["scale"], 300 - (y - now["cy"]) * now["scale"]] for x, y in moved]

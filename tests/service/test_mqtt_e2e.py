@@ -4,38 +4,12 @@ reading the documented topics, and the last will when the service is killed."""
 from __future__ import annotations
 
 import json
-import shutil
 import signal
-import socket
 import subprocess
 import threading
 
-import pytest
-
 from service_support import DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_port, wait_until
 
-
-
-class Broker:
-    def __init__(self, tmp_path):
-        binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-        self.port = free_port()
-        config = tmp_path / "mosquitto.conf"
-        config.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n")
-        self.process = subprocess.Popen([binary, "-c", str(config)], stdout=subprocess.DEVNULL,
-                                        stderr=subprocess.DEVNULL)
-        wait_until(self._accepting, "mosquitto listening")
-
-    def _accepting(self) -> bool:
-        try:
-            with socket.create_connection(("127.0.0.1", self.port), timeout=1):
-                return True
-        except OSError:
-            return False
-
-    def stop(self):
-        self.process.terminate()
-        self.process.wait(timeout=DEADLOCK_GUARD_S)
 
 
 class Listener:
@@ -66,20 +40,14 @@ class Listener:
         self.process.wait(timeout=DEADLOCK_GUARD_S)
 
 
-@pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
-
-
-def test_nodes_health_and_last_will_over_mqtt(build_dir, tmp_path, broker):
-    listener = Listener(build_dir, broker.port, "lab/#")
+def test_nodes_health_and_last_will_over_mqtt(build_dir, tmp_path, mosquitto):
+    listener = Listener(build_dir, mosquitto.port, "lab/#")
     wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
     link = tmp_path / "ttyPOZYX"
     device = FakeDevice(link)
     harness = Harness(build_dir, tmp_path, device=link, nodes=NODES,
-                      extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{broker.port}', topic_prefix: lab, rate_hz: 0}}")
+                      extra_config=f"mqtt: {{url: 'mqtt://{mosquitto.host}:{mosquitto.port}', topic_prefix: lab, "
+                                   "rate_hz: 0}")
     device.boot()
     harness.wait_connected()
     for i in range(60):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import random
-import shutil
 import socket
 import subprocess
 import sys
@@ -20,7 +19,7 @@ import pytest
 
 from cdro_tools.codec import read_capture
 
-from service_support import (DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_port, free_udp_port,
+from service_support import (DEADLOCK_GUARD_S, NODES, OWN, FakeDevice, Harness, free_udp_port,
                              start_running, wait_until)
 
 
@@ -47,7 +46,7 @@ def step(t, d, h) -> bytes:
 
 
 def odometry_lines(lines):
-    return [l for l in lines if l["kind"] == "odometry"]
+    return [line for line in lines if line["kind"] == "odometry"]
 
 
 def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_bin, tmp_path):
@@ -97,20 +96,20 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
     live = harness.received_lines()
     odometry = odometry_lines(live)
     assert len(odometry) == c["odometry_accepted"]
-    assert sum(1 for l in live if l["kind"] == "range") == ranges
+    assert sum(1 for line in live if line["kind"] == "range") == ranges
     # The steps arrive as sent, in order; the first one carries its receive time.
     # (The converted ones are 0.02 m up to the rounding of t, about 2e-7 s at today's epoch.)
-    step_lines = [l for l in odometry if l["distance_m"] != pytest.approx(0.4 * 0.05, abs=1e-5)]
-    assert [(l["distance_m"], l["dheading_rad"]) for l in step_lines] == [(d, h) for _, d, h in sent_steps]
-    assert [l["t_s"] for l in step_lines[1:]] == [t for t, _, _ in sent_steps[1:]]
+    step_lines = [line for line in odometry if line["distance_m"] != pytest.approx(0.4 * 0.05, abs=1e-5)]
+    assert [(line["distance_m"], line["dheading_rad"]) for line in step_lines] == [(d, h) for _, d, h in sent_steps]
+    assert [line["t_s"] for line in step_lines[1:]] == [t for t, _, _ in sent_steps[1:]]
     assert abs(step_lines[0]["t_s"] - time.time()) < 3600
     # Velocities became trapezoid steps over the 0.05 s between messages.
-    converted = [l for l in odometry if l not in step_lines]
+    converted = [line for line in odometry if line not in step_lines]
     assert len(converted) == 39
-    assert all(l["distance_m"] == pytest.approx(0.4 * 0.05, abs=1e-5) and
-               l["dheading_rad"] == pytest.approx(0.1 * 0.05, abs=1e-5) for l in converted)
+    assert all(line["distance_m"] == pytest.approx(0.4 * 0.05, abs=1e-5) and
+               line["dheading_rad"] == pytest.approx(0.1 * 0.05, abs=1e-5) for line in converted)
     # The outputs follow the odometry: the harness dead-reckons the robot.
-    robot = [l for l in harness.jsonl_lines() if l["type"] == "robot"]
+    robot = [line for line in harness.jsonl_lines() if line["type"] == "robot"]
     assert robot and robot[-1]["id"] == OWN
 
     # The capture: every accepted message, where it was taken among the frames.
@@ -118,17 +117,17 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
     assert capture.header.format_version == 2 and capture.corrupt_bytes == 0
     records = [r.odometry_message() for r in capture.records if r.odometry]
     assert [(m["t"], m["distance_m"], m["dheading_rad"]) for m in records] == [
-        (l["t_s"], l["distance_m"], l["dheading_rad"]) for l in odometry]
+        (line["t_s"], line["distance_m"], line["dheading_rad"]) for line in odometry]
     assert {m["source"].rsplit(":", 1)[0] for m in records} == {"udp:127.0.0.1"}
     assert len({m["source"] for m in records}) == 2
     decoded = subprocess.run([sys.executable, "-m", "cdro_tools.decode", str(harness.capture)], capture_output=True,
                              text=True, check=True)
     decoded_lines = [json.loads(line) for line in decoded.stdout.splitlines()]
-    assert sum(1 for l in decoded_lines if l.get("type") == "ODOMETRY") == len(odometry)
+    assert sum(1 for line in decoded_lines if line.get("type") == "ODOMETRY") == len(odometry)
     assert json.loads(decoded.stderr.splitlines()[0])["capture"]["odometry_records"] == len(odometry)
 
     # Replay, as fast as possible and paced: the same calls in the same order with the same values.
-    live_outputs = [l for l in harness.jsonl_lines() if l["type"] in ("node", "robot")]
+    live_outputs = [line for line in harness.jsonl_lines() if line["type"] in ("node", "robot")]
     for speed in ("max", "25"):
         replay = Harness(harness_bin, tmp_path, name=f"replay-{speed}",
                          extra_config=f"odometry: {{udp_port: {port}}}\n",
@@ -136,52 +135,36 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
                                "--jsonl", str(tmp_path / f"replay-{speed}.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
         assert replay.received_lines() == live, f"speed {speed}"
-        assert [l for l in replay.jsonl_lines() if l["type"] in ("node", "robot")] == live_outputs, f"speed {speed}"
-        last_health = [l for l in replay.jsonl_lines() if l["type"] == "health"][-1]
+        replayed_outputs = [line for line in replay.jsonl_lines() if line["type"] in ("node", "robot")]
+        assert replayed_outputs == live_outputs, f"speed {speed}"
+        last_health = [line for line in replay.jsonl_lines() if line["type"] == "health"][-1]
         assert last_health["counters"]["replay_odometry_records"] == len(odometry)
         assert "listening for UDP" not in replay.log()  # no live input during a replay
 
 
-def test_odometry_over_mqtt_reaches_the_consumer_and_the_capture(harness_bin, tmp_path):
-    mosquitto = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    broker_port = free_port()
-    (tmp_path / "mosquitto.conf").write_text(f"listener {broker_port} 127.0.0.1\nallow_anonymous true\n"
-                                             "persistence false\n")
-    broker = subprocess.Popen([mosquitto, "-c", str(tmp_path / "mosquitto.conf")], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
-    try:
-        def accepting():
-            try:
-                with socket.create_connection(("127.0.0.1", broker_port), timeout=1):
-                    return True
-            except OSError:
-                return False
-        wait_until(accepting, "mosquitto listening")
-        device, harness = start_running(
-            harness_bin, tmp_path, name="live",
-            extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{broker_port}', topic_prefix: lab}}\n")
-        wait_until(lambda: "mqtt: subscribed to 'lab/odometry'" in harness.log(), "the odometry subscription")
-        streaming = stream_ranges(device, 100, seed=3)
-        base = time.time() + 600.0
-        payloads = [json.dumps({"t": base + 0.1 * i, "distance_m": 0.02 * i, "dheading_rad": 0.0}) for i in range(20)]
-        payloads.insert(10, '{"t": "soon"}')
-        published = subprocess.run([str(harness_bin / "bin" / "cdro-mqtt-publish"), "127.0.0.1", str(broker_port),
-                                    "lab/odometry"], input="\n".join(payloads) + "\n", capture_output=True, text=True,
-                                   timeout=DEADLOCK_GUARD_S)
-        assert published.returncode == 0, published.stderr
-        streaming.join(timeout=DEADLOCK_GUARD_S)
-        h = harness.wait_health(lambda h: h["counters"]["odometry_received"] == 21 and
-                                h["counters"]["frames_delivered"] >= 101, "the odometry and the ranges")
-        assert harness.stop() == 0
-        device.vanish()
-        assert h["counters"]["odometry_accepted"] == 20 and h["counters"]["odometry_rejected_field"] == 1
-        assert h["counters"]["mqtt_received"] == 21
-        odometry = odometry_lines(harness.received_lines())
-        assert [l["distance_m"] for l in odometry] == [0.02 * i for i in range(20)]
-        records = [r.odometry_message() for r in read_capture(harness.capture).records if r.odometry]
-        assert [m["t"] for m in records] == [l["t_s"] for l in odometry]
-        assert {m["source"] for m in records} == {"mqtt:lab/odometry"}
-        assert "dropped a message from mqtt:lab/odometry: 't' is a string" in harness.log()
-    finally:
-        broker.terminate()
-        broker.wait(timeout=DEADLOCK_GUARD_S)
+def test_odometry_over_mqtt_reaches_the_consumer_and_the_capture(harness_bin, tmp_path, mosquitto):
+    device, harness = start_running(
+        harness_bin, tmp_path, name="live",
+        extra_config=f"mqtt: {{url: 'mqtt://127.0.0.1:{mosquitto.port}', topic_prefix: lab}}\n")
+    wait_until(lambda: "mqtt: subscribed to 'lab/odometry'" in harness.log(), "the odometry subscription")
+    streaming = stream_ranges(device, 100, seed=3)
+    base = time.time() + 600.0
+    payloads = [json.dumps({"t": base + 0.1 * i, "distance_m": 0.02 * i, "dheading_rad": 0.0}) for i in range(20)]
+    payloads.insert(10, '{"t": "soon"}')
+    published = subprocess.run([str(harness_bin / "bin" / "cdro-mqtt-publish"), "127.0.0.1", str(mosquitto.port),
+                                "lab/odometry"], input="\n".join(payloads) + "\n", capture_output=True, text=True,
+                               timeout=DEADLOCK_GUARD_S)
+    assert published.returncode == 0, published.stderr
+    streaming.join(timeout=DEADLOCK_GUARD_S)
+    h = harness.wait_health(lambda h: h["counters"]["odometry_received"] == 21 and
+                            h["counters"]["frames_delivered"] >= 101, "the odometry and the ranges")
+    assert harness.stop() == 0
+    device.vanish()
+    assert h["counters"]["odometry_accepted"] == 20 and h["counters"]["odometry_rejected_field"] == 1
+    assert h["counters"]["mqtt_received"] == 21
+    odometry = odometry_lines(harness.received_lines())
+    assert [line["distance_m"] for line in odometry] == [0.02 * i for i in range(20)]
+    records = [r.odometry_message() for r in read_capture(harness.capture).records if r.odometry]
+    assert [m["t"] for m in records] == [line["t_s"] for line in odometry]
+    assert {m["source"] for m in records} == {"mqtt:lab/odometry"}
+    assert "dropped a message from mqtt:lab/odometry: 't' is a string" in harness.log()

@@ -10,7 +10,7 @@ import threading
 import time
 
 from service_support import NODES, OWN, Harness, free_port, start_running, wait_until
-from test_mqtt_e2e import Broker, Listener
+from test_mqtt_e2e import Listener
 
 RANGES = 900
 
@@ -29,18 +29,17 @@ def last_health(harness):
     return [line for line in harness.jsonl_lines() if line["type"] == "health"][-1]
 
 
-def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path):
+def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path, mosquitto):
     live = live_capture(build_dir, tmp_path)
-    broker = Broker(tmp_path)
     listener = None
     try:
-        listener = Listener(build_dir, broker.port, "cdro/#")
+        listener = Listener(build_dir, mosquitto.port, "cdro/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
         # A JSON line per update, as MQTT publishes with rate_hz 0: jsonl's per-node limit off.
         replay = Harness(build_dir, tmp_path, name="replay",
                          extra_config="mqtt: {rate_hz: 0}\njsonl: {max_node_rate_hz: 0}",
                          args=["--replay", str(live.capture), "--speed", "max", "--mqtt",
-                               f"mqtt://127.0.0.1:{broker.port}", "--jsonl", str(tmp_path / "replay.jsonl")])
+                               f"mqtt://127.0.0.1:{mosquitto.port}", "--jsonl", str(tmp_path / "replay.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
         counters = last_health(replay)["counters"]
         print(f"replay: {counters['mqtt_published']} published, {counters['mqtt_dropped']} dropped")
@@ -55,7 +54,6 @@ def test_a_replay_at_full_speed_publishes_every_message(build_dir, tmp_path):
     finally:
         if listener is not None:
             listener.stop()
-        broker.stop()
 
 
 class LateForwarder:
@@ -102,15 +100,14 @@ class LateForwarder:
             self.server.close()
 
 
-def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
+def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path, mosquitto):
     # The replay of a capture takes milliseconds; the broker connection is made in the loop,
     # after the start. A replay that does not wait is over before the broker answers: all dropped.
     live = live_capture(build_dir, tmp_path)
-    broker = Broker(tmp_path)
-    forwarder = LateForwarder(broker.port)
+    forwarder = LateForwarder(mosquitto.port)
     listener = None
     try:
-        listener = Listener(build_dir, broker.port, "cdro/nodes/#")
+        listener = Listener(build_dir, mosquitto.port, "cdro/nodes/#")
         wait_until(lambda: any(m.get("subscribed") for m in list(listener.messages)), "subscriber ready")
         replay = Harness(build_dir, tmp_path, name="replay",
                          extra_config="mqtt: {rate_hz: 0, reconnect_min_s: 0.5, reconnect_max_s: 1.0}\n"
@@ -129,7 +126,6 @@ def test_a_replay_waits_for_a_broker_that_comes_late(build_dir, tmp_path):
         if listener is not None:
             listener.stop()
         forwarder.close()
-        broker.stop()
 
 
 def test_a_replay_says_what_it_could_not_publish(build_dir, tmp_path):

@@ -70,8 +70,8 @@ def test_handshake_stream_and_sigterm(harness_bin, tmp_path):
     assert len(sent) >= 3
     # JSON Lines: node lines for every node, health lines with the counters.
     lines = harness.jsonl_lines()
-    assert {l["id"] for l in lines if l["type"] == "node"} == {OWN, *NODES}
-    health = [l for l in lines if l["type"] == "health"]
+    assert {line["id"] for line in lines if line["type"] == "node"} == {OWN, *NODES}
+    health = [line for line in lines if line["type"] == "health"]
     assert health and health[-1]["counters"]["frames_delivered"] >= 300
     device.vanish()
 
@@ -121,10 +121,10 @@ def test_garbage_bit_flips_cut_frames_and_absurd_values(harness_bin, tmp_path):
     assert counters["chunks_rejected"] == sum(counters[k] for k in counters if k.endswith("_errors")
                                               and k not in ("write_errors", "capture_write_errors",
                                                             "jsonl_write_errors", "checkpoint_errors"))
-    delivered = [l for l in harness.received_lines() if l["kind"] == "range"]
-    assert all(l["distance_mm"] <= 200_000 and l["from"] != l["to"] for l in delivered)
+    delivered = [line for line in harness.received_lines() if line["kind"] == "range"]
+    assert all(line["distance_mm"] <= 200_000 and line["from"] != line["to"] for line in delivered)
     stream_distances = [f["distance_mm"] for f in good_ranges if f.type == "RANGE"]
-    assert [l["distance_mm"] for l in delivered][-len(stream_distances):] == stream_distances
+    assert [line["distance_mm"] for line in delivered][-len(stream_distances):] == stream_distances
     # The capture replays through the same decoder to the same verdicts.
     capture = read_capture(harness.capture)
     assert capture.corrupt_bytes == 0
@@ -159,7 +159,8 @@ def test_other_protocol_version_in_frame_headers(harness_bin, tmp_path):
     harness = Harness(harness_bin, tmp_path, device=link)
     device.boot()  # (if this HELLO is lost before the port opens, the HELLO_REQUEST brings another)
     h = harness.wait_health(lambda h: h["link"] == "incompatible", "link incompatible")
-    assert f"protocol version {PROTOCOL_VERSION + 1}" in h["detail"] and f"protocol version {PROTOCOL_VERSION}" in h["detail"]
+    assert f"protocol version {PROTOCOL_VERSION + 1}" in h["detail"]
+    assert f"protocol version {PROTOCOL_VERSION}" in h["detail"]
     assert h["counters"]["version_errors"] >= 1
     assert not [t for t in device.host_types() if t in ("SET_NODES", "SET_SCHEDULE", "START")]
     assert harness.stop() == 0
@@ -228,7 +229,7 @@ def test_firmware_reset_mid_stream(harness_bin, tmp_path):
     send_ranges(device, 40)
     harness.wait_health(lambda h: h["counters"]["frames_delivered"] >= 80, "ranges after the reset")
     assert harness.stop() == 0
-    kinds = [l["kind"] for l in harness.received_lines()]
+    kinds = [line["kind"] for line in harness.received_lines()]
     assert kinds.count("reset") == 1
     assert kinds.index("reset") > 40
     assert device.host_types().count("START") == 2
@@ -256,7 +257,7 @@ def test_kill_9_then_replay_the_capture(harness_bin, tmp_path):
     # The periodic checkpoint survives the kill whole (it is written to a temporary, then renamed;
     # a kill during a write may leave the temporary, never a half checkpoint).
     assert decode_sog(harness.checkpoint.read_bytes()).header["ranges_processed"] > 0
-    live = [l for l in harness.received_lines() if l["kind"] == "range"]
+    live = [line for line in harness.received_lines() if line["kind"] == "range"]
     capture = read_capture(harness.capture)
     assert capture.corrupt_bytes == 0
     assert capture.truncated_tail_bytes < RECORD_OVERHEAD + 73  # at most the last record
@@ -267,7 +268,7 @@ def test_kill_9_then_replay_the_capture(harness_bin, tmp_path):
     # Replay: the consumer gets what was captured, in order, with the recorded times.
     replay = Harness(harness_bin, tmp_path, name="replay", args=["--replay", str(harness.capture), "--speed", "max"])
     assert replay.wait_exit() == 0, replay.log()
-    replayed = [l for l in replay.received_lines() if l["kind"] == "range"]
+    replayed = [line for line in replay.received_lines() if line["kind"] == "range"]
     assert len(replayed) == len(captured)
     assert replayed[: len(live)] == live
     assert not replay.capture.exists()  # a replay does not capture itself
@@ -285,14 +286,14 @@ def test_replay_is_identical_at_any_speed(harness_bin, tmp_path):
     assert harness.stop() == 0
     device.vanish()
     live_received = harness.received_lines()
-    live_nodes = [l for l in harness.jsonl_lines() if l["type"] == "node"]
+    live_nodes = [line for line in harness.jsonl_lines() if line["type"] == "node"]
     for speed in ("max", "25"):
         replay = Harness(harness_bin, tmp_path, name=f"replay-{speed}",
                          args=["--replay", str(harness.capture), "--speed", speed,
                                "--jsonl", str(tmp_path / f"replay-{speed}.jsonl")])
         assert replay.wait_exit() == 0, replay.log()
         assert replay.received_lines() == live_received, f"speed {speed}"
-        assert [l for l in replay.jsonl_lines() if l["type"] == "node"] == live_nodes, f"speed {speed}"
+        assert [line for line in replay.jsonl_lines() if line["type"] == "node"] == live_nodes, f"speed {speed}"
         assert replay.jsonl.read_text().count('"link":"replay"') >= 1
 
 

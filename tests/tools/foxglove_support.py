@@ -101,8 +101,8 @@ class FoxgloveClient:
             if value:
                 return value
             self.pump(0.2)
-        raise AssertionError(f"timed out waiting for {what}; advertised {sorted(c['topic'] for c in self.channels.values())}, "
-                             f"{len(self.messages)} message(s)")
+        topics = sorted(c["topic"] for c in self.channels.values())
+        raise AssertionError(f"timed out waiting for {what}; advertised {topics}, {len(self.messages)} message(s)")
 
     def subscribe_all(self) -> None:
         subscriptions = []

@@ -11,7 +11,8 @@ import pytest
 from cdro_tools.evaluation import paper_algorithm1
 from cdro_tools.evaluation.alignment import align, rigid_fit
 
-CASES = json.loads((pathlib.Path(__file__).resolve().parents[1] / "golden" / "alignment_cases.json").read_text())["cases"]
+CASES = json.loads((pathlib.Path(__file__).resolve().parents[1] / "golden" / "alignment_cases.json")
+                   .read_text())["cases"]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])

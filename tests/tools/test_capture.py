@@ -99,8 +99,9 @@ def test_that_capture_survives_the_port_vanishing_and_keeps_every_chunk(tmp_path
 
 def test_that_capture_records_exactly_what_the_simulator_sent(tmp_path):
     # Fixture: the simulator as the device, keeping its own capture; 3 simulated s at 10 x real time
-    sim = subprocess.Popen([sys.executable, "-m", "cdro_tools.sim", "--scenario", "demo", "--pty", str(tmp_path / "dev"),
-                            "--speed", "10", "--duration", "3", "--capture", str(tmp_path / "sim.cdrocap")],
+    sim = subprocess.Popen([sys.executable, "-m", "cdro_tools.sim", "--scenario", "demo",
+                            "--pty", str(tmp_path / "dev"), "--speed", "10", "--duration", "3",
+                            "--capture", str(tmp_path / "sim.cdrocap")],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         wait_until(lambda: (tmp_path / "dev").is_symlink(), "the simulator made no link")
@@ -147,8 +148,10 @@ def test_that_a_missing_port_is_a_clear_error(tmp_path):
 
 
 def test_that_help_has_an_example_and_bad_arguments_fail():
-    run = lambda *a: subprocess.run([sys.executable, "-m", "cdro_tools.capture", *a], capture_output=True, text=True,
-                                    timeout=GUARD_S)  # noqa: E731
+    def run(*a):
+        return subprocess.run([sys.executable, "-m", "cdro_tools.capture", *a], capture_output=True, text=True,
+                              timeout=GUARD_S)
+
     assert "example" in run("--help").stdout
     assert run("--port", "x", "--out", "y", "--duration", "0").returncode == 2
     assert run("--out", "y").returncode == 2

@@ -16,11 +16,12 @@ def test_decodes_a_capture_to_json_lines(tmp_path, golden_dir):
     with codec.CaptureWriter(path, "test", created_unix_us=0) as writer:
         writer.write(codec.CaptureRecord(10, bytes.fromhex(vectors["frames"][1]["bytes"])[:-1]))
         writer.write(codec.CaptureRecord(20, b"\x13\x37"))
-        writer.write(codec.CaptureRecord(30, bytes.fromhex(vectors["frames"][11]["bytes"])[:-1], codec.capture_file.FLAG_TO_DEVICE))
+        writer.write(codec.CaptureRecord(30, bytes.fromhex(vectors["frames"][11]["bytes"])[:-1],
+                                         codec.capture_file.FLAG_TO_DEVICE))
     result = run(str(path))
     assert result.returncode == 0, result.stderr
     lines = [json.loads(line) for line in result.stdout.decode().splitlines()]
-    assert [(l["direction"], l["result"], l.get("type")) for l in lines] == [
+    assert [(line["direction"], line["result"], line.get("type")) for line in lines] == [
         ("rx", "ok", "RANGE"), ("rx", "cobs", None), ("tx", "ok", "SET_SCHEDULE")]
     assert lines[0]["fields"] == vectors["frames"][1]["fields"]
     counters = json.loads(result.stderr.decode().splitlines()[-1])
@@ -34,7 +35,7 @@ def test_shows_odometry_records_in_their_place(tmp_path, golden_dir):
     result = run(str(path))
     assert result.returncode == 0, result.stderr
     lines = [json.loads(line) for line in result.stdout.decode().splitlines()]
-    assert [(l["direction"], l.get("type")) for l in lines] == [
+    assert [(line["direction"], line.get("type")) for line in lines] == [
         ("rx", "HELLO"), ("tx", "SET_SCHEDULE"), ("odometry", "ODOMETRY"), ("rx", None)]
     odometry = lines[2]
     assert odometry["result"] == "ok" and odometry["fields"] == vectors["capture"]["odometry"]["message"]

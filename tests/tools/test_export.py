@@ -192,7 +192,8 @@ def test_jsonl_to_foxglove_mcap_a_message_per_line(stream, tmp_path):
         assert len(path["poses"]) == index + 1  # the trail so far
         assert xyz(path["poses"][-1]["position"]) == xyz(pose["pose"]["position"])
         transforms = by_topic["/tf"][index][3]["transforms"]
-        assert [(t["parent_frame_id"], t["child_frame_id"]) for t in transforms] == [("map", "odom"), ("odom", "base_link")]
+        assert [(t["parent_frame_id"], t["child_frame_id"]) for t in transforms] == [("map", "odom"),
+                                                                                     ("odom", "base_link")]
         assert xyz(transforms[0]["translation"]) == (0.0, 0.0, 0.0)
         assert xyz(transforms[1]["translation"]) == pytest.approx((robot["x_m"], robot["y_m"], 0.0), abs=1e-12)
         assert angle_close(yaw_of(transforms[1]["rotation"]), robot["heading_rad"])
@@ -410,10 +411,12 @@ def test_a_capture_to_mcap_carries_the_replayed_estimates_and_the_ranges(build_d
         for point in (start, end):
             ends += [i for i, n in placed.items() if (n["x_m"], n["y_m"]) == (point["x"], point["y"])]
         drawn_pairs.add(tuple(sorted(ends)))
-    assert drawn_pairs == {p for p in pairs if p[0] in placed and p[1] in placed} and len(points) == 2 * len(drawn_pairs)
+    assert drawn_pairs == {p for p in pairs if p[0] in placed and p[1] in placed}
+    assert len(points) == 2 * len(drawn_pairs)
     ranges = [d for topic, _, _, _, d in messages if topic == "/cdro/ranges"]
     sim_rows = csv_rows(sim_ranges)
-    assert [(r["from"], r["to"], r["range_m"]) for r in ranges] == [(int(a), int(b), float(m)) for _, a, b, m in sim_rows]
+    assert [(r["from"], r["to"], r["range_m"]) for r in ranges] == [(int(a), int(b), float(m))
+                                                                    for _, a, b, m in sim_rows]
     healths = [d for topic, _, _, _, d in messages if topic == "/cdro/health"]
     assert healths == [line for line in lines if line["type"] == "health"]
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -138,23 +137,12 @@ def check_scene_matches(update: dict, nodes: dict[int, dict], what: str) -> None
 
 
 @pytest.fixture
-def broker(tmp_path):
-    binary = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not os.path.exists(binary):
-        pytest.fail("mosquitto is not installed (scripts/setup.sh installs it)")
-    port = free_port()
-    config = tmp_path / "mosquitto.conf"
+def broker(start_mosquitto) -> int:
+    """The port of a real mosquitto (tests/conftest.py)."""
     # QoS 1 and no queue limit, so that the comparison below does not rest on QoS 0's "at most
     # once" or on the broker's queue limits for a subscriber that falls behind (the test passes at
     # QoS 0 too; nothing here relies on it).
-    config.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nmax_queued_messages 0\n")
-    process = subprocess.Popen([binary, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        wait_until(lambda: accepting(port), "mosquitto listening")
-        yield port
-    finally:
-        process.terminate()
-        process.wait(timeout=GUARD_S)
+    return start_mosquitto("allow_anonymous true\nmax_queued_messages 0\n").port
 
 
 def test_live_service_in_foxglove_over_sse_and_mqtt(build_dir, tmp_path, broker):
@@ -242,7 +230,7 @@ movement: {{robot_id: {ROBOT}}}
         for client, what in ((sse_client, "sse"), (mqtt_client, "mqtt")):
             # What the client has not read yet includes scenes sent before the map settled: wait
             # for one the bridge stamped after (a repeat for late viewers carries the time it was sent).
-            def republished():
+            def republished(client=client):
                 return [d for t, stamp_ns, d in client.messages
                         if t == "/cdro/nodes" and stamp_ns > settled_ns and len(d["entities"]) >= 6]
             scene = client.wait_for(republished, f"{what}: the whole map again", GUARD_S)[-1]
@@ -285,7 +273,8 @@ movement: {{robot_id: {ROBOT}}}
     # live run, in order, the replay giving the live run's lines (docs/service.md).
     recording = tmp_path / "live-ros2.mcap"
     done = subprocess.run([sys.executable, "-m", "cdro_tools.export.cli", str(capture), "-o", str(recording), "--ros2",
-                           "--rate-hz", "0", "--hostd", str(hostd_bin)], capture_output=True, text=True, timeout=GUARD_S)
+                           "--rate-hz", "0", "--hostd", str(hostd_bin)], capture_output=True, text=True,
+                          timeout=GUARD_S)
     assert done.returncode == 0, done.stderr
     _, messages = read_mcap(recording)
     poses = [m for topic, _, _, _, m in messages if topic == "/cdro/robot/pose"]
@@ -321,7 +310,8 @@ def test_a_growing_json_lines_file_with_bad_lines(tmp_path):
         latest = client.wait_for(lambda: [d for d in client.of_topic("/cdro/nodes") if len(d["entities"]) == 2],
                                  "both nodes", GUARD_S)[-1]
         check_scene_matches(latest, {moved["id"]: moved, other["id"]: other}, "after the append")
-        poses = client.wait_for(lambda: len(client.of_topic("/cdro/robot/pose")) >= 3 and client.of_topic("/cdro/robot/pose"),
+        poses = client.wait_for(lambda: len(client.of_topic("/cdro/robot/pose")) >= 3
+                                and client.of_topic("/cdro/robot/pose"),
                                 "the robot, then repeated for late viewers", GUARD_S)
         for pose in poses:
             assert pose["frame_id"] == "odom"  # a robot in its odometry's frame (no map yet)

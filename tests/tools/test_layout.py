@@ -31,4 +31,5 @@ def test_protocol_doc_tables_are_up_to_date(repo_root):
     text = doc.read_text()
     begin, end = text.index(codegen.DOC_BEGIN), text.index(codegen.DOC_END) + len(codegen.DOC_END)
     assert text[begin:end] == codegen.protocol_tables(repo_root / "common" / "include"), (
-        "docs/protocol.md is stale: run `.venv/bin/python -m cdro_tools.codegen common/include --docs docs/protocol.md`")
+        "docs/protocol.md is stale: run "
+        "`.venv/bin/python -m cdro_tools.codegen common/include --docs docs/protocol.md`")

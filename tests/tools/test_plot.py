@@ -158,7 +158,8 @@ def test_that_an_offline_nodes_csv_and_trajectory_give_a_robot_error(tmp_path):
               + [f"{t},{t},{2.3},0,0.01,0,0.01,map" for t in range(11)])
     (tmp_path / "framed.csv").write_text("\n".join(framed) + "\n")
     result = plot(tmp_path / "nodes.csv", "--trajectory", tmp_path / "framed.csv", "--robot-id", "0x6010",
-                  "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv", "--map", tmp_path / "map2.png")
+                  "--truth", tmp_path / "truth.csv", "--tracks", tmp_path / "tracks.csv",
+                  "--map", tmp_path / "map2.png")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["robot_rmse_m"] == pytest.approx(numbers["robot_rmse_m"])
     assert "note: 5 line(s) not drawn:" in result.stderr and "trajectory row in the odometry frame" in result.stderr
@@ -172,7 +173,8 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
     for args, message in (
             ([tmp_path / "empty.jsonl", "--map", tmp_path / "m.png"], "no node estimates"),
             ([tmp_path / "nodes.csv", "--map", tmp_path / "m.png"], "missing column(s) var_x"),
-            ([tmp_path / "good.csv", "--map", tmp_path / "m.png", "--rmse", tmp_path / "r.png"], "needs estimates over time"),
+            ([tmp_path / "good.csv", "--map", tmp_path / "m.png", "--rmse", tmp_path / "r.png"],
+             "needs estimates over time"),
             ([tmp_path / "missing.jsonl", "--map", tmp_path / "m.png"], "No such file")):
         result = plot(*args)
         assert result.returncode == 2 and message in result.stderr, (args, result.stderr)

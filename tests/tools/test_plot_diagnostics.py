@@ -112,7 +112,8 @@ def test_a_map_without_an_nlos_link_has_nothing_red(tmp_path):
 
 
 def node_line(t, node_id, var, converged, placed=True):
-    return json.dumps({"type": "node", "t_s": t, "id": node_id, "x_m": 1.0 if placed else None, "y_m": 2.0 if placed else None,
+    return json.dumps({"type": "node", "t_s": t, "id": node_id,
+                       "x_m": 1.0 if placed else None, "y_m": 2.0 if placed else None,
                        "var_x_m2": var if placed else None, "cov_xy_m2": 0.0 if placed else None,
                        "var_y_m2": var / 4 if placed else None, "converged": converged, "moving": False,
                        "placed": placed})

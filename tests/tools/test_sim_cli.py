@@ -43,8 +43,9 @@ def test_that_the_same_seed_gives_identical_bytes_and_another_seed_does_not(tmp_
 
 def test_that_the_csv_files_have_the_documented_columns(tmp_path):
     files = {k: tmp_path / f"{k}.csv" for k in ("ranges", "truth", "heights", "tracks", "motion", "odometry", "robot")}
-    result = sim("--scenario", "plaza-like", "--duration", 40, "--ranges-csv", files["ranges"], "--truth-csv", files["truth"],
-                 "--heights-csv", files["heights"], "--tracks-csv", files["tracks"], "--motion-csv", files["motion"],
+    result = sim("--scenario", "plaza-like", "--duration", 40,
+                 "--ranges-csv", files["ranges"], "--truth-csv", files["truth"], "--heights-csv", files["heights"],
+                 "--tracks-csv", files["tracks"], "--motion-csv", files["motion"],
                  "--odometry-csv", files["odometry"], "--robot-truth-csv", files["robot"])
     headers = {k: p.read_text().splitlines()[0] for k, p in files.items()}
     assert headers == {"ranges": "t,from,to,range_m", "truth": "id,x,y,z", "heights": "id,z", "tracks": "t,id,x,y",
@@ -99,13 +100,14 @@ def test_that_every_builtin_scenario_loads_and_runs(tmp_path):
     listing = sim("--list-scenarios").stdout
     for name in builtin_names():
         assert name in listing
-        sim("--scenario", name, "--duration", 10, "--ranges-csv", tmp_path / f"{name}.csv")  # robot-corridor: most pairs out of range
+        # robot-corridor: most pairs out of range
+        sim("--scenario", name, "--duration", 10, "--ranges-csv", tmp_path / f"{name}.csv")
         assert len(rows(tmp_path / f"{name}.csv")) > 20
 
 
 def test_that_random_network_mode_writes_ranges_and_truth(tmp_path):
-    result = sim("--random-network", 30, "--degree", 5, "--noise-m", 0.2, "--seed", 4, "--ranges-csv", tmp_path / "r.csv",
-                 "--truth-csv", tmp_path / "t.csv")
+    result = sim("--random-network", 30, "--degree", 5, "--noise-m", 0.2, "--seed", 4,
+                 "--ranges-csv", tmp_path / "r.csv", "--truth-csv", tmp_path / "t.csv")
     truth = rows(tmp_path / "t.csv")
     links = {(r["from"], r["to"]) for r in rows(tmp_path / "r.csv")}
     assert len(truth) == 30 and len(links) == 75                     # mean degree 5 = 2 x 75 / 30

@@ -454,7 +454,8 @@ def test_that_motion_follows_the_80_40_mg_hysteresis_and_is_reported_on_change()
     advance(device, 30_000_000)
 
     # Assert
-    motion = [(f["device_time_ms"] / 1000, f["moving"], f["reason"]) for f in sink.frames("MOTION") if f["node_id"] == D]
+    motion = [(f["device_time_ms"] / 1000, f["moving"], f["reason"]) for f in sink.frames("MOTION")
+              if f["node_id"] == D]
     changes = [(t, moving) for t, moving, reason in motion if reason == C["CDRO_MOTION_REASON_CHANGE"]]
     assert [m for _, m in changes] == [1, 0]
     assert 10.0 <= changes[0][0] < 10.5                    # within a poll or two
@@ -560,7 +561,8 @@ def test_that_a_node_that_does_not_answer_gets_one_error_accel_and_its_polls_bac
     advance(device, device.now_us + 5_000_000)
 
     # Assert: polls of 0x7777 in periods 0, 1, 3, 7, 12, 17, 22; A asked once (an anchor)
-    errors = [(e["code"], e["detail"], e["node_id"]) for e in sink.frames("ERROR") if e["code"] == C["CDRO_DEVICE_ERROR_ACCEL"]]
+    errors = [(e["code"], e["detail"], e["node_id"]) for e in sink.frames("ERROR")
+              if e["code"] == C["CDRO_DEVICE_ERROR_ACCEL"]]
     assert errors == [(C["CDRO_DEVICE_ERROR_ACCEL"], 0x12, 0x7777)]
     assert reads == {A: 1, 0x7777: 7}
 
@@ -719,7 +721,8 @@ def test_that_a_missing_pozyx_reports_an_error_and_refuses_start():
     command(device, "SET_NODES", {"node_ids": [A]})
     command(device, "START")
     hello, error = sink.frames()[:2]
-    assert hello.type == "HELLO" and (hello["node_id"], hello["pozyx_firmware"], hello["capabilities"]) == (0xFFFF, 0, 0)
+    assert hello.type == "HELLO"
+    assert (hello["node_id"], hello["pozyx_firmware"], hello["capabilities"]) == (0xFFFF, 0, 0)
     assert error.type == "ERROR" and (error["code"], error["node_id"]) == (C["CDRO_DEVICE_ERROR_POZYX_ABSENT"], 0)
     assert sink.frames()[-1].type == "NACK" and sink.frames()[-1]["reason"] == C["CDRO_NACK_WRONG_STATE"]
     # the own node is 0xFFFF: a list naming it is refused

@@ -103,7 +103,8 @@ def test_that_durations_and_rss_are_plausible():
 
 
 def test_that_the_3d_distance_is_measured():
-    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x": 0, "y": 0, "z": 0.0}, {"id": B, "x": 3, "y": 0, "z": 4.0}],
+    sc = parse_scenario({"own_id": A,
+                         "nodes": [{"id": A, "x": 0, "y": 0, "z": 0.0}, {"id": B, "x": 3, "y": 0, "z": 4.0}],
                          "uwb": {"noise_std_m": 0.0}}, "test")
     assert model(sc, seed=19).measure(A, B, 0.0, False).distance_mm == 5000
 

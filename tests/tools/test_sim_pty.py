@@ -239,8 +239,8 @@ def test_that_sigterm_stops_a_device_nobody_opened(run):
 
 def test_that_a_path_that_is_not_a_symlink_is_refused(tmp_path):
     (tmp_path / "dev").write_text("precious")
-    result = subprocess.run([sys.executable, "-m", "cdro_tools.sim", "--scenario", "demo", "--pty", str(tmp_path / "dev")],
-                            capture_output=True, text=True, timeout=GUARD_S)
+    result = subprocess.run([sys.executable, "-m", "cdro_tools.sim", "--scenario", "demo",
+                             "--pty", str(tmp_path / "dev")], capture_output=True, text=True, timeout=GUARD_S)
     assert result.returncode == 2 and "not a symlink" in result.stderr
     assert (tmp_path / "dev").read_text() == "precious"
 

@@ -112,7 +112,8 @@ def generate(include_dir: pathlib.Path) -> str:
     return "\n".join(lines)
 
 
-DOC_BEGIN = "<!-- BEGIN GENERATED LAYOUT TABLES (python -m cdro_tools.codegen common/include --docs docs/protocol.md) -->"
+DOC_BEGIN = ("<!-- BEGIN GENERATED LAYOUT TABLES "
+             "(python -m cdro_tools.codegen common/include --docs docs/protocol.md) -->")
 DOC_END = "<!-- END GENERATED LAYOUT TABLES -->"
 _KIND_TEXT = {"U8": "u8", "U16": "u16", "U32": "u32", "U64": "u64", "I16": "i16", "I32": "i32", "I64": "i64"}
 
@@ -175,7 +176,8 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
         direction = "device to host" if record["id"] < 0x40 else "host to device"
         size = sum(KIND_SIZES[f["kind"]] for f in fields if "max" not in f)
         arrays = [f for f in fields if "max" in f]
-        size_text = f"{size} bytes" if not arrays else f"{size + 1}..{size + 1 + sum(KIND_SIZES[f['kind']] * f['max'] for f in arrays)} bytes"
+        most = size + 1 + sum(KIND_SIZES[f["kind"]] * f["max"] for f in arrays)
+        size_text = f"{size} bytes" if not arrays else f"{size + 1}..{most} bytes"
         out.append(f"#### {record['name']} (0x{record['id']:02X}, {direction}, payload {size_text})")
         out.append("")
         out.append(record["doc"][0].upper() + record["doc"][1:] + ".")

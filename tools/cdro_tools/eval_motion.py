@@ -22,7 +22,6 @@ import json
 import math
 import sys
 
-from .evaluation.alignment import align
 from .evaluation.inputs import BadRow, InputError, read_estimates, read_truth
 from .evaluation.movement import (evaluate_beacons, evaluate_path, evaluate_track, read_motion, read_path,
                                   read_trace_rows, read_tracks)
@@ -95,7 +94,8 @@ def main(argv: list[str] | None = None) -> int:
             if not intervals:
                 raise InputError(f"{args.motion}: node {args.node} never moves")
             truth, _ = read_truth(args.truth, bad)
-            track = evaluate_track(read_trace_rows(args.trace, bad), node, truth, tracks[node], intervals, args.settle_s)
+            track = evaluate_track(read_trace_rows(args.trace, bad), node, truth, tracks[node], intervals,
+                                   args.settle_s)
             report["track"] = track["report"]
     except (InputError, ValueError) as error:
         print(f"cdro-eval-motion: {error}", file=sys.stderr)

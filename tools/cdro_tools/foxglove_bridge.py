@@ -177,7 +177,8 @@ def run_mqtt(bridge: Bridge, url: str, prefix: str, qos: int, stop: threading.Ev
 
 @entry_point
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--sse", metavar="URL", help="the live map (http://127.0.0.1:8080/); links come only from here")
     source.add_argument("--jsonl", metavar="FILE", help="cdro-hostd's JSON Lines: a file (followed as it grows) or -")
@@ -188,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
                              "the service's mqtt.qos; QoS 0 is at most once)")
     parser.add_argument("--no-follow", action="store_true", help="--jsonl FILE: read it once, do not wait for more")
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=8765, help="TCP port of the WebSocket server (default 8765; 0 = any)")
+    parser.add_argument("--port", type=int, default=8765,
+                        help="TCP port of the WebSocket server (default 8765; 0 = any)")
     parser.add_argument("--republish-s", type=float, default=1.0,
                         help="s between full repeats of the state for late viewers (default 1; 0 = never)")
     args = parser.parse_args(argv)

@@ -154,10 +154,12 @@ def _csv_rows(path: str, required: list[str], dropped: collections.Counter | Non
 def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
     out = Estimates(timed=False)
     for row in _csv_rows(path, ["id", "x", "y", "var_x", "cov_xy", "var_y", "converged"], out.dropped):
-        out.nodes[int(row["id"])].append(Estimate(0.0, row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"]),
+        out.nodes[int(row["id"])].append(Estimate(0.0, row["x"], row["y"],
+                                                  _cov(row["var_x"], row["cov_xy"], row["var_y"]),
                                                   bool(row["converged"])))
     if trajectory:
-        rows = _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped, ("frame",))
+        rows = _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped,
+                         ("frame",))
         # A robot that stood while the map formed starts in the odometry's frame: only the rows in
         # the frame of the last row share the nodes' frame.
         final_frame = rows[-1]["frame"] if rows else None
@@ -179,7 +181,8 @@ def read_trace_csv(path: str) -> Estimates:
     out.axis = "t_s" if timed else "ranges"
     for row in rows:
         t = float(row["t"]) if timed else row["ranges"]
-        out.nodes[int(row["id"])].append(Estimate(t, row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"]),
+        out.nodes[int(row["id"])].append(Estimate(t, row["x"], row["y"],
+                                                  _cov(row["var_x"], row["cov_xy"], row["var_y"]),
                                                   bool(row["converged"])))
     for series in out.nodes.values():
         series.sort(key=lambda e: e.t_s)
@@ -282,7 +285,7 @@ def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]
     final = {i: series[-1] for i, series in est.nodes.items() if series}
     positions = {i: aligned(e) for i, e in final.items()}
     drawing.draw_links(ax, links, positions)
-    for node_id, (times, xy) in truth.tracks.items():
+    for node_id, (_, xy) in truth.tracks.items():
         ax.plot(xy[:, 0], xy[:, 1], "--", color="tab:green", linewidth=1.2, zorder=2,
                 label="true track" if node_id == next(iter(truth.tracks)) else None)
     # estimated tracks of moving nodes, from converged or moving estimates (not the start-up)
@@ -293,7 +296,7 @@ def plot_map(path: str, est: Estimates, truth: Truth, links: set[tuple[int, int]
     for k, xy in enumerate(tracks.values()):
         ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:orange", linewidth=1.0, zorder=3,
                 label="estimated track" if k == 0 else None)
-    for robot_id, series in est.robot.items():
+    for series in est.robot.values():
         xy = np.array([aligned(e) for e in series])
         ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:purple", linewidth=1.2, zorder=3, label="robot estimate")
     ids_truth = sorted(truth.start)

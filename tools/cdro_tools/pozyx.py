@@ -96,7 +96,8 @@ def diag_line(f: dict) -> str:
         text = f"4 local range with {node}: DO_RANGING to FUNC {a} ms, {b} mm, {c} ms with GETRANGEINFO"
     elif item == C["CDRO_DIAG_GETIDS_OFFSET"]:
         verdict = "offset honoured" if b == c else "OFFSET IGNORED: nodes past 15 would be lost"
-        text = f"5 GETIDS with an offset: {a} devices listed, id 1 from offset 0 = 0x{b:04X}, from offset 1 = 0x{c:04X} ({verdict})"
+        text = (f"5 GETIDS with an offset: {a} devices listed, id 1 from offset 0 = 0x{b:04X}, "
+                f"from offset 1 = 0x{c:04X} ({verdict})")
     elif item == C["CDRO_DIAG_I2C_TIMING"]:
         text = (f"6 I2C timing: longest 1-byte register read {a} us, longest GETRANGEINFO call {b} us against {c} us "
                 f"on the wire: ~{max(b - c, 0)} us of clock stretching and Wire overhead")
@@ -233,7 +234,8 @@ def run_info(device: Device) -> int:
     if len(infos) < 1 + len(device.node_ids) and device.node_ids:
         # A device that did not reset on opening reads its nodes again when its list is set
         # (to the same list: never to an empty one, which would drop the nodes it has).
-        device.out.write(f"asking for the nodes' settings again (SET_NODES with the device's {len(device.node_ids)} nodes)\n")
+        device.out.write("asking for the nodes' settings again "
+                         f"(SET_NODES with the device's {len(device.node_ids)} nodes)\n")
         seen = device.command("SET_NODES", {"node_ids": device.node_ids})
         infos = device.collect("NODE_INFO", 1 + len(device.node_ids), 10.0, seen)
     return 0 if infos and all(f["mismatch"] == 0 and f["result"] == 0 for f in infos) else 1

@@ -52,7 +52,8 @@ def _speed(text: str) -> float | None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cdro-sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog="cdro-sim", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     source = p.add_mutually_exclusive_group()
     source.add_argument("--scenario", metavar="NAME|PATH", help="built-in scenario name or YAML file")
     source.add_argument("--random-network", type=int, metavar="NODES", help="random geometric network of NODES nodes")
@@ -65,12 +66,15 @@ def _parser() -> argparse.ArgumentParser:
     out.add_argument("--heights-csv", metavar="OUT", help="id,z")
     out.add_argument("--tracks-csv", metavar="OUT", help="t,id,x,y every 0.1 s for everything that moves")
     out.add_argument("--odometry-csv", metavar="OUT", help="t,distance_m,dheading_rad: the robot's wheel odometry")
-    out.add_argument("--robot-truth-csv", metavar="OUT", help="t,x,y,heading_rad: the robot's true pose per odometry step")
+    out.add_argument("--robot-truth-csv", metavar="OUT",
+                     help="t,x,y,heading_rad: the robot's true pose per odometry step")
     out.add_argument("--motion-csv", metavar="OUT", help="t,id,moving: every node at t=0, then every change")
-    out.add_argument("--capture", metavar="FILE", help="capture file of the conversation (offline, or what --pty sent and received)")
+    out.add_argument("--capture", metavar="FILE",
+                     help="capture file of the conversation (offline, or what --pty sent and received)")
     live = p.add_argument_group("live device")
     live.add_argument("--pty", metavar="LINK_PATH", help="act as the device on a pseudo-terminal linked at LINK_PATH")
-    live.add_argument("--speed", type=_speed, default=1.0, metavar="X|max", help="simulated time per wall time (default 1)")
+    live.add_argument("--speed", type=_speed, default=1.0, metavar="X|max",
+                      help="simulated time per wall time (default 1)")
     live.add_argument("--hold", action="store_true", help="keep running after the scenario's end (world frozen)")
     faults = p.add_argument_group("faults")
     faults.add_argument("--fault", action="append", default=[], metavar="KIND@T[,key=value...]",
@@ -176,7 +180,8 @@ def _run_random(args) -> int:
         n = _write_csv(args.ranges_csv, "t,from,to,range_m", net.ranges, "%.3f,%d,%d,%.3f")
         written.append(f"{args.ranges_csv} ({n} ranges)")
     if args.truth_csv:
-        written.append(f"{args.truth_csv} ({_write_csv(args.truth_csv, 'id,x,y,z', net.nodes, '%d,%.3f,%.3f,%.3f')} nodes)")
+        count = _write_csv(args.truth_csv, "id,x,y,z", net.nodes, "%d,%.3f,%.3f,%.3f")
+        written.append(f"{args.truth_csv} ({count} nodes)")
     if args.heights_csv:
         rows = [(i, z) for i, _, _, z in net.nodes]
         written.append(f"{args.heights_csv} ({_write_csv(args.heights_csv, 'id,z', rows, '%d,%.3f')} nodes)")

@@ -9,7 +9,7 @@ them against the service's JSON. This script itself is not imported by any test.
 Publishes (REP-105 frames: map -> odom -> base_link, map -> odom the identity, because the
 stream carries one robot estimate and no separate odometry):
   /cdro/robot/pose   geometry_msgs/msg/PoseWithCovarianceStamped  the robot (x, y, yaw; 6x6 covariance)
-  /cdro/markers      visualization_msgs/msg/MarkerArray           nodes: spheres, 2-sigma ellipses, labels; links (--sse)
+  /cdro/markers      visualization_msgs/msg/MarkerArray           node spheres, 2-sigma ellipses, labels; links (--sse)
   /tf                tf2_msgs/msg/TFMessage (tf2_ros broadcaster)  map -> odom, odom -> base_link
   /cdro/health       std_msgs/msg/String                          the health line's JSON
 

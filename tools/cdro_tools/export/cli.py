@@ -138,7 +138,8 @@ def export_mcap(args) -> int:
 
 @entry_point
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("input", help="a capture (.cdrocap), or cdro-hostd's JSON Lines (a file, - for stdin)")
     parser.add_argument("-o", "--output", required=True, help="the MCAP file (or the CSV; - = stdout for CSV)")
     parser.add_argument("--format", choices=("mcap", "ranges-csv"), default="mcap")

@@ -148,7 +148,8 @@ class SimDevice:
         self._send("HELLO", {
             "device_time_ms": self.device_ms(), "firmware_version": self.spec.firmware_version,
             "protocol_version": PROTOCOL_VERSION, "layout_hash": LAYOUT_HASH, "node_id": self.node_id,
-            "capabilities": self.capabilities(), "pozyx_firmware": self.spec.pozyx_firmware if self.spec.pozyx_present else 0,
+            "capabilities": self.capabilities(),
+            "pozyx_firmware": self.spec.pozyx_firmware if self.spec.pozyx_present else 0,
             "max_nodes": self.spec.max_nodes, "reset_cause": self.reset_cause, "pozyx_tries": 1})
 
     def _boot_step(self, step: str) -> None:

@@ -176,7 +176,8 @@ def run_offline(scenario: Scenario, seed: int, duration_s: float, capture_path: 
                 faults_enabled: bool = True, source: str = "") -> Simulation:
     """Runs the whole scenario in simulated time; returns the simulation with its logs."""
     epoch_us = int(round(scenario.epoch_unix_s * 1e6))
-    writer = CaptureWriter(capture_path, source or f"sim:{scenario.name} seed {seed}", epoch_us) if capture_path else None
+    writer = (CaptureWriter(capture_path, source or f"sim:{scenario.name} seed {seed}", epoch_us)
+              if capture_path else None)
     transport = OfflineTransport(writer, epoch_us)
     sim = Simulation(scenario, seed, transport, faults_enabled)
     host = ScriptedHost(scenario)
@@ -211,7 +212,8 @@ class LiveTransport:
     not fit is refused (the device counts it dropped). In max mode there is no limit: the device
     only runs when the reader has taken everything."""
 
-    def __init__(self, link: PtyLink, capacity_bytes: int | None, writer: CaptureWriter | None, log: Callable[[str], None]):
+    def __init__(self, link: PtyLink, capacity_bytes: int | None, writer: CaptureWriter | None,
+                 log: Callable[[str], None]):
         self.link = link
         self.capacity_bytes = capacity_bytes
         self.queue: collections.deque = collections.deque()    # [time_us, bytes]

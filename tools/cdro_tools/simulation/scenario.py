@@ -302,7 +302,8 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     for i, raw in enumerate(top.get("motion") or []):
         path = f"motion[{i}]"
-        m = r.mapping(raw, path, {"node", "start_s", "waypoints", "speed_mps", "end_s"}, {"node", "start_s", "waypoints"})
+        m = r.mapping(raw, path, {"node", "start_s", "waypoints", "speed_mps", "end_s"},
+                      {"node", "start_s", "waypoints"})
         segment = MotionSegment(node=known(r.node_id(m["node"], f"{path}.node"), f"{path}.node"),
                                 start_s=r.number(m["start_s"], f"{path}.start_s", 0),
                                 waypoints=r.points(m["waypoints"], f"{path}.waypoints", 2))
@@ -368,7 +369,8 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     n = r.mapping(u.get("nlos"), "uwb.nlos", _fields(Nlos))
     uwb.nlos = Nlos(random_links=r.integer(n.get("random_links", 0), "uwb.nlos.random_links", 0),
                     random_bias_m=r.pair(n.get("random_bias_m", [0.3, 1.5]), "uwb.nlos.random_bias_m", 0),
-                    outlier_probability=r.number(n.get("outlier_probability", 0.0), "uwb.nlos.outlier_probability", 0, 1),
+                    outlier_probability=r.number(n.get("outlier_probability", 0.0), "uwb.nlos.outlier_probability",
+                                                 0, 1),
                     outlier_mean_m=r.number(n.get("outlier_mean_m", 0.5), "uwb.nlos.outlier_mean_m", 0, low_open=True),
                     rss_loss_db=r.number(n.get("rss_loss_db", 6.0), "uwb.nlos.rss_loss_db", 0))
     for i, link in enumerate(n.get("links") or []):

@@ -247,7 +247,8 @@ class World:
                 rows.append((t, node_id, moving))
         return rows
 
-    def odometry(self, rng: random.Random) -> tuple[list[tuple[float, float, float]], list[tuple[float, float, float, float]]]:
+    def odometry(self, rng: random.Random) -> tuple[list[tuple[float, float, float]],
+                                                    list[tuple[float, float, float, float]]]:
         """Wheel odometry and the robot's true poses.
 
         Returns (odometry rows (t_s, distance_m, dheading_rad), truth rows (t_s, x_m, y_m,
