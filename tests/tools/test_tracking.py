@@ -1,10 +1,14 @@
 """Moving nodes in 3D: the scorer (cdro_tools.evaluation.tracking, cdro-eval-motion
 --tag-trajectory) on cases with a known answer, the RTLS baselines
-(cdro_tools.evaluation.tracking_baselines) on a seeded simulated flight."""
+(cdro_tools.evaluation.tracking_baselines) on a seeded simulated flight, and, when the data is
+there, scripts/miluv.py on the real MiLUV runs ($CDRO_DATA_DIR/miluv, else ../shared/data/miluv
+from the repository root; skipped without it)."""
 from __future__ import annotations
 
 import json
 import math
+import os
+import pathlib
 import subprocess
 import sys
 
@@ -14,6 +18,7 @@ from cdro_tools.evaluation import tracking
 from cdro_tools.evaluation import tracking_baselines as tb
 
 GUARD_S = 120
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
 # ----------------------------------------------------------------------------- the scorer
@@ -341,3 +346,37 @@ def test_that_the_trajectory_file_holds_what_the_baseline_computed(tmp_path):
     last = [r for r in result.rows if r[1] == 20][-1]
     assert np.allclose(tracks[20].p_m[-1], last[2], atol=1e-4)
     assert np.allclose(tracks[20].cov_m2[-1], last[3], rtol=1e-5, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- the real data
+
+@pytest.fixture(scope="module")
+def miluv(repo_root) -> pathlib.Path:
+    data = pathlib.Path(os.environ.get("CDRO_DATA_DIR", repo_root.parent / "shared" / "data")) / "miluv"
+    needed = [data / e / f for e in ("3robots_cirObstacles_random_0", "1robot_cirObstacles_random3_0")
+              for f in ("ranges.csv", "ranges_detail.csv", "nodes.csv", "tag_truth.csv")]
+    if not all(p.is_file() for p in needed):
+        pytest.skip(f"MiLUV data not found at {data} (set CDRO_DATA_DIR to the folder that holds miluv/)")
+    return data
+
+
+def test_that_scripts_miluv_reproduces_the_recorded_figures(miluv, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(REPO / "tools") + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    result = subprocess.run([sys.executable, str(REPO / "scripts" / "miluv.py"), "--data", str(miluv),
+                             "--out", str(tmp_path)], check=False, capture_output=True, text=True, timeout=GUARD_S,
+                            env=env)
+    assert result.returncode == 0, result.stderr
+    report = json.loads((tmp_path / "miluv.json").read_text())
+    one = report["1robot_cirObstacles_random3_0"]["baselines"]
+    three = report["3robots_cirObstacles_random_0"]["baselines"]
+    # docs/results.md, "Moving nodes on real data: MiLUV" (horizontal RMSE, m; 0.02 m tolerance)
+    assert one["trilateration"]["overall"]["rmse_h_m"] == pytest.approx(0.552, abs=0.02)
+    assert one["ekf"]["overall"]["rmse_h_m"] == pytest.approx(1.426, abs=0.02)
+    assert three["trilateration"]["overall"]["points"] == 12
+    assert three["ekf"]["overall"]["rmse_h_m"] == pytest.approx(3.666, abs=0.02)
+    assert three["coop-ekf"]["overall"]["rmse_h_m"] == pytest.approx(3.339, abs=0.02)
+    for name in ("trilateration", "ekf", "coop-ekf"):
+        assert (tmp_path / f"3robots_cirObstacles_random_0-{name}.csv").is_file()
+    anchors_report = report["3robots_cirObstacles_random_0"]["anchors"]
+    assert {a["anchor"] for a in anchors_report if a["obstructed"]} == {1, 3, 4}
+    assert "| anchor |" in result.stdout
