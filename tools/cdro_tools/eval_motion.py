@@ -6,14 +6,19 @@ Path and beacons (a robot with odometry):
 A carried node (the initialization stage's Fig. 4 tracking):
   cdro-eval-motion --trace trace.csv --tracks tracks.csv --truth truth.csv \\
                    --motion motion.csv --node 0x6006 [--track-png track.png]
+Moving nodes in 3D (tags among anchors; any number of nodes):
+  cdro-eval-motion --tag-trajectory tags.csv --tag-truth tag_truth.csv [--align] [--max-gap-s 0.2]
 
 The trajectory is cdro-hostd's --out-trajectory (t,x,y,heading_rad,var_x,cov_xy,var_y,frame: the
 causal estimate after each odometry step; only the rows in the last row's frame are evaluated);
 the robot truth t,x,y[,heading_rad]; nodes the --out-csv; beacon truth id,x,y. The trace is
 cdro-hostd's --trace-csv (with --trace-every 1 for tracking), tracks the simulator's t,id,x,y,
-truth its id,x,y,z start positions, motion its t,id,moving. All fits are rigid (rotation,
-translation, reflection allowed, no scale). The figures go to stdout as a table and to --json;
-exit 2 on unusable input.
+truth its id,x,y,z start positions, motion its t,id,moving. The tag trajectory is
+t,id,x,y,z[,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz] (one row per estimate of any node), the tag
+truth t,id,x,y,z; each estimate is scored against its node's truth interpolated at its time
+(evaluation.tracking): 3D and horizontal RMSE, p95, max, per node and overall, in the anchors'
+frame (no fit) unless --align. All fits are rigid (rotation, translation, reflection allowed, no
+scale). The figures go to stdout as a table and to --json; exit 2 on unusable input.
 """
 from __future__ import annotations
 
@@ -22,9 +27,11 @@ import json
 import math
 import sys
 
+from .evaluation.drawing import node_label
 from .evaluation.inputs import BadRow, InputError, read_estimates, read_truth
 from .evaluation.movement import (evaluate_beacons, evaluate_path, evaluate_track, read_motion, read_path,
                                   read_trace_rows, read_tracks)
+from .evaluation.tracking import MAX_TRUTH_GAP_S, evaluate_tracking, format_table, read_node_tracks
 from .cli import entry_point
 
 
@@ -45,6 +52,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--node", metavar="ID", help="the carried node to evaluate (decimal or 0x hex)")
     p.add_argument("--settle-s", type=float, default=0.5,
                    help="tracking errors count until this long after a stop, s (default 0.5)")
+    p.add_argument("--tag-trajectory", metavar="CSV",
+                   help="3D estimates of moving nodes t,id,x,y,z[,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz]")
+    p.add_argument("--tag-truth", metavar="CSV", help="their true tracks t,id,x,y,z")
+    p.add_argument("--align", action="store_true",
+                   help="fit the tag trajectory rigidly to the truth first (self-calibrated runs; default: no fit, "
+                        "the anchors fix the frame)")
+    p.add_argument("--max-gap-s", type=float, default=MAX_TRUTH_GAP_S,
+                   help=f"estimates between truth rows further apart are skipped, s (default {MAX_TRUTH_GAP_S})")
     p.add_argument("--json", metavar="PATH", help="every figure as JSON ('-' = stdout, the table then goes to stderr)")
     p.add_argument("--path-png", metavar="PATH", help="robot path (aligned) against the truth, with the beacons")
     p.add_argument("--track-png", metavar="PATH", help="the carried node's track and its error over time")
@@ -97,6 +112,16 @@ def main(argv: list[str] | None = None) -> int:
             track = evaluate_track(read_trace_rows(args.trace, bad), node, truth, tracks[node], intervals,
                                    args.settle_s)
             report["track"] = track["report"]
+        if args.tag_trajectory or args.tag_truth:
+            if not (args.tag_trajectory and args.tag_truth):
+                raise InputError("--tag-trajectory and --tag-truth go together")
+            estimates = read_node_tracks(args.tag_trajectory, bad)
+            if not estimates:
+                raise InputError(f"{args.tag_trajectory}: no estimates")
+            report["tags"] = evaluate_tracking(estimates, read_node_tracks(args.tag_truth, bad), args.align,
+                                               args.max_gap_s)
+        elif args.align:
+            raise InputError("--align goes with --tag-trajectory")
     except (InputError, ValueError) as error:
         print(f"cdro-eval-motion: {error}", file=sys.stderr)
         return 2
@@ -122,6 +147,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"track of {args.node}: RMSE {_fmt(t['rmse_m'])} m, p95 {_fmt(t['p95_m'])} m, max {_fmt(t['max_m'])} m "
               f"while moving ({t['points']} estimates); converged again {after} after stopping; static nodes "
               f"{_fmt(t['static_rmse_m'])} m", file=out)
+    if "tags" in report:
+        t = report["tags"]
+        frame = "rigidly fitted to the truth" if t["aligned"] else "anchors' frame, no fit"
+        print(f"moving nodes ({frame}):", file=out)
+        print(format_table(t, node_label), file=out)
+        o = t["overall"]
+        if o["outside_truth"] or o["across_gap"] or o["no_truth"]:
+            print(f"skipped: {o['outside_truth']} estimates outside the truth's time span, {o['across_gap']} across a "
+                  f"truth gap > {t['max_gap_s']:g} s, {o['no_truth']} of nodes without truth"
+                  + (f" ({', '.join(node_label(i) for i in t['nodes_without_truth'])})"
+                     if t["nodes_without_truth"] else ""), file=out)
+        if o["inside_95_h"] is not None:
+            print(f"inside their 95 % region: {o['inside_95_h']:.0%} horizontally"
+                  + (f", {o['inside_95_3d']:.0%} in 3D" if o["inside_95_3d"] is not None else ""), file=out)
     if args.json:
         text = json.dumps(report, indent=2, sort_keys=True, default=float)
         if args.json == "-":

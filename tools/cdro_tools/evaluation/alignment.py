@@ -17,19 +17,20 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 
-def rigid_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """R (2x2, orthogonal: rotation or reflection) and t minimising sum |R s_i + t - g_i|^2.
+def rigid_fit(source: np.ndarray, target: np.ndarray, dim: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """R (dim x dim, orthogonal: rotation or reflection) and t minimising sum |R s_i + t - g_i|^2.
 
     The orthogonal Procrustes solution: with H = sum (s_i - s_mean)(g_i - g_mean)^T = U S V^T,
-    R = V U^T. Not forcing det(R) = +1 is what allows the reflection. One point fixes only
-    the translation; no point gives the identity.
+    R = V U^T. Not forcing det(R) = +1 is what allows the reflection (a mirror image fits
+    ranges as well in 3D as in 2D). One point fixes only the translation; no point gives the
+    identity. dim = 3 is for tracks of moving nodes in 3D (evaluation.tracking); the maps are 2D.
     """
-    source = np.asarray(source, dtype=float).reshape(-1, 2)
-    target = np.asarray(target, dtype=float).reshape(-1, 2)
+    source = np.asarray(source, dtype=float).reshape(-1, dim)
+    target = np.asarray(target, dtype=float).reshape(-1, dim)
     if len(source) != len(target):
         raise ValueError(f"rigid_fit: {len(source)} source points but {len(target)} target points")
     if len(source) == 0:
-        return np.eye(2), np.zeros(2)
+        return np.eye(dim), np.zeros(dim)
     source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
     if len(source) == 1:
         return np.eye(2), target_mean - source_mean

@@ -1,0 +1,230 @@
+#!/usr/bin/env python3
+"""What a plain RTLS reaches on MiLUV's real flights (docs/results.md, "Moving nodes on real data:
+MiLUV"): the tracking baselines of cdro_tools.evaluation.tracking_baselines, with their defaults,
+on both experiments of ../shared/data/miluv (its README), scored against tag_truth.csv in the
+anchors' frame (no fit: the anchors are surveyed) by cdro_tools.evaluation.tracking.
+
+    .venv/bin/python scripts/miluv.py [--data ../shared/data/miluv] [--out DIR] [--q 1.0] [--sigma 0.1] [--huber]
+
+Per experiment it prints a markdown table, per tag and overall, of each baseline's 3D RMSE /
+horizontal RMSE / 3D p95 (m) and its number of estimates:
+- (a) trilateration, (b) the EKF per tag, (c-ref) the EKF over all tags with the tag-to-tag ranges;
+- "room centre": a constant at the anchors' centroid 1 m below them, at every tag-anchor range,
+  i.e. what an estimate that learns nothing scores;
+- "replica": the same baselines on the same schedule with every range recomputed from the truth
+  plus N(0, 0.1 m) (numpy seed 1): what the schedule and the geometry allow when the ranges are
+  what the filters assume, apart from what the real ranges' errors cost.
+Then, per anchor, the residuals of its ranges against the truth-derived range (ranges_detail's
+gt_range_m): mean, median, IQR, next to its anchor_obstructed label, and how many of its ranges
+the gates of (b) and (c-ref) rejected (of those they tested); a row for the tag-to-tag ranges.
+
+--out DIR writes every trajectory (<experiment>-<baseline>.csv, the format cdro-eval-motion
+--tag-trajectory reads) and miluv.json (every figure). --q, --sigma and --huber change the EKFs'
+process noise (m^2/s^3), range sigma (m) and gate (Huber weights instead of rejects), to see how
+sensitive the figures are. The numeric defaults were set before anything was scored against
+MiLUV's truth (the two windows from its range schedule alone: how many anchors a window holds);
+keeping the tags below the anchors was added after the first scores showed fixes on the mirror
+side of the nearly coplanar anchors (tracking_baselines). Deterministic.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import statistics
+import sys
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tools"))     # this checkout's cdro_tools, not an installed one
+
+from cdro_tools.evaluation import tracking  # noqa: E402 (after the path)
+from cdro_tools.evaluation import tracking_baselines as tb  # noqa: E402 (after the path)
+from cdro_tools.evaluation.inputs import csv_rows, parse_id, parse_number  # noqa: E402 (after the path)
+
+DATA = pathlib.Path(os.environ.get("CDRO_DATA_DIR", ROOT.parent / "shared" / "data")) / "miluv"
+EXPERIMENTS = ("3robots_cirObstacles_random_0", "1robot_cirObstacles_random3_0")
+REPLICA_SEED, REPLICA_NOISE_M = 1, 0.1
+TITLES = {"trilateration": "(a) trilateration", "ekf": "(b) EKF per tag", "coop-ekf": "(c-ref) cooperative EKF",
+          "room-centre": "room centre (learns nothing)"}
+
+
+def centre_rows(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray]) -> list:
+    centre = np.mean(list(anchors.values()), axis=0) - [0.0, 0.0, tb.START_BELOW_ANCHORS_M]
+    return [(t, b if a in anchors else a, centre, None) for t, a, b in
+            zip(ranges.t_s.tolist(), ranges.from_ids.tolist(), ranges.to_ids.tolist())
+            if (a in anchors) != (b in anchors)]
+
+
+def replica(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray], truth: dict[int, tracking.NodeTrack],
+            seed: int) -> tb.TimedRanges:
+    """The same schedule, each range the true distance (tags' truth interpolated, held at the
+    ends) plus Gaussian noise."""
+    rng = np.random.default_rng(seed)
+
+    def position(node: int, t_s: float) -> np.ndarray:
+        if node in anchors:
+            return anchors[node]
+        track = truth[node]
+        return np.array([np.interp(t_s, track.t_s, track.p_m[:, k]) for k in range(3)])
+
+    values = [float(np.linalg.norm(position(a, t) - position(b, t))) + REPLICA_NOISE_M * rng.standard_normal()
+              for t, a, b in zip(ranges.t_s.tolist(), ranges.from_ids.tolist(), ranges.to_ids.tolist())]
+    return tb.TimedRanges(ranges.t_s, ranges.from_ids, ranges.to_ids, np.array(values), ranges.lines)
+
+
+def score(rows: list, truth: dict[int, tracking.NodeTrack]) -> dict:
+    estimates: dict[int, list] = {}
+    for t, node, p, cov in rows:
+        estimates.setdefault(node, []).append((t, p, cov))
+    tracks = {}
+    for node, values in estimates.items():
+        values.sort(key=lambda v: v[0])
+        covs = [np.full((3, 3), np.nan) if v[2] is None else v[2] for v in values]
+        tracks[node] = tracking.NodeTrack(np.array([v[0] for v in values]), np.array([v[1] for v in values]),
+                                          np.array(covs))
+    return tracking.evaluate_tracking(tracks, truth)
+
+
+def run_baselines(ranges, anchors, args) -> dict[str, tb.TrackingResult]:
+    ekf = {"q_m2_s3": args.q, "sigma_m": args.sigma, "huber": args.huber}
+    return {"trilateration": tb.trilaterate(ranges, anchors), "ekf": tb.track_ekf(ranges, anchors, **ekf),
+            "coop-ekf": tb.track_ekf(ranges, anchors, cooperative=True, **ekf)}
+
+
+def anchor_report(detail_path: pathlib.Path, ranges: tb.TimedRanges, anchors: dict[int, np.ndarray],
+                  results: dict[str, tb.TrackingResult]) -> list[dict]:
+    residuals: dict[object, list[float]] = {}
+    obstructed: dict[object, bool] = {}
+    for _, row in csv_rows(str(detail_path), ["from", "to", "range_m", "gt_range_m", "anchor_obstructed"]):
+        a, b = parse_id(row["from"]), parse_id(row["to"])
+        key = a if a in anchors else b if b in anchors else "tag-tag"
+        residuals.setdefault(key, []).append(parse_number(row["range_m"], "range_m")
+                                             - parse_number(row["gt_range_m"], "gt_range_m"))
+        obstructed[key] = obstructed.get(key, False) or row["anchor_obstructed"].strip() == "1"
+    keys = [*sorted(k for k in residuals if k != "tag-tag"), *(["tag-tag"] if "tag-tag" in residuals else [])]
+    out = []
+    for key in keys:
+        values = residuals[key]
+        q1, _, q3 = statistics.quantiles(values, n=4) if len(values) > 1 else (values[0],) * 3
+        entry = {"anchor": key, "obstructed": obstructed[key] if key != "tag-tag" else None, "ranges": len(values),
+                 "mean_m": statistics.fmean(values), "median_m": statistics.median(values), "iqr_m": q3 - q1}
+        for name in ("ekf", "coop-ekf"):
+            tested = rejected = 0
+            for a, b, status in zip(ranges.from_ids.tolist(), ranges.to_ids.tolist(), results[name].status):
+                end = a if a in anchors else b if b in anchors else "tag-tag"
+                if end == key and status in ("used", "rejected"):
+                    tested += 1
+                    rejected += status == "rejected"
+            entry[f"{name}_tested"], entry[f"{name}_rejected"] = tested, rejected
+        out.append(entry)
+    return out
+
+
+def cell(entry: dict) -> str:
+    if not entry or not entry["points"]:
+        return "-"
+    return f"{entry['rmse_3d_m']:.2f} / {entry['rmse_h_m']:.2f} / {entry['p95_3d_m']:.2f} ({entry['points']})"
+
+
+def print_experiment(name: str, summary: dict) -> None:
+    s = summary["ranges"]
+    print(f"\n### {name}: {len(summary['tags'])} tags, {s['tag_anchor']} tag-anchor and {s['tag_tag']} tag-tag ranges, "
+          f"{s['duration_s']:.0f} s\n")
+    columns = ["trilateration", "ekf", "coop-ekf", "room-centre"]
+    print("| tag | " + " | ".join(TITLES[c] for c in columns) + " |")
+    print("|---" * (len(columns) + 1) + "|")
+    for tag in summary["tags"]:
+        print(f"| {tag} | " + " | ".join(cell(summary["scores"][c]["nodes"].get(str(tag), {})) for c in columns) + " |")
+    print("| **all** | " + " | ".join(cell(summary["scores"][c]["overall"]) for c in columns) + " |")
+    print(f"| replica, all (truth ranges + N(0, {REPLICA_NOISE_M} m)) | "
+          + " | ".join(cell(summary["replica"][c]["overall"]) if c in summary["replica"] else "-" for c in columns)
+          + " |")
+    print("\nCells: 3D RMSE / horizontal RMSE / 3D p95 (m) (estimates).")
+    notes = []
+    for c in ("trilateration", "ekf", "coop-ekf"):
+        counts = summary["counts"][c]
+        notes.append(f"{c}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    print("Ranges by use: " + "; ".join(notes) + ".")
+    never = summary["notes"]["ekf"].get("never_started") or []
+    if never:
+        print(f"Tags the EKFs never started (no 4-anchor fix within {tb.INIT_WINDOW_S:g} s): {never}.")
+    print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) gate rejects | "
+          "(c-ref) gate rejects |")
+    print("|---|---|---|---|---|---|")
+    for a in summary["anchors"]:
+        label = "-" if a["obstructed"] is None else ("yes" if a["obstructed"] else "no")
+        ekf = f"{a['ekf_rejected']} of {a['ekf_tested']}" if a["ekf_tested"] else "-"
+        print(f"| {a['anchor']} | {label} | {a['ranges']} | {a['mean_m']:+.3f} / {a['median_m']:+.3f} / "
+              f"{a['iqr_m']:.3f} | {ekf} | {a['coop-ekf_rejected']} of {a['coop-ekf_tested']} |")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", default=str(DATA), help="the folder that holds the two experiments")
+    parser.add_argument("--out", help="write the trajectories and miluv.json here")
+    parser.add_argument("--q", type=float, default=tb.PROCESS_Q_M2_S3, help="EKF process noise, m^2/s^3")
+    parser.add_argument("--sigma", type=float, default=tb.RANGE_SIGMA_M, help="EKF range sigma, m")
+    parser.add_argument("--huber", action="store_true", help="EKF: Huber weights instead of a gate")
+    args = parser.parse_args()
+    data = pathlib.Path(args.data)
+    missing = [data / e for e in EXPERIMENTS if not (data / e / "ranges.csv").is_file()]
+    if missing:
+        print(f"miluv: {', '.join(map(str, missing))} not found (set CDRO_DATA_DIR or --data)", file=sys.stderr)
+        return 2
+    out = pathlib.Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    report: dict = {"settings": {"q_m2_s3": args.q, "sigma_m": args.sigma, "huber": args.huber,
+                                 "gate_chi2": tb.GATE_CHI2, "window_s": tb.WINDOW_S, "init_window_s": tb.INIT_WINDOW_S,
+                                 "replica_seed": REPLICA_SEED, "replica_noise_m": REPLICA_NOISE_M}}
+    print(f"EKF: q {args.q:g} m^2/s^3, sigma {args.sigma:g} m, " + ("Huber weights" if args.huber else
+          f"gate nu^2/S > {tb.GATE_CHI2:g}") + f"; trilateration window {tb.WINDOW_S:g} s; replica seed {REPLICA_SEED}")
+    for name in EXPERIMENTS:
+        folder = data / name
+        bad: list = []
+        ranges = tb.read_timed_ranges(str(folder / "ranges.csv"), bad)
+        anchors = tb.read_anchors(str(folder / "nodes.csv"), bad)
+        truth = tracking.read_node_tracks(str(folder / "tag_truth.csv"), bad)
+        if bad:
+            print(f"miluv: {len(bad)} bad rows, the first: {bad[0]}", file=sys.stderr)
+        results = run_baselines(ranges, anchors, args)
+        rows = {n: r.rows for n, r in results.items()}
+        rows["room-centre"] = centre_rows(ranges, anchors)
+        scores = {n: score(r, truth) for n, r in rows.items()}
+        replica_ranges = replica(ranges, anchors, truth, REPLICA_SEED)
+        replica_scores = {n: score(r.rows, truth) for n, r in run_baselines(replica_ranges, anchors, args).items()}
+        kinds = [(a in anchors) != (b in anchors) for a, b in zip(ranges.from_ids.tolist(), ranges.to_ids.tolist())]
+        summary = {
+            "tags": sorted({int(t) for t in truth}),
+            "ranges": {"tag_anchor": sum(kinds), "tag_tag": len(kinds) - sum(kinds),
+                       "duration_s": float(ranges.t_s[-1] - ranges.t_s[0]), "bad_rows": len(bad)},
+            "scores": scores, "replica": replica_scores,
+            "counts": {n: r.counts() for n, r in results.items()},
+            "notes": {n: r.notes for n, r in results.items()},
+            "anchors": anchor_report(folder / "ranges_detail.csv", ranges, anchors, results)}
+        print_experiment(name, summary)
+        report[name] = {"baselines": {n: scores[n] for n in results}, "room_centre": scores["room-centre"],
+                        "replica": {n: s["overall"] for n, s in replica_scores.items()},
+                        "ranges": summary["ranges"], "counts": summary["counts"], "notes": summary["notes"],
+                        "anchors": summary["anchors"]}
+        if out:
+            for n, r in results.items():
+                tracking.write_trajectory(str(out / f"{name}-{n}.csv"), r.rows)
+    if out:
+        (out / "miluv.json").write_text(json.dumps(report, indent=1, default=_json_default) + "\n")
+    return 0
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    raise TypeError(f"{type(value)} is not JSON")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
