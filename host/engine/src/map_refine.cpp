@@ -57,6 +57,42 @@ std::vector<int> freeNumbers(const MapProblem &problem, const std::vector<uint8_
     return number;
 }
 
+// One pair's terms in the normal equations (a link, or an unheard pair), u = d distance / d p_a:
+// the information weight u u^T in the blocks of a and b (numbers na, nb; -1 for a node that does
+// not move), and the descent (-d cost / dx) moved by `push` (-d cost / d distance) along u at a
+// and against it at b.
+void addPairTerms(int na, int nb, const std::array<double, kMaxEmbeddingDimensions> &u, Eigen::Index dims,
+                  double weight, double push, std::vector<Triplet> &triplets, Eigen::VectorXd &descent)
+{
+    const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
+    const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
+    for (Eigen::Index i = 0; i < dims; ++i) {
+        for (Eigen::Index j = 0; j < dims; ++j) {
+            const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
+            const int ii = static_cast<int>(i);
+            const int jj = static_cast<int>(j);
+            if (ca >= 0) {
+                triplets.emplace_back(ca + ii, ca + jj, value);
+            }
+            if (cb >= 0) {
+                triplets.emplace_back(cb + ii, cb + jj, value);
+            }
+            if (ca >= 0 && cb >= 0) {
+                triplets.emplace_back(ca + ii, cb + jj, -value);
+                triplets.emplace_back(cb + ii, ca + jj, -value);
+            }
+        }
+    }
+    for (Eigen::Index d = 0; d < dims; ++d) {
+        if (ca >= 0) {
+            descent(ca + d) += push * u[static_cast<size_t>(d)];
+        }
+        if (cb >= 0) {
+            descent(cb + d) -= push * u[static_cast<size_t>(d)];
+        }
+    }
+}
+
 // Normal equations of the links at `positions` (one row per node, D columns): information (IRLS
 // weights, or the line-of-sight Fisher weights) and the descent direction b = -d cost / dx.
 void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
@@ -85,35 +121,8 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         const double residual = link.range_m - distance;
         const ResidualEvaluation at = likelihood.evaluate(residual, variance);
         const double weight = fisher ? at.inlier_probability / variance : likelihood.irlsWeight(residual, variance, at);
-        // cost = -log p(e), e = r - |p_a - p_b|: d cost / d p_a = slope * u.
-        const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
-        const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
-        for (Eigen::Index i = 0; i < dims; ++i) {
-            for (Eigen::Index j = 0; j < dims; ++j) {
-                const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
-                const int ii = static_cast<int>(i);
-                const int jj = static_cast<int>(j);
-                if (ca >= 0) {
-                    triplets.emplace_back(ca + ii, ca + jj, value);
-                }
-                if (cb >= 0) {
-                    triplets.emplace_back(cb + ii, cb + jj, value);
-                }
-                if (ca >= 0 && cb >= 0) {
-                    triplets.emplace_back(ca + ii, cb + jj, -value);
-                    triplets.emplace_back(cb + ii, ca + jj, -value);
-                }
-            }
-        }
-        for (Eigen::Index d = 0; d < dims; ++d) {
-            const double push = at.slope_per_m * u[static_cast<size_t>(d)];
-            if (ca >= 0) {
-                descent(ca + d) -= push;
-            }
-            if (cb >= 0) {
-                descent(cb + d) += push;
-            }
-        }
+        // cost = -log p(e), e = r - |p_a - p_b|: d cost / d p_a = slope * u, so push = -slope.
+        addPairTerms(na, nb, u, dims, weight, -at.slope_per_m, triplets, descent);
     }
     if (fisher || problem.unheard_radius_m <= 0.0) {
         return; // the unheard pairs are a soft prior, not information from ranges
@@ -131,34 +140,7 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         for (Eigen::Index d = 0; d < dims; ++d) {
             u[static_cast<size_t>(d)] = (positions(a, d) - positions(b, d)) / distance;
         }
-        const double push = weight * (radius - distance); // -d cost / d distance
-        const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
-        const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
-        for (Eigen::Index i = 0; i < dims; ++i) {
-            for (Eigen::Index j = 0; j < dims; ++j) {
-                const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
-                const int ii = static_cast<int>(i);
-                const int jj = static_cast<int>(j);
-                if (ca >= 0) {
-                    triplets.emplace_back(ca + ii, ca + jj, value);
-                }
-                if (cb >= 0) {
-                    triplets.emplace_back(cb + ii, cb + jj, value);
-                }
-                if (ca >= 0 && cb >= 0) {
-                    triplets.emplace_back(ca + ii, cb + jj, -value);
-                    triplets.emplace_back(cb + ii, ca + jj, -value);
-                }
-            }
-        }
-        for (Eigen::Index d = 0; d < dims; ++d) {
-            if (ca >= 0) {
-                descent(ca + d) += push * u[static_cast<size_t>(d)];
-            }
-            if (cb >= 0) {
-                descent(cb + d) -= push * u[static_cast<size_t>(d)];
-            }
-        }
+        addPairTerms(na, nb, u, dims, weight, weight * (radius - distance), triplets, descent);
     });
 }
 
