@@ -1,4 +1,5 @@
-// range_likelihood: the ways of asking (density, logDensity, evaluate, inlierProbability) agree;
+// range_likelihood: the ways of asking (density, logDensity, evaluate, inlierProbability,
+// densityWithInlier) agree;
 // the Gaussian mode is the normal pdf; the robust mode is one-sided; with its floor it is bounded
 // and redescending (the streaming steps), without it (the global solve) long readings cost
 // linearly and short ones far more, never nothing; the slope is the derivative of the log density.
@@ -42,6 +43,10 @@ void expectConsistent(const RangeLikelihood &likelihood)
             EXPECT_NEAR(std::log(density), evaluation.log_density, 1e-8 * (1.0 + std::abs(evaluation.log_density)));
             EXPECT_NEAR(likelihood.inlierProbability(e, s), evaluation.inlier_probability,
                         1e-8 * evaluation.inlier_probability + 1e-15);
+            // The weight update's query of both at once gives exactly what the two give apart.
+            const RangeLikelihood::DensityWithInlier both = likelihood.densityWithInlier(e, s);
+            EXPECT_EQ(both.density_per_m, density);
+            EXPECT_EQ(both.inlier_probability, likelihood.inlierProbability(e, s));
             EXPECT_GE(evaluation.inlier_probability, 0.0);
             EXPECT_LE(evaluation.inlier_probability, 1.0);
         }
@@ -66,6 +71,8 @@ TEST(RangeLikelihood, TheFourQueriesAgreeGaussian)
             }
             EXPECT_EQ(likelihood.logDensity(e, s), evaluation.log_density);
             EXPECT_EQ(likelihood.inlierProbability(e, s), 1.0);
+            EXPECT_EQ(likelihood.densityWithInlier(e, s).density_per_m, likelihood.density(e, s));
+            EXPECT_EQ(likelihood.densityWithInlier(e, s).inlier_probability, 1.0);
             EXPECT_EQ(evaluation.inlier_probability, 1.0);
         }
     }

@@ -196,6 +196,18 @@ double RangeLikelihood::density(double residual_m, double variance_m2) const
     return std::max(std::exp(evaluate(residual_m, variance_m2).log_density), 1e-300);
 }
 
+RangeLikelihood::DensityWithInlier RangeLikelihood::densityWithInlier(double residual_m, double variance_m2) const
+{
+    if (params_.robust && params_.gross_density_per_m > 0.0) {
+        const Terms t = terms(std::clamp(residual_m, -1e150, 1e150), variance_m2 > 1e-12 ? variance_m2 : 1e-12);
+        if (t.finite) {
+            return {t.total, std::clamp(t.los / t.total, 0.0, 1.0)};
+        }
+    }
+    const ResidualEvaluation evaluation = evaluate(residual_m, variance_m2);
+    return {std::max(std::exp(evaluation.log_density), 1e-300), evaluation.inlier_probability};
+}
+
 double RangeLikelihood::inlierProbability(double residual_m, double variance_m2) const
 {
     // The refinement's weights: the responsibility of the line-of-sight term, no logarithm.

@@ -135,11 +135,14 @@ WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witne
             const double variance =
                 noise_variance + (h * (component.covariance_m2 + witness.covariance_m2) * h.transpose()).value();
             const double residual = witness.range_m - prediction.range_m;
-            scratch_[k] *= likelihood.density(residual, variance);
-            largest = std::max(largest, scratch_[k]);
-            if (k == best && likelihood.inlierProbability(residual, variance) < 0.5) {
-                ++result.downweighted;
+            if (k == best) {
+                const RangeLikelihood::DensityWithInlier at = likelihood.densityWithInlier(residual, variance);
+                scratch_[k] *= at.density_per_m;
+                result.downweighted += at.inlier_probability < 0.5 ? 1U : 0U;
+            } else {
+                scratch_[k] *= likelihood.density(residual, variance);
             }
+            largest = std::max(largest, scratch_[k]);
         }
         // Products of many small densities: keep them representable (only ratios matter).
         if (largest > 0.0 && largest < 1e-200) {

@@ -57,6 +57,12 @@ public:
     double inlierProbability(double residual_m, double variance_m2) const;
     // p(e) itself (1/m): the weight update multiplies these (clamped at 1e-300).
     double density(double residual_m, double variance_m2) const;
+    // density() and inlierProbability() of one residual, the mixture's terms evaluated once.
+    struct DensityWithInlier {
+        double density_per_m = 0.0;
+        double inlier_probability = 1.0; // 0..1
+    };
+    DensityWithInlier densityWithInlier(double residual_m, double variance_m2) const;
     // Iteratively reweighted least squares: the weight w(e) = -slope / e (1/m^2), the curvature of
     // the quadratic that touches the cost -log p at e (0 where the cost is not increasing in |e|).
     double irlsWeight(double residual_m, double variance_m2) const;
