@@ -107,3 +107,53 @@ def test_the_command_line_names_the_rows_left_out(tmp_path):
     path = json.loads(report_path.read_text())["path"]
     assert path["points"] == 45 and path["other_frame_points"] == 15
     assert math.isclose(path["rmse_m"], 0.1, abs_tol=0.01)
+
+
+def carried_node_files(tmp_path, statuses):
+    """Node 6 carried along y = 0 at 1 m/s from t = 10 s to t = 14 s among still nodes 1-3 (all
+    placed where they are), and a trace with one row of node 6 every 0.1 s from t = 9 s to 16 s
+    whose status is statuses(t). Returns the cdro-eval-motion arguments."""
+    truth = tmp_path / "truth.csv"
+    truth.write_text("id,x,y,z\n1,0,5,0\n2,8,5,0\n3,4,-6,0\n6,0,0,0\n")
+    tracks = tmp_path / "tracks.csv"
+    tracks.write_text("t,id,x,y\n" + "".join(f"{t / 10:.1f},6,{min(max(t / 10 - 10, 0), 4):.2f},0\n"
+                                             for t in range(0, 200)))
+    motion = tmp_path / "motion.csv"
+    motion.write_text("t,id,moving\n0,6,0\n10,6,1\n14,6,0\n")
+    rows = []
+    for k in range(90, 160):
+        t = k / 10
+        x = min(max(t - 10, 0), 4)
+        for node, (nx, ny) in {1: (0, 5), 2: (8, 5), 3: (4, -6)}.items():
+            rows.append(f"{k},{node},{nx},{ny},1,converged,{t:.1f}")
+        status = statuses(t)
+        rows.append(f"{k},6,{x:.2f},0,{1 if status == 'converged' else 0},{status},{t:.1f}")
+    trace = tmp_path / "trace.csv"
+    trace.write_text("ranges,id,x,y,converged,status,t\n" + "\n".join(rows) + "\n")
+    return ["--trace", str(trace), "--tracks", str(tracks), "--truth", str(truth), "--motion", str(motion),
+            "--node", "6", "--json", "-"]
+
+
+def eval_track(args):
+    result = subprocess.run([sys.executable, "-m", "cdro_tools.eval_motion", *args], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)["track"]
+
+
+def test_the_track_says_how_late_the_start_and_the_stop_were_seen(tmp_path):
+    def statuses(t):
+        if 10.5 <= t < 15.2:
+            return "moving"
+        return "settling" if 15.2 <= t < 15.5 else ("placed" if 15.5 <= t < 15.8 else "converged")
+
+    track = eval_track(carried_node_files(tmp_path, statuses))
+    assert track["start_seen_after_s"] == [pytest.approx(0.5)]
+    assert track["stop_seen_after_s"] == [pytest.approx(1.2)]  # settling counts: no longer moving
+    assert track["reconverged_after_s"] == [pytest.approx(1.8)]
+    assert track["rmse_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_motion_never_seen_has_no_start_and_no_stop(tmp_path):
+    track = eval_track(carried_node_files(tmp_path, lambda t: "converged"))
+    assert track["start_seen_after_s"] == [None]
+    assert track["stop_seen_after_s"] == [None]  # never seen moving: no stop to see either

@@ -143,10 +143,12 @@ def main(argv: list[str] | None = None) -> int:
               file=out)
     if "track" in report:
         t = report["track"]
-        after = ", ".join(_fmt(x) + " s" if x is not None else "never" for x in t["reconverged_after_s"])
+        def times(key: str) -> str:
+            return ", ".join(_fmt(x) + " s" if x is not None else "never" for x in t[key])
         print(f"track of {args.node}: RMSE {_fmt(t['rmse_m'])} m, p95 {_fmt(t['p95_m'])} m, max {_fmt(t['max_m'])} m "
-              f"while moving ({t['points']} estimates); converged again {after} after stopping; static nodes "
-              f"{_fmt(t['static_rmse_m'])} m", file=out)
+              f"while moving ({t['points']} estimates); seen moving {times('start_seen_after_s')} after it started, "
+              f"stopped {times('stop_seen_after_s')} after it stopped; converged again "
+              f"{times('reconverged_after_s')} after stopping; static nodes {_fmt(t['static_rmse_m'])} m", file=out)
     if "tags" in report:
         t = report["tags"]
         frame = "rigidly fitted to the truth" if t["aligned"] else "anchors' frame, no fit"

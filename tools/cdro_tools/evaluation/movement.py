@@ -166,37 +166,52 @@ def evaluate_beacons(estimates: dict, truth: dict, path_fit: tuple | None) -> di
     return report
 
 
-def evaluate_track(trace_rows: list[tuple[int, float, int, np.ndarray, bool]], node: int, truth_start: dict,
+def evaluate_track(trace_rows: list[tuple[int, float, int, np.ndarray, bool, str]], node: int, truth_start: dict,
                    track: PathSeries, intervals: list[tuple[float, float]], settle_s: float = 0.5) -> dict:
-    """trace_rows: (ranges, t_s, id, xy, converged) in file order. The frame is the rigid fit of
-    the static nodes' last estimates to their truth; errors of `node` while it moved (from each
-    start to settle_s after each stop) and the time from each stop to its first converged row."""
+    """trace_rows: (ranges, t_s, id, xy, converged, status) in file order. The frame is the rigid
+    fit of the static nodes' last estimates to their truth; errors of `node` while it moved (from
+    each start to settle_s after each stop), the time from each stop to its first converged row,
+    and how late the engine saw each start (its first `moving` row from the start to the stop)
+    and each stop (its first row after the stop that is no longer `moving`, once it was seen
+    moving): None where it never did, or where the trace has no status."""
     last: dict[int, np.ndarray] = {}
-    for _, _, node_id, xy, _ in trace_rows:
+    for _, _, node_id, xy, _, _ in trace_rows:
         last[node_id] = xy
     static = {i: xy for i, xy in last.items() if i != node and i in truth_start}
     fit = align(static, truth_start)
     errors, times = [], []
-    reconverged = []
+    reconverged, start_seen, stop_seen = [], [], []
     for start, stop in intervals:
-        first_converged = None
-        for _, t, node_id, xy, converged in trace_rows:
+        first_converged = first_moving = first_stopped = None
+        seen_moving = False
+        for _, t, node_id, xy, converged, status in trace_rows:
             if node_id != node:
                 continue
+            seen_moving = seen_moving or (t >= start and status == "moving")
             if start <= t <= stop + settle_s:
                 errors.append(float(np.linalg.norm(fit.apply(xy) - interpolate(track, t))))
                 times.append(t)
-            if math.isfinite(stop) and t > stop and converged and first_converged is None:
-                first_converged = t - stop
+            if t >= start and t <= stop and status == "moving" and first_moving is None:
+                first_moving = t - start
+            if math.isfinite(stop) and t > stop:
+                if converged and first_converged is None:
+                    first_converged = t - stop
+                if seen_moving and status != "moving" and first_stopped is None:
+                    first_stopped = t - stop
         reconverged.append(first_converged)
+        start_seen.append(first_moving)
+        stop_seen.append(first_stopped)
     report = _stats(np.array(errors))
     report["static_rmse_m"] = fit.rmse_m
     report["reconverged_after_s"] = reconverged
+    report["start_seen_after_s"] = start_seen
+    report["stop_seen_after_s"] = stop_seen
     return {"report": report, "fit": fit, "t_s": np.array(times), "errors_m": np.array(errors)}
 
 
-def read_trace_rows(path: str, bad: list[BadRow]) -> list[tuple[int, float, int, np.ndarray, bool]]:
-    """The engine's trace with its t column: (ranges, t_s, id, xy, converged) of placed nodes."""
+def read_trace_rows(path: str, bad: list[BadRow]) -> list[tuple[int, float, int, np.ndarray, bool, str]]:
+    """The engine's trace with its t column: (ranges, t_s, id, xy, converged, status) of placed
+    nodes (status '' when the trace has no status column)."""
     rows = []
     for line, row in csv_rows(path, ["ranges", "id", "x", "y", "converged", "t"]):
         try:
@@ -204,7 +219,7 @@ def read_trace_rows(path: str, bad: list[BadRow]) -> list[tuple[int, float, int,
                 continue
             rows.append((int(parse_number(row["ranges"], "ranges")), parse_number(row["t"], "t"), parse_id(row["id"]),
                          np.array([parse_number(row["x"], "x"), parse_number(row["y"], "y")]),
-                         parse_flag(row["converged"], "converged")))
+                         parse_flag(row["converged"], "converged"), (row.get("status") or "").strip()))
         except RowError as error:
             bad.append(BadRow(path, line, str(error)))
     return rows
