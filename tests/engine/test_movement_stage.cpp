@@ -23,6 +23,7 @@
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
+#include "robot_world.hpp"
 #include "support.hpp"
 
 namespace cdro::enginetest {
@@ -38,158 +39,6 @@ using engine::Pose2;
 using engine::predictOdometry;
 using engine::RobotFrame;
 using engine::RobotOutput;
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kTickS = 0.1; // s, odometry at 10 Hz
-
-// ---------------------------------------------------------------------------------------------
-// A small world simulator
-
-// One piece of the robot's drive: this long at this speed and turn rate.
-struct Segment {
-    double duration_s = 0.0;
-    double speed_mps = 0.0;
-    double turn_rate_rad_s = 0.0;
-};
-
-// A node carried from where it stands to `to_m` between start_s and stop_s (straight, at
-// constant speed), with motion reports at both ends.
-struct Carry {
-    NodeId id = 0;
-    double start_s = 0.0;
-    double stop_s = 0.0;
-    Vector2 to_m = Vector2::Zero();
-};
-
-struct WorldSpec {
-    NodeId robot_id = 100;
-    double robot_height_m = 0.4;
-    Pose2 robot_start;
-    std::vector<Segment> drive; // after standing
-    double stand_s = 5.0;       // s standing still (zero odometry steps) before the drive
-    double end_stand_s = 0.0;   // s standing after it
-    std::vector<NodeId> ids;
-    std::vector<Vector2> truth_m;  // where the nodes stand at first
-    std::vector<double> height_m;
-    std::vector<std::pair<size_t, size_t>> links; // node pairs that range each other
-    double robot_max_range_m = std::numeric_limits<double>::infinity();
-    std::optional<Carry> carry;
-    double range_noise_m = 0.1;
-    double range_scale = 1.03;
-    double distance_noise_fraction = 0.02;
-    double heading_noise_rad = 0.003;   // per step
-    double heading_drift_rad_s = 0.005; // a gyro bias (plaza2's odometry drifts 5.4e-3 rad/s)
-};
-
-struct Event {
-    enum class Kind { Odometry, Range, Motion };
-    Kind kind = Kind::Odometry;
-    double t_s = 0.0;
-    OdometryStep step;
-    NodeId from = 0;
-    NodeId to = 0;
-    double range_m = 0.0;
-    NodeId id = 0;
-    bool moving = false;
-};
-
-struct World {
-    WorldSpec spec;
-    std::vector<Event> events;       // in time order
-    std::vector<Pose2> robot_truth;  // after each odometry event
-    std::vector<Pose2> dead_reckoning; // the odometry integrated, from the true start
-    std::vector<Vector2> final_truth_m; // where the nodes are at the end
-};
-
-Vector2 nodeAt(const WorldSpec &spec, size_t node, double t_s)
-{
-    if (spec.carry && spec.carry->id == spec.ids[node] && t_s > spec.carry->start_s) {
-        const double f = std::min((t_s - spec.carry->start_s) / (spec.carry->stop_s - spec.carry->start_s), 1.0);
-        return spec.truth_m[node] + f * (spec.carry->to_m - spec.truth_m[node]);
-    }
-    return spec.truth_m[node];
-}
-
-// Per 0.1 s tick: the odometry step (ending at t), then one robot range (round robin over the
-// nodes in its range) and one node-node range (round robin over the links).
-World simulate(const WorldSpec &spec, uint64_t seed)
-{
-    Random random(seed);
-    World world;
-    world.spec = spec;
-    std::vector<Segment> plan;
-    plan.push_back({spec.stand_s, 0.0, 0.0});
-    plan.insert(plan.end(), spec.drive.begin(), spec.drive.end());
-    plan.push_back({spec.end_stand_s, 0.0, 0.0});
-    Pose2 truth = spec.robot_start;
-    Pose2 dead = spec.robot_start;
-    size_t next_robot_node = 0;
-    size_t next_link = 0;
-    bool carry_started = false;
-    bool carry_stopped = false;
-    long tick = 0;
-    for (const Segment &segment : plan) {
-        const long ticks = std::lround(segment.duration_s / kTickS);
-        for (long k = 0; k < ticks; ++k, ++tick) {
-            const double t_s = static_cast<double>(tick + 1) * kTickS;
-            const OdometryStep true_step{segment.speed_mps * kTickS, segment.turn_rate_rad_s * kTickS};
-            truth = predictOdometry(truth, true_step).pose;
-            const bool moving = true_step.distance_m != 0.0 || true_step.dheading_rad != 0.0;
-            OdometryStep measured = true_step;
-            if (moving) { // a standing robot's wheels report nothing
-                measured.distance_m *= 1.0 + spec.distance_noise_fraction * random.normal();
-                measured.dheading_rad +=
-                    spec.heading_noise_rad * random.normal() + spec.heading_drift_rad_s * kTickS;
-            }
-            dead = predictOdometry(dead, measured).pose;
-            Event odometry;
-            odometry.kind = Event::Kind::Odometry;
-            odometry.t_s = t_s;
-            odometry.step = measured;
-            world.events.push_back(odometry);
-            world.robot_truth.push_back(truth);
-            world.dead_reckoning.push_back(dead);
-            if (spec.carry && !carry_started && t_s >= spec.carry->start_s) {
-                carry_started = true;
-                world.events.push_back({Event::Kind::Motion, t_s, {}, 0, 0, 0.0, spec.carry->id, true});
-            }
-            if (spec.carry && carry_started && !carry_stopped && t_s >= spec.carry->stop_s) {
-                carry_stopped = true;
-                world.events.push_back({Event::Kind::Motion, t_s, {}, 0, 0, 0.0, spec.carry->id, false});
-            }
-            const Vector2 robot_m(truth.x_m, truth.y_m);
-            auto range = [&](const Vector2 &a_m, double a_height_m, const Vector2 &b_m, double b_height_m) {
-                const double dz_m = a_height_m - b_height_m;
-                const double distance_m = std::sqrt((a_m - b_m).squaredNorm() + dz_m * dz_m);
-                return spec.range_scale * distance_m + spec.range_noise_m * random.normal();
-            };
-            for (size_t tries = 0; tries < spec.ids.size(); ++tries) {
-                const size_t node = next_robot_node;
-                next_robot_node = (next_robot_node + 1) % spec.ids.size();
-                const Vector2 node_m = nodeAt(spec, node, t_s);
-                if ((node_m - robot_m).norm() <= spec.robot_max_range_m) {
-                    const double range_m = range(robot_m, spec.robot_height_m, node_m, spec.height_m[node]);
-                    world.events.push_back(
-                        {Event::Kind::Range, t_s + 0.03, {}, spec.robot_id, spec.ids[node], range_m, 0, false});
-                    break;
-                }
-            }
-            if (!spec.links.empty()) {
-                const auto [a, b] = spec.links[next_link];
-                next_link = (next_link + 1) % spec.links.size();
-                world.events.push_back({Event::Kind::Range, t_s + 0.06, {}, spec.ids[a], spec.ids[b],
-                                        range(nodeAt(spec, a, t_s), spec.height_m[a], nodeAt(spec, b, t_s),
-                                              spec.height_m[b]),
-                                        0, false});
-            }
-        }
-    }
-    const double end_s = static_cast<double>(tick) * kTickS;
-    for (size_t i = 0; i < spec.ids.size(); ++i) {
-        world.final_truth_m.push_back(nodeAt(spec, i, end_s));
-    }
-    return world;
-}
 
 // What a run gives: the robot after each odometry step, the estimates at chosen moments.
 struct StageRun {
@@ -903,6 +752,57 @@ size_t firstDifference(const StageRun &a, const StageRun &b)
         }
     }
     return a.robot.size() == b.robot.size() ? a.robot.size() : std::min(a.robot.size(), b.robot.size());
+}
+
+TEST(MovementStage, AStageRestoredFromItsSavedStateGoesOnAsTheOriginal)
+{
+    const uint64_t seed = testSeed(5106);
+    SCOPED_TRACE(seedTrace(seed));
+    // Saved while the robot drives (the EKF and its heading bank running) and a node is carried.
+    WorldSpec spec = lShapeInAMap();
+    spec.carry = Carry{16, 30.0, 36.0, Vector2(10.0, 11.0)};
+    const World world = simulate(spec, seed);
+    MovementParams params;
+    params.robot_id = spec.robot_id;
+    Engine engine;
+    engine.setHeight(spec.robot_id, spec.robot_height_m);
+    for (size_t i = 0; i < spec.ids.size(); ++i) {
+        engine.setHeight(spec.ids[i], spec.height_m[i]);
+    }
+    MovementStage stage(engine, params);
+    auto apply = [](MovementStage &to, const Event &event) {
+        switch (event.kind) {
+        case Event::Kind::Odometry: to.addOdometry(event.t_s, event.step); break;
+        case Event::Kind::Range: to.addRange(event.t_s, event.from, event.to, event.range_m); break;
+        case Event::Kind::Motion: to.setMoving(event.t_s, event.id, event.moving); break;
+        }
+    };
+    size_t next = 0;
+    for (; next < world.events.size() && world.events[next].t_s < 33.0; ++next) {
+        apply(stage, world.events[next]);
+    }
+    ASSERT_TRUE(stage.robot()->localized) << "the EKF has not started by the save";
+    Engine restored_engine = engine; // stage 1 copied (its own checkpoint is tested in tests/hostd)
+    MovementStage restored(restored_engine, params);
+    restored.restore(stage.saved());
+    Engine fresh_engine = engine;   // what a resume did before: stage 2 started afresh
+    MovementStage fresh(fresh_engine, params);
+    double fresh_apart_m = 0.0;
+    for (; next < world.events.size(); ++next) {
+        apply(stage, world.events[next]);
+        apply(restored, world.events[next]);
+        apply(fresh, world.events[next]);
+        if (world.events[next].kind == Event::Kind::Odometry) {
+            ASSERT_TRUE(sameRobot(*stage.robot(), *restored.robot())) << "at t " << world.events[next].t_s << " s";
+            const Pose2 a = stage.robot()->pose;
+            const Pose2 b = fresh.robot()->pose;
+            fresh_apart_m = std::max(fresh_apart_m, std::hypot(a.x_m - b.x_m, a.y_m - b.y_m));
+        }
+    }
+    EXPECT_TRUE(identical(stage.estimates(), restored.estimates()));
+    EXPECT_EQ(std::memcmp(&stage.counters(), &restored.counters(), sizeof(engine::MovementCounters)), 0);
+    // The comparison can fail: a stage started afresh at the same point does not follow the same path.
+    EXPECT_GT(fresh_apart_m, 0.01);
 }
 
 TEST(MovementStage, TheSameInputsGiveBitIdenticalOutputs)

@@ -563,6 +563,50 @@ void MovementStage::setMoving(double t_s, NodeId id, bool moving)
     engine_.setMoving(id, moving);
 }
 
+MovementStage::Saved MovementStage::saved() const
+{
+    Saved out;
+    out.started = started_;
+    out.own_frame = own_frame_;
+    out.waiting_for_fix = waiting_for_fix_;
+    out.moved_m = moved_m_;
+    out.last_t_s = last_t_s_;
+    out.have_time = have_time_;
+    out.dead_reckoning = dead_reckoning_;
+    out.hypotheses = hypotheses_;
+    out.beacons = beacons_;
+    out.moving = moving_;
+    out.links = links_;
+    out.innovations_m = innovations_m_;
+    out.prior_variances_m2 = prior_variances_m2_;
+    out.innovation_next = innovation_next_;
+    out.adaptive_sigma_m = adaptive_sigma_m_;
+    out.counters = counters_;
+    out.revision = revision_;
+    return out;
+}
+
+void MovementStage::restore(const Saved &saved)
+{
+    started_ = saved.started;
+    own_frame_ = saved.own_frame;
+    waiting_for_fix_ = saved.waiting_for_fix;
+    moved_m_ = saved.moved_m;
+    last_t_s_ = saved.last_t_s;
+    have_time_ = saved.have_time;
+    dead_reckoning_ = saved.dead_reckoning;
+    hypotheses_ = saved.hypotheses;
+    beacons_ = saved.beacons;
+    moving_ = saved.moving;
+    links_ = saved.links;
+    innovations_m_ = saved.innovations_m;
+    prior_variances_m2_ = saved.prior_variances_m2;
+    innovation_next_ = saved.innovation_next;
+    adaptive_sigma_m_ = saved.adaptive_sigma_m;
+    counters_ = saved.counters;
+    revision_ = saved.revision;
+}
+
 const char *robotFrameName(RobotFrame frame)
 {
     return frame == RobotFrame::Map ? "map" : "odometry";

@@ -27,6 +27,28 @@ RobotFilter::RobotFilter(const Pose2 &pose, const Eigen::Matrix3d &pose_covarian
     offset_fixed_ = !(offset_sigma_m > 0.0);
 }
 
+RobotFilter RobotFilter::restored(const Eigen::VectorXd &state, const Eigen::MatrixXd &covariance,
+                                  const std::vector<NodeId> &nodes, bool mirrored, bool scale_fixed, bool offset_fixed)
+{
+    const auto size = static_cast<Eigen::Index>(kFirstNode + 2 * static_cast<Eigen::Index>(nodes.size()));
+    if (state.size() != size || covariance.rows() != size || covariance.cols() != size || nodes.size() > kMaxNodes) {
+        throw std::invalid_argument("robot filter: the state, its covariance and its nodes do not fit together");
+    }
+    RobotFilter filter(Pose2{}, Eigen::Matrix3d::Identity(), 1.0, 0.0, 0.0, 0.0);
+    filter.state_ = state;
+    filter.covariance_ = covariance;
+    filter.order_ = nodes;
+    for (size_t i = 0; i < nodes.size(); ++i) {
+        if (!filter.slot_.emplace(nodes[i], static_cast<size_t>(kFirstNode) + 2 * i).second) {
+            throw std::invalid_argument("robot filter: a node is in the state twice");
+        }
+    }
+    filter.mirrored_ = mirrored;
+    filter.scale_fixed_ = scale_fixed;
+    filter.offset_fixed_ = offset_fixed;
+    return filter;
+}
+
 Pose2 RobotFilter::pose() const { return Pose2{state_(0), state_(1), state_(2)}; }
 
 void RobotFilter::predict(const OdometryStep &odometry, double dt_s, const RobotFilterNoise &noise)

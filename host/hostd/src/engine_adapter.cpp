@@ -35,7 +35,10 @@ private:
 
 class ByteReader {
 public:
-    ByteReader(const std::vector<uint8_t> &bytes) : bytes_(bytes) {}
+    explicit ByteReader(const std::vector<uint8_t> &bytes, const char *block = "engine")
+        : bytes_(bytes), block_(block)
+    {
+    }
     uint8_t u8() { return static_cast<uint8_t>(get(1)); }
     uint16_t u16() { return static_cast<uint16_t>(get(2)); }
     uint32_t u32() { return static_cast<uint32_t>(get(4)); }
@@ -46,7 +49,7 @@ private:
     uint64_t get(size_t size)
     {
         if (position_ + size > bytes_.size()) {
-            throw CheckpointError("the engine block of the checkpoint is cut short");
+            throw CheckpointError(std::string("the ") + block_ + " block of the checkpoint is cut short");
         }
         uint8_t buffer[8] = {0, 0, 0, 0, 0, 0, 0, 0};
         std::memcpy(buffer, bytes_.data() + position_, size);
@@ -54,6 +57,7 @@ private:
         return cdro_get_u64(buffer);
     }
     const std::vector<uint8_t> &bytes_;
+    const char *block_;
     size_t position_ = 0;
 };
 
@@ -254,9 +258,284 @@ std::optional<service::NodeComponents> EngineAdapter::components(uint16_t id) co
     return out;
 }
 
-service::SogSnapshot EngineAdapter::snapshot() { return snapshotOf(engine_, last_event_unix_us_); }
+service::SogSnapshot EngineAdapter::snapshot()
+{
+    service::SogSnapshot snapshot = snapshotOf(engine_, last_event_unix_us_);
+    if (movement_ != nullptr) {
+        snapshot.extensions.push_back({kMovementExtensionTag, movementBlockOf(*movement_)});
+    }
+    return snapshot;
+}
 
-void EngineAdapter::restore(const service::SogSnapshot &snapshot) { restoreFrom(engine_, snapshot); }
+void EngineAdapter::restore(const service::SogSnapshot &snapshot)
+{
+    restoreFrom(engine_, snapshot);
+    if (movement_ != nullptr) {
+        restoreMovement(*movement_, snapshot);
+    }
+}
+
+namespace {
+
+// 1: the stage's whole state (movement.hpp MovementStage::Saved), doubles as their bits.
+constexpr uint8_t kMovementBlockVersion = 1;
+
+void putVector(ByteWriter &block, const Eigen::VectorXd &values)
+{
+    block.u32(static_cast<uint32_t>(values.size()));
+    for (Eigen::Index i = 0; i < values.size(); ++i) {
+        block.u64(bitsOf(values(i)));
+    }
+}
+
+Eigen::VectorXd vectorOf(ByteReader &block, uint32_t limit)
+{
+    const uint32_t size = block.u32();
+    if (size > limit) {
+        throw CheckpointError("the checkpoint's movement block holds a vector of " + std::to_string(size) + " values");
+    }
+    Eigen::VectorXd values(size);
+    for (uint32_t i = 0; i < size; ++i) {
+        values(i) = doubleOf(block.u64());
+    }
+    return values;
+}
+
+void putMatrix2(ByteWriter &block, const engine::Matrix2 &m)
+{
+    block.u64(bitsOf(m(0, 0)));
+    block.u64(bitsOf(m(0, 1)));
+    block.u64(bitsOf(m(1, 0)));
+    block.u64(bitsOf(m(1, 1)));
+}
+
+engine::Matrix2 matrix2Of(ByteReader &block)
+{
+    engine::Matrix2 m;
+    m(0, 0) = doubleOf(block.u64());
+    m(0, 1) = doubleOf(block.u64());
+    m(1, 0) = doubleOf(block.u64());
+    m(1, 1) = doubleOf(block.u64());
+    return m;
+}
+
+std::vector<double> doublesOf(const Eigen::VectorXd &values) { return {values.data(), values.data() + values.size()}; }
+
+Eigen::VectorXd vectorFrom(const std::vector<double> &values)
+{
+    return Eigen::Map<const Eigen::VectorXd>(values.data(), static_cast<Eigen::Index>(values.size()));
+}
+
+// The movement counters, in one fixed order (append only).
+std::vector<uint64_t *> movementCounterFields(engine::MovementCounters &c)
+{
+    return {&c.odometry_steps, &c.robot_ranges,  &c.ekf_updates,       &c.ekf_gated,
+            &c.nodes_inserted, &c.nodes_removed, &c.beacon_sogs,       &c.hypotheses_pruned,
+            &c.nlos_link_ranges_skipped};
+}
+
+} // namespace
+
+std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement)
+{
+    engine::MovementStage::Saved saved = movement.saved();
+    ByteWriter block;
+    block.u8(kMovementBlockVersion);
+    block.u16(movement.params().robot_id);
+    block.u8(static_cast<uint8_t>((saved.started ? 1U : 0U) | (saved.own_frame ? 2U : 0U) |
+                                  (saved.waiting_for_fix ? 4U : 0U) | (saved.have_time ? 8U : 0U) |
+                                  (saved.adaptive_sigma_m ? 16U : 0U)));
+    block.u64(bitsOf(saved.moved_m));
+    block.u64(bitsOf(saved.last_t_s));
+    block.u64(bitsOf(saved.dead_reckoning.x_m));
+    block.u64(bitsOf(saved.dead_reckoning.y_m));
+    block.u64(bitsOf(saved.dead_reckoning.heading_rad));
+    block.u64(bitsOf(saved.adaptive_sigma_m.value_or(0.0)));
+    block.u32(static_cast<uint32_t>(saved.hypotheses.size()));
+    for (const engine::MovementStage::Hypothesis &hypothesis : saved.hypotheses) {
+        const engine::RobotFilter &filter = hypothesis.filter;
+        block.u64(bitsOf(hypothesis.log_weight));
+        block.u8(static_cast<uint8_t>((filter.mirrored() ? 1U : 0U) | (filter.scaleFixed() ? 2U : 0U) |
+                                      (filter.offsetFixed() ? 4U : 0U)));
+        const std::vector<engine::NodeId> nodes = filter.nodes();
+        block.u32(static_cast<uint32_t>(nodes.size()));
+        for (engine::NodeId id : nodes) {
+            block.u16(id);
+        }
+        putVector(block, filter.state());
+        const Eigen::MatrixXd &covariance = filter.covariance();
+        for (Eigen::Index i = 0; i < covariance.rows(); ++i) {
+            for (Eigen::Index j = 0; j < covariance.cols(); ++j) {
+                block.u64(bitsOf(covariance(i, j)));
+            }
+        }
+    }
+    block.u32(static_cast<uint32_t>(saved.beacons.size()));
+    for (const auto &[id, sog] : saved.beacons) {
+        block.u16(id);
+        block.u32(sog.ranges);
+        block.u64(bitsOf(sog.first_robot_m.x()));
+        block.u64(bitsOf(sog.first_robot_m.y()));
+        block.u64(bitsOf(sog.baseline_m));
+        block.u32(static_cast<uint32_t>(sog.components.size()));
+        for (const engine::MovementStage::BeaconComponent &component : sog.components) {
+            block.u64(bitsOf(component.mean_m.x()));
+            block.u64(bitsOf(component.mean_m.y()));
+            putMatrix2(block, component.covariance_m2);
+            block.u64(bitsOf(component.weight));
+        }
+    }
+    block.u32(static_cast<uint32_t>(saved.moving.size()));
+    for (const auto &[id, moving] : saved.moving) {
+        block.u16(id);
+        block.u8(moving ? 1 : 0);
+    }
+    block.u32(static_cast<uint32_t>(saved.links.size()));
+    for (const auto &[ends, watch] : saved.links) {
+        block.u16(ends.first);
+        block.u16(ends.second);
+        block.u32(static_cast<uint32_t>(watch.next));
+        block.u8(watch.excluded ? 1 : 0);
+        putVector(block, vectorFrom(watch.innovations_m));
+    }
+    putVector(block, vectorFrom(saved.innovations_m));
+    putVector(block, vectorFrom(saved.prior_variances_m2));
+    block.u32(static_cast<uint32_t>(saved.innovation_next));
+    block.u64(saved.revision);
+    const std::vector<uint64_t *> fields = movementCounterFields(saved.counters);
+    block.u8(static_cast<uint8_t>(fields.size()));
+    for (uint64_t *field : fields) {
+        block.u64(*field);
+    }
+    return block.take();
+}
+
+void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot &snapshot)
+{
+    const service::SogSnapshot::Extension *extension = snapshot.findExtension(kMovementExtensionTag);
+    if (extension == nullptr) {
+        return; // written without a robot: the stage starts afresh, as on a first start
+    }
+    // Far more than any stage holds (the EKF takes at most 120 nodes); a bigger count is damage.
+    constexpr uint32_t kLimit = 1U << 20U;
+    ByteReader block(extension->bytes, "movement");
+    if (block.u8() != kMovementBlockVersion) {
+        throw CheckpointError("the checkpoint's movement block is of another version");
+    }
+    const engine::NodeId robot = block.u16();
+    if (robot != movement.params().robot_id) {
+        throw CheckpointError("the checkpoint's movement stage is robot " + std::to_string(robot) +
+                              ", the configuration's " + std::to_string(movement.params().robot_id));
+    }
+    engine::MovementStage::Saved saved;
+    const uint8_t flags = block.u8();
+    saved.started = (flags & 1U) != 0;
+    saved.own_frame = (flags & 2U) != 0;
+    saved.waiting_for_fix = (flags & 4U) != 0;
+    saved.have_time = (flags & 8U) != 0;
+    saved.moved_m = doubleOf(block.u64());
+    saved.last_t_s = doubleOf(block.u64());
+    saved.dead_reckoning.x_m = doubleOf(block.u64());
+    saved.dead_reckoning.y_m = doubleOf(block.u64());
+    saved.dead_reckoning.heading_rad = doubleOf(block.u64());
+    const double adaptive_sigma_m = doubleOf(block.u64());
+    if ((flags & 16U) != 0) {
+        saved.adaptive_sigma_m = adaptive_sigma_m;
+    }
+    const uint32_t hypotheses = block.u32();
+    if (hypotheses > kLimit) {
+        throw CheckpointError("the checkpoint's movement block names " + std::to_string(hypotheses) + " hypotheses");
+    }
+    for (uint32_t h = 0; h < hypotheses; ++h) {
+        const double log_weight = doubleOf(block.u64());
+        const uint8_t filter_flags = block.u8();
+        const uint32_t node_count = block.u32();
+        if (node_count > engine::RobotFilter::kMaxNodes) {
+            throw CheckpointError("the checkpoint's movement block has an EKF of " + std::to_string(node_count) +
+                                  " nodes");
+        }
+        std::vector<engine::NodeId> nodes;
+        for (uint32_t i = 0; i < node_count; ++i) {
+            nodes.push_back(block.u16());
+        }
+        const Eigen::VectorXd state = vectorOf(block, kLimit);
+        Eigen::MatrixXd covariance(state.size(), state.size());
+        for (Eigen::Index i = 0; i < covariance.rows(); ++i) {
+            for (Eigen::Index j = 0; j < covariance.cols(); ++j) {
+                covariance(i, j) = doubleOf(block.u64());
+            }
+        }
+        try {
+            saved.hypotheses.push_back(engine::MovementStage::Hypothesis{
+                engine::RobotFilter::restored(state, covariance, nodes, (filter_flags & 1U) != 0,
+                                              (filter_flags & 2U) != 0, (filter_flags & 4U) != 0),
+                log_weight});
+        } catch (const std::invalid_argument &error) {
+            throw CheckpointError(std::string("the checkpoint's movement block: ") + error.what());
+        }
+    }
+    const uint32_t beacons = block.u32();
+    for (uint32_t b = 0; b < beacons && b < kLimit; ++b) {
+        const engine::NodeId id = block.u16();
+        engine::MovementStage::BeaconSog sog;
+        sog.ranges = block.u32();
+        sog.first_robot_m.x() = doubleOf(block.u64());
+        sog.first_robot_m.y() = doubleOf(block.u64());
+        sog.baseline_m = doubleOf(block.u64());
+        const uint32_t components = block.u32();
+        if (components > kLimit) {
+            throw CheckpointError("the checkpoint's movement block has a beacon of " + std::to_string(components) +
+                                  " components");
+        }
+        for (uint32_t k = 0; k < components; ++k) {
+            engine::MovementStage::BeaconComponent component;
+            component.mean_m.x() = doubleOf(block.u64());
+            component.mean_m.y() = doubleOf(block.u64());
+            component.covariance_m2 = matrix2Of(block);
+            component.weight = doubleOf(block.u64());
+            sog.components.push_back(component);
+        }
+        saved.beacons[id] = std::move(sog);
+    }
+    const uint32_t moving = block.u32();
+    for (uint32_t i = 0; i < moving && i < kLimit; ++i) {
+        const engine::NodeId id = block.u16();
+        saved.moving[id] = block.u8() != 0;
+    }
+    const uint32_t links = block.u32();
+    for (uint32_t i = 0; i < links && i < kLimit; ++i) {
+        const engine::NodeId a = block.u16();
+        const engine::NodeId b = block.u16();
+        engine::MovementStage::LinkWatch watch;
+        watch.next = block.u32();
+        watch.excluded = block.u8() != 0;
+        watch.innovations_m = doublesOf(vectorOf(block, kLimit));
+        if (watch.next > watch.innovations_m.size()) {
+            throw CheckpointError("the checkpoint's movement block has a link watch past its end");
+        }
+        saved.links[{a, b}] = std::move(watch);
+    }
+    saved.innovations_m = doublesOf(vectorOf(block, kLimit));
+    saved.prior_variances_m2 = doublesOf(vectorOf(block, kLimit));
+    saved.innovation_next = block.u32();
+    if (saved.prior_variances_m2.size() != saved.innovations_m.size() ||
+        saved.innovation_next > saved.innovations_m.size()) {
+        throw CheckpointError("the checkpoint's movement block has innovations that do not fit together");
+    }
+    saved.revision = block.u64();
+    std::vector<uint64_t *> fields = movementCounterFields(saved.counters);
+    const uint8_t stored = block.u8();
+    for (uint8_t i = 0; i < stored; ++i) {
+        const uint64_t value = block.u64();
+        if (i < fields.size()) {
+            *fields[i] = value;
+        }
+    }
+    if (!block.done()) {
+        throw CheckpointError("the checkpoint's movement block has bytes after its end");
+    }
+    movement.restore(saved);
+}
 
 service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_unix_us)
 {

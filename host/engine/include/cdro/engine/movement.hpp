@@ -128,7 +128,6 @@ public:
     double rangeSigmaInUse() const { return rangeSigma(); } // m
     uint64_t revision() const { return revision_ + engine_.revision(); }
 
-private:
     struct BeaconComponent {
         Vector2 mean_m = Vector2::Zero();
         Matrix2 covariance_m2 = Matrix2::Zero();
@@ -144,6 +143,36 @@ private:
         RobotFilter filter;
         double log_weight = 0.0;
     };
+    struct LinkWatch {
+        std::vector<double> innovations_m; // recent innovations of this link, a ring
+        size_t next = 0;
+        bool excluded = false;
+    };
+    // Everything the stage holds, for checkpoints: restore() it into a stage made with the same
+    // parameters, over an engine restored from the same checkpoint, and the two go on as one.
+    struct Saved {
+        bool started = false;
+        bool own_frame = false;
+        bool waiting_for_fix = false;
+        double moved_m = 0.0;                    // m
+        double last_t_s = 0.0;                   // s
+        bool have_time = false;
+        Pose2 dead_reckoning;
+        std::vector<Hypothesis> hypotheses;
+        std::map<NodeId, BeaconSog> beacons;
+        std::map<NodeId, bool> moving;
+        std::map<std::pair<NodeId, NodeId>, LinkWatch> links;
+        std::vector<double> innovations_m;       // m, a ring
+        std::vector<double> prior_variances_m2;  // m^2
+        size_t innovation_next = 0;
+        std::optional<double> adaptive_sigma_m;  // m
+        MovementCounters counters;
+        uint64_t revision = 0;
+    };
+    Saved saved() const;
+    void restore(const Saved &saved);
+
+private:
 
     void start(double t_s);
     void insertConvergedNodes();
@@ -176,11 +205,6 @@ private:
     std::vector<Hypothesis> hypotheses_;
     std::map<NodeId, BeaconSog> beacons_;
     std::map<NodeId, bool> moving_;
-    struct LinkWatch {
-        std::vector<double> innovations_m; // recent innovations of this link, a ring
-        size_t next = 0;
-        bool excluded = false;
-    };
     bool linkExcluded(NodeId a, NodeId b, double innovation_m);
     std::map<std::pair<NodeId, NodeId>, LinkWatch> links_;
     std::vector<double> innovations_m_;      // recent robot-range innovations (m), a ring

@@ -89,6 +89,12 @@ public:
     // The whole state, for checkpoints and tests.
     const Eigen::VectorXd &state() const { return state_; }
     const Eigen::MatrixXd &covariance() const { return covariance_; }
+    bool scaleFixed() const { return scale_fixed_; }
+    bool offsetFixed() const { return offset_fixed_; }
+    // A filter with exactly this state (a checkpoint's): `nodes` in state order; the state has
+    // 5 + 2 x nodes entries and the covariance as many rows and columns (else std::invalid_argument).
+    static RobotFilter restored(const Eigen::VectorXd &state, const Eigen::MatrixXd &covariance,
+                                const std::vector<NodeId> &nodes, bool mirrored, bool scale_fixed, bool offset_fixed);
 
 private:
     RangeUpdateOutcome scalarUpdate(const Eigen::VectorXd &jacobian_dense, double innovation, double sigma_m,

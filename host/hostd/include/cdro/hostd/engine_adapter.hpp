@@ -6,7 +6,9 @@
 //   MapSource           the engine's estimates in the output frame, its links, SoG components
 //   CheckpointProvider  the engine state in common/'s fixed-point SoG layout (sog_layout.h),
 //                       plus an extension block (tag kEngineExtensionTag) with what the layout
-//                       does not hold: link windows, update counts, the frame, the counters
+//                       does not hold: link windows, update counts, the frame, the counters;
+//                       with a robot, a second block (kMovementExtensionTag): the movement
+//                       stage's EKF hypotheses, beacon SoGs and link watches, exactly
 //
 // Resuming from a checkpoint continues from the state rounded to the layout's scales
 // (positions to 0.5 mm, standard deviations to 0.5 um, weights to 7.7e-6, ranges in the link
@@ -31,6 +33,7 @@
 namespace cdro::hostd {
 
 constexpr uint16_t kEngineExtensionTag = 0x0001;
+constexpr uint16_t kMovementExtensionTag = 0x0002; // the movement stage, when a robot is configured
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,
@@ -70,5 +73,10 @@ private:
 // The conversions, usable on their own (tests, tools).
 service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_unix_us);
 void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot); // throws CheckpointError
+// The movement stage's block (tag kMovementExtensionTag): its whole state, doubles exactly. A
+// checkpoint without it (written with no robot) leaves the stage as it is, a fresh start; one of
+// another robot is refused (CheckpointError).
+std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement);
+void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot &snapshot);
 
 } // namespace cdro::hostd
