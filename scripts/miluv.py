@@ -4,7 +4,8 @@ MiLUV"): the tracking baselines of cdro_tools.evaluation.tracking_baselines, wit
 on both experiments of ../shared/data/miluv (its README), scored against tag_truth.csv in the
 anchors' frame (no fit: the anchors are surveyed) by cdro_tools.evaluation.tracking.
 
-    .venv/bin/python scripts/miluv.py [--data ../shared/data/miluv] [--out DIR] [--q 1.0] [--sigma 0.1] [--huber]
+    .venv/bin/python scripts/miluv.py [--data ../shared/data/miluv] [--out DIR] [--trace]
+        [--speed-sigma 0.7] [--tau 2] [--sigma 0.1] [--gate]
 
 Per experiment it prints a markdown table, per tag and overall, of each baseline's 3D RMSE /
 horizontal RMSE / 3D p95 (m) and its number of estimates:
@@ -14,17 +15,20 @@ horizontal RMSE / 3D p95 (m) and its number of estimates:
 - "replica": the same baselines on the same schedule with every range recomputed from the truth
   plus N(0, 0.1 m) (numpy seed 1): what the schedule and the geometry allow when the ranges are
   what the filters assume, apart from what the real ranges' errors cost.
-Then, per anchor, the residuals of its ranges against the truth-derived range (ranges_detail's
-gt_range_m): mean, median, IQR, next to its anchor_obstructed label, and how many of its ranges
-the gates of (b) and (c-ref) rejected (of those they tested); a row for the tag-to-tag ranges.
+Then the share of the EKFs' errors inside their 95 % regions (3D), (c-ref) scored at (b)'s rows
+only (after each tag-anchor range: the same times), and per anchor the residuals of its ranges
+against the truth-derived range (ranges_detail's gt_range_m): mean, median, IQR, next to its
+anchor_obstructed label, and how many of its ranges the gates of (b) and (c-ref) down-weighted
+(of those they tested); a row for the tag-to-tag ranges.
 
 --out DIR writes every trajectory (<experiment>-<baseline>.csv, the format cdro-eval-motion
---tag-trajectory reads) and miluv.json (every figure). --q, --sigma and --huber change the EKFs'
-process noise (m^2/s^3), range sigma (m) and gate (Huber weights instead of rejects), to see how
-sensitive the figures are. The numeric defaults were set before anything was scored against
-MiLUV's truth (the two windows from its range schedule alone: how many anchors a window holds);
-keeping the tags below the anchors was added after the first scores showed fixes on the mirror
-side of the nearly coplanar anchors (tracking_baselines). Deterministic.
+--tag-trajectory reads) and miluv.json (every figure); with --trace also, per EKF,
+<experiment>-<baseline>-trace.csv: each row's error against the truth next to the sigma the filter
+claimed (how the figures of issue 19's diagnosis were made). --speed-sigma, --tau, --sigma and
+--gate change the EKFs' motion model (m/s, s), range sigma (m) and outlier handling (a hard gate
+instead of Huber weights), to see how sensitive the figures are. The EKFs' defaults were decided
+on simulated flights (tracking_baselines' docstring, tests/tools/test_tracking.py), not on these
+scores. Deterministic.
 """
 from __future__ import annotations
 
@@ -89,7 +93,7 @@ def score(rows: list, truth: dict[int, tracking.NodeTrack]) -> dict:
 
 
 def run_baselines(ranges, anchors, args) -> dict[str, tb.TrackingResult]:
-    ekf = {"q_m2_s3": args.q, "sigma_m": args.sigma, "huber": args.huber}
+    ekf = {"speed_sigma_m_s": args.speed_sigma, "tau_s": args.tau, "sigma_m": args.sigma, "huber": not args.gate}
     return {"trilateration": tb.trilaterate(ranges, anchors), "ekf": tb.track_ekf(ranges, anchors, **ekf),
             "coop-ekf": tb.track_ekf(ranges, anchors, cooperative=True, **ekf)}
 
@@ -123,6 +127,22 @@ def anchor_report(detail_path: pathlib.Path, ranges: tb.TimedRanges, anchors: di
     return out
 
 
+def write_trace(path: pathlib.Path, rows: list, truth: dict[int, tracking.NodeTrack]) -> None:
+    """Each row's error against the interpolated truth and the sigmas its covariance claims:
+    t,id,err_3d_m,err_h_m,err_z_m,sigma_x_m,sigma_y_m,sigma_z_m,nees_3d (rows without truth skipped)."""
+    with open(path, "w") as f:
+        f.write("t,id,err_3d_m,err_h_m,err_z_m,sigma_x_m,sigma_y_m,sigma_z_m,nees_3d\n")
+        for t_s, node, p_m, cov in rows:
+            g = tracking.interpolate_truth(truth[node], t_s) if node in truth else "no_truth"
+            if isinstance(g, str) or cov is None:
+                continue
+            d = p_m - g
+            sigma = np.sqrt(np.diag(cov))
+            nees = float(d @ np.linalg.solve(cov, d))
+            f.write(f"{t_s:.6f},{node},{np.linalg.norm(d):.4f},{np.linalg.norm(d[:2]):.4f},{d[2]:.4f},"
+                    f"{sigma[0]:.4f},{sigma[1]:.4f},{sigma[2]:.4f},{nees:.3f}\n")
+
+
 def cell(entry: dict) -> str:
     if not entry or not entry["points"]:
         return "-"
@@ -150,9 +170,14 @@ def print_experiment(name: str, summary: dict) -> None:
     print("Ranges by use: " + "; ".join(notes) + ".")
     never = summary["notes"]["ekf"].get("never_started") or []
     if never:
-        print(f"Tags the EKFs never started (no 4-anchor fix within {tb.INIT_WINDOW_S:g} s): {never}.")
-    print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) gate rejects | "
-          "(c-ref) gate rejects |")
+        print(f"Tags the EKFs never started (no range to an anchor): {never}.")
+    inside = [f"{TITLES[c]} {summary['scores'][c]['overall']['inside_95_3d']:.0%}" for c in ("ekf", "coop-ekf")]
+    same, ekf = summary["coop_at_ekf_rows"], summary["scores"]["ekf"]["overall"]
+    print("Errors inside the 95 % region (3D): " + ", ".join(inside) + f". (c-ref) at (b)'s rows: "
+          f"{same['rmse_3d_m']:.2f} / {same['rmse_h_m']:.2f} m ({same['points']}), (b) "
+          f"{ekf['rmse_3d_m']:.2f} / {ekf['rmse_h_m']:.2f} m.")
+    print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) beyond the gate | "
+          "(c-ref) beyond the gate |")
     print("|---|---|---|---|---|---|")
     for a in summary["anchors"]:
         label = "-" if a["obstructed"] is None else ("yes" if a["obstructed"] else "no")
@@ -165,9 +190,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", default=str(DATA), help="the folder that holds the two experiments")
     parser.add_argument("--out", help="write the trajectories and miluv.json here")
-    parser.add_argument("--q", type=float, default=tb.PROCESS_Q_M2_S3, help="EKF process noise, m^2/s^3")
+    parser.add_argument("--trace", action="store_true", help="with --out: each EKF row's error and claimed sigma")
+    parser.add_argument("--speed-sigma", type=float, default=tb.SPEED_SIGMA_M_S,
+                        help="EKF: the velocity's stationary sigma per axis, m/s")
+    parser.add_argument("--tau", type=float, default=tb.SPEED_TAU_S, help="EKF: the velocity's correlation time, s")
     parser.add_argument("--sigma", type=float, default=tb.RANGE_SIGMA_M, help="EKF range sigma, m")
-    parser.add_argument("--huber", action="store_true", help="EKF: Huber weights instead of a gate")
+    parser.add_argument("--gate", action="store_true", help="EKF: reject beyond the gate instead of Huber weights")
     args = parser.parse_args()
     data = pathlib.Path(args.data)
     missing = [data / e for e in EXPERIMENTS if not (data / e / "ranges.csv").is_file()]
@@ -177,11 +205,14 @@ def main() -> int:
     out = pathlib.Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    report: dict = {"settings": {"q_m2_s3": args.q, "sigma_m": args.sigma, "huber": args.huber,
-                                 "gate_chi2": tb.GATE_CHI2, "window_s": tb.WINDOW_S, "init_window_s": tb.INIT_WINDOW_S,
+    report: dict = {"settings": {"speed_sigma_m_s": args.speed_sigma, "tau_s": args.tau, "sigma_m": args.sigma,
+                                 "huber": not args.gate, "gate_chi2": tb.GATE_CHI2,
+                                 "reset_after": tb.RESET_AFTER_REJECTS, "window_s": tb.WINDOW_S,
                                  "replica_seed": REPLICA_SEED, "replica_noise_m": REPLICA_NOISE_M}}
-    print(f"EKF: q {args.q:g} m^2/s^3, sigma {args.sigma:g} m, " + ("Huber weights" if args.huber else
-          f"gate nu^2/S > {tb.GATE_CHI2:g}") + f"; trilateration window {tb.WINDOW_S:g} s; replica seed {REPLICA_SEED}")
+    print(f"EKF: velocity sigma {args.speed_sigma:g} m/s per axis, tau {args.tau:g} s, range sigma {args.sigma:g} m, "
+          + ("gate" if args.gate else "Huber weights") + f" beyond nu^2/S > {tb.GATE_CHI2:g}, reset after "
+          f"{tb.RESET_AFTER_REJECTS} in a row, room: the anchors' box + {tb.ROOM_MARGIN_M:g} m from z = "
+          f"{tb.FLOOR_Z_M:g}; trilateration window {tb.WINDOW_S:g} s; replica seed {REPLICA_SEED}")
     for name in EXPERIMENTS:
         folder = data / name
         bad: list = []
@@ -196,23 +227,28 @@ def main() -> int:
         scores = {n: score(r, truth) for n, r in rows.items()}
         replica_ranges = replica(ranges, anchors, truth, REPLICA_SEED)
         replica_scores = {n: score(r.rows, truth) for n, r in run_baselines(replica_ranges, anchors, args).items()}
+        ekf_rows = {(t, node) for t, node, _, _ in results["ekf"].rows}
+        coop_at_ekf_rows = score([r for r in results["coop-ekf"].rows if (r[0], r[1]) in ekf_rows], truth)["overall"]
         kinds = [(a in anchors) != (b in anchors) for a, b in zip(ranges.from_ids.tolist(), ranges.to_ids.tolist())]
         summary = {
             "tags": sorted({int(t) for t in truth}),
             "ranges": {"tag_anchor": sum(kinds), "tag_tag": len(kinds) - sum(kinds),
                        "duration_s": float(ranges.t_s[-1] - ranges.t_s[0]), "bad_rows": len(bad)},
-            "scores": scores, "replica": replica_scores,
+            "scores": scores, "replica": replica_scores, "coop_at_ekf_rows": coop_at_ekf_rows,
             "counts": {n: r.counts() for n, r in results.items()},
             "notes": {n: r.notes for n, r in results.items()},
             "anchors": anchor_report(folder / "ranges_detail.csv", ranges, anchors, results)}
         print_experiment(name, summary)
         report[name] = {"baselines": {n: scores[n] for n in results}, "room_centre": scores["room-centre"],
                         "replica": {n: s["overall"] for n, s in replica_scores.items()},
+                        "coop_at_ekf_rows": coop_at_ekf_rows,
                         "ranges": summary["ranges"], "counts": summary["counts"], "notes": summary["notes"],
                         "anchors": summary["anchors"]}
         if out:
             for n, r in results.items():
                 tracking.write_trajectory(str(out / f"{name}-{n}.csv"), r.rows)
+                if args.trace and n != "trilateration":
+                    write_trace(out / f"{name}-{n}-trace.csv", r.rows, truth)
     if out:
         (out / "miluv.json").write_text(json.dumps(report, indent=1, default=_json_default) + "\n")
     return 0
