@@ -80,8 +80,8 @@ StageRun runStage(const World &world, const std::vector<size_t> &snapshot_at = {
             }
             break;
         }
-        case Event::Kind::Range: stage.addRange(event.t_s, event.from, event.to, event.range_m); break;
-        case Event::Kind::Motion: stage.setMoving(event.t_s, event.id, event.moving); break;
+        case Event::Kind::Range: stage.addRange(event.from, event.to, event.range_m, event.t_s); break;
+        case Event::Kind::Motion: stage.setMoving(event.id, event.moving, event.t_s); break;
         }
     }
     run.final_estimates = stage.estimates();
@@ -437,7 +437,7 @@ std::vector<double> noiseInUseOverTheSecondHalf(MovementStage &stage, const Worl
                 next_sample_s += 1.0;
             }
         } else if (event.kind == Event::Kind::Range) {
-            stage.addRange(event.t_s, event.from, event.to, event.range_m);
+            stage.addRange(event.from, event.to, event.range_m, event.t_s);
         }
     }
     std::sort(in_use_m.begin(), in_use_m.end());
@@ -582,7 +582,7 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
                 frames.push_back(now->frame);
             }
         } else if (event.kind == Event::Kind::Range) {
-            standing.addRange(event.t_s, event.from, event.to, event.range_m);
+            standing.addRange(event.from, event.to, event.range_m, event.t_s);
         }
     }
     const std::optional<RobotOutput> robot = standing.robot();
@@ -620,12 +620,12 @@ TEST(MovementStage, AStandingRobotWhoseStageOnePositionIsAmbiguousHasNoPositionY
     auto round = [&](size_t robot_links) {
         for (size_t a = 0; a < truth_m.size(); ++a) {
             for (size_t b = a + 1; b < truth_m.size(); ++b) {
-                stage.addRange(t_s += 0.01, static_cast<NodeId>(a + 1), static_cast<NodeId>(b + 1),
-                               (truth_m[a] - truth_m[b]).norm());
+                stage.addRange(static_cast<NodeId>(a + 1), static_cast<NodeId>(b + 1), (truth_m[a] - truth_m[b]).norm(),
+                               t_s += 0.01);
             }
         }
         for (size_t a = 0; a < robot_links; ++a) {
-            stage.addRange(t_s += 0.01, robot_id, static_cast<NodeId>(a + 1), (truth_m[a] - robot_m).norm());
+            stage.addRange(robot_id, static_cast<NodeId>(a + 1), (truth_m[a] - robot_m).norm(), t_s += 0.01);
         }
         stage.addOdometry(t_s += 0.01, OdometryStep{0.0, 0.0});
     };
@@ -693,7 +693,7 @@ TEST(MovementStage, ABeaconThatFindsTheEkfFullIsNotPinnedOutsideIt)
             const size_t i = next;
             next = (next + 1) % beacons;
             const double range_m = (truth_m[i] - Vector2(truth.x_m, truth.y_m)).norm() + 0.1 * random.normal();
-            stage.addRange(t_s + 0.01 * (r + 1), 1000, static_cast<NodeId>(1 + i), range_m);
+            stage.addRange(1000, static_cast<NodeId>(1 + i), range_m, t_s + 0.01 * (r + 1));
         }
     }
     size_t pinned = 0;
@@ -773,8 +773,8 @@ TEST(MovementStage, AStageRestoredFromItsSavedStateGoesOnAsTheOriginal)
     auto apply = [](MovementStage &to, const Event &event) {
         switch (event.kind) {
         case Event::Kind::Odometry: to.addOdometry(event.t_s, event.step); break;
-        case Event::Kind::Range: to.addRange(event.t_s, event.from, event.to, event.range_m); break;
-        case Event::Kind::Motion: to.setMoving(event.t_s, event.id, event.moving); break;
+        case Event::Kind::Range: to.addRange(event.from, event.to, event.range_m, event.t_s); break;
+        case Event::Kind::Motion: to.setMoving(event.id, event.moving, event.t_s); break;
         }
     };
     size_t next = 0;

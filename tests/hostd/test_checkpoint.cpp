@@ -423,8 +423,8 @@ struct Robot {
     {
         switch (event.kind) {
         case Event::Kind::Odometry: stage.addOdometry(event.t_s, event.step); break;
-        case Event::Kind::Range: stage.addRange(event.t_s, event.from, event.to, event.range_m); break;
-        case Event::Kind::Motion: stage.setMoving(event.t_s, event.id, event.moving); break;
+        case Event::Kind::Range: stage.addRange(event.from, event.to, event.range_m, event.t_s); break;
+        case Event::Kind::Motion: stage.setMoving(event.id, event.moving, event.t_s); break;
         }
     }
     Engine engine;

@@ -445,7 +445,7 @@ void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matri
     }
 }
 
-RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double range_m)
+RangeVerdict MovementStage::addRange(NodeId from, NodeId to, double range_m, double t_s)
 {
     last_t_s_ = std::max(last_t_s_, t_s);
     const RangeVerdict verdict = engine_.addRange(from, to, range_m, t_s);
@@ -545,7 +545,7 @@ RangeVerdict MovementStage::addRange(double t_s, NodeId from, NodeId to, double 
     return verdict;
 }
 
-void MovementStage::setMoving(double t_s, NodeId id, bool moving)
+void MovementStage::setMoving(NodeId id, bool moving, double t_s)
 {
     last_t_s_ = std::max(last_t_s_, t_s);
     if (id == params_.robot_id) {

@@ -143,7 +143,7 @@ void EngineAdapter::onRange(const cdro_range_t &range, const service::FrameConte
     const double range_m = static_cast<double>(range.distance_mm) / 1000.0;
     const double t_s = seconds(context.host_unix_us);
     const engine::RangeVerdict verdict = movement_ != nullptr
-                                             ? movement_->addRange(t_s, range.from_id, range.to_id, range_m)
+                                             ? movement_->addRange(range.from_id, range.to_id, range_m, t_s)
                                              : engine_.addRange(range.from_id, range.to_id, range_m, t_s);
     if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
         ++ranges_refused_;
@@ -154,7 +154,7 @@ void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameCo
 {
     last_event_unix_us_ = context.host_unix_us;
     if (movement_ != nullptr) {
-        movement_->setMoving(seconds(context.host_unix_us), motion.node_id, motion.moving != 0);
+        movement_->setMoving(motion.node_id, motion.moving != 0, seconds(context.host_unix_us));
     } else {
         engine_.setMoving(motion.node_id, motion.moving != 0);
     }

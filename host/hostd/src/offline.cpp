@@ -237,10 +237,10 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
             }
         } else if (tm <= tr) {
             const MotionRow &row = motion.rows[m++];
-            stage.setMoving(row.t_s, row.id, row.moving);
+            stage.setMoving(row.id, row.moving, row.t_s);
         } else {
             const RangeRow &row = ranges[r++];
-            const engine::RangeVerdict verdict = stage.addRange(row.t_s, row.from, row.to, row.range_m);
+            const engine::RangeVerdict verdict = stage.addRange(row.from, row.to, row.range_m, row.t_s);
             if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
                 if (refused++ < options.max_reported_rows) {
                     std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",

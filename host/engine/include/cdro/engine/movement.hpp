@@ -114,8 +114,8 @@ public:
     MovementStage(Engine &engine, const MovementParams &params);
 
     void addOdometry(double t_s, const OdometryStep &step);
-    RangeVerdict addRange(double t_s, NodeId from, NodeId to, double range_m);
-    void setMoving(double t_s, NodeId id, bool moving);
+    RangeVerdict addRange(NodeId from, NodeId to, double range_m, double t_s);
+    void setMoving(NodeId id, bool moving, double t_s);
 
     std::optional<RobotOutput> robot() const;
     void setTrace(std::function<void(const std::string &)> sink) { trace_ = std::move(sink); }
