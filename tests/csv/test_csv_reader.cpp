@@ -399,6 +399,20 @@ TEST(CsvReader, ReadsHeaderlessLayoutsByFieldCount)
     EXPECT_EQ(read.summary.problems[1].message, "range_m 'nan' is not a finite number");
 }
 
+TEST(CsvReader, AHeaderlessLayoutMayNamePositionsNobodyReads)
+{
+    TempDir dir;
+    const std::string path = dir.write("h.csv", "1,0.5\n2,10.0,20.0,1.5\n3,1.0,2.0\n");
+    std::vector<std::pair<uint16_t, double>> heights;
+
+    Reader reader(path, Format{{"id", "z"}, {}, {{"id", "z"}, {"id", "x", "y", "z"}}}, Policy::Lenient);
+    reader.forEach([&](const Row &row) { heights.emplace_back(row.nodeId("id"), row.number("z")); });
+
+    EXPECT_EQ(heights, (std::vector<std::pair<uint16_t, double>>{{1, 0.5}, {2, 1.5}}));
+    ASSERT_EQ(reader.summary().problems.size(), 1U);
+    EXPECT_EQ(reader.summary().problems[0].message, "3 fields, expected 2 or 4");
+}
+
 TEST(CsvReader, AFirstRowWithABadNumberIsStillDataNotAHeader)
 {
     TempDir dir;

@@ -208,7 +208,11 @@ Reader::Reader(const std::string &path, Format format, Policy policy, size_t kep
         }
         layout.assign(declared_.size(), kNone);
         for (size_t i = 0; i < names.size(); ++i) {
-            layout[declaredIndex(names[i])] = i;
+            for (size_t d = 0; d < declared_.size(); ++d) {
+                if (declared_[d] == names[i]) {
+                    layout[d] = i; // a name not declared: a position the caller does not read
+                }
+            }
         }
         for (const std::string &name : format_.required) {
             if (layout[declaredIndex(name)] == kNone) {

@@ -82,8 +82,9 @@ enum class Policy {
 struct Format {
     std::vector<std::string> required; // a header must name them; a row must have them
     std::vector<std::string> optional; // taken when there (Row::has)
-    // Accepted without a header: the declared columns by position, one layout per number of
-    // fields (each with every required column). None: a header is required.
+    // Accepted without a header: the columns by position, one layout per number of fields (each
+    // with every required column; other names are positions nobody reads, as in a header). None:
+    // a header is required.
     std::vector<std::vector<std::string>> headerless;
 };
 
