@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -89,10 +90,10 @@ Read readRanges(const std::string &path, Policy policy, const Format &format = r
         Range r;
         r.line = row.line();
         r.has_t = row.has("t");
-        r.t_s = r.has_t ? row.number("t") : 0.0;
-        r.from = row.nodeId("from");
-        r.to = row.nodeId("to");
-        r.range_m = row.number("range_m");
+        if ((r.has_t && !row.number("t", &r.t_s)) || !row.nodeId("from", &r.from) || !row.nodeId("to", &r.to) ||
+            !row.number("range_m", &r.range_m)) {
+            return;
+        }
         read.rows.push_back(r);
     });
     read.summary = reader.summary();
@@ -212,10 +213,16 @@ TEST(CsvReader, UnquotesQuotedFieldsAsRfc4180Says)
 
     Reader reader(path, Format{{"from", "to", "range_m"}, {"note"}, {}}, Policy::Strict);
     reader.forEach([&](const Row &row) {
-        EXPECT_EQ(row.nodeId("from"), 1);
-        EXPECT_EQ(row.nodeId("to"), 0x6001);
-        EXPECT_EQ(row.number("range_m"), 2.5);
-        notes.emplace_back(row.text("note"));
+        uint16_t from = 0;
+        uint16_t to = 0;
+        double range_m = 0.0;
+        std::string_view note;
+        ASSERT_TRUE(row.nodeId("from", &from) && row.nodeId("to", &to) && row.number("range_m", &range_m) &&
+                    row.text("note", &note));
+        EXPECT_EQ(from, 1);
+        EXPECT_EQ(to, 0x6001);
+        EXPECT_EQ(range_m, 2.5);
+        notes.emplace_back(note);
     });
 
     EXPECT_EQ(notes, std::vector<std::string>{"a, \"quoted\" note"});
@@ -241,7 +248,7 @@ TEST(CsvReader, ParsesNodeIdsInDecimalAndHexWithinOneToFfff)
     const std::vector<std::pair<std::string, int>> cases = {
         {"1", 1},       {"42", 42},       {"007", 7},  {"65535", 65535}, {"0x2A", 42}, {"0X2a", 42},
         {"0xFFFF", 65535}, {"0x0001", 1}, {"0", -1},   {"0x0", -1},      {"65536", -1}, {"0x10000", -1},
-        {"", -1},       {"0x", -1},       {"-1", -1},  {"+5", -1},       {"1.0", -1},   {"2a", -1},
+        {"", -1},       {"0x", -1},       {"-1", -1},  {"+5", 5}, {"+0x5", -1}, {"+", -1},       {"1.0", -1},   {"2a", -1},
         {"0x2G", -1},   {"99999999999999999999", -1}, {" 5", -1}};
     for (const auto &[text, expected] : cases) {
         uint16_t id = 0;
@@ -322,9 +329,13 @@ TEST(CsvReader, ACallersOwnCheckMakesTheRowBadLikeAnAccessor)
 
     Reader reader(path, Format{{"t", "id", "moving"}, {}, {}}, Policy::Lenient);
     reader.forEach([&](const Row &row) {
-        const double moving = row.number("moving");
+        double moving = 0.0;
+        if (!row.number("moving", &moving)) {
+            return;
+        }
         if (moving != 0.0 && moving != 1.0) {
             row.reject("moving must be 0 or 1");
+            return;
         }
         lines.push_back(row.line());
     });
@@ -336,7 +347,8 @@ TEST(CsvReader, ACallersOwnCheckMakesTheRowBadLikeAnAccessor)
     Reader strict(path, Format{{"t", "id", "moving"}, {}, {}}, Policy::Strict);
     try {
         strict.forEach([](const Row &row) {
-            if (row.number("moving") > 1.0) {
+            double moving = 0.0;
+            if (row.number("moving", &moving) && moving > 1.0) {
                 row.reject("moving must be 0 or 1");
             }
         });
@@ -406,7 +418,13 @@ TEST(CsvReader, AHeaderlessLayoutMayNamePositionsNobodyReads)
     std::vector<std::pair<uint16_t, double>> heights;
 
     Reader reader(path, Format{{"id", "z"}, {}, {{"id", "z"}, {"id", "x", "y", "z"}}}, Policy::Lenient);
-    reader.forEach([&](const Row &row) { heights.emplace_back(row.nodeId("id"), row.number("z")); });
+    reader.forEach([&](const Row &row) {
+        uint16_t id = 0;
+        double z_m = 0.0;
+        if (row.nodeId("id", &id) && row.number("z", &z_m)) {
+            heights.emplace_back(id, z_m);
+        }
+    });
 
     EXPECT_EQ(heights, (std::vector<std::pair<uint16_t, double>>{{1, 0.5}, {2, 1.5}}));
     ASSERT_EQ(reader.summary().problems.size(), 1U);
@@ -447,8 +465,10 @@ TEST(CsvReader, SummaryInsideOnRowCountsTheRowsBeforeIt)
 
     Reader reader(path, rangesFormat(), Policy::Lenient);
     reader.forEach([&](const Row &row) {
-        (void)row.number("range_m");
-        seen.emplace_back(reader.summary().data_rows, reader.summary().bad_rows);
+        double range_m = 0.0;
+        if (row.number("range_m", &range_m)) {
+            seen.emplace_back(reader.summary().data_rows, reader.summary().bad_rows);
+        }
     });
 
     EXPECT_EQ(seen, (std::vector<std::pair<size_t, size_t>>{{1, 1}, {3, 2}}));
@@ -461,7 +481,31 @@ TEST(CsvReader, AnUndeclaredColumnIsABugNotABadRow)
     const std::string path = dir.write("r.csv", "from,to,range_m\n1,2,3.0\n");
 
     Reader reader(path, rangesFormat(), Policy::Lenient);
-    EXPECT_THROW(reader.forEach([](const Row &row) { (void)row.number("rnage_m"); }), std::logic_error);
+    double range_m = 0.0;
+    EXPECT_THROW(reader.forEach([&](const Row &row) { (void)row.number("rnage_m", &range_m); }), std::logic_error);
+}
+
+TEST(CsvReader, ARowWithAFailedAccessorIsBadWhateverOnRowDidNextAndKeepsItsFirstReason)
+{
+    TempDir dir;
+    const std::string path = dir.write("r.csv", "from,to,range_m\nx,y,3.0\n1,2,3.0\n");
+    size_t calls = 0;
+
+    Reader reader(path, rangesFormat(), Policy::Lenient);
+    reader.forEach([&](const Row &row) {
+        uint16_t from = 0;
+        uint16_t to = 0;
+        double range_m = 0.0;
+        (void)row.nodeId("from", &from); // a caller that goes on regardless
+        (void)row.nodeId("to", &to);
+        (void)row.number("range_m", &range_m);
+        ++calls;
+    });
+
+    EXPECT_EQ(calls, 2U);
+    EXPECT_EQ(reader.summary().bad_rows, 1U);
+    ASSERT_EQ(reader.summary().problems.size(), 1U);
+    EXPECT_EQ(reader.summary().problems[0].message.rfind("from 'x' is not a node id", 0), 0U);
 }
 
 } // namespace

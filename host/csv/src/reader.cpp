@@ -17,11 +17,6 @@ namespace {
 
 constexpr size_t kNone = static_cast<size_t>(-1);
 
-// A bad row's reason, from an accessor or Row::reject to Reader::forEach (never further).
-struct RowError {
-    std::string message;
-};
-
 bool isBlank(char c) { return c == ' ' || c == '\t' || c == '\r'; }
 
 std::string join(const std::vector<std::string> &names)
@@ -403,63 +398,77 @@ void Reader::forEach(const std::function<void(const Row &)> &onRow)
             badRow(line, std::to_string(count) + " fields, expected " + counts);
         } else {
             row_.layout_ = header_ ? &header_layout_ : &by_count_[count];
-            try {
-                onRow(row_);
-            } catch (const RowError &error) {
-                badRow(line, error.message);
+            row_.bad_ = false;
+            onRow(row_);
+            if (row_.bad_) {
+                badRow(line, std::move(row_.why_));
             }
         }
         ++summary_.data_rows;
     }
 }
 
-size_t Row::fieldIndex(std::string_view column) const
+bool Row::fail(std::string why) const
 {
-    const size_t index = (*layout_)[reader_->declaredIndex(column)];
-    return index < fields_.size() ? index : kNone;
+    if (!bad_) {
+        bad_ = true;
+        why_ = std::move(why);
+    }
+    return false;
 }
 
-std::string_view Row::text(std::string_view column) const
+bool Row::field(std::string_view column, std::string_view *text) const
 {
     const size_t index = (*layout_)[reader_->declaredIndex(column)];
     if (index == kNone) {
-        throw RowError{"no column '" + std::string(column) + "'"};
+        return fail("no column '" + std::string(column) + "'");
     }
     if (index >= fields_.size()) {
-        throw RowError{"too few fields (" + std::to_string(fields_.size()) + ")"};
+        return fail("too few fields (" + std::to_string(fields_.size()) + ")");
     }
-    return std::string_view(fields_[index].text, fields_[index].size); // NUL-terminated (split)
+    *text = std::string_view(fields_[index].text, fields_[index].size); // NUL-terminated (split)
+    return true;
 }
 
-bool Row::has(std::string_view column) const { return fieldIndex(column) != kNone; }
-
-double Row::number(std::string_view column) const
+bool Row::has(std::string_view column) const
 {
-    const std::string_view field = text(column);
-    double value = 0.0;
-    if (!parseFinite(field.data(), field.size(), &value)) {
-        throw RowError{std::string(column) + " '" + std::string(field) + "' is not a finite number"};
-    }
-    return value;
+    const size_t index = (*layout_)[reader_->declaredIndex(column)];
+    return index != kNone && index < fields_.size();
 }
 
-uint16_t Row::nodeId(std::string_view column) const
+bool Row::text(std::string_view column, std::string_view *text) const { return field(column, text); }
+
+bool Row::number(std::string_view column, double *value) const
 {
-    const std::string_view field = text(column);
-    uint16_t id = 0;
-    if (!parseNodeId(field, &id)) {
-        throw RowError{std::string(column) + " '" + std::string(field) +
-                       "' is not a node id (1..65535, decimal or 0x hex; 0 is not a node on the live link either)"};
+    std::string_view text;
+    if (!field(column, &text)) {
+        return false;
     }
-    return id;
+    if (!parseFinite(text.data(), text.size(), value)) {
+        return fail(std::string(column) + " '" + std::string(text) + "' is not a finite number");
+    }
+    return true;
 }
 
-void Row::reject(const std::string &why) const { throw RowError{why}; }
+bool Row::nodeId(std::string_view column, uint16_t *id) const
+{
+    std::string_view text;
+    if (!field(column, &text)) {
+        return false;
+    }
+    if (!parseNodeId(text, id)) {
+        return fail(std::string(column) + " '" + std::string(text) +
+                    "' is not a node id (1..65535, decimal or 0x hex; 0 is not a node on the live link either)");
+    }
+    return true;
+}
+
+bool Row::reject(const std::string &why) const { return fail(why); }
 
 bool parseNodeId(std::string_view text, uint16_t *id)
 {
     const bool hex = hasHexPrefix(text);
-    const size_t first = hex ? 2 : 0;
+    const size_t first = hex ? 2 : (!text.empty() && text[0] == '+' ? 1 : 0); // "+5" as strtol reads it
     if (text.size() == first) {
         return false;
     }

@@ -24,18 +24,20 @@
 // and a file without one (empty, only comments, or numbers on its first line) is refused.
 //
 // Rows. forEach gives the caller each data row in file order; the caller reads its fields by
-// column name with typed accessors:
-//   number(name)  a finite double, the whole field (strtod: "1.5", "-2e3", "0x1p3"; not "",
-//                 "nan", "inf", "1e999", "1.5 m"; the programs keep the C locale: a . always)
-//   nodeId(name)  a node id, 1..65535, decimal or 0x hex (parseNodeId)
-//   text(name)    the field as written (unquoted, without the spaces around it)
-//   has(name)     whether the row has a field for an optional column
-// A field that is not what its accessor wants makes the row bad, with a reason that names the
-// column and shows the text: "range_m 'five' is not a finite number". So does a caller's own
-// check (Row::reject: "moving must be 0 or 1"), a row without a field for a required column
-// ("too few fields (2)"; without a header: "2 fields, expected 3 or 4"), a broken quote. An
-// accessor that fails leaves onRow at once (an exception the reader catches): read every field
-// first, then act on the row, and do not catch (...) in onRow.
+// column name with typed accessors, each of which returns false when the field is not what it
+// wants (they are [[nodiscard]]: a caller cannot use a value it did not get):
+//   number(name, &v)  a finite double (strtod: "1.5", "-2e3", "0x1p3"; not "", "nan", "inf",
+//                     "1e999", "1.5 m"; the programs keep the C locale: a . always)
+//   nodeId(name, &id) a node id, 1..65535, decimal or 0x hex (parseNodeId)
+//   text(name, &t)    the field as written (unquoted, without the spaces around it)
+//   has(name)         whether the row has a field for an optional column
+// A failed accessor makes the row bad, with a reason that names the column and shows the text:
+// "range_m 'five' is not a finite number". So does a caller's own check (Row::reject: "moving
+// must be 0 or 1"), and, before onRow sees the row, too few fields for a required column ("too
+// few fields (2)"; without a header: "2 fields, expected 3 or 4") or a broken quote. onRow
+// returns at the first false; a row with a failed accessor is bad whatever onRow did next, and
+// only its first reason is kept. (No exception: a file of a million bad rows costs what a
+// million good ones do.)
 //
 // Bad rows. What happens to them is the caller's one choice (Policy):
 //   Strict   the first bad row ends the reading with Error "PATH:LINE: reason". For data that
@@ -51,7 +53,8 @@
 // above. Files are read in one pass with a fixed buffer: linear in their size, any size.
 //
 // Error is the only exception that leaves the reader (with std::logic_error for a Format that
-// contradicts itself or an accessor asked for a column that was not declared: bugs, not input).
+// contradicts itself or an accessor asked for a column that was not declared: bugs, not input),
+// besides whatever onRow throws itself.
 #pragma once
 
 #include <cstddef>
@@ -109,16 +112,17 @@ public:
 
     size_t line() const { return line_; }
     bool has(std::string_view column) const;
-    std::string_view text(std::string_view column) const;
-    double number(std::string_view column) const;
-    uint16_t nodeId(std::string_view column) const;
-    // The row is bad for the caller's own reason (leaves onRow like a failed accessor).
-    [[noreturn]] void reject(const std::string &why) const;
+    [[nodiscard]] bool number(std::string_view column, double *value) const;
+    [[nodiscard]] bool nodeId(std::string_view column, uint16_t *id) const;
+    [[nodiscard]] bool text(std::string_view column, std::string_view *text) const;
+    // The row is bad for the caller's own reason. Returns false (return row.reject("...")).
+    bool reject(const std::string &why) const;
 
 private:
     friend class Reader;
     Row() = default;
-    size_t fieldIndex(std::string_view column) const; // npos: no field in this row
+    bool fail(std::string why) const; // the first reason is kept; false
+    bool field(std::string_view column, std::string_view *text) const;
 
     struct Field {
         const char *text = nullptr; // NUL-terminated, in the reader's line buffer
@@ -128,6 +132,8 @@ private:
     const std::vector<size_t> *layout_ = nullptr; // declared column -> field index (npos: none)
     std::vector<Field> fields_;
     size_t line_ = 0;
+    mutable bool bad_ = false;
+    mutable std::string why_;
 };
 
 class Reader {
@@ -139,8 +145,7 @@ public:
     Reader &operator=(const Reader &) = delete;
 
     // Calls onRow for each data row, in file order, with the policy above for bad rows. Throws
-    // Error (a file that turns out unusable further on; Strict: the first bad row) and whatever
-    // onRow throws itself. Once only.
+    // Error (a file that turns out unusable further on; Strict: the first bad row). Once only.
     void forEach(const std::function<void(const Row &)> &onRow);
 
     const std::string &path() const { return path_; }
@@ -174,7 +179,7 @@ private:
     Summary summary_;
 };
 
-// "42" or "0x2A" (or "0X2a") -> 42, in 1..65535; false otherwise. Ids follow the live link's
+// "42" (or "+42") or "0x2A" (or "0X2a") -> 42, in 1..65535; false otherwise. Ids follow the live link's
 // rule (common/frames.h): 0 is not a node (it means "none" in the protocol), so a file and a
 // capture of the same network name the same nodes.
 bool parseNodeId(std::string_view text, uint16_t *id);
