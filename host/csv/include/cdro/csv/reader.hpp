@@ -19,9 +19,10 @@
 // comment, in any order; columns the caller did not declare are ignored, and so are fields
 // beyond the header's. A header without a required column, or naming a declared one twice,
 // refuses the file. A caller may also take files without a header (Format::headerless: the
-// columns by position, one layout per number of fields): a first line whose every field is a
-// number, a 0x hex number or empty is then data. Without headerless layouts a header is required,
-// and a file without one (empty, only comments, or numbers on its first line) is refused.
+// columns by position, one layout per number of fields): a first line whose every field is
+// empty, 0x hex or a number to strtod (nan and inf too: a data row with a bad value is a bad row,
+// not a header) is then data. Without headerless layouts a header is required, and a file
+// without one (empty, only comments, or data on its first line) is refused.
 //
 // Rows. forEach gives the caller each data row in file order; the caller reads its fields by
 // column name with typed accessors, each of which returns false when the field is not what it
