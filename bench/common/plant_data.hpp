@@ -1,20 +1,21 @@
 // plant_data.hpp: PLANT (the real 28-node Pozyx network of ../shared/data/plant) for the
 // benchmarks: where it is (--data-dir, $CDRO_DATA_DIR, ../shared/data from the repository
 // root), its ranges in file order, the heights and the surveyed positions of the nodes that
-// range. Header-only; used by bench/engine and bench/service. Throws std::runtime_error with
-// the file and line on a malformed file.
+// range. Header-only; used by bench/engine and bench/service. Read by the one CSV reader
+// (cdro/csv/reader.hpp), Strict: a bad row or a file without the columns throws csv::Error (a
+// std::runtime_error) naming the file and line; figures computed without a row of PLANT would be
+// quietly wrong.
 #pragma once
 
-#include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <map>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "cdro/csv/reader.hpp"
 #include "cdro/engine/types.hpp"
 
 namespace cdro::bench {
@@ -32,73 +33,18 @@ struct Plant {
     std::map<engine::NodeId, engine::Vector2> truth_m;        // m; nodes that range only
 };
 
-// The rows of a CSV file with exactly this header (no quoting: PLANT has none).
-inline std::vector<std::vector<std::string>> readCsv(const std::string &path, const std::vector<std::string> &header)
-{
-    std::ifstream in(path);
-    if (!in) {
-        throw std::runtime_error(path + ": cannot read");
-    }
-    std::string line;
-    std::vector<std::vector<std::string>> rows;
-    size_t number = 0;
-    while (std::getline(in, line)) {
-        ++number;
-        if (!line.empty() && line.back() == '\r') {
-            line.pop_back();
-        }
-        if (line.empty()) {
-            continue;
-        }
-        std::vector<std::string> fields;
-        std::stringstream split(line);
-        std::string field;
-        while (std::getline(split, field, ',')) {
-            fields.push_back(field);
-        }
-        if (number == 1) {
-            if (fields != header) {
-                throw std::runtime_error(path + ": header is not " + line);
-            }
-            continue;
-        }
-        if (fields.size() != header.size()) {
-            throw std::runtime_error(path + ":" + std::to_string(number) + ": expected " +
-                                     std::to_string(header.size()) + " fields");
-        }
-        rows.push_back(fields);
-    }
-    return rows;
-}
-
-inline double parseNumber(const std::string &text, const std::string &where)
-{
-    char *end = nullptr;
-    const double value = std::strtod(text.c_str(), &end);
-    if (end == text.c_str() || *end != '\0' || !std::isfinite(value)) {
-        throw std::runtime_error(where + ": not a number: " + text);
-    }
-    return value;
-}
-
-inline engine::NodeId parseNodeId(const std::string &text, const std::string &where)
-{
-    const double value = parseNumber(text, where);
-    if (value < 1.0 || value > 65535.0 || value != std::floor(value)) {
-        throw std::runtime_error(where + ": not a node id: " + text);
-    }
-    return static_cast<engine::NodeId>(value);
-}
-
 // dir holds ranges.csv (from,to,range_m) and nodes.csv (id,x,y,z).
 inline Plant loadPlant(const std::string &dir)
 {
     Plant plant;
     plant.dir = dir;
-    for (const auto &row : readCsv(dir + "/ranges.csv", {"from", "to", "range_m"})) {
-        plant.ranges.push_back(Range{parseNodeId(row[0], "ranges.csv"), parseNodeId(row[1], "ranges.csv"),
-                                     parseNumber(row[2], "ranges.csv")});
-    }
+    csv::Reader ranges(dir + "/ranges.csv", csv::Format{{"from", "to", "range_m"}, {}, {}}, csv::Policy::Strict);
+    ranges.forEach([&](const csv::Row &row) {
+        Range range;
+        if (row.nodeId("from", &range.from) && row.nodeId("to", &range.to) && row.number("range_m", &range.range_m)) {
+            plant.ranges.push_back(range);
+        }
+    });
     std::map<engine::NodeId, bool> ranging;
     for (const Range &range : plant.ranges) {
         ranging[range.from] = true;
@@ -106,13 +52,20 @@ inline Plant loadPlant(const std::string &dir)
     }
     // Only the nodes in the ranges: the other ten of nodes.csv would join the engine's node list
     // with no link and no part in the figures.
-    for (const auto &row : readCsv(dir + "/nodes.csv", {"id", "x", "y", "z"})) {
-        const engine::NodeId id = parseNodeId(row[0], "nodes.csv");
-        if (ranging.count(id) != 0) {
-            plant.heights_m.emplace_back(id, parseNumber(row[3], "nodes.csv"));
-            plant.truth_m[id] = engine::Vector2(parseNumber(row[1], "nodes.csv"), parseNumber(row[2], "nodes.csv"));
+    csv::Reader nodes(dir + "/nodes.csv", csv::Format{{"id", "x", "y", "z"}, {}, {}}, csv::Policy::Strict);
+    nodes.forEach([&](const csv::Row &row) {
+        engine::NodeId id = 0;
+        double x_m = 0.0;
+        double y_m = 0.0;
+        double z_m = 0.0;
+        if (!row.nodeId("id", &id) || ranging.count(id) == 0) {
+            return;
         }
-    }
+        if (row.number("x", &x_m) && row.number("y", &y_m) && row.number("z", &z_m)) {
+            plant.heights_m.emplace_back(id, z_m);
+            plant.truth_m[id] = engine::Vector2(x_m, y_m);
+        }
+    });
     if (plant.truth_m.size() != ranging.size()) {
         throw std::runtime_error(dir + "/nodes.csv: some ranging nodes have no surveyed position");
     }

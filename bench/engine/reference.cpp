@@ -27,9 +27,11 @@ namespace {
 
 using namespace cdro;
 
+// Every bad row (the reader keeps all their reasons: kAll).
+constexpr size_t kAll = std::numeric_limits<size_t>::max();
 template <typename Row> void reportProblems(const std::string &path, const hostd::CsvTable<Row> &table)
 {
-    for (const hostd::CsvProblem &problem : table.problems) {
+    for (const csv::Problem &problem : table.summary.problems) {
         std::fprintf(stderr, "cdro-reference: %s:%zu: %s (row skipped)\n", path.c_str(), problem.line,
                      problem.message.c_str());
     }
@@ -54,13 +56,13 @@ int main(int argc, char **argv)
         engine::MapState map;
         engine::RangeIntake intake(params.range);
         if (!heights_path.empty()) {
-            const auto heights = hostd::readHeightsCsv(heights_path);
+            const auto heights = hostd::readHeightsCsv(heights_path, kAll);
             reportProblems(heights_path, heights);
             for (const hostd::HeightRow &row : heights.rows) {
                 map.nodes[intake.node(map, row.id)].height_m = row.z_m;
             }
         }
-        const auto ranges = hostd::readRangesCsv(ranges_path);
+        const auto ranges = hostd::readRangesCsv(ranges_path, kAll);
         reportProblems(ranges_path, ranges);
         for (const hostd::RangeRow &row : ranges.rows) {
             const engine::TakenRange taken = intake.take(map, row.from, row.to, row.range_m,
@@ -69,7 +71,7 @@ int main(int argc, char **argv)
                 intake.refreshLinkRange(map, taken.link, false);
             }
         }
-        const auto truth = hostd::readFixedCsv(truth_path);
+        const auto truth = hostd::readFixedCsv(truth_path, kAll);
         reportProblems(truth_path, truth);
         std::map<engine::NodeId, engine::Vector2> true_position;
         for (const hostd::FixedRow &row : truth.rows) {

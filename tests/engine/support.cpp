@@ -7,11 +7,11 @@
 #include <cstring>
 #include <fstream>
 #include <map>
-#include <sstream>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/SVD>
 
+#include "cdro/csv/reader.hpp"
 #include "cdro/engine/alignment.hpp"
 
 #ifndef CDRO_SOURCE_DIR
@@ -312,47 +312,6 @@ bool identical(const std::vector<engine::NodeOutput> &a, const std::vector<engin
     return true;
 }
 
-namespace {
-
-// Rows of a small numeric CSV with a header; the named columns, in the order asked.
-std::vector<std::vector<double>> readColumns(const std::string &path, const std::vector<std::string> &names)
-{
-    std::ifstream in(path);
-    std::vector<std::vector<double>> rows;
-    std::string line;
-    std::map<std::string, size_t> column;
-    bool header = true;
-    while (std::getline(in, line)) {
-        if (!line.empty() && line.back() == '\r') {
-            line.pop_back();
-        }
-        if (line.empty()) {
-            continue;
-        }
-        std::vector<std::string> fields;
-        std::stringstream stream(line);
-        std::string field;
-        while (std::getline(stream, field, ',')) {
-            fields.push_back(field);
-        }
-        if (header) {
-            for (size_t i = 0; i < fields.size(); ++i) {
-                column[fields[i]] = i;
-            }
-            header = false;
-            continue;
-        }
-        std::vector<double> row;
-        for (const std::string &name : names) {
-            row.push_back(std::strtod(fields.at(column.at(name)).c_str(), nullptr));
-        }
-        rows.push_back(row);
-    }
-    return rows;
-}
-
-} // namespace
-
 std::optional<PlantData> loadPlant(std::string *where)
 {
     std::string data = std::string(CDRO_SOURCE_DIR) + "/../shared/data";
@@ -366,15 +325,27 @@ std::optional<PlantData> loadPlant(std::string *where)
     if (!std::ifstream(ranges_path) || !std::ifstream(nodes_path)) {
         return std::nullopt;
     }
+    // Strict (csv/reader.hpp): a bad row fails the test that loads PLANT, with its file and line.
     PlantData out;
-    for (const std::vector<double> &row : readColumns(nodes_path, {"id", "x", "y", "z"})) {
-        out.ids.push_back(static_cast<NodeId>(row[0]));
-        out.truth_m.emplace_back(row[1], row[2]);
-        out.height_m.push_back(row[3]);
-    }
-    for (const std::vector<double> &row : readColumns(ranges_path, {"from", "to", "range_m"})) {
-        out.ranges.push_back(TestRange{static_cast<NodeId>(row[0]), static_cast<NodeId>(row[1]), row[2]});
-    }
+    csv::Reader nodes(nodes_path, csv::Format{{"id", "x", "y", "z"}, {}, {}}, csv::Policy::Strict);
+    nodes.forEach([&](const csv::Row &row) {
+        NodeId id = 0;
+        double x_m = 0.0;
+        double y_m = 0.0;
+        double z_m = 0.0;
+        if (row.nodeId("id", &id) && row.number("x", &x_m) && row.number("y", &y_m) && row.number("z", &z_m)) {
+            out.ids.push_back(id);
+            out.truth_m.emplace_back(x_m, y_m);
+            out.height_m.push_back(z_m);
+        }
+    });
+    csv::Reader ranges(ranges_path, csv::Format{{"from", "to", "range_m"}, {}, {}}, csv::Policy::Strict);
+    ranges.forEach([&](const csv::Row &row) {
+        TestRange range{};
+        if (row.nodeId("from", &range.from) && row.nodeId("to", &range.to) && row.number("range_m", &range.range_m)) {
+            out.ranges.push_back(range);
+        }
+    });
     return out;
 }
 

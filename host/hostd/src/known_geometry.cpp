@@ -50,16 +50,16 @@ KnownRows readKnownGeometry(const KnownGeometry &geometry, uint32_t max_reported
 {
     KnownRows rows;
     if (!geometry.heights_csv.empty()) {
-        CsvTable<HeightRow> heights = readHeightsCsv(geometry.heights_csv);
-        reportCsvProblems(geometry.heights_csv, heights.problems, max_reported_rows, log);
+        CsvTable<HeightRow> heights = readHeightsCsv(geometry.heights_csv, max_reported_rows);
+        reportCsvProblems(geometry.heights_csv, heights.summary, max_reported_rows, log);
         rows.heights = std::move(heights.rows);
-        rows.skipped_rows += heights.problems.size();
+        rows.skipped_rows += heights.summary.bad_rows;
     }
     if (!geometry.fixed_csv.empty()) {
-        CsvTable<FixedRow> fixed = readFixedCsv(geometry.fixed_csv);
-        reportCsvProblems(geometry.fixed_csv, fixed.problems, max_reported_rows, log);
+        CsvTable<FixedRow> fixed = readFixedCsv(geometry.fixed_csv, max_reported_rows);
+        reportCsvProblems(geometry.fixed_csv, fixed.summary, max_reported_rows, log);
         rows.fixed = std::move(fixed.rows);
-        rows.skipped_rows += fixed.problems.size();
+        rows.skipped_rows += fixed.summary.bad_rows;
     }
     return rows;
 }

@@ -184,12 +184,12 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
             return 2;
         }
     }
-    CsvTable<OdometryRow> odometry = readOdometryCsv(options.odometry_csv);
-    reportCsvProblems(options.odometry_csv, odometry.problems, options.max_reported_rows, log);
+    CsvTable<OdometryRow> odometry = readOdometryCsv(options.odometry_csv, options.max_reported_rows);
+    reportCsvProblems(options.odometry_csv, odometry.summary, options.max_reported_rows, log);
     CsvTable<MotionRow> motion;
     if (!options.motion_csv.empty()) {
-        motion = readMotionCsv(options.motion_csv);
-        reportCsvProblems(options.motion_csv, motion.problems, options.max_reported_rows, log);
+        motion = readMotionCsv(options.motion_csv, options.max_reported_rows);
+        reportCsvProblems(options.motion_csv, motion.summary, options.max_reported_rows, log);
     }
     sortByTime(ranges, options.ranges_csv, log);
     sortByTime(odometry.rows, options.odometry_csv, log);
@@ -333,11 +333,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             }
             // The stage merges every input by time: the ranges are read whole and sorted.
             const RateClock clock;
-            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv);
-            reportCsvProblems(options.ranges_csv, ranges.problems, options.max_reported_rows, log);
-            reportRate(log, options.ranges_csv, ranges.data_lines, clock);
+            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv, options.max_reported_rows);
+            reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
+            reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
             if (ranges.rows.empty()) {
-                return nothing_to_map("no usable row (" + std::to_string(ranges.problems.size()) + " bad rows skipped)");
+                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) + " bad rows skipped)");
             }
             engine::MovementParams stage_params = movement_params;
             stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
@@ -354,8 +354,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         // Motion reports (optional) are applied in time order between the ranges.
         CsvTable<MotionRow> motion;
         if (!options.motion_csv.empty()) {
-            motion = readMotionCsv(options.motion_csv);
-            reportCsvProblems(options.motion_csv, motion.problems, options.max_reported_rows, log);
+            motion = readMotionCsv(options.motion_csv, options.max_reported_rows);
+            reportCsvProblems(options.motion_csv, motion.summary, options.max_reported_rows, log);
             sortByTime(motion.rows, options.motion_csv, log);
         }
         size_t next_motion = 0;
@@ -371,67 +371,60 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             double t_s = 0.0; // s
         };
         std::optional<HeldTrace> held_trace;
-        std::vector<CsvProblem> shown_problems; // the first max_reported_rows, the rest counted
-        size_t bad_rows = 0;
         const RateClock clock;
         ProgressTicker progress;
-        const size_t data_lines = readRangesCsv(
-            options.ranges_csv,
-            [&](const RangeRow &row) {
-                if (untimed_with_motion) {
-                    return;
+        csv::Reader reader(options.ranges_csv, rangesFormat(), csv::Policy::Lenient, options.max_reported_rows);
+        reader.forEach([&](const csv::Row &fields) {
+            RangeRow row;
+            if (!rangeRow(fields, &row)) {
+                return; // counted, and its reason kept, by the reader
+            }
+            if (untimed_with_motion) {
+                return;
+            }
+            if (!motion.rows.empty() && !row.has_time) {
+                untimed_with_motion = true;
+                return;
+            }
+            while (next_motion < motion.rows.size() && motion.rows[next_motion].t_s <= row.t_s) {
+                engine.setMoving(motion.rows[next_motion].id, motion.rows[next_motion].moving);
+                ++next_motion;
+            }
+            const engine::RangeVerdict verdict =
+                engine.addRange(row.from, row.to, row.range_m, row.has_time ? row.t_s : std::nan(""));
+            ++processed;
+            timed = row.has_time;
+            last_t_s = row.t_s;
+            if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
+                if (refused++ < options.max_reported_rows) {
+                    std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
+                                 options.ranges_csv.c_str(), row.line, engine::rangeVerdictName(verdict),
+                                 static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
                 }
-                if (!motion.rows.empty() && !row.has_time) {
-                    untimed_with_motion = true;
-                    return;
-                }
-                while (next_motion < motion.rows.size() && motion.rows[next_motion].t_s <= row.t_s) {
-                    engine.setMoving(motion.rows[next_motion].id, motion.rows[next_motion].moving);
-                    ++next_motion;
-                }
-                const engine::RangeVerdict verdict =
-                    engine.addRange(row.from, row.to, row.range_m, row.has_time ? row.t_s : std::nan(""));
-                ++processed;
-                timed = row.has_time;
-                last_t_s = row.t_s;
-                if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
-                    if (refused++ < options.max_reported_rows) {
-                        std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n",
-                                     options.ranges_csv.c_str(), row.line, engine::rangeVerdictName(verdict),
-                                     static_cast<unsigned>(row.from), static_cast<unsigned>(row.to), row.range_m);
-                    }
-                }
-                // A snapshot is written once the next range shows it was not the last: the last
-                // range's snapshot is the final one, written after settling.
-                if (held_trace) {
-                    writeTraceRows(trace.get(), held_trace->ranges, held_trace->estimates,
-                                   held_trace->timed ? &held_trace->t_s : nullptr);
-                    held_trace.reset();
-                }
-                if (trace && processed % every == 0) {
-                    held_trace = HeldTrace{processed, engine.estimates(), timed, last_t_s};
-                }
-                if (progress.due()) {
-                    std::fprintf(log, "cdro-hostd: %s: %llu rows so far (%.0f rows/s)\n", options.ranges_csv.c_str(),
-                                 static_cast<unsigned long long>(processed + bad_rows),
-                                 static_cast<double>(processed + bad_rows) / clock.seconds());
-                }
-            },
-            [&](const CsvProblem &problem) {
-                if (bad_rows++ < options.max_reported_rows) {
-                    shown_problems.push_back(problem);
-                }
-            });
+            }
+            // A snapshot is written once the next range shows it was not the last: the last
+            // range's snapshot is the final one, written after settling.
+            if (held_trace) {
+                writeTraceRows(trace.get(), held_trace->ranges, held_trace->estimates,
+                               held_trace->timed ? &held_trace->t_s : nullptr);
+                held_trace.reset();
+            }
+            if (trace && processed % every == 0) {
+                held_trace = HeldTrace{processed, engine.estimates(), timed, last_t_s};
+            }
+            if (progress.due()) {
+                const uint64_t so_far = processed + reader.summary().bad_rows;
+                std::fprintf(log, "cdro-hostd: %s: %llu rows so far (%.0f rows/s)\n", options.ranges_csv.c_str(),
+                             static_cast<unsigned long long>(so_far), static_cast<double>(so_far) / clock.seconds());
+            }
+        });
         if (untimed_with_motion) {
             std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n", options.ranges_csv.c_str());
             return 2;
         }
-        reportCsvProblems(options.ranges_csv, shown_problems, options.max_reported_rows, log);
-        if (bad_rows > shown_problems.size()) {
-            std::fprintf(log, "cdro-hostd: %s: %zu more bad rows skipped (not shown)\n", options.ranges_csv.c_str(),
-                         bad_rows - shown_problems.size());
-        }
-        reportRate(log, options.ranges_csv, data_lines, clock);
+        const size_t bad_rows = reader.summary().bad_rows;
+        reportCsvProblems(options.ranges_csv, reader.summary(), options.max_reported_rows, log);
+        reportRate(log, options.ranges_csv, reader.summary().data_rows, clock);
         if (refused > options.max_reported_rows) {
             std::fprintf(log, "cdro-hostd: %s: %llu more refused ranges (not shown)\n", options.ranges_csv.c_str(),
                          static_cast<unsigned long long>(refused - options.max_reported_rows));

@@ -1,4 +1,7 @@
-// csv_input.hpp: the offline mode's input files, read strictly.
+// csv_input.hpp: the offline mode's input files, read by the one CSV reader (cdro/csv/reader.hpp:
+// lines, blank lines, # comments, CRLF, a byte-order mark, quotes, the header) with its Lenient
+// policy: a row that cannot be read (too few fields, not a number, an id outside 1..65535, a
+// non-finite value) is reported with its line number and skipped; the rest of the file is used.
 //
 //   ranges   [t,]from,to,range_m      t in s (optional), ids decimal or 0x hex, range in m
 //   heights  id,z                     m
@@ -6,41 +9,27 @@
 //   odometry t,distance_m,dheading_rad   (the movement stage)
 //   motion   t,id,moving              moving 0/1
 //
-// A first line that is not numbers is a header and names the columns (in any order; other
-// columns are ignored); without a header the columns are positional. A UTF-8 byte-order mark
-// (spreadsheets write one) is skipped. Blank lines and lines starting with # are skipped. A row
-// that cannot be read (too few fields, not a number, an id outside 1..65535, a non-finite
-// value) is reported with its line number and skipped: the rest of the file is still used.
-// Node ids follow the live link's rule (frames.h: 0 is not a node; it means "none" in the
-// protocol), so a file and a capture of the same network name the same nodes. Semantic checks
-// (a node ranging itself, an absurd range) belong to the engine, which counts them.
+// A header names the columns (in any order; other columns are ignored); without one the
+// columns are positional (ranges: 3 or 4 fields; heights: id,z or id,x,y,z). Node ids follow the live link's rule (csv::parseNodeId: 0 is not a node; it means
+// "none" in the protocol), so a file and a capture of the same network name the same nodes.
+// Semantic checks (a node ranging itself, an absurd range) belong to the engine, which counts
+// them.
 //
-// What is not a CSV at all is refused as a whole (CsvError) before it can cost memory or time:
-// a directory, a line longer than kMaxLineBytes (an endless device such as /dev/zero, a binary
-// file), a 0x00 byte. Files are read in one pass with a fixed buffer (linear in their size).
+// What is not a CSV at all (a directory, a line longer than csv::kMaxLineBytes such as
+// /dev/zero, a binary file) or lacks a required column is refused as a whole (CsvError) before
+// it can cost memory or time. Files are read in one pass with a fixed buffer.
 #pragma once
 
 #include <cstdint>
 #include <cstdio>
-#include <functional>
 #include <string>
 #include <vector>
 
+#include "cdro/csv/reader.hpp"
+
 namespace cdro::hostd {
 
-class CsvError : public std::exception {
-public:
-    explicit CsvError(std::string message) : message_(std::move(message)) {}
-    const char *what() const noexcept override { return message_.c_str(); }
-
-private:
-    std::string message_;
-};
-
-struct CsvProblem {
-    size_t line = 0;      // 1-based
-    std::string message;  // what is wrong, with the offending text
-};
+using CsvError = csv::Error;
 
 struct RangeRow {
     size_t line = 0;
@@ -80,30 +69,25 @@ struct MotionRow {
 
 template <typename Row> struct CsvTable {
     std::vector<Row> rows;
-    std::vector<CsvProblem> problems;
-    size_t data_lines = 0; // lines that held data (good or bad)
+    csv::Summary summary; // data rows read, bad rows skipped, the first reasons
 };
 
-constexpr size_t kMaxLineBytes = 4096; // bytes; no row of these files comes near it
+// The ranges' format, and a row as the engine takes it: call inside csv::Reader::forEach; false
+// when a field cannot be read (the reader counts the row bad). The ranges stream through the
+// engine this way (offline.cpp), so that the file can be any size.
+const csv::Format &rangesFormat();
+[[nodiscard]] bool rangeRow(const csv::Row &fields, RangeRow *row);
 
-// Streaming: each good row to onRow as it is read (in file order), each bad one to onProblem;
-// the ranges file can then be any size. Returns the number of data lines. Throws CsvError.
-size_t readRangesCsv(const std::string &path, const std::function<void(const RangeRow &)> &onRow,
-                     const std::function<void(const CsvProblem &)> &onProblem);
+// A whole file, its bad rows skipped (the first `kept_problems` reasons kept, all counted).
+// Each throws CsvError when the file cannot be used at all (above).
+CsvTable<RangeRow> readRangesCsv(const std::string &path, size_t kept_problems);
+CsvTable<HeightRow> readHeightsCsv(const std::string &path, size_t kept_problems);
+CsvTable<FixedRow> readFixedCsv(const std::string &path, size_t kept_problems);
+CsvTable<OdometryRow> readOdometryCsv(const std::string &path, size_t kept_problems);
+CsvTable<MotionRow> readMotionCsv(const std::string &path, size_t kept_problems);
 
-// Each throws CsvError when the file cannot be opened or a header lacks a required column.
-CsvTable<RangeRow> readRangesCsv(const std::string &path);
-CsvTable<HeightRow> readHeightsCsv(const std::string &path);
-CsvTable<FixedRow> readFixedCsv(const std::string &path);
-CsvTable<OdometryRow> readOdometryCsv(const std::string &path);
-CsvTable<MotionRow> readMotionCsv(const std::string &path);
-
-// "42" or "0x2A" -> 42 in 1..65535 (the live link's rule: 0 is not a node id); false otherwise.
-bool parseNodeId(const std::string &text, uint16_t *id);
-
-// Prints "cdro-hostd: PATH:LINE: skipped: WHY" for the first `limit` problems and a count of the
-// rest, on `log`.
-void reportCsvProblems(const std::string &path, const std::vector<CsvProblem> &problems, uint32_t limit,
-                       std::FILE *log);
+// Prints "cdro-hostd: PATH:LINE: skipped: WHY" for the first `limit` bad rows and a count of
+// the rest, on `log`.
+void reportCsvProblems(const std::string &path, const csv::Summary &summary, uint32_t limit, std::FILE *log);
 
 } // namespace cdro::hostd

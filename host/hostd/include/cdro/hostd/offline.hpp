@@ -18,7 +18,7 @@
 // The ranges stream through the engine as they are read, in one pass with a fixed buffer:
 // memory does not grow with the file, a progress line comes every second, and the summary
 // gives the rate ("ranges.csv: 1000000 rows in 16.30 s (61338 rows/s)"). Measured (2-core
-// development machine, RelWithDebInfo): reading and parsing alone 1.45 million rows/s; with the
+// development machine, RelWithDebInfo): reading and parsing alone 3.3 million rows/s; with the
 // engine on a 4-node network about 61,000 rows/s (10 million rows in about 3 minutes, 8 MB
 // resident). The movement stage merges its inputs by time, so it reads the ranges whole first.
 //
