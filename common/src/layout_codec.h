@@ -35,32 +35,35 @@
 #define cdro_get_I32 cdro_get_i32
 #define cdro_get_I64 cdro_get_i64
 
-#define CDRO_X_PUT(KIND, field, doc) p = cdro_put_##KIND(p, m->field);
-#define CDRO_X_PUT_ARRAY(KIND, field, max, doc)  \
-    if (m->field##_count > (max)) {              \
-        return 0;                                \
-    }                                            \
-    p = cdro_put_u8(p, m->field##_count);        \
-    for (i = 0; i < m->field##_count; ++i) {     \
-        p = cdro_put_##KIND(p, m->field[i]);     \
+#define CDRO_X_PUT(KIND, field, unit, doc) p = cdro_put_##KIND(p, m->field);
+#define CDRO_X_PUT_RANGED(KIND, field, unit, lo, hi, doc) CDRO_X_PUT(KIND, field, unit, doc)
+#define CDRO_X_PUT_ARRAY(KIND, field, max, unit, lo, hi, doc) \
+    if (m->field##_count > (max)) {                           \
+        return 0;                                             \
+    }                                                         \
+    p = cdro_put_u8(p, m->field##_count);                     \
+    for (i = 0; i < m->field##_count; ++i) {                  \
+        p = cdro_put_##KIND(p, m->field[i]);                  \
     }
-#define CDRO_X_ENCODER(NAME, name, id, doc)                                       \
-    static size_t encode_##name(const cdro_##name##_t *m, uint8_t *out)        \
-    {                                                                             \
-        uint8_t *p = out;                                                         \
-        uint8_t i = 0;                                                            \
-        (void)i;                                                                  \
-        CDRO_FIELDS_##NAME(CDRO_X_PUT, CDRO_X_PUT_ARRAY) return (size_t)(p - out); \
+#define CDRO_X_ENCODER(NAME, name, id, doc)                                 \
+    static size_t encode_##name(const cdro_##name##_t *m, uint8_t *out)  \
+    {                                                                       \
+        uint8_t *p = out;                                                   \
+        uint8_t i = 0;                                                      \
+        (void)i;                                                            \
+        CDRO_FIELDS_##NAME(CDRO_X_PUT, CDRO_X_PUT_RANGED, CDRO_X_PUT_ARRAY) \
+        return (size_t)(p - out);                                           \
     }
 
-#define CDRO_X_GET(KIND, field, doc)     \
-    if (remaining < CDRO_SIZE_##KIND) {  \
-        return CDRO_ERR_LENGTH;          \
-    }                                    \
-    m->field = cdro_get_##KIND(p);       \
-    p += CDRO_SIZE_##KIND;               \
+#define CDRO_X_GET(KIND, field, unit, doc) \
+    if (remaining < CDRO_SIZE_##KIND) {    \
+        return CDRO_ERR_LENGTH;            \
+    }                                      \
+    m->field = cdro_get_##KIND(p);         \
+    p += CDRO_SIZE_##KIND;                 \
     remaining -= CDRO_SIZE_##KIND;
-#define CDRO_X_GET_ARRAY(KIND, field, max, doc)                                               \
+#define CDRO_X_GET_RANGED(KIND, field, unit, lo, hi, doc) CDRO_X_GET(KIND, field, unit, doc)
+#define CDRO_X_GET_ARRAY(KIND, field, max, unit, lo, hi, doc)                                 \
     if (remaining < 1U) {                                                                     \
         return CDRO_ERR_LENGTH;                                                               \
     }                                                                                         \
@@ -84,7 +87,7 @@
         (void)i;                                                                          \
         (void)p;                                                                          \
         memset(m, 0, sizeof(*m));                                                         \
-        CDRO_FIELDS_##NAME(CDRO_X_GET, CDRO_X_GET_ARRAY)                                  \
+        CDRO_FIELDS_##NAME(CDRO_X_GET, CDRO_X_GET_RANGED, CDRO_X_GET_ARRAY)               \
         return (remaining == 0U) ? CDRO_OK : CDRO_ERR_LENGTH;                             \
     }
 

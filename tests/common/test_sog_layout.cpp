@@ -8,20 +8,24 @@
 
 namespace {
 
-#define SOG_X_FILL(KIND, field, doc) \
+#define SOG_X_FILL(KIND, field, unit, doc) \
     if (j.contains(#field)) m.field = static_cast<CDRO_CTYPE_##KIND>(j.at(#field).get<int64_t>());
-#define SOG_X_TO(KIND, field, doc) out[#field] = static_cast<int64_t>(m.field);
-#define SOG_X_NO_ARRAY(KIND, field, max, doc)
+#define SOG_X_FILL_RANGED(KIND, field, unit, lo, hi, doc) SOG_X_FILL(KIND, field, unit, doc)
+#define SOG_X_TO(KIND, field, unit, doc) out[#field] = static_cast<int64_t>(m.field);
+#define SOG_X_TO_RANGED(KIND, field, unit, lo, hi, doc) SOG_X_TO(KIND, field, unit, doc)
+#define SOG_X_NO_ARRAY(KIND, field, max, unit, lo, hi, doc)
 #define SOG_X_CONVERT(NAME, name, id, doc)                                    \
     [[maybe_unused]] cdro_##name##_t name##FromJson(const nlohmann::json &j) \
     {                                                                         \
         cdro_##name##_t m{};                                                  \
-        CDRO_FIELDS_##NAME(SOG_X_FILL, SOG_X_NO_ARRAY) return m;              \
+        CDRO_FIELDS_##NAME(SOG_X_FILL, SOG_X_FILL_RANGED, SOG_X_NO_ARRAY)     \
+        return m;                                                             \
     }                                                                         \
     [[maybe_unused]] nlohmann::json name##ToJson(const cdro_##name##_t &m)    \
     {                                                                         \
         nlohmann::json out = nlohmann::json::object();                        \
-        CDRO_FIELDS_##NAME(SOG_X_TO, SOG_X_NO_ARRAY) return out;              \
+        CDRO_FIELDS_##NAME(SOG_X_TO, SOG_X_TO_RANGED, SOG_X_NO_ARRAY)         \
+        return out;                                                           \
     }
 CDRO_SOG_RECORD_LIST(SOG_X_CONVERT)
 

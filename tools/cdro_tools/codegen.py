@@ -21,14 +21,61 @@ import sys
 DEFINE = re.compile(r"^#define\s+(CDRO_[A-Z0-9_]+)\s+(0x[0-9A-Fa-f]+|\d+)[UL]*\b", re.M)
 LIST = re.compile(r"#define\s+(CDRO_[A-Z_]*LIST)\(X\)((?:[^\n]*\\\n)*[^\n]*)")
 RECORD = re.compile(r'X\((\w+),\s*(\w+),\s*(\w+),\s*"([^"]*)"\)')
-FIELDS = re.compile(r"#define\s+CDRO_FIELDS_(\w+)\(F, A\)((?:[^\n]*\\\n)*[^\n]*)")
-FIELD = re.compile(r'\b(F|A)\((\w+),\s*(\w+),\s*(?:(\w+),\s*)?"([^"]*)"\)')
+FIELDS = re.compile(r"#define\s+CDRO_FIELDS_(\w+)\(F, R, A\)((?:[^\n]*\\\n)*[^\n]*)")
+FIELD = re.compile(r'\b([FRA])\(((?:\s*(?:"[^"]*"|[-\w]+)\s*,)*\s*"[^"]*")\s*\)')
+ARG = re.compile(r'"([^"]*)"|([-\w]+)')
+NUMBER = re.compile(r"(-?(?:0x[0-9A-Fa-f]+|\d+))[UL]*")
+# The arguments of each field macro: "t" a token (kind, name, number or constant), "s" a string.
+SHAPES = {"F": "ttss", "R": "ttstts", "A": "tttstts"}
 
 KIND_SIZES = {"U8": 1, "U16": 2, "U32": 4, "U64": 8, "I16": 2, "I32": 4, "I64": 8}
+KIND_LIMITS = {"U8": (0, 0xFF), "U16": (0, 0xFFFF), "U32": (0, 0xFFFFFFFF), "U64": (0, 2**64 - 1),
+               "I16": (-2**15, 2**15 - 1), "I32": (-2**31, 2**31 - 1), "I64": (-2**63, 2**63 - 1)}
+
+
+def _number(token: str, constants: dict) -> int:
+    """A bound or maximum of the .def: a number (C suffixes U and L allowed) or a constant."""
+    match = NUMBER.fullmatch(token)
+    if match:
+        return int(match.group(1), 0)
+    if token not in constants:
+        raise ValueError(f"{token}: neither a number nor a constant of this file")
+    return constants[token]
+
+
+def _field(record: str, shape: str, args: list[tuple[str, str]], constants: dict) -> dict:
+    """One F, R or A entry: kind, name, max (arrays), unit, range (R and A), doc."""
+    kinds = "".join("s" if quoted or not token else "t" for quoted, token in args)
+    if kinds != SHAPES[shape]:
+        raise ValueError(f"{record}: {shape}(...) with arguments {args}, expected the shape {SHAPES[shape]}")
+    values = [quoted if kind == "s" else token for kind, (quoted, token) in zip(kinds, args)]
+    kind, name = values[0], values[1]
+    if kind not in KIND_SIZES:
+        raise ValueError(f"{record}.{name}: unknown kind {kind}")
+    entry = {"kind": kind, "name": name}
+    rest = values[2:]
+    if shape == "A":
+        entry["max"] = _number(rest.pop(0), constants)
+    entry["unit"] = rest.pop(0)
+    if shape in "RA":
+        lo_text, hi_text = rest.pop(0), rest.pop(0)
+        lo, hi = _number(lo_text, constants), _number(hi_text, constants)
+        kind_lo, kind_hi = KIND_LIMITS[kind]
+        if not kind_lo <= lo <= hi <= kind_hi:
+            raise ValueError(f"{record}.{name}: range {lo}..{hi} empty or outside {kind}'s {kind_lo}..{kind_hi}")
+        entry["range"] = (lo, hi)
+        entry["range_text"] = (lo_text, hi_text)
+    entry["doc"] = rest.pop(0)
+    return entry
 
 
 def parse_def(text: str) -> dict:
-    """Constants, record lists and field tables of one .def file."""
+    """Constants, record lists and field tables of one .def file.
+
+    A field is {"kind", "name", "unit", "doc"}, with "max" (element count) for an array and
+    "range" (lowest, highest valid value; of each element for an array) where it has one.
+    "range_text" keeps the range as written in the .def, for the docs.
+    """
     constants = {name: int(value, 0) for name, value in DEFINE.findall(text)}
     lists = {}
     for list_name, body in LIST.findall(text):
@@ -38,15 +85,9 @@ def parse_def(text: str) -> dict:
         ]
     fields = {}
     for record, body in FIELDS.findall(text):
-        entries = []
-        for shape, kind, name, max_name, doc in FIELD.findall(body):
-            if kind not in KIND_SIZES:
-                raise ValueError(f"{record}.{name}: unknown kind {kind}")
-            entry = {"kind": kind, "name": name, "doc": doc}
-            if shape == "A":
-                entry["max"] = constants[max_name]
-            entries.append(entry)
-        fields[record] = entries
+        fields[record] = [_field(record, shape, ARG.findall(args), constants) for shape, args in FIELD.findall(body)]
+        if len(fields[record]) != len(re.findall(r"\b[FRA]\(", body)):
+            raise ValueError(f"CDRO_FIELDS_{record}: a field line does not follow the grammar")
     return {"constants": constants, "lists": lists, "fields": fields}
 
 
@@ -84,13 +125,16 @@ def generate(include_dir: pathlib.Path) -> str:
     frame_text = descriptor(frame_list, frames["fields"], empty_list)
     sog_text = descriptor(sog_list, sog["fields"])
 
+    def table(fields: list[dict]) -> list[dict]:  # range_text is for the docs only
+        return [{key: value for key, value in f.items() if key != "range_text"} for f in fields]
+
     frame_types = {}
     for record in frame_list:
         frame_types[record["name"]] = {"id": record["id"], "doc": record["doc"],
-                                       "fields": frames["fields"][record["name"]]}
+                                       "fields": table(frames["fields"][record["name"]])}
     for record in empty_list:
         frame_types[record["name"]] = {"id": record["id"], "doc": record["doc"], "fields": []}
-    sog_records = {r["name"]: {"doc": r["doc"], "fields": sog["fields"][r["name"]]} for r in sog_list}
+    sog_records = {r["name"]: {"doc": r["doc"], "fields": table(sog["fields"][r["name"]])} for r in sog_list}
     constants = dict(frames["constants"])
     constants.update(sog["constants"])
 
@@ -140,24 +184,36 @@ def _constants_table(text: str) -> list[str]:
     return rows
 
 
-def _field_table(fields: list[dict], start: int = 0) -> list[str]:
-    rows = ["| Offset | Type | Field | Unit, scale; meaning |", "|---:|---|---|---|"]
+def _bound_text(token: str, constants: dict) -> str:
+    """A bound as a number: as written in the .def if it is one, else the constant's value."""
+    match = NUMBER.fullmatch(token)
+    return match.group(1) if match else str(constants[token])
+
+
+def _field_table(fields: list[dict], constants: dict, start: int = 0) -> list[str]:
+    """Offsets, types, units and the declared valid ranges ("-": none declared)."""
+    rows = ["| Offset | Type | Field | Unit | Range | Meaning |", "|---:|---|---|---|---|---|"]
     offset: int | str = start
     for field in fields:
         kind = _KIND_TEXT[field["kind"]]
-        field = dict(field, doc=_cell(field["doc"]))
+        unit = _cell(field["unit"]) or "-"
+        valid = "-"
+        if "range_text" in field:
+            valid = "..".join(_bound_text(token, constants) for token in field["range_text"])
+        doc = _cell(field["doc"])
         if "max" in field:
-            rows.append(f"| {offset} | u8 | {field['name']}_count | number of elements, 0..{field['max']} |")
+            rows.append(f"| {offset} | u8 | {field['name']}_count | count | 0..{field['max']} | number of elements |")
             nxt = offset + 1 if isinstance(offset, int) else f"{offset}+1"
-            rows.append(f"| {nxt} | {kind}[count] | {field['name']} | {field['doc']} |")
+            each = f"{valid} each" if "range_text" in field else valid
+            rows.append(f"| {nxt} | {kind}[count] | {field['name']} | {unit} | {each} | {doc} |")
             size = KIND_SIZES[field["kind"]]
             offset = f"{nxt}+{size}*count"
         else:
-            rows.append(f"| {offset} | {kind} | {field['name']} | {field['doc']} |")
+            rows.append(f"| {offset} | {kind} | {field['name']} | {unit} | {valid} | {doc} |")
             size = KIND_SIZES[field["kind"]]
             offset = offset + size if isinstance(offset, int) else f"{offset}+{size}"
     if not fields:
-        rows.append("| - | - | - | empty payload |")
+        rows.append("| - | - | - | - | - | empty payload |")
     return rows
 
 
@@ -182,7 +238,7 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
         out.append("")
         out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
         out.append("")
-        out += _field_table(fields)
+        out += _field_table(fields, frames["constants"])
         out.append("")
     out.append("### SoG snapshot records")
     out.append("")
@@ -193,7 +249,7 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
         out.append("")
         out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
         out.append("")
-        out += _field_table(fields)
+        out += _field_table(fields, sog["constants"])
         out.append("")
     out.append(DOC_END)
     return "\n".join(out)

@@ -4,7 +4,8 @@
  * text from the same .def files; tests/golden/layout_history.json pins one hash per version.
  *
  * Text: for every record in table order, "NAME ID{KIND field;KIND array[MAX];...}" with ID
- * and MAX spelled as their expanded tokens (e.g. "RANGE 0x02{U32 device_time_ms;...}").
+ * and MAX spelled as their expanded tokens (e.g. "RANGE 0x02{U32 device_time_ms;...}"). Units
+ * and value ranges are left out: the text, and so the hash, covers the bytes on the wire only.
  * Host-side only: the firmware sends the committed CDRO_LAYOUT_HASH constant, not this text.
  */
 #ifndef CDRO_LAYOUT_DESCRIPTOR_H
@@ -16,10 +17,11 @@
 #define CDRO_STRINGIFY_(x) #x
 #define CDRO_STRINGIFY(x) CDRO_STRINGIFY_(x)
 
-#define CDRO_X_DESC_FIELD(KIND, field, doc) #KIND " " #field ";"
-#define CDRO_X_DESC_ARRAY(KIND, field, max, doc) #KIND " " #field "[" CDRO_STRINGIFY(max) "];"
+#define CDRO_X_DESC_FIELD(KIND, field, unit, doc) #KIND " " #field ";"
+#define CDRO_X_DESC_RANGED(KIND, field, unit, lo, hi, doc) #KIND " " #field ";"
+#define CDRO_X_DESC_ARRAY(KIND, field, max, unit, lo, hi, doc) #KIND " " #field "[" CDRO_STRINGIFY(max) "];"
 #define CDRO_X_DESC_RECORD(NAME, name, id, doc) \
-    #NAME " " #id "{" CDRO_FIELDS_##NAME(CDRO_X_DESC_FIELD, CDRO_X_DESC_ARRAY) "}"
+    #NAME " " #id "{" CDRO_FIELDS_##NAME(CDRO_X_DESC_FIELD, CDRO_X_DESC_RANGED, CDRO_X_DESC_ARRAY) "}"
 #define CDRO_X_DESC_EMPTY(NAME, name, id, doc) #NAME " " #id "{}"
 
 #define CDRO_FRAME_LAYOUT_DESCRIPTOR \
