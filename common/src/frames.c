@@ -179,15 +179,15 @@ cdro_result_t cdro_frame_decode(const uint8_t *chunk, size_t len, cdro_frame_t *
 
 /* ---- semantic validation ---------------------------------------------------------------- */
 
-/* Node ids: non-zero (0 means "local"/broadcast to Pozyx) and no duplicates in one list. */
-static int node_ids_valid(const uint16_t *ids, uint8_t count)
+/* ranges_ok_<name>: the declared ranges of frame_layout.def, field by field (layout_codec.h). */
+CDRO_FRAME_LIST(CDRO_X_RANGE_CHECK)
+
+/* No id twice in one list (that each is non-zero is its range). */
+static int ids_distinct(const uint16_t *ids, uint8_t count)
 {
     uint8_t i;
     uint8_t j;
     for (i = 0; i < count; ++i) {
-        if (ids[i] == 0U) {
-            return 0;
-        }
         for (j = 0; j < i; ++j) {
             if (ids[j] == ids[i]) {
                 return 0;
@@ -197,6 +197,36 @@ static int node_ids_valid(const uint16_t *ids, uint8_t count)
     return 1;
 }
 
+/*
+ * The rules that are not one field's range, so frame_layout.def cannot declare them: between
+ * two fields, across an array's elements, and on the bit fields and code sets of SET_UWB. The
+ * one place for them in C; validate_frame in frames.py has their Python twin.
+ */
+static int other_rules_ok(const cdro_frame_t *frame)
+{
+    switch (frame->type) {
+#if !CDRO_DEVICE_SIDE /* device-to-host types: refused by type before this on the device */
+    case CDRO_FRAME_RANGE:
+        return frame->as.range.from_id != frame->as.range.to_id;
+    case CDRO_FRAME_NODE_LIST:
+        return ids_distinct(frame->as.node_list.node_ids, frame->as.node_list.node_ids_count);
+#endif
+    case CDRO_FRAME_SET_NODES:
+        return ids_distinct(frame->as.set_nodes.node_ids, frame->as.set_nodes.node_ids_count);
+    case CDRO_FRAME_SET_UWB: {
+        const cdro_set_uwb_t *u = &frame->as.set_uwb;
+        const uint8_t bitrate = (uint8_t)(u->uwb_rates & 0x3FU);
+        const uint8_t prf = (uint8_t)(u->uwb_rates >> 6);
+        const uint8_t p = u->uwb_plen;
+        return u->uwb_channel != 6U && bitrate <= 2U && prf >= 1U && prf <= 2U &&
+               (p == 0x04U || p == 0x14U || p == 0x24U || p == 0x34U || p == 0x08U || p == 0x18U || p == 0x28U ||
+                p == 0x0CU);
+    }
+    default:
+        return 1;
+    }
+}
+
 cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
 {
     int ok = 1;
@@ -204,76 +234,29 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
         return CDRO_ERR_ARGUMENT;
     }
     switch (frame->type) {
-#if !CDRO_DEVICE_SIDE /* device-to-host types: the device NACKs them UNKNOWN_TYPE whatever their values */
-    case CDRO_FRAME_HELLO:
-        ok = frame->as.hello.node_id != 0U;
+/* On the device, a device-to-host type is refused by type (the device NACKs it UNKNOWN_TYPE
+ * whatever its values), and its checks compile to nothing. */
+#define CDRO_X_VALIDATE_CASE(NAME, name, id, doc) \
+    case id:                                       \
+        if (CDRO_DEVICE_SIDE && (id) < 0x40) {     \
+            return CDRO_ERR_TYPE;                  \
+        }                                          \
+        ok = ranges_ok_##name(&frame->as.name);    \
         break;
-    case CDRO_FRAME_RANGE: {
-        const cdro_range_t *r = &frame->as.range;
-        ok = r->from_id != 0U && r->to_id != 0U && r->from_id != r->to_id &&
-             r->distance_mm <= CDRO_MAX_DISTANCE_MM;
+#define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
+    case id:                                     \
+        if (CDRO_DEVICE_SIDE && (id) < 0x40) {   \
+            return CDRO_ERR_TYPE;                \
+        }                                        \
         break;
-    }
-    case CDRO_FRAME_MOTION: {
-        const cdro_motion_t *m = &frame->as.motion;
-        ok = m->node_id != 0U && m->moving <= 1U && m->accel_norm_mg <= CDRO_MAX_ACCEL_MG &&
-             m->reason <= CDRO_MOTION_REASON_PERIODIC;
-        break;
-    }
-    case CDRO_FRAME_STATUS:
-        ok = frame->as.status.running <= 1U && frame->as.status.node_count <= CDRO_MAX_NODES;
-        break;
-    case CDRO_FRAME_NODE_LIST:
-        ok = frame->as.node_list.source <= CDRO_NODE_SOURCE_HOST &&
-             node_ids_valid(frame->as.node_list.node_ids, frame->as.node_list.node_ids_count);
-        break;
-    case CDRO_FRAME_NACK:
-        ok = frame->as.nack.reason >= CDRO_NACK_MALFORMED && frame->as.nack.reason <= CDRO_NACK_WRONG_STATE;
-        break;
-    case CDRO_FRAME_ERROR:
-        ok = frame->as.error.code != 0U;
-        break;
-    case CDRO_FRAME_NODE_INFO:
-        ok = frame->as.node_info.node_id != 0U && frame->as.node_info.result <= CDRO_NODE_INFO_NO_ANSWER &&
-             frame->as.node_info.mismatch <= 0x3FU;
-        break;
-    case CDRO_FRAME_DIAG:
-        ok = frame->as.diag.item >= CDRO_DIAG_REMOTE_FLAGS && frame->as.diag.item <= CDRO_DIAG_ACCEL;
-        break;
-    case CDRO_FRAME_ACK:
-        break;
-#endif
-    case CDRO_FRAME_SET_NODES:
-        ok = node_ids_valid(frame->as.set_nodes.node_ids, frame->as.set_nodes.node_ids_count);
-        break;
-    case CDRO_FRAME_SET_UWB: {
-        const cdro_set_uwb_t *u = &frame->as.set_uwb;
-        const uint8_t prf = (uint8_t)(u->uwb_rates >> 6);
-        const uint8_t p = u->uwb_plen;
-        ok = u->uwb_channel >= 1U && u->uwb_channel <= 7U && u->uwb_channel != 6U && (u->uwb_rates & 0x3FU) <= 2U &&
-             prf >= 1U && prf <= 2U && u->uwb_gain <= 67U && u->range_protocol <= 1U &&
-             (p == 0x04U || p == 0x14U || p == 0x24U || p == 0x34U || p == 0x08U || p == 0x18U || p == 0x28U ||
-              p == 0x0CU);
-        break;
-    }
-    case CDRO_FRAME_SET_SCHEDULE: {
-        const cdro_set_schedule_t *s = &frame->as.set_schedule;
-        ok = s->mode <= CDRO_SCHEDULE_ALL_PAIRS && s->moving_boost >= 1U && s->moving_boost <= 8U &&
-             s->status_period_ms >= 100U && s->status_period_ms <= 60000U && s->max_retries <= 10U &&
-             s->slot_period_ms <= 60000U && s->motion_poll_ms <= 60000U;
-        break;
-    }
-    case CDRO_FRAME_PING:
-    case CDRO_FRAME_START:
-    case CDRO_FRAME_STOP:
-    case CDRO_FRAME_HELLO_REQUEST:
-    case CDRO_FRAME_DIAGNOSE:
-        break;
-    case CDRO_FRAME_TYPE_NONE:
+        CDRO_FRAME_LIST(CDRO_X_VALIDATE_CASE)
+        CDRO_EMPTY_FRAME_LIST(CDRO_X_EMPTY_CASE)
+#undef CDRO_X_VALIDATE_CASE
+#undef CDRO_X_EMPTY_CASE
     default:
         return CDRO_ERR_TYPE;
     }
-    return ok ? CDRO_OK : CDRO_ERR_VALUE;
+    return (ok && other_rules_ok(frame)) ? CDRO_OK : CDRO_ERR_VALUE;
 }
 
 /* ---- streaming decoder ------------------------------------------------------------------ */

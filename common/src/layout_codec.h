@@ -9,6 +9,9 @@
  *       static cdro_result_t decode_<name>(const uint8_t *in, size_t len, cdro_<name>_t *m)
  *     which reads exactly len bytes: CDRO_ERR_LENGTH if they are too few, too many, or an
  *     array count exceeds its maximum or the bytes left. Nothing is read out of bounds.
+ *   CDRO_X_RANGE_CHECK(NAME, name, id, doc) defines
+ *       static int ranges_ok_<name>(const cdro_<name>_t *m)
+ *     which is 1 when every R field and every element of every A field lies in its range, else 0.
  */
 #ifndef CDRO_LAYOUT_CODEC_H
 #define CDRO_LAYOUT_CODEC_H
@@ -89,6 +92,38 @@
         memset(m, 0, sizeof(*m));                                                         \
         CDRO_FIELDS_##NAME(CDRO_X_GET, CDRO_X_GET_RANGED, CDRO_X_GET_ARRAY)               \
         return (remaining == 0U) ? CDRO_OK : CDRO_ERR_LENGTH;                             \
+    }
+
+/*
+ * A function per kind converts the bounds to the field's type, so that a bound the type cannot
+ * pass (0 for an unsigned field, 0xFFFF for a u16) folds away instead of being an always-true
+ * comparison (-Wtype-limits); a bound the type cannot hold fails to compile (-Woverflow).
+ */
+static inline int cdro_in_range_U8(uint8_t value, uint8_t lo, uint8_t hi) { return value >= lo && value <= hi; }
+static inline int cdro_in_range_U16(uint16_t value, uint16_t lo, uint16_t hi) { return value >= lo && value <= hi; }
+static inline int cdro_in_range_U32(uint32_t value, uint32_t lo, uint32_t hi) { return value >= lo && value <= hi; }
+static inline int cdro_in_range_I16(int16_t value, int16_t lo, int16_t hi) { return value >= lo && value <= hi; }
+static inline int cdro_in_range_I32(int32_t value, int32_t lo, int32_t hi) { return value >= lo && value <= hi; }
+
+#define CDRO_X_CHECK_ANY(KIND, field, unit, doc)
+#define CDRO_X_CHECK_RANGE(KIND, field, unit, lo, hi, doc) \
+    if (!cdro_in_range_##KIND(m->field, (lo), (hi))) {     \
+        return 0;                                          \
+    }
+#define CDRO_X_CHECK_ARRAY(KIND, field, max, unit, lo, hi, doc) \
+    for (i = 0; i < m->field##_count; ++i) {                    \
+        if (!cdro_in_range_##KIND(m->field[i], (lo), (hi))) {   \
+            return 0;                                           \
+        }                                                       \
+    }
+#define CDRO_X_RANGE_CHECK(NAME, name, id, doc)                                      \
+    static int ranges_ok_##name(const cdro_##name##_t *m)                            \
+    {                                                                                \
+        uint8_t i = 0;                                                               \
+        (void)i;                                                                     \
+        (void)m;                                                                     \
+        CDRO_FIELDS_##NAME(CDRO_X_CHECK_ANY, CDRO_X_CHECK_RANGE, CDRO_X_CHECK_ARRAY) \
+        return 1;                                                                    \
     }
 
 #endif /* CDRO_LAYOUT_CODEC_H */
