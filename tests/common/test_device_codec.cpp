@@ -4,6 +4,7 @@
 // to the same fields, and answers a device-to-host frame as the device must (UNKNOWN_TYPE via
 // CDRO_ERR_TYPE whatever its values, MALFORMED via CDRO_ERR_LENGTH for a wrong length) without
 // decoding its fields. Linked against cdro_common_device_codec only.
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -85,6 +86,30 @@ TEST(DeviceCodec, RejectionsOfHostFramesAreTheFullCodecsAndDeviceFramesStayByTyp
     const size_t m = cdro_cobs_encode(raw, shorter, wire, sizeof wire);
     cdro_frame_t out;
     EXPECT_EQ(cdro_frame_decode(wire, m, &out), CDRO_ERR_LENGTH);
+}
+
+// The edges of the value ranges (tests/golden/bounds_cases.json): a host-to-device frame gets the
+// full codec's verdict; a device-to-host one is refused by type unless its length is wrong.
+TEST(DeviceCodec, RangeEdgesOfHostFramesGetTheFullCodecsVerdict)
+{
+    const auto table = nlohmann::json::parse(golden::readFile(std::string(CDRO_GOLDEN_DIR) + "/bounds_cases.json"));
+    size_t host_cases = 0;
+    for (const auto &c : table.at("cases")) {
+        const auto chunk = golden::fromHex(c.at("chunk"));
+        cdro_frame_t frame;
+        int result = cdro_frame_decode(chunk.data(), chunk.size(), &frame);
+        if (result == CDRO_OK) {
+            result = cdro_frame_validate(&frame);
+        }
+        const std::string full = c.at("result");
+        if (hostToDevice(golden::frameTypeId(c.at("type")))) {
+            ++host_cases;
+            EXPECT_STREQ(cdro_result_name(result), full.c_str()) << c.at("name");
+        } else {
+            EXPECT_STREQ(cdro_result_name(result), full == "length" ? "length" : "type") << c.at("name");
+        }
+    }
+    EXPECT_GT(host_cases, 0U);
 }
 
 } // namespace
