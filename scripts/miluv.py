@@ -33,11 +33,13 @@ scores. Deterministic.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import pathlib
 import statistics
 import sys
+import tempfile
 
 import numpy as np
 
@@ -46,11 +48,19 @@ sys.path.insert(0, str(ROOT / "tools"))     # this checkout's cdro_tools, not an
 
 from cdro_tools.evaluation import tracking  # noqa: E402 (after the path)
 from cdro_tools.evaluation import tracking_baselines as tb  # noqa: E402 (after the path)
-from cdro_tools.evaluation.inputs import csv_rows, parse_id, parse_number  # noqa: E402 (after the path)
+from cdro_tools.evaluation.inputs import Format, Policy, Row, read_rows  # noqa: E402 (after the path)
 
 DATA = pathlib.Path(os.environ.get("CDRO_DATA_DIR", ROOT.parent / "shared" / "data")) / "miluv"
 EXPERIMENTS = ("3robots_cirObstacles_random_0", "1robot_cirObstacles_random3_0")
 REPLICA_SEED, REPLICA_NOISE_M = 1, 0.1
+# MiLUV numbers an anchor 0, which is not a node id (as on the live link; the readers refuse it, as
+# cdro-hostd does): it is read as this id and reported under its own, as Plaza's beacon 0 is
+# (docs/results.md).
+ZERO_ID_AS = 100
+RENUMBERED_FILES = ("ranges.csv", "ranges_detail.csv", "nodes.csv", "tag_truth.csv")
+# The data set's per-range labels (its README), written by its converter: a bad row there is a broken
+# conversion, not a measurement to skip.
+DETAIL_FORMAT = Format(("from", "to", "range_m", "gt_range_m", "anchor_obstructed"))
 TITLES = {"trilateration": "(a) trilateration", "ekf": "(b) EKF per tag", "coop-ekf": "(c-ref) cooperative EKF",
           "room-centre": "room centre (learns nothing)"}
 
@@ -98,22 +108,49 @@ def run_baselines(ranges, anchors, args) -> dict[str, tb.TrackingResult]:
             "coop-ekf": tb.track_ekf(ranges, anchors, cooperative=True, **ekf)}
 
 
+def renumbered(folder: pathlib.Path, into: pathlib.Path) -> pathlib.Path:
+    """A copy of an experiment's files with node id 0 as ZERO_ID_AS (a copy of the converter's
+    text, field for field: only ids change)."""
+    copy = into / folder.name
+    copy.mkdir(parents=True, exist_ok=True)
+    for file in RENUMBERED_FILES:
+        with open(folder / file, newline="") as f:
+            rows = list(csv.reader(f))
+        ids = [i for i, column in enumerate(rows[0]) if column in ("from", "to", "id")]
+        for row in rows[1:]:
+            for i in ids:
+                row[i] = str(ZERO_ID_AS) if row[i] == "0" else row[i]
+        with open(copy / file, "w", newline="") as f:
+            csv.writer(f, lineterminator="\n").writerows(rows)
+    return copy
+
+
+def dataset_id(node: int) -> int:
+    """A node's id as the data set numbers it."""
+    return 0 if node == ZERO_ID_AS else node
+
+
 def anchor_report(detail_path: pathlib.Path, ranges: tb.TimedRanges, anchors: dict[int, np.ndarray],
                   results: dict[str, tb.TrackingResult]) -> list[dict]:
     residuals: dict[object, list[float]] = {}
     obstructed: dict[object, bool] = {}
-    for _, row in csv_rows(str(detail_path), ["from", "to", "range_m", "gt_range_m", "anchor_obstructed"]):
-        a, b = parse_id(row["from"]), parse_id(row["to"])
+
+    def on_row(row: Row) -> None:
+        a, b = row.node_id("from"), row.node_id("to")
         key = a if a in anchors else b if b in anchors else "tag-tag"
-        residuals.setdefault(key, []).append(parse_number(row["range_m"], "range_m")
-                                             - parse_number(row["gt_range_m"], "gt_range_m"))
-        obstructed[key] = obstructed.get(key, False) or row["anchor_obstructed"].strip() == "1"
-    keys = [*sorted(k for k in residuals if k != "tag-tag"), *(["tag-tag"] if "tag-tag" in residuals else [])]
+        residuals.setdefault(key, []).append(row.number("range_m") - row.number("gt_range_m"))
+        obstructed[key] = obstructed.get(key, False) or row.text("anchor_obstructed") == "1"
+
+    read_rows(str(detail_path), DETAIL_FORMAT, on_row, None, Policy.STRICT)
+    keys = [*sorted((k for k in residuals if k != "tag-tag"), key=dataset_id),
+            *(["tag-tag"] if "tag-tag" in residuals else [])]
     out = []
     for key in keys:
         values = residuals[key]
         q1, _, q3 = statistics.quantiles(values, n=4) if len(values) > 1 else (values[0],) * 3
-        entry = {"anchor": key, "obstructed": obstructed[key] if key != "tag-tag" else None, "ranges": len(values),
+        anchor = key != "tag-tag"
+        entry = {"anchor": dataset_id(key) if anchor else key, "obstructed": obstructed[key] if anchor else None,
+                 "ranges": len(values),
                  "mean_m": statistics.fmean(values), "median_m": statistics.median(values), "iqr_m": q3 - q1}
         for name in ("ekf", "coop-ekf"):
             tested = rejected = 0
@@ -213,8 +250,9 @@ def main() -> int:
           + ("gate" if args.gate else "Huber weights") + f" beyond nu^2/S > {tb.GATE_CHI2:g}, reset after "
           f"{tb.RESET_AFTER_REJECTS} in a row, room: the anchors' box + {tb.ROOM_MARGIN_M:g} m from z = "
           f"{tb.FLOOR_Z_M:g}; trilateration window {tb.WINDOW_S:g} s; replica seed {REPLICA_SEED}")
+    copies = tempfile.TemporaryDirectory(prefix="miluv-")
     for name in EXPERIMENTS:
-        folder = data / name
+        folder = renumbered(data / name, pathlib.Path(copies.name))
         bad: list = []
         ranges = tb.read_timed_ranges(str(folder / "ranges.csv"), bad)
         anchors = tb.read_anchors(str(folder / "nodes.csv"), bad)
@@ -249,6 +287,7 @@ def main() -> int:
                 tracking.write_trajectory(str(out / f"{name}-{n}.csv"), r.rows)
                 if args.trace and n != "trilateration":
                     write_trace(out / f"{name}-{n}-trace.csv", r.rows, truth)
+    copies.cleanup()
     if out:
         (out / "miluv.json").write_text(json.dumps(report, indent=1, default=_json_default) + "\n")
     return 0

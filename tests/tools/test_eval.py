@@ -418,12 +418,13 @@ def test_that_bad_rows_are_reported_by_line_and_skipped(tmp_path):
     est_csv = str(tmp_path / "est.csv")
     reasons = {(b["file"], b["line"]): b["reason"] for b in report["bad_rows"]["rows"]}
     assert reasons == {
-        (ranges_csv, 4): "range_m 'abc' is not a number",
+        (ranges_csv, 4): "range_m 'abc' is not a finite number",
         (ranges_csv, 5): "negative range -0.5 m",
         (ranges_csv, 6): "node 3 ranging itself",
-        (ranges_csv, 7): "id 'x' is not an integer",
+        (ranges_csv, 7): "from 'x' is not a node id (1..65535, decimal or 0x hex; 0 is not a node on the live link "
+                         "either)",
         (ranges_csv, 8): "range_m 'nan' is not a finite number",
-        (est_csv, 3): "converged '2' is neither 0 nor 1",
+        (est_csv, 3): "converged must be 0 or 1",
         (est_csv, 4): "negative variance (var_x -1, var_y 0.01 m^2)",
     }
     assert report["bad_rows"]["count"] == 7
@@ -456,7 +457,7 @@ def test_that_a_node_the_engine_has_not_placed_is_reported_as_such_not_as_a_bad_
     assert engine["nodes"] == 3 and engine["rmse_m"] == pytest.approx(0.0, abs=1e-9)
     assert "1 not placed (4)" in engine["notes"]
     reasons = {b["line"]: b["reason"] for b in report["bad_rows"]["rows"]}
-    assert reasons == {6: "x is empty"}
+    assert reasons == {6: "x '' is not a finite number"}
     assert "1 not placed (4)" in result.stdout
 
 
@@ -468,8 +469,10 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
     (tmp_path / "other-ids.csv").write_text("id,x,y,var_x,cov_xy,var_y,converged\n24577,0,0,0.01,0,0.01,1\n")
     truth, ranges = tmp_path / "truth.csv", tmp_path / "ranges.csv"
     for args, message in (
-            (["--truth", tmp_path / "missing.csv", "--ranges", ranges], "missing.csv: cannot open: No such file"),
-            (["--truth", truth, "--ranges", tmp_path / "no-range.csv"], "no-range.csv: missing column(s) range_m"),
+            (["--truth", tmp_path / "missing.csv", "--ranges", ranges],
+             "missing.csv: cannot open the file (No such file"),
+            (["--truth", truth, "--ranges", tmp_path / "no-range.csv"],
+             "no-range.csv:1: the header has no column 'range_m'"),
             (["--truth", tmp_path / "flat.csv", "--ranges", ranges, "--heights-from-truth"], "has no z column"),
             (["--truth", truth, "--estimates", tmp_path / "other-ids.csv"], "none of its ids is in"),
             (["--truth", truth, "--ranges", ranges, "--rmse-png", tmp_path / "r.png"], "--rmse-png needs"),
@@ -479,7 +482,7 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
             (["--truth", truth, "--ranges", ranges, "--sigma-m", "0"], "must be above 0"),
             (["--truth", truth, "--ranges", ranges, "--json", tmp_path / "no-dir" / "e.json"], "no such directory"),
             (["--truth", truth], "nothing to evaluate"),
-            (["--truth", truth, "--trace", ranges], "ranges.csv: missing column(s) ranges, id")):
+            (["--truth", truth, "--trace", ranges], "ranges.csv:1: the header has no column 'ranges'")):
         result = run_eval(*args)
         assert result.returncode == 2 and message in result.stderr, (args, result.stderr)
     help_text = run_eval("--help").stdout

@@ -172,7 +172,7 @@ def test_that_unusable_input_is_a_clear_error(tmp_path):
     (tmp_path / "good.csv").write_text("id,x,y,var_x,cov_xy,var_y,converged\n1,0,0,0.1,0,0.1,1\n")
     for args, message in (
             ([tmp_path / "empty.jsonl", "--map", tmp_path / "m.png"], "no node estimates"),
-            ([tmp_path / "nodes.csv", "--map", tmp_path / "m.png"], "missing column(s) var_x"),
+            ([tmp_path / "nodes.csv", "--map", tmp_path / "m.png"], "the header has no column 'var_x'"),
             ([tmp_path / "good.csv", "--map", tmp_path / "m.png", "--rmse", tmp_path / "r.png"],
              "needs estimates over time"),
             ([tmp_path / "missing.jsonl", "--map", tmp_path / "m.png"], "No such file")):

@@ -184,7 +184,7 @@ def test_that_the_command_line_exits_2_on_half_a_pair_or_a_missing_column(tmp_pa
     flat = tmp_path / "flat.csv"
     flat.write_text("t,id,x,y\n1.0,10,0,0\n")
     for args, message in ((["--tag-truth", str(truth)], "--tag-trajectory and --tag-truth go together"),
-                          (["--tag-trajectory", str(flat), "--tag-truth", str(truth)], "missing column(s) z"),
+                          (["--tag-trajectory", str(flat), "--tag-truth", str(truth)], "the header has no column 'z'"),
                           (["--align"], "--align goes with --tag-trajectory")):
         result = subprocess.run([sys.executable, "-m", "cdro_tools.eval_motion", *args],
                                 check=False, capture_output=True, text=True, timeout=GUARD_S)

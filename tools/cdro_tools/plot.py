@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
-import csv
 import dataclasses
 import json
 import math
@@ -45,12 +44,14 @@ import numpy as np
 
 from .evaluation import diagnostics, drawing
 from .evaluation import inputs as csv_inputs
+from .evaluation import movement
 from .evaluation.alignment import align, rigid_fit, rmse  # noqa: F401  (rigid_fit: part of this module's API)
 from .cli import entry_point
 
 
-class InputError(ValueError):
-    """An input file that cannot be used at all."""
+InputError = csv_inputs.InputError     # an input file that cannot be used at all
+TRAJECTORY_FORMAT = csv_inputs.Format(("t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"), ("frame",))
+TRACE_FORMAT = csv_inputs.Format(("ranges", "id", "x", "y", "var_x", "cov_xy", "var_y", "converged"), ("t",))
 
 
 @dataclasses.dataclass
@@ -131,44 +132,40 @@ def read_json_lines(path: str) -> Estimates:
     return out
 
 
-def _csv_rows(path: str, required: list[str], dropped: collections.Counter | None = None,
-              text: tuple[str, ...] = ()) -> list[dict]:
-    """The required columns as numbers; the `text` columns as they are (None when the file has not
-    got them)."""
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in required if c not in (reader.fieldnames or [])]
-        if missing:
-            raise InputError(f"{path}: missing column(s) {', '.join(missing)} (header: {reader.fieldnames})")
-        rows = []
-        for number, row in enumerate(reader, start=2):
-            try:
-                rows.append({**{c: float(row[c]) for c in required}, **{c: row.get(c) for c in text}})
-            except (TypeError, ValueError):
-                if dropped is None:
-                    raise InputError(f"{path}:{number}: not a number in {row}") from None
-                dropped[f"{path}: row with a non-numeric value"] += 1
-        return rows
+def _drop(out: Estimates, bad: list[csv_inputs.BadRow]) -> None:
+    """A CSV's bad rows (skipped), by file: how many, and the first one's line and reason."""
+    for path in dict.fromkeys(b.path for b in bad):
+        rows = [b for b in bad if b.path == path]
+        out.dropped[f"{path}: bad rows (the first: line {rows[0].line}, {rows[0].reason})"] += len(rows)
 
 
 def read_nodes_csv(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
     out = Estimates(timed=False)
-    for row in _csv_rows(path, ["id", "x", "y", "var_x", "cov_xy", "var_y", "converged"], out.dropped):
-        out.nodes[int(row["id"])].append(Estimate(0.0, row["x"], row["y"],
-                                                  _cov(row["var_x"], row["cov_xy"], row["var_y"]),
-                                                  bool(row["converged"])))
+    bad: list[csv_inputs.BadRow] = []
+    unplaced: list[int] = []
+    for node_id, e in csv_inputs.read_estimates(path, bad, unplaced).items():
+        out.nodes[node_id].append(Estimate(0.0, float(e.xy_m[0]), float(e.xy_m[1]), e.cov_m2, e.converged))
+    if unplaced:
+        out.skipped[f"{path}: node not placed yet"] += len(unplaced)
     if trajectory:
-        rows = _csv_rows(trajectory, ["t", "x", "y", "heading_rad", "var_x", "cov_xy", "var_y"], out.dropped,
-                         ("frame",))
+        rows: list[tuple[Estimate, str | None]] = []
+
+        def on_row(row: csv_inputs.Row) -> None:
+            t_s, x_m, y_m = row.number("t"), row.number("x"), row.number("y")
+            row.number("heading_rad")   # not drawn, but a row without a heading is damaged
+            cov = _cov(row.number("var_x"), row.number("cov_xy"), row.number("var_y"))
+            rows.append((Estimate(t_s, x_m, y_m, cov), row.text("frame") if row.has("frame") else None))
+
+        csv_inputs.read_rows(trajectory, TRAJECTORY_FORMAT, on_row, bad)
         # A robot that stood while the map formed starts in the odometry's frame: only the rows in
         # the frame of the last row share the nodes' frame.
-        final_frame = rows[-1]["frame"] if rows else None
-        for row in rows:
-            if row["frame"] != final_frame:
-                out.skipped[f"{trajectory}: trajectory row in the {row['frame']} frame (before the map)"] += 1
+        final_frame = rows[-1][1] if rows else None
+        for estimate, frame in rows:
+            if frame != final_frame:
+                out.skipped[f"{trajectory}: trajectory row in the {frame} frame (before the map)"] += 1
                 continue
-            out.robot[robot_id if robot_id is not None else 0].append(
-                Estimate(row["t"], row["x"], row["y"], _cov(row["var_x"], row["cov_xy"], row["var_y"])))
+            out.robot[robot_id if robot_id is not None else 0].append(estimate)
+    _drop(out, bad)
     return out
 
 
@@ -176,17 +173,35 @@ def read_trace_csv(path: str) -> Estimates:
     """The engine's trace (cdro-hostd --trace-csv): a snapshot of every placed node after every
     K-th range. Over its `t` column (s) when every row has one, else over the ranges processed."""
     out = Estimates(timed=True)
-    rows = _csv_rows(path, ["ranges", "id", "x", "y", "var_x", "cov_xy", "var_y", "converged"], out.dropped, ("t",))
-    timed = bool(rows) and all((row["t"] or "").strip() for row in rows)
+    rows: list[tuple[float, float | None, int, Estimate]] = []
+
+    def on_row(row: csv_inputs.Row) -> None:
+        count = csv_inputs.read_count(row, "ranges")
+        t_s = row.number("t") if row.has("t") and row.text("t") != "" else None
+        node_id, x_m, y_m = row.node_id("id"), row.number("x"), row.number("y")
+        cov = _cov(row.number("var_x"), row.number("cov_xy"), row.number("var_y"))
+        rows.append((float(count), t_s, node_id, Estimate(0.0, x_m, y_m, cov, row.flag("converged"))))
+
+    bad: list[csv_inputs.BadRow] = []
+    csv_inputs.read_rows(path, TRACE_FORMAT, on_row, bad)
+    _drop(out, bad)
+    timed = bool(rows) and all(t_s is not None for _, t_s, _, _ in rows)
     out.axis = "t_s" if timed else "ranges"
-    for row in rows:
-        t = float(row["t"]) if timed else row["ranges"]
-        out.nodes[int(row["id"])].append(Estimate(t, row["x"], row["y"],
-                                                  _cov(row["var_x"], row["cov_xy"], row["var_y"]),
-                                                  bool(row["converged"])))
+    for count, t_s, node_id, estimate in rows:
+        estimate.t_s = t_s if timed else count
+        out.nodes[node_id].append(estimate)
     for series in out.nodes.values():
         series.sort(key=lambda e: e.t_s)
     return out
+
+
+def _is_trace(path: str) -> bool:
+    """Whether a CSV's header names a `ranges` column (a trace, not a nodes CSV)."""
+    try:
+        with csv_inputs.Reader(path, csv_inputs.Format((), ("ranges",)), csv_inputs.Policy.STRICT) as reader:
+            return "ranges" in reader.columns
+    except InputError:
+        return False            # read as a nodes CSV, which says what is wrong with it
 
 
 def read_estimates(path: str, trajectory: str | None, robot_id: int | None) -> Estimates:
@@ -196,7 +211,7 @@ def read_estimates(path: str, trajectory: str | None, robot_id: int | None) -> E
         if trajectory:
             raise InputError("--trajectory goes with a nodes CSV; JSON Lines carry the robot's own lines")
         return read_json_lines(path)
-    if head.split("\n", 1)[0].split(",")[0].strip() == "ranges":
+    if _is_trace(path):
         if trajectory:
             raise InputError("--trajectory goes with a nodes CSV, not with a trace")
         return read_trace_csv(path)
@@ -207,17 +222,13 @@ class Truth:
     def __init__(self, truth_csv: str | None, tracks_csv: str | None):
         self.start: dict[int, tuple[float, float]] = {}
         self.tracks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        strict = csv_inputs.Policy.STRICT
         if truth_csv:
-            for row in _csv_rows(truth_csv, ["id", "x", "y"]):
-                self.start[int(row["id"])] = (row["x"], row["y"])
+            xy, _ = csv_inputs.read_truth(truth_csv, [], strict)
+            self.start = {node_id: (float(p[0]), float(p[1])) for node_id, p in xy.items()}
         if tracks_csv:
-            raw = collections.defaultdict(list)
-            for row in _csv_rows(tracks_csv, ["t", "id", "x", "y"]):
-                raw[int(row["id"])].append((row["t"], row["x"], row["y"]))
-            for node_id, rows in raw.items():
-                rows.sort()
-                array = np.array(rows)
-                self.tracks[node_id] = (array[:, 0], array[:, 1:])
+            for node_id, track in movement.read_tracks(tracks_csv, [], strict).items():
+                self.tracks[node_id] = (track.t_s, track.xy_m)
 
     def has(self, node_id: int) -> bool:
         return node_id in self.start or node_id in self.tracks
@@ -317,17 +328,19 @@ def plot_rmse(path: str, series, title: str) -> None:
     drawing.finish(fig, ax, path, title, xlabel="t (s)", ylabel="error (m)", equal=False)
 
 
-def residuals_of(est: Estimates, ranges_csv: str, heights_csv: str | None):
-    """Every link's residual against the final estimates, and the notes to print."""
-    bad: list[csv_inputs.BadRow] = []
-    try:
-        ranges = csv_inputs.read_ranges(ranges_csv, bad)
-        heights = csv_inputs.read_heights(heights_csv, bad) if heights_csv else {}
-    except csv_inputs.InputError as error:
-        raise InputError(str(error)) from None
+def ranges_notes(bad: list[csv_inputs.BadRow]) -> list[str]:
+    """The first bad rows of --ranges or --heights (skipped), and how many more."""
     notes = [f"{row.path}:{row.line}: {row.reason} (row skipped)" for row in bad[:10]]
     if len(bad) > 10:
         notes.append(f"{len(bad) - 10} more bad row(s) skipped")
+    return notes
+
+
+def residuals_of(est: Estimates, ranges: csv_inputs.Ranges, heights_csv: str | None):
+    """Every link's residual against the final estimates, and the notes to print."""
+    bad: list[csv_inputs.BadRow] = []
+    heights = csv_inputs.read_heights(heights_csv, bad) if heights_csv else {}
+    notes = ranges_notes(bad)
     if heights:
         projection = csv_inputs.project_ranges(ranges, heights)
         ranges = projection.ranges
@@ -344,14 +357,6 @@ def residuals_of(est: Estimates, ranges_csv: str, heights_csv: str | None):
 def convergence_of(est: Estimates):
     series = {i: [diagnostics.Sample(e.t_s, e.cov_m2, e.converged) for e in s] for i, s in est.nodes.items() if s}
     return series, diagnostics.converged_counts(series)
-
-
-def read_links(path: str) -> set[tuple[int, int]]:
-    links = set()
-    for row in _csv_rows(path, ["from", "to"]):
-        a, b = int(row["from"]), int(row["to"])
-        links.add((min(a, b), max(a, b)))
-    return links
 
 
 @entry_point
@@ -392,9 +397,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         est = read_estimates(args.estimates, args.trajectory, args.robot_id)
         truth = Truth(args.truth, args.tracks)
-        links = read_links(args.ranges) if args.ranges else set()
+        ranges_bad: list[csv_inputs.BadRow] = []
+        ranges = csv_inputs.read_ranges(args.ranges, ranges_bad) if args.ranges else None
     except (OSError, InputError, UnicodeDecodeError) as error:
         return fail(str(error))
+    links = set(ranges.links()) if ranges is not None else set()
+    for note in ranges_notes(ranges_bad):
+        print(f"cdro-plot: note: {note}", file=sys.stderr)
     for reason, count in sorted(est.skipped.items()):
         print(f"cdro-plot: note: {count} line(s) not drawn: {reason} (as expected)", file=sys.stderr)
     for reason, count in sorted(est.dropped.items()):
@@ -435,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.map:
             plot_map(args.map, est, truth, links, rotation, translation, args.time_offset_s, title, final_t)
         if args.residuals:
-            residuals, positions, notes = residuals_of(est, args.ranges, args.heights)
+            residuals, positions, notes = residuals_of(est, ranges, args.heights)
             for note in notes:
                 print(f"cdro-plot: note: {note}", file=sys.stderr)
             if not residuals:

@@ -22,10 +22,15 @@ import math
 import numpy as np
 
 from .alignment import align, rigid_fit
-from .inputs import BadRow, RowError, csv_rows, parse_flag, parse_id, parse_number
+from .inputs import BadRow, Format, Policy, Reader, Row, read_count, read_rows
 
 
 FRAMES = ("odometry", "map")  # cdro-hostd's trajectory `frame` values (RobotFrame in movement.hpp)
+PATH_FORMAT = Format(("t", "x", "y"), ("frame",))       # a trajectory or a truth path, with its header
+TRACKS_FORMAT = Format(("t", "id", "x", "y"))           # cdro-sim's --tracks-csv
+# cdro-hostd's --motion-csv (host/hostd/src/csv_input.cpp): without a header t,id,moving too.
+MOTION_FORMAT = Format(("t", "id", "moving"), (), (("t", "id", "moving"),))
+TRACE_ROWS_FORMAT = Format(("ranges", "id", "x", "y", "converged", "t"), ("status",))
 
 
 @dataclasses.dataclass
@@ -38,21 +43,22 @@ class PathSeries:
 def read_path(path: str, bad: list[BadRow]) -> PathSeries:
     """`t,x,y,...[,frame]` rows (a trajectory or a ground truth), in file order."""
     times, points, frames = [], [], []
-    has_frame = False
-    for line, row in csv_rows(path, ["t", "x", "y"]):
-        has_frame = has_frame or "frame" in row
-        try:
-            t_s = parse_number(row["t"], "t")
-            xy_m = (parse_number(row["x"], "x"), parse_number(row["y"], "y"))
-            frame = row.get("frame")
-            if has_frame and frame not in FRAMES:
-                raise RowError(f"frame {frame!r} is not one of {', '.join(FRAMES)}")
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
-            continue
+
+    def on_row(row: Row) -> None:
+        t_s, xy_m = row.number("t"), (row.number("x"), row.number("y"))
+        frame = row.text("frame") if has_frame else None
+        if has_frame and frame not in FRAMES:
+            row.reject(f"frame {frame!r} is not one of {', '.join(FRAMES)}")
         times.append(t_s)
         points.append(xy_m)
         frames.append(frame)
+
+    reader = Reader(path, PATH_FORMAT, Policy.LENIENT, kept_problems=None)
+    has_frame = "frame" in reader.columns   # then every row must have one
+    try:
+        reader.for_each(on_row)
+    finally:
+        bad.extend(reader.summary.problems)
     return PathSeries(np.array(times), np.array(points, dtype=float).reshape(-1, 2), frames if has_frame else None)
 
 
@@ -65,15 +71,15 @@ def last_frame_rows(series: PathSeries) -> tuple[PathSeries, int]:
     return kept, int(len(keep) - keep.sum())
 
 
-def read_tracks(path: str, bad: list[BadRow]) -> dict[int, PathSeries]:
+def read_tracks(path: str, bad: list[BadRow], policy: Policy = Policy.LENIENT) -> dict[int, PathSeries]:
     """`t,id,x,y`: true tracks of the nodes that move, by id, sorted by time."""
     rows: dict[int, list[tuple[float, float, float]]] = {}
-    for line, row in csv_rows(path, ["t", "id", "x", "y"]):
-        try:
-            rows.setdefault(parse_id(row["id"]), []).append(
-                (parse_number(row["t"], "t"), parse_number(row["x"], "x"), parse_number(row["y"], "y")))
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
+
+    def on_row(row: Row) -> None:
+        t_s, node = row.number("t"), row.node_id("id")
+        rows.setdefault(node, []).append((t_s, row.number("x"), row.number("y")))
+
+    read_rows(path, TRACKS_FORMAT, on_row, bad, policy)
     out = {}
     for node, values in rows.items():
         values.sort()
@@ -84,12 +90,12 @@ def read_tracks(path: str, bad: list[BadRow]) -> dict[int, PathSeries]:
 def read_motion(path: str, bad: list[BadRow]) -> dict[int, list[tuple[float, float]]]:
     """`t,id,moving`: for each node, its (start, stop) intervals of motion (s)."""
     changes: dict[int, list[tuple[float, bool]]] = {}
-    for line, row in csv_rows(path, ["t", "id", "moving"]):
-        try:
-            changes.setdefault(parse_id(row["id"]), []).append(
-                (parse_number(row["t"], "t"), parse_flag(row["moving"], "moving")))
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
+
+    def on_row(row: Row) -> None:
+        t_s, node = row.number("t"), row.node_id("id")
+        changes.setdefault(node, []).append((t_s, row.flag("moving")))
+
+    read_rows(path, MOTION_FORMAT, on_row, bad)
     intervals: dict[int, list[tuple[float, float]]] = {}
     for node, events in changes.items():
         events.sort()
@@ -213,13 +219,13 @@ def read_trace_rows(path: str, bad: list[BadRow]) -> list[tuple[int, float, int,
     """The engine's trace with its t column: (ranges, t_s, id, xy, converged, status) of placed
     nodes (status '' when the trace has no status column)."""
     rows = []
-    for line, row in csv_rows(path, ["ranges", "id", "x", "y", "converged", "t"]):
-        try:
-            if not (row.get("x") or "").strip():
-                continue
-            rows.append((int(parse_number(row["ranges"], "ranges")), parse_number(row["t"], "t"), parse_id(row["id"]),
-                         np.array([parse_number(row["x"], "x"), parse_number(row["y"], "y")]),
-                         parse_flag(row["converged"], "converged"), (row.get("status") or "").strip()))
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
+
+    def on_row(row: Row) -> None:
+        if row.text("x") == "":
+            return
+        count, t_s, node = read_count(row, "ranges"), row.number("t"), row.node_id("id")
+        xy_m = np.array([row.number("x"), row.number("y")])
+        rows.append((count, t_s, node, xy_m, row.flag("converged"), row.text("status") if row.has("status") else ""))
+
+    read_rows(path, TRACE_ROWS_FORMAT, on_row, bad)
     return rows

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from .alignment import rigid_fit
-from .inputs import BadRow, RowError, csv_rows, parse_id, parse_number
+from .inputs import BadRow, Format, Policy, Reader, Row
 
 MAX_TRUTH_GAP_S = 0.2
 HORIZONTAL_COVARIANCE_COLUMNS = ("var_x", "cov_xy", "var_y")
@@ -53,21 +53,24 @@ class NodeTrack:
     cov_m2: np.ndarray | None = None    # (n, 3, 3); NaN where a row has no (3D) covariance
 
 
-def _covariance(row: dict, columns: set[str]) -> np.ndarray:
+TRACKS_FORMAT = Format(("t", "id", "x", "y", "z"), COVARIANCE_COLUMNS)
+
+
+def _covariance(row: Row) -> np.ndarray:
     """The 3x3 covariance of a row; NaN entries where the file or the row has none."""
     cov = np.full((3, 3), np.nan)
-    if not all(c in columns for c in HORIZONTAL_COVARIANCE_COLUMNS) or not (row.get("var_x") or "").strip():
+    if not all(row.has(c) for c in HORIZONTAL_COVARIANCE_COLUMNS) or row.text("var_x") == "":
         return cov
-    var_x, cov_xy, var_y = (parse_number(row[c], c) for c in HORIZONTAL_COVARIANCE_COLUMNS)
+    var_x, cov_xy, var_y = (row.number(c) for c in HORIZONTAL_COVARIANCE_COLUMNS)
     if var_x < 0 or var_y < 0 or cov_xy * cov_xy > var_x * var_y * (1 + 1e-6) + 1e-12:
-        raise RowError(f"horizontal covariance not positive semi-definite (var_x {var_x:g}, cov_xy {cov_xy:g}, "
-                       f"var_y {var_y:g} m^2)")
+        row.reject(f"horizontal covariance not positive semi-definite (var_x {var_x:g}, cov_xy {cov_xy:g}, "
+                   f"var_y {var_y:g} m^2)")
     cov[:2, :2] = [[var_x, cov_xy], [cov_xy, var_y]]
-    if all(c in columns for c in COVARIANCE_COLUMNS) and (row.get("var_z") or "").strip():
-        var_z, cov_xz, cov_yz = (parse_number(row[c], c) for c in COVARIANCE_COLUMNS[3:])
+    if all(row.has(c) for c in COVARIANCE_COLUMNS) and row.text("var_z") != "":
+        var_z, cov_xz, cov_yz = (row.number(c) for c in COVARIANCE_COLUMNS[3:])
         cov[2, 2], cov[0, 2], cov[2, 0], cov[1, 2], cov[2, 1] = var_z, cov_xz, cov_xz, cov_yz, cov_yz
         if np.linalg.eigvalsh(cov).min() < -1e-9 * max(1.0, float(np.trace(cov))):
-            raise RowError("3D covariance not positive semi-definite")
+            row.reject("3D covariance not positive semi-definite")
     return cov
 
 
@@ -75,20 +78,18 @@ def read_node_tracks(path: str, bad: list[BadRow]) -> dict[int, NodeTrack]:
     """`t,id,x,y,z[,covariance]` rows by node id, each sorted by time (stable: equal times keep
     the file order). Covariances are read when the file has the columns (else `cov_m2` is None)."""
     rows: dict[int, list[tuple[float, np.ndarray, np.ndarray]]] = {}
-    columns: set[str] | None = None
-    for line, row in csv_rows(path, ["t", "id", "x", "y", "z"]):
-        if columns is None:
-            columns = set(row)
-        try:
-            node = parse_id(row["id"])
-            t_s = parse_number(row["t"], "t")
-            p_m = np.array([parse_number(row[c], c) for c in ("x", "y", "z")])
-            cov = _covariance(row, columns)
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
-            continue
-        rows.setdefault(node, []).append((t_s, p_m, cov))
-    has_cov = columns is not None and all(c in columns for c in HORIZONTAL_COVARIANCE_COLUMNS)
+
+    def on_row(row: Row) -> None:
+        t_s, node = row.number("t"), row.node_id("id")
+        p_m = np.array([row.number(c) for c in ("x", "y", "z")])
+        rows.setdefault(node, []).append((t_s, p_m, _covariance(row)))
+
+    reader = Reader(path, TRACKS_FORMAT, Policy.LENIENT, kept_problems=None)
+    has_cov = all(c in reader.columns for c in HORIZONTAL_COVARIANCE_COLUMNS)
+    try:
+        reader.for_each(on_row)
+    finally:
+        bad.extend(reader.summary.problems)
     out = {}
     for node, values in rows.items():
         values.sort(key=lambda v: v[0])

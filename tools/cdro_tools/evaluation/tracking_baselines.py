@@ -88,11 +88,10 @@ from scipy.stats import truncnorm
 
 from .inputs import (
     BadRow,
+    Format,
     InputError,
-    RowError,
-    csv_rows,
-    parse_id,
-    parse_number,
+    Row,
+    read_rows,
     read_truth,
 )
 
@@ -130,22 +129,23 @@ class TimedRanges:
         return len(self.t_s)
 
 
+# cdro-hostd's ranges with their t required (its --motion-csv needs one too): without a header, 4 fields.
+TIMED_RANGES_FORMAT = Format(("t", "from", "to", "range_m"), (), (("t", "from", "to", "range_m"),))
+
+
 def read_timed_ranges(path: str, bad: list[BadRow]) -> TimedRanges:
     """`t,from,to,range_m`; bad rows (evaluation.inputs rules) are counted and skipped."""
     rows = []
-    for line, row in csv_rows(path, ["t", "from", "to", "range_m"]):
-        try:
-            t_s = parse_number(row["t"], "t")
-            a, b = parse_id(row["from"]), parse_id(row["to"])
-            r = parse_number(row["range_m"], "range_m")
-            if a == b:
-                raise RowError(f"node {a} ranging itself")
-            if r < 0:
-                raise RowError(f"negative range {r:g} m")
-        except RowError as error:
-            bad.append(BadRow(path, line, str(error)))
-            continue
-        rows.append((t_s, a, b, r, line))
+
+    def on_row(row: Row) -> None:
+        t_s, a, b, r = row.number("t"), row.node_id("from"), row.node_id("to"), row.number("range_m")
+        if a == b:
+            row.reject(f"node {a} ranging itself")
+        if r < 0:
+            row.reject(f"negative range {r:g} m")
+        rows.append((t_s, a, b, r, row.line))
+
+    read_rows(path, TIMED_RANGES_FORMAT, on_row, bad)
     rows.sort(key=lambda row: row[0])
     return TimedRanges(np.array([r[0] for r in rows], dtype=float), np.array([r[1] for r in rows], dtype=np.int64),
                        np.array([r[2] for r in rows], dtype=np.int64), np.array([r[3] for r in rows], dtype=float),

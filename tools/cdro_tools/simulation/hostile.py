@@ -16,6 +16,8 @@ import sys
 import time
 from typing import Callable
 
+from ..evaluation.inputs import Policy, read_truth
+
 GUARD_S = 120.0
 
 
@@ -57,8 +59,8 @@ class HostileLink:
         wait_until(self.link.is_symlink, "the proxy's pseudo-terminal")
 
     def truth(self) -> dict[int, tuple[float, float]]:
-        rows = [line.split(",") for line in self.truth_csv.read_text().splitlines()[1:] if line]
-        return {int(r[0]): (float(r[1]), float(r[2])) for r in rows}
+        xy, _ = read_truth(str(self.truth_csv), [], Policy.STRICT)
+        return {node_id: (float(p[0]), float(p[1])) for node_id, p in xy.items()}
 
     def finish(self, bytes_read: Callable[[], int]) -> dict:
         """Waits for the scenario's end and the proxy's report, then until the host has read
