@@ -74,6 +74,7 @@ engine::EngineParams unusual()
     p.solve.min_links = 9;
     p.solve.quiet_ranges_per_link = 3.5;
     p.solve.min_gain_nats = 0.5;
+    p.solve.adopt_after_sweeps = 0.25;
     p.solve.range_offsets = false;
     p.convergence.reliable_m = 0.75;
     p.convergence.scale_sigma = 0.0125;

@@ -101,8 +101,15 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
         placement_.markPending(map_, a);
         placement_.markPending(map_, b);
     }
-    if (global_.dueAfterRange(map_, taken.new_link, intake_.counters().ranges_received)) {
-        runGlobalSolve(false);
+    const uint64_t ranges_received = intake_.counters().ranges_received;
+    if (global_.adoptionDue(ranges_received)) {
+        adoptGlobalSolve();
+    }
+    if (global_.dueAfterRange(map_, taken.new_link, ranges_received) && !global_.pending()) {
+        startGlobalSolve(false);
+        if (global_.adoptionDue(ranges_received)) {
+            adoptGlobalSolve(); // solved in this thread
+        }
     }
     // 4. Placement.
     if (placement_.anyPending()) {
@@ -166,12 +173,17 @@ void Engine::adoptPlaced(const std::vector<uint32_t> &nodes)
     }
 }
 
-void Engine::runGlobalSolve(bool settling)
+void Engine::startGlobalSolve(bool settling)
 {
     if (!frame_.applied()) {
         frame_.apply(map_);
     }
-    const GlobalStep::Outcome outcome = global_.run(map_, intake_.counters().ranges_received, frame_.fixedFrameNodes(), settling, trace_);
+    global_.start(map_, intake_.counters().ranges_received, settling);
+}
+
+void Engine::adoptGlobalSolve()
+{
+    const GlobalStep::Outcome outcome = global_.adopt(map_, frame_.fixedFrameNodes(), trace_);
     // The links' ranges follow the offsets the solve came with.
     for (uint32_t link = 0; link < map_.links.size(); ++link) {
         intake_.refreshLinkRange(map_, link, params_.motion.reset);
@@ -337,8 +349,12 @@ void Engine::assess()
 uint64_t Engine::settle(uint64_t max_updates)
 {
     const uint64_t before = relaxations_;
+    if (global_.pending()) {
+        adoptGlobalSolve();
+    }
     if (global_.dueAtSettle(map_, intake_.counters().ranges_received)) {
-        runGlobalSolve(true);
+        startGlobalSolve(true);
+        adoptGlobalSolve();
     }
     if (placement_.anyPending()) {
         runPlacement();

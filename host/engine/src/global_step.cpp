@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <future>
+#include <memory>
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/map_refine.hpp"
@@ -145,19 +147,19 @@ bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_received) cons
     return enabled() && ranges_received != schedule_.ranges_at_full && map.links.size() >= params_.solve.min_links;
 }
 
-GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes,
-                                    bool settling, const Trace &trace)
+void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settling)
 {
-    Outcome outcome;
     schedule_.links_at_last = map.links.size();
     schedule_.ranges_at_last = ranges_received;
 
     ++counters_.solves;
-    StateProblem built = mapProblemOf(map, params_, ranges_received);
-    const MapProblem &problem = built.problem;
-    const bool refresh = !settling && problem.links.size() == schedule_.links_at_full &&
-                         problem.nodeCount() == schedule_.nodes_at_full;
-    if (refresh) {
+    auto job = std::make_shared<PendingSolve>();
+    job->built = mapProblemOf(map, params_, ranges_received);
+    const MapProblem &problem = job->built.problem;
+    job->settling = settling;
+    job->refresh = !settling && problem.links.size() == schedule_.links_at_full &&
+                   problem.nodeCount() == schedule_.nodes_at_full;
+    if (job->refresh) {
         ++counters_.solve_refreshes;
     } else {
         schedule_.links_at_full = problem.links.size();
@@ -165,14 +167,45 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
         schedule_.ranges_at_full = ranges_received;
     }
     GlobalSolveParams solve = solve_;
-    solve.only_current = refresh;
+    solve.only_current = job->refresh;
+    job->current = MapEstimate::unplaced(problem.nodeCount());
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        const NodeState &state = map.nodes[job->built.node_of[i]];
+        job->current.placed[i] = state.placed() ? 1 : 0;
+        job->current.position_m[i] = state.position_m;
+    }
+    const double lag_ranges = params_.solve.adopt_after_sweeps * static_cast<double>(map.links.size());
+    const bool background = !settling && lag_ranges >= 1.0;
+    job->adopt_at_ranges = ranges_received + (background ? static_cast<uint64_t>(lag_ranges) : 0U);
+    // The worker reads only what the job owns (the problem, the start, copies of the model and
+    // the parameters): nothing the caller goes on changing.
+    std::shared_ptr<const PendingSolve> owned = job;
+    const RangeLikelihood likelihood = likelihood_;
+    job->result = std::async(background ? std::launch::async : std::launch::deferred,
+                             [owned, likelihood, solve]() {
+                                 return solveGlobally(owned->built.problem, likelihood, solve, &owned->current);
+                             })
+                      .share();
+    pending_ = std::move(job);
+}
+
+GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes, const Trace &trace)
+{
+    Outcome outcome;
+    const std::shared_ptr<const PendingSolve> job = std::move(pending_);
+    pending_.reset();
+    const GlobalSolveResult &solved = job->result.get();
+    const StateProblem &built = job->built;
+    const MapProblem &problem = built.problem;
+    const bool settling = job->settling;
+    const bool refresh = job->refresh;
+    // The filter's map now (the solve started from `job->current`; ranges may have moved it since).
     MapEstimate current = MapEstimate::unplaced(problem.nodeCount());
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         const NodeState &state = map.nodes[built.node_of[i]];
         current.placed[i] = state.placed() ? 1 : 0;
         current.position_m[i] = state.position_m;
     }
-    const GlobalSolveResult solved = solveGlobally(problem, likelihood_, solve, &current);
     counters_.solve_starts += solved.counters.starts;
     counters_.solve_escapes += solved.counters.escapes;
     if (solved.best.estimate.placedCount() < 3) {
@@ -269,6 +302,9 @@ GlobalStep::Outcome GlobalStep::run(MapState &map, uint64_t ranges_received, uin
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         const uint32_t node = built.node_of[i];
         NodeState &state = map.nodes[node];
+        if (!solvable(state)) {
+            continue; // it started moving after the solve started: its track is its estimate
+        }
         NodeSolveView &view = state.solve;
         // A refresh tried no other start: what the full solve found disputed stays disputed.
         const bool was_disputed = refresh && view.solved && view.disputed;

@@ -87,6 +87,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_COUNT("solve", "min_links", 3, 1000000, solve.min_links),
         CDRO_REAL("solve", "quiet_ranges_per_link", 0.0, kHuge, solve.quiet_ranges_per_link),
         CDRO_REAL("solve", "min_gain_nats", 0.0, kHuge, solve.min_gain_nats),
+        CDRO_REAL("solve", "adopt_after_sweeps", 0.0, kHuge, solve.adopt_after_sweeps),
         CDRO_FLAG("solve", "range_offsets", solve.range_offsets),
         CDRO_FLAG("motion", "reset", motion.reset),
         CDRO_FLAG("motion", "infer_from_ranges", motion.infer_from_ranges),

@@ -165,6 +165,8 @@ public:
         uint64_t assessed_key = 0;
     };
     const SolveSchedule &solveSchedule() const { return global_.schedule(); }
+    // A global solve started on the worker thread and not adopted yet (adopted at a fixed range).
+    bool solvePending() const { return global_.pending(); }
     // The convergence checks' whole-map doubts and the structure they were assessed on: a
     // restored engine decides as this one would, without assessing again.
     const std::vector<NodeDoubt> &structuralDoubts() const { return convergence_.structuralDoubts(); }
@@ -175,7 +177,8 @@ private:
     uint32_t nodeIndex(NodeId id);
     void runPlacement();
     void adoptPlaced(const std::vector<uint32_t> &nodes);
-    void runGlobalSolve(bool settling);
+    void startGlobalSolve(bool settling);
+    void adoptGlobalSolve();
     void updateNode(uint32_t node, bool after_range = false);
     void unplace(uint32_t node);
     void enqueueNeighbours(uint32_t node);

@@ -13,7 +13,12 @@
 // what the full solve found disputed; settle() runs a full solve whenever ranges arrived since one.
 // The problem: the placed or placeable nodes that are not moving, numbered by id, their links'
 // ranges, fixed and pinned nodes where they are, and the unheard pairs of nodes that have listened
-// for two sweeps of the network. Adoption: the solve's best map, seen from the current frame (a
+// for two sweeps of the network. Where: on a worker thread, from a copy of the problem as the map
+// stood when it was due; its map is adopted `adopt_after_sweeps` sweeps of the network later (that
+// many ranges per link at the start), at that range exactly, waiting for the worker if it is not
+// done: the estimates depend on the range stream only, never on the thread's timing. With 0 (and
+// always at settle()) the solve runs in the caller's thread and is adopted at once.
+// Adoption: the solve's best map, seen from the current frame (a
 // rigid fit on the nodes both place), unless the filter's own map, refined, explains the links
 // within `min_gain_nats` as well and is the same map (no jump for nothing); nodes the solve places and the filter had
 // not are placed; what the solve says about each node (its covariance with the correlations of
@@ -23,6 +28,8 @@
 
 #include <cstdint>
 #include <functional>
+#include <future>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -93,11 +100,20 @@ public:
         bool adopted = false;           // the solve's map (not the filter's, refined)
     };
     using Trace = std::function<void(const std::string &)>;
-    // Runs the solve and adopts its map into `map` (positions only: the caller moves the rings,
-    // places the new nodes' SoGs and restarts eq. 16 for the moved ones).
-    // `settling`: the solve of settle(), whose map is the answer: the best, without the margin.
-    Outcome run(MapState &map, uint64_t ranges_received, uint32_t fixed_frame_nodes, bool settling,
-                const Trace &trace);
+    // Starts the solve on the map as it stands (on the worker thread, or deferred to adopt() when
+    // it runs in the caller's thread). `settling`: the solve of settle(), whose map is the answer:
+    // the best, without the margin; it always runs in the caller's thread.
+    void start(const MapState &map, uint64_t ranges_received, bool settling);
+    // A solve started and not adopted yet.
+    bool pending() const { return pending_ != nullptr; }
+    // Whether the pending solve's map is to be adopted after this many ranges received.
+    bool adoptionDue(uint64_t ranges_received) const
+    {
+        return pending_ != nullptr && ranges_received >= pending_->adopt_at_ranges;
+    }
+    // Waits for the pending solve and adopts its map into `map` (positions only: the caller moves
+    // the rings, places the new nodes' SoGs and restarts eq. 16 for the moved ones).
+    Outcome adopt(MapState &map, uint32_t fixed_frame_nodes, const Trace &trace);
 
     const SolveSchedule &schedule() const { return schedule_; }
     void restoreSchedule(const SolveSchedule &schedule) { schedule_ = schedule; }
@@ -105,11 +121,23 @@ public:
     void restoreCounters(const GlobalStepCounters &counters) { counters_ = counters; }
 
 private:
+    // A solve under way: the problem as the map stood at its start, and its result to come
+    // (shared: a copied engine adopts the same result at the same range).
+    struct PendingSolve {
+        StateProblem built;
+        MapEstimate current;          // the filter's map at the start
+        bool refresh = false;         // the same links and nodes as the last full solve
+        bool settling = false;
+        uint64_t adopt_at_ranges = 0; // ranges received when its map is adopted
+        std::shared_future<GlobalSolveResult> result;
+    };
+
     EngineParams params_;
     RangeLikelihood likelihood_;   // the engine's model without the floor (map_problem.hpp)
     GlobalSolveParams solve_;
     SolveSchedule schedule_;
     GlobalStepCounters counters_;
+    std::shared_ptr<const PendingSolve> pending_;
 };
 
 } // namespace cdro::engine
