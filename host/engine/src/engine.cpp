@@ -101,13 +101,13 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
         placement_.markPending(map_, a);
         placement_.markPending(map_, b);
     }
-    const uint64_t ranges_received = intake_.counters().ranges_received;
-    if (global_.adoptionDue(ranges_received)) {
+    global_.countRange();
+    if (global_.adoptionDue()) {
         adoptGlobalSolve();
     }
-    if (global_.dueAfterRange(map_, taken.new_link, ranges_received) && !global_.pending()) {
+    if (global_.dueAfterRange(map_, taken.new_link, intake_.counters().ranges_received) && !global_.pending()) {
         startGlobalSolve(false);
-        if (global_.adoptionDue(ranges_received)) {
+        if (global_.adoptionDue()) {
             adoptGlobalSolve(); // solved in this thread
         }
     }

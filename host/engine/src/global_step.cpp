@@ -176,7 +176,7 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     }
     const double lag_ranges = params_.solve.adopt_after_sweeps * static_cast<double>(map.links.size());
     const bool background = !settling && lag_ranges >= 1.0;
-    job->adopt_at_ranges = ranges_received + (background ? static_cast<uint64_t>(lag_ranges) : 0U);
+    adopt_in_ranges_ = background ? static_cast<uint64_t>(lag_ranges) : 0U;
     // The worker reads only what the job owns (the problem, the start, copies of the model and
     // the parameters): nothing the caller goes on changing.
     std::shared_ptr<const PendingSolve> owned = job;

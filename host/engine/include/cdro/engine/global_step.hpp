@@ -15,7 +15,7 @@
 // ranges, fixed and pinned nodes where they are, and the unheard pairs of nodes that have listened
 // for two sweeps of the network. Where: on a worker thread, from a copy of the problem as the map
 // stood when it was due; its map is adopted `adopt_after_sweeps` sweeps of the network later (that
-// many ranges per link at the start), at that range exactly, waiting for the worker if it is not
+// many ranges taken per link at the start), at that range exactly, waiting for the worker if it is not
 // done: the estimates depend on the range stream only, never on the thread's timing. With 0 (and
 // always at settle()) the solve runs in the caller's thread and is adopted at once.
 // Adoption: the solve's best map, seen from the current frame (a
@@ -106,11 +106,13 @@ public:
     void start(const MapState &map, uint64_t ranges_received, bool settling);
     // A solve started and not adopted yet.
     bool pending() const { return pending_ != nullptr; }
-    // Whether the pending solve's map is to be adopted after this many ranges received.
-    bool adoptionDue(uint64_t ranges_received) const
+    // One more range taken (refused ranges do not count: they change nothing else either).
+    void countRange()
     {
-        return pending_ != nullptr && ranges_received >= pending_->adopt_at_ranges;
+        adopt_in_ranges_ -= pending_ != nullptr && adopt_in_ranges_ > 0 ? 1U : 0U;
     }
+    // Whether the pending solve's map is due now.
+    bool adoptionDue() const { return pending_ != nullptr && adopt_in_ranges_ == 0; }
     // Waits for the pending solve and adopts its map into `map` (positions only: the caller moves
     // the rings, places the new nodes' SoGs and restarts eq. 16 for the moved ones).
     Outcome adopt(MapState &map, uint32_t fixed_frame_nodes, const Trace &trace);
@@ -128,7 +130,6 @@ private:
         MapEstimate current;          // the filter's map at the start
         bool refresh = false;         // the same links and nodes as the last full solve
         bool settling = false;
-        uint64_t adopt_at_ranges = 0; // ranges received when its map is adopted
         std::shared_future<GlobalSolveResult> result;
     };
 
@@ -138,6 +139,7 @@ private:
     SolveSchedule schedule_;
     GlobalStepCounters counters_;
     std::shared_ptr<const PendingSolve> pending_;
+    uint64_t adopt_in_ranges_ = 0; // ranges to take before the pending solve's map is adopted
 };
 
 } // namespace cdro::engine
