@@ -32,6 +32,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <malloc.h>
@@ -410,6 +411,8 @@ struct Timed {
     double cpu_s = 0.0;
     uint64_t ranges = 0;
     uint64_t refused = 0; // ranges the engine rejected (none expected)
+    double longest_call_s = 0.0; // s, the slowest addRange call (wall clock; with the ranges fed
+                                 // back to back it includes waiting for the solve's worker)
     double rate() const { return wall_s > 0.0 ? static_cast<double>(ranges) / wall_s : 0.0; }
     double cpuRate() const { return cpu_s > 0.0 ? static_cast<double>(ranges) / cpu_s : 0.0; }
     Timed &operator+=(const Timed &other)
@@ -418,20 +421,34 @@ struct Timed {
         cpu_s += other.cpu_s;
         ranges += other.ranges;
         refused += other.refused;
+        longest_call_s = std::max(longest_call_s, other.longest_call_s);
         return *this;
     }
 };
 
 // Feeds one pass or sweep; the watch (if any) runs between ranges. *fed counts the ranges fed
-// so far, *fed_wall_s the time spent feeding them.
+// so far, *fed_wall_s the time spent feeding them. With `pace_ranges_per_s` > 0 the ranges come
+// at that rate, as from a live network (the time waited between them is not feeding time).
 Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *watch, uint64_t *fed,
-           double *fed_wall_s)
+           double *fed_wall_s, double pace_ranges_per_s = 0.0)
 {
     Timed timed;
-    const double wall0 = wallSeconds();
+    double wall0 = wallSeconds();
     const double cpu0 = cpuSeconds();
+    double waited_s = 0.0;
+    double next_s = wall0;
     for (const Range &range : ranges) {
+        if (pace_ranges_per_s > 0.0) {
+            next_s += 1.0 / pace_ranges_per_s;
+            const double before_s = wallSeconds();
+            if (next_s > before_s) {
+                std::this_thread::sleep_for(std::chrono::duration<double>(next_s - before_s));
+            }
+            waited_s += wallSeconds() - before_s;
+        }
+        const double call0 = wallSeconds();
         const cdro::engine::RangeVerdict verdict = engine.addRange(range.from, range.to, range.range_m);
+        timed.longest_call_s = std::max(timed.longest_call_s, wallSeconds() - call0);
         timed.refused += (verdict == cdro::engine::RangeVerdict::RejectedSelf ||
                           verdict == cdro::engine::RangeVerdict::RejectedValue)
                              ? 1U
@@ -441,7 +458,7 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
             watch->check(engine, *fed, *fed_wall_s + (wallSeconds() - wall0));
         }
     }
-    timed.wall_s = wallSeconds() - wall0;
+    timed.wall_s = wallSeconds() - wall0 - waited_s;
     *fed_wall_s += timed.wall_s;
     timed.cpu_s = cpuSeconds() - cpu0;
     timed.ranges = ranges.size();
@@ -459,7 +476,8 @@ Json timedJson(const Timed &t)
                 {"cpu_s", t.cpu_s},
                 {"ranges_per_s", t.rate()},
                 {"ranges_per_cpu_s", t.cpuRate()},
-                {"refused", t.refused}};
+                {"refused", t.refused},
+                {"longest_call_ms", 1e3 * t.longest_call_s}};
 }
 
 // ---- PLANT ----------------------------------------------------------------------------------
@@ -722,6 +740,8 @@ struct NetworkOptions {
     uint32_t min_sweeps = 20;
     uint64_t steady_ranges = 60000; // at least this many ranges in the steady state
     std::string write_csv_dir;      // with --one-network: the stream and the truth as CSV files
+    double pace_ranges_per_s = 0.0; // ranges/s, fed at this rate as from a live network (0: back to back)
+    double adopt_after_sweeps = cdro::engine::SolveParams{}.adopt_after_sweeps; // engine.solve's (0: in addRange)
 };
 
 Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
@@ -751,7 +771,9 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     }
     const Memory before = memoryNow();
 
-    Engine engine;
+    cdro::engine::EngineParams params;
+    params.solve.adopt_after_sweeps = options.adopt_after_sweeps;
+    Engine engine(params);
     PlacementTimeline timeline;
     uint64_t fed = 0;
     double fed_wall_s = 0.0;
@@ -775,7 +797,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
             }
         }
         const bool warming = sweep < options.warmup_sweeps;
-        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s);
+        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, options.pace_ranges_per_s);
         if (warming) {
             warmup += timed;
             warmup_sweep_s.push_back(timed.wall_s);
@@ -1082,13 +1104,15 @@ void printNetworks(const Json &networks)
             continue;
         }
         std::printf("  %d nodes, median of %d draws: %.0f ranges/s (%.0f per CPU-second), first map after %.2f s, "
-                    "peak %.1f MiB (%.1f before the engine), RMSE %.3f m (%d draws over 1 m); warm-up %.2f s\n",
+                    "peak %.1f MiB (%.1f before the engine), RMSE %.3f m (%d draws over 1 m); warm-up %.2f s; "
+                    "longest addRange %.1f ms\n",
                     size["nodes"].get<int>(), summary["draws_ok"].get<int>(),
                     summary["steady_ranges_per_s_median"].get<double>(),
                     summary["steady_ranges_per_cpu_s_median"].get<double>(),
                     summary["first_map_s_median"].get<double>(), summary["peak_rss_mib_median"].get<double>(),
                     summary["base_rss_mib_median"].get<double>(), summary["rmse_m_median"].get<double>(),
-                    summary["draws_rmse_over_1m"].get<int>(), summary["warmup_s_median"].get<double>());
+                    summary["draws_rmse_over_1m"].get<int>(), summary["warmup_s_median"].get<double>(),
+                    summary["longest_call_ms"].get<double>());
         for (const Json &n : size["draws"]) {
             if (n.contains("error")) {
                 continue;
@@ -1138,6 +1162,7 @@ Json summarizeDraws(const Json &draws)
     std::vector<double> base_mib;
     std::vector<double> rmse;
     std::vector<double> warmup_s;
+    double longest_call_ms = 0.0;
     int over_1m = 0;
     for (const Json &n : draws) {
         if (n.contains("error")) {
@@ -1154,6 +1179,8 @@ Json summarizeDraws(const Json &draws)
         rmse.push_back(a["rmse_m"].is_null() ? std::nan("") : a["rmse_m"].get<double>());
         over_1m += a["rmse_m"].is_null() || a["rmse_m"].get<double>() > 1.0 ? 1 : 0;
         warmup_s.push_back(n["warmup"]["wall_s"].get<double>());
+        longest_call_ms = std::max({longest_call_ms, n["warmup"]["longest_call_ms"].get<double>(),
+                                    n["steady"]["longest_call_ms"].get<double>()});
     }
     return Json{{"draws_ok", rates.size()},
                 {"steady_ranges_per_s_median", median(rates)},
@@ -1163,7 +1190,8 @@ Json summarizeDraws(const Json &draws)
                 {"base_rss_mib_median", median(base_mib)},
                 {"rmse_m_median", median(rmse)},
                 {"draws_rmse_over_1m", over_1m},
-                {"warmup_s_median", median(warmup_s)}};
+                {"warmup_s_median", median(warmup_s)},
+                {"longest_call_ms", longest_call_ms}};
 }
 
 } // namespace
@@ -1207,6 +1235,15 @@ int main(int argc, char **argv)
     app.add_option("--min-sweeps", network.min_sweeps, "sweeps at least")->capture_default_str();
     app.add_option("--steady-ranges", network.steady_ranges, "ranges in the steady state at least")
         ->capture_default_str();
+    app.add_option("--pace", network.pace_ranges_per_s,
+                   "ranges/s: feed the networks' ranges at this rate, as a live network would (0: back to back); "
+                   "the longest addRange call then shows whether a range ever waits for the global solve")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0, 1e7));
+    app.add_option("--adopt-after-sweeps", network.adopt_after_sweeps,
+                   "networks: engine.solve.adopt_after_sweeps (0: the global solve inside addRange, no worker thread)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0, 1e6));
     auto *plant_flag = app.add_flag("--plant-only", plant_only, "PLANT only");
     app.add_flag("--networks-only", networks_only, "random networks only")->excludes(plant_flag);
     app.add_flag("--json", json, "print one JSON document instead of the table");
@@ -1259,7 +1296,9 @@ int main(int argc, char **argv)
                         "--degree", std::to_string(network.degree), "--area-per-node-m2",
                         std::to_string(network.area_per_node_m2), "--noise-m", std::to_string(network.noise_sigma_m),
                         "--warmup-sweeps", std::to_string(network.warmup_sweeps), "--min-sweeps",
-                        std::to_string(network.min_sweeps), "--steady-ranges", std::to_string(network.steady_ranges)};
+                        std::to_string(network.min_sweeps), "--steady-ranges", std::to_string(network.steady_ranges),
+                        "--pace", std::to_string(network.pace_ranges_per_s), "--adopt-after-sweeps",
+                        std::to_string(network.adopt_after_sweeps)};
                     std::string failure;
                     Json result = spawnNetwork(arguments, &failure);
                     if (result.is_null()) {
