@@ -8,7 +8,7 @@ run: this runs `cdro-bench-engine --plant-only` of this build and of the baselin
 
     scripts/bench_compare.py --baseline-bin ../old/build/bin/cdro-bench-engine [--pairs 3] [--passes 100]
 
-The baseline is any earlier build of cdro-bench-engine (issue 18's is commit f69b6a3, built in a
+The baseline is any earlier build of cdro-bench-engine (the engine before its rebuild is commit f69b6a3, built in a
 worktree: `git worktree add /tmp/old f69b6a3 && cmake -S /tmp/old -B /tmp/old/build -G Ninja
 -DCMAKE_BUILD_TYPE=RelWithDebInfo && cmake --build /tmp/old/build --target cdro-bench-engine`).
 Figures (all per CPU-second or CPU time, higher is better unless it says ms):

@@ -24,7 +24,7 @@ anchor_obstructed label, and how many of its ranges the gates of (b) and (c-ref)
 --out DIR writes every trajectory (<experiment>-<baseline>.csv, the format cdro-eval-motion
 --tag-trajectory reads) and miluv.json (every figure); with --trace also, per EKF,
 <experiment>-<baseline>-trace.csv: each row's error against the truth next to the sigma the filter
-claimed (how the figures of issue 19's diagnosis were made). --speed-sigma, --tau, --sigma and
+claimed (how the figures of the EKF's diagnosis in docs/results.md were made). --speed-sigma, --tau, --sigma and
 --gate change the EKFs' motion model (m/s, s), range sigma (m) and outlier handling (a hard gate
 instead of Huber weights), to see how sensitive the figures are. The EKFs' defaults were decided
 on simulated flights (tracking_baselines' docstring, tests/tools/test_tracking.py), not on these

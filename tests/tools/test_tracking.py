@@ -363,7 +363,7 @@ SPARSE_TAGS = (10, 20, 30)
 FLIGHT_BOX_M = ((-2.0, -2.0, 0.1), (2.0, 2.0, 1.6))
 SPARSE_DURATION_S, SPARSE_SPEED_M_S, SPARSE_GAP_S, SPARSE_TAG_TAG_RATE = 120.0, 0.5, 2.5, 0.25
 SPARSE_SEEDS = range(1, 6)
-# the EKF as it was (before issue 19's changes): constant velocity, q = 1 m^2/s^3, started from a
+# the first EKF, whose divergence docs/results.md diagnoses: constant velocity, q = 1 m^2/s^3, started from a
 # 10 s trilateration fix, ranges linearised at the prediction, no room, hard gate, no reset
 LEGACY = {"motion": "cv", "start": "window", "curvature": False, "room": False, "reset_after": 0, "huber": False}
 
