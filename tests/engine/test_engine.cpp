@@ -225,8 +225,10 @@ TEST(Engine, TheWorkerThreadsSolveIsAdoptedAtTheSameRangeWhateverItsTiming)
             range.range_m += random.uniform(0.5, 2.0); // NLOS
         }
     }
-    Engine hurried;
-    Engine patient;
+    engine::EngineParams params;
+    params.solve.adopt_after_sweeps = 1.0;
+    Engine hurried(params);
+    Engine patient(params);
     std::optional<Engine> copy;
     uint64_t ranges_while_pending = 0;
     for (size_t i = 0; i < network.ids.size(); ++i) {

@@ -65,10 +65,10 @@ struct SolveParams {
     double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges per
                                    // link, if links appeared since it last ran
     double min_gain_nats = 1.0;    // nats, how much better the solve's map must explain the links
-    double adopt_after_sweeps = 1.0; // the solve runs on a worker thread, its map adopted this many
-                                   // ranges per link after it started (the hot path does not wait
-                                   // for it; the estimates do not depend on its timing); 0: it runs
-                                   // inside addRange (one core, no lag)
+    double adopt_after_sweeps = 0.0; // > 0: the solve runs on a worker thread, its map adopted
+                                   // this many ranges per link after it started (the estimates do
+                                   // not depend on its timing, but they are another run's: see
+                                   // docs/engine.md); 0: it runs inside addRange, adopted at once
     bool range_offsets = true;     // estimate each node's range offset (uncalibrated antenna
                                    // delays, range_offsets.hpp); false: radios known calibrated
 };
