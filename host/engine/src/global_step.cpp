@@ -177,9 +177,12 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     const double lag_ranges = params_.solve.adopt_after_sweeps * static_cast<double>(map.links.size());
     const bool background = !settling && lag_ranges >= 1.0;
     adopt_in_ranges_ = background ? static_cast<uint64_t>(lag_ranges) : 0U;
-    // The worker reads only what the job owns (the problem, the start, copies of the model and
-    // the parameters): nothing the caller goes on changing.
-    std::shared_ptr<const PendingSolve> owned = job;
+    // The worker reads only what the job owns (the problem, the start) and copies of the model and
+    // the parameters: nothing the caller goes on changing. It holds the job by a plain pointer: the
+    // future's shared state keeps the callable, so a shared_ptr in it would keep the job alive
+    // forever. The job outlives the worker: `result` is its last member, destroyed first, and that
+    // waits for the worker to finish.
+    const PendingSolve *owned = job.get();
     const RangeLikelihood likelihood = likelihood_;
     job->result = std::async(background ? std::launch::async : std::launch::deferred,
                              [owned, likelihood, solve]() {

@@ -131,7 +131,7 @@ private:
         MapEstimate current;          // the filter's map at the start
         bool refresh = false;         // the same links and nodes as the last full solve
         bool settling = false;
-        std::shared_future<GlobalSolveResult> result;
+        std::shared_future<GlobalSolveResult> result; // last: destroyed first, waiting for the worker
     };
 
     EngineParams params_;
