@@ -339,8 +339,8 @@ int main(int argc, char **argv)
         {
             const engine::MapModelError model_error{};
             engine::MapModelError with_prior = model_error;
-            if (const char *prior = std::getenv("CDRO_BENCH_SCALE_PRIOR")) {
-                with_prior.scale_sigma = std::max(with_prior.scale_sigma, std::atof(prior));
+            if (const char *prior = std::getenv("CDRO_BENCH_COMMON_EXCESS")) {
+                with_prior.common_excess_m = std::max(with_prior.common_excess_m, std::atof(prior));
             }
             engine::MapCovariance confidence =
                 engine::mapCovariance(problem, solved.best.estimate, likelihood, with_prior);

@@ -77,7 +77,7 @@ engine::EngineParams unusual()
     p.solve.adopt_after_sweeps = 0.25;
     p.solve.range_offsets = false;
     p.convergence.reliable_m = 0.75;
-    p.convergence.scale_sigma = 0.0125;
+    p.convergence.common_excess_m = 0.125;
     p.convergence.smoothing = 0.95;
     p.convergence.threshold_m = 0.02;
     p.convergence.consecutive = 4;

@@ -285,9 +285,9 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
             transform.reflected = true;
         }
     }
-    // What the model leaves out: the map's size, unless known coordinates fix it.
+    // What the model leaves out: an excess every link may share (walls).
     MapModelError model_error;
-    model_error.scale_sigma = fixed_frame_nodes < 2 ? params_.convergence.scale_sigma : 0.0;
+    model_error.common_excess_m = params_.convergence.common_excess_m;
     // The range offsets come with the best map (its positions explain the corrected ranges).
     const bool offsets = chosen == &solved.best && solved.offsets.adopted;
     const MapProblem corrected = offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};

@@ -629,6 +629,19 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     for (uint32_t node : free_nodes) {
         out.main_part[node] = group[node] == main_group ? 1 : 0;
     }
+    // The map's response to every link reading one metre longer (X J^T W 1): what a common
+    // excess does to it. Walls make links read long, and a map of links that nearly all cross a
+    // wall or two reads larger by what no range can tell from a larger building. An additive
+    // excess, not a relative scale: it is the short links of small rooms whose share it is largest.
+    Eigen::VectorXd expansion = Eigen::VectorXd::Zero(size);
+    if (model_error.common_excess_m > 0.0) {
+        for (uint32_t index = 0; index < problem.links.size(); ++index) {
+            const LinkJacobian &j = jacobians[index];
+            if (j.weight > 0.0 && out.link_redundancy[index] >= 0.0) {
+                expansion.noalias() += j.weight * effectOf(j);
+            }
+        }
+    }
     const double scale = std::sqrt(out.variance_factor);
     // The frame is the main part's; then, if some of its nodes turn out to hang on weakly checked
     // links, the frame is that of its reliable core instead (twice at most), so that a wing joined
@@ -665,23 +678,10 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             transform -= gauge * normal_main.ldlt().solve(selected.transpose());
         }
         Eigen::MatrixXd covariance = transform * sandwich * transform.transpose();
-        if (model_error.scale_sigma > 0.0 && out.gauge_free) {
-            // NLOS makes every link read long, so the whole map may be too large by a share no
-            // range can tell: the scale mode, relative to the frame's centroid.
-            Eigen::VectorXd mode = Eigen::VectorXd::Zero(size);
-            Vector2 centre = Vector2::Zero();
-            double weight = 0.0;
-            for (size_t i = 0; i < free_nodes.size(); ++i) {
-                if (datum[free_nodes[i]] != 0) {
-                    centre += estimate.position_m[free_nodes[i]];
-                    weight += 1.0;
-                }
-            }
-            centre /= std::max(weight, 1.0);
-            for (size_t i = 0; i < free_nodes.size(); ++i) {
-                mode.segment<2>(static_cast<Eigen::Index>(2 * i)) = estimate.position_m[free_nodes[i]] - centre;
-            }
-            covariance += model_error.scale_sigma * model_error.scale_sigma * mode * mode.transpose() /
+        if (model_error.common_excess_m > 0.0) {
+            // In the frame's terms (S), and a model error in m: not scaled by the variance factor.
+            const Eigen::VectorXd moved = transform * expansion;
+            covariance += model_error.common_excess_m * model_error.common_excess_m * moved * moved.transpose() /
                           std::max(out.variance_factor, 1.0);
         }
         for (size_t i = 0; i < free_nodes.size(); ++i) {

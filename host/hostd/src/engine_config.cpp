@@ -104,7 +104,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_COUNT("motion", "track_warmup", 0, 1000, motion.track_warmup),
         CDRO_REAL("motion", "track_max_speed_mps", 0.01, 1000.0, motion.track_max_speed_mps),
         CDRO_REAL("convergence", "reliable_m", 0.01, kHuge, convergence.reliable_m),
-        CDRO_REAL("convergence", "scale_sigma", 0.0, 1.0, convergence.scale_sigma),
+        CDRO_REAL("convergence", "common_excess_m", 0.0, 100.0, convergence.common_excess_m),
         CDRO_REAL("convergence", "smoothing", 0.0, 0.9999, convergence.smoothing),
         CDRO_REAL("convergence", "threshold_m", 0.0, kHuge, convergence.threshold_m),
         CDRO_COUNT("convergence", "consecutive", 1, 100000, convergence.consecutive),

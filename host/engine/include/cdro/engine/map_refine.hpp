@@ -82,10 +82,10 @@ struct MapCovariance {
 
 // What the measurement model leaves out and the covariance must not: NLOS and uncalibrated
 // antenna delays make links read long, in walled buildings nearly all of them a little, and the
-// map then reads too large by a share no range can tell apart from a larger map (scale_sigma,
-// relative; 0 with a frame fixed by known coordinates).
+// map then reads larger by what no range can tell apart from a larger building: an excess every
+// link shares, of std common_excess_m, whatever frame fixed nodes give.
 struct MapModelError {
-    double scale_sigma = 0.0; // relative std of the map's size
+    double common_excess_m = 0.0; // m, std of an excess every link shares unseen
     // > 0: the links' ranges were corrected by range offsets estimated with the map
     // (range_offsets.hpp), each node's a deviation of this std (m) around a common part; their
     // uncertainty goes into the positions' covariance. 0: the ranges' offsets are known.
@@ -101,7 +101,7 @@ struct MapModelError {
 // The covariance of the placed nodes from the information of every link at the solution (line-
 // of-sight weight / sigma^2), correlations across the map included, scaled by the variance factor
 // (the weighted residuals' spread over its expected value, at least 1) so that a map whose links
-// disagree more than the noise says so, and the model error's scale mode added.
+// disagree more than the noise says so, and the model errors' modes added.
 MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estimate, const RangeLikelihood &likelihood,
                             const MapModelError &model_error = {});
 

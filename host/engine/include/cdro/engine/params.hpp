@@ -104,12 +104,11 @@ struct MotionParams {
 // ellipse) could put it more than `reliable_m` away (convergence.hpp).
 struct ConvergenceParams {
     double reliable_m = 1.0;          // m, what converged promises at most
-    double scale_sigma = 0.02;        // relative std of the map's size when no two fixed nodes set
-                                      // it: links read long through walls (0.1-0.6 m a wall on
-                                      // links of a few metres), which no range can tell apart from
-                                      // a larger map. Cautious where the radios are clean (PLANT's
-                                      // map is 0.05 % off in size); 0.5 % let a corridor's nodes be
-                                      // called converged 1-1.8 m off (docs/results.md, scorecard)
+    double common_excess_m = 0.3;     // m, std of an excess that every link may share unseen: walls
+                                      // make links read long (0.1-0.35 m a blocked path in
+                                      // kolakowski-nlos), by less than the NLOS model can tell from
+                                      // noise, and a map whose links nearly all cross a wall reads
+                                      // larger than the building (docs/results.md, walls)
     double smoothing = 0.9;           // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;        // m, step of the moving average under which a node is still
     uint32_t consecutive = 5;         // still updates in a row to count as converged ...
