@@ -15,6 +15,19 @@ namespace {
 // An unheard pair counts once both nodes have listened for two sweeps of the network: before,
 // "not heard" may only mean "not asked yet".
 constexpr double kListenSweeps = 2.0;
+
+// The filter's map in the problem's numbering: the start the solve refines, and what its result
+// is compared with.
+MapEstimate filterMapOf(const MapState &map, const StateProblem &built)
+{
+    MapEstimate estimate = MapEstimate::unplaced(built.problem.nodeCount());
+    for (uint32_t i = 0; i < built.problem.nodeCount(); ++i) {
+        const NodeState &state = map.nodes[built.node_of[i]];
+        estimate.placed[i] = state.placed() ? 1 : 0;
+        estimate.position_m[i] = state.position_m;
+    }
+    return estimate;
+}
 // The unheard pairs' soft cost falls to 0 at this share of the median link range (map_problem.hpp).
 constexpr double kUnheardRadiusShare = 0.5;
 // The evidence has changed enough to solve again when this share of the links' ranges has moved
@@ -168,12 +181,7 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     }
     GlobalSolveParams solve = solve_;
     solve.only_current = job->refresh;
-    job->current = MapEstimate::unplaced(problem.nodeCount());
-    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
-        const NodeState &state = map.nodes[job->built.node_of[i]];
-        job->current.placed[i] = state.placed() ? 1 : 0;
-        job->current.position_m[i] = state.position_m;
-    }
+    job->current = filterMapOf(map, job->built);
     const double lag_ranges = params_.solve.adopt_after_sweeps * static_cast<double>(map.links.size());
     const bool background = !settling && lag_ranges >= 1.0;
     adopt_in_ranges_ = background ? static_cast<uint64_t>(lag_ranges) : 0U;
@@ -203,12 +211,7 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
     const bool settling = job->settling;
     const bool refresh = job->refresh;
     // The filter's map now (the solve started from `job->current`; ranges may have moved it since).
-    MapEstimate current = MapEstimate::unplaced(problem.nodeCount());
-    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
-        const NodeState &state = map.nodes[built.node_of[i]];
-        current.placed[i] = state.placed() ? 1 : 0;
-        current.position_m[i] = state.position_m;
-    }
+    MapEstimate current = filterMapOf(map, built);
     counters_.solve_starts += solved.counters.starts;
     counters_.solve_escapes += solved.counters.escapes;
     if (solved.best.estimate.placedCount() < 3) {
