@@ -123,8 +123,9 @@ def tables(rows: list[dict]) -> str:
             f"{r['links']} | {fmt(e['rmse_m'])} | {e['placed']} / {e['converged']} | {wrong} | "
             f"{fmt(100 * coverage, 0) + ' %' if coverage is not None else '-'} | "
             + " | ".join(fmt(r["baselines"][b]) for b in BASELINES)
-            + f" | {fmt(r['reference_m'])} | {fmt(min(rmses))}-{fmt(max(rmses))}, "
-              f"{fmt(100 * r['order_spread'], 0)} % |")
+            + f" | {fmt(r['reference_m'])} | "
+            + (f"{fmt(min(rmses))}-{fmt(max(rmses))}, {fmt(100 * r['order_spread'], 0)} % |"
+               if r["order_spread"] is not None else "file order only |"))
     return "\n".join(lines)
 
 
