@@ -16,18 +16,6 @@ namespace {
 // "not heard" may only mean "not asked yet".
 constexpr double kListenSweeps = 2.0;
 
-// The filter's map in the problem's numbering: the start the solve refines, and what its result
-// is compared with.
-MapEstimate filterMapOf(const MapState &map, const StateProblem &built)
-{
-    MapEstimate estimate = MapEstimate::unplaced(built.problem.nodeCount());
-    for (uint32_t i = 0; i < built.problem.nodeCount(); ++i) {
-        const NodeState &state = map.nodes[built.node_of[i]];
-        estimate.placed[i] = state.placed() ? 1 : 0;
-        estimate.position_m[i] = state.position_m;
-    }
-    return estimate;
-}
 // The unheard pairs' soft cost falls to 0 at this share of the median link range (map_problem.hpp).
 constexpr double kUnheardRadiusShare = 0.5;
 // The evidence has changed enough to solve again when this share of the links' ranges has moved
@@ -56,6 +44,19 @@ uint64_t solvableNodes(const MapState &map)
         count += solvable(state) ? 1U : 0U;
     }
     return count;
+}
+
+// The filter's map in the problem's numbering: the start the solve refines, and what its result
+// is compared with.
+MapEstimate filterMapOf(const MapState &map, const StateProblem &built)
+{
+    MapEstimate estimate = MapEstimate::unplaced(built.problem.nodeCount());
+    for (uint32_t i = 0; i < built.problem.nodeCount(); ++i) {
+        const NodeState &state = map.nodes[built.node_of[i]];
+        estimate.placed[i] = state.placed() ? 1 : 0;
+        estimate.position_m[i] = state.position_m;
+    }
+    return estimate;
 }
 
 } // namespace

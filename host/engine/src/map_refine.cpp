@@ -484,6 +484,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     };
     std::vector<LinkJacobian> jacobians(problem.links.size());
     out.link_redundancy.assign(problem.links.size(), -1.0);
+    // The map's response to every link reading one metre longer (X J^T W 1): what a common
+    // excess does to it. Walls make links read long, and a map of links that nearly all cross a
+    // wall or two reads larger by what no range can tell from a larger building. An additive
+    // excess, not a relative scale: it is the short links of small rooms whose share it is largest.
+    Eigen::VectorXd expansion = Eigen::VectorXd::Zero(size);
     auto effectOf = [&](const LinkJacobian &j) {
         Eigen::VectorXd effect = Eigen::VectorXd::Zero(size); // X j
         if (j.na >= 0) {
@@ -517,6 +522,9 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         j.u = delta / distance;
         j.weight = likelihood.evaluate(link.range_m - distance, variance).inlier_probability / variance;
         const Eigen::VectorXd effect = effectOf(j);
+        if (model_error.common_excess_m > 0.0 && j.weight > 0.0) {
+            expansion.noalias() += j.weight * effect;
+        }
         double leverage = 0.0;
         if (j.na >= 0) {
             leverage += j.u.dot(effect.segment<2>(2 * j.na));
@@ -628,19 +636,6 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     out.main_part.assign(problem.nodeCount(), 0);
     for (uint32_t node : free_nodes) {
         out.main_part[node] = group[node] == main_group ? 1 : 0;
-    }
-    // The map's response to every link reading one metre longer (X J^T W 1): what a common
-    // excess does to it. Walls make links read long, and a map of links that nearly all cross a
-    // wall or two reads larger by what no range can tell from a larger building. An additive
-    // excess, not a relative scale: it is the short links of small rooms whose share it is largest.
-    Eigen::VectorXd expansion = Eigen::VectorXd::Zero(size);
-    if (model_error.common_excess_m > 0.0) {
-        for (uint32_t index = 0; index < problem.links.size(); ++index) {
-            const LinkJacobian &j = jacobians[index];
-            if (j.weight > 0.0 && out.link_redundancy[index] >= 0.0) {
-                expansion.noalias() += j.weight * effectOf(j);
-            }
-        }
     }
     const double scale = std::sqrt(out.variance_factor);
     // The frame is the main part's; then, if some of its nodes turn out to hang on weakly checked
