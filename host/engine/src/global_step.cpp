@@ -102,6 +102,48 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
     return out;
 }
 
+GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const RangeLikelihood &likelihood,
+                                                 const GlobalSolveParams &solve, double min_gain_nats,
+                                                 MapModelError model_error)
+{
+    SolvedMap out;
+    out.solved = solveGlobally(job.built.problem, likelihood, solve, &job.current);
+    const GlobalSolveResult &solved = out.solved;
+    const MapProblem &problem = job.built.problem;
+    if (solved.best.estimate.placedCount() < 3) {
+        return out;
+    }
+    // The filter's own map, refined, unless the solve found a map clearly better. When the two
+    // are different maps (a rival: some node a metre or more apart), the better one, however
+    // small the gain: the margin only saves the map from jumps that change nothing.
+    auto rival = [&](const MapHypothesis &hypothesis) {
+        for (const MapHypothesis &other : solved.rivals) {
+            if (other.origin == hypothesis.origin) {
+                return true;
+            }
+        }
+        return false;
+    };
+    const MapHypothesis *chosen = &solved.best;
+    for (const MapHypothesis &hypothesis : solved.all) {
+        if (!job.settling && hypothesis.origin == "current" && hypothesis.origin != solved.best.origin &&
+            !rival(hypothesis) && hypothesis.estimate.placedCount() == solved.best.estimate.placedCount() &&
+            hypothesis.cost < solved.best.cost + min_gain_nats) {
+            chosen = &hypothesis;
+        }
+    }
+    // The range offsets come with the best map (its positions explain the corrected ranges).
+    out.offsets = chosen == &solved.best && solved.offsets.adopted;
+    out.chosen = *chosen;
+    // What the model leaves out (an excess every link may share: walls; unknown heights) and the
+    // offsets' own uncertainty, in the chosen map's confidence.
+    const MapProblem corrected = out.offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
+    model_error.range_offset_spread_sigma_m = out.offsets ? kRangeOffsetSpreadSigmaM : 0.0;
+    model_error.height_unknown = job.height_unknown;
+    out.confidence = mapCovariance(out.offsets ? corrected : problem, out.chosen.estimate, likelihood, model_error);
+    return out;
+}
+
 GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
 {
     solve_.range_offsets = params.solve.range_offsets;
@@ -193,11 +235,19 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     // future's shared state keeps the callable, so a shared_ptr in it would keep the job alive
     // forever. The job outlives the worker: `result` is its last member, destroyed first, and that
     // waits for the worker to finish.
+    job->height_unknown.resize(problem.nodeCount());
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        job->height_unknown[i] = map.nodes[job->built.node_of[i]].height_m ? 0 : 1;
+    }
     const PendingSolve *owned = job.get();
     const RangeLikelihood likelihood = likelihood_;
+    const double min_gain_nats = params_.solve.min_gain_nats;
+    MapModelError model_error;
+    model_error.common_excess_m = params_.convergence.common_excess_m;
+    model_error.height_spread_m = params_.range.unknown_height_spread_m;
     job->result = std::async(background ? std::launch::async : std::launch::deferred,
-                             [owned, likelihood, solve]() {
-                                 return solveGlobally(owned->built.problem, likelihood, solve, &owned->current);
+                             [owned, likelihood, solve, min_gain_nats, model_error]() {
+                                 return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error);
                              })
                       .share();
     pending_ = std::move(job);
@@ -208,10 +258,10 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
     Outcome outcome;
     const std::shared_ptr<const PendingSolve> job = std::move(pending_);
     pending_.reset();
-    const GlobalSolveResult &solved = job->result.get();
+    const SolvedMap &result = job->result.get();
+    const GlobalSolveResult &solved = result.solved;
     const StateProblem &built = job->built;
     const MapProblem &problem = built.problem;
-    const bool settling = job->settling;
     const bool refresh = job->refresh;
     // The filter's map now (the solve started from `job->current`; ranges may have moved it since).
     MapEstimate current = filterMapOf(map, built);
@@ -220,25 +270,7 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
     if (solved.best.estimate.placedCount() < 3) {
         return outcome;
     }
-    // The filter's own map, refined, unless the solve found a map clearly better. When the two
-    // are different maps (a rival: some node a metre or more apart), the better one, however
-    // small the gain: the margin only saves the map from jumps that change nothing.
-    auto rival = [&](const MapHypothesis &hypothesis) {
-        for (const MapHypothesis &other : solved.rivals) {
-            if (other.origin == hypothesis.origin) {
-                return true;
-            }
-        }
-        return false;
-    };
-    const MapHypothesis *chosen = &solved.best;
-    for (const MapHypothesis &hypothesis : solved.all) {
-        if (!settling && hypothesis.origin == "current" && hypothesis.origin != solved.best.origin && !rival(hypothesis) &&
-            hypothesis.estimate.placedCount() == solved.best.estimate.placedCount() &&
-            hypothesis.cost < solved.best.cost + params_.solve.min_gain_nats) {
-            chosen = &hypothesis;
-        }
-    }
+    const MapHypothesis *chosen = &result.chosen;
     outcome.adopted = chosen->origin != "current";
     counters_.solves_adopted += outcome.adopted ? 1U : 0U;
     MapEstimate map_estimate = chosen->estimate;
@@ -291,19 +323,8 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
             transform.reflected = true;
         }
     }
-    // What the model leaves out: an excess every link may share (walls).
-    MapModelError model_error;
-    model_error.common_excess_m = params_.convergence.common_excess_m;
-    // The range offsets come with the best map (its positions explain the corrected ranges).
-    const bool offsets = chosen == &solved.best && solved.offsets.adopted;
-    const MapProblem corrected = offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
-    model_error.range_offset_spread_sigma_m = offsets ? kRangeOffsetSpreadSigmaM : 0.0;
-    model_error.height_spread_m = params_.range.unknown_height_spread_m;
-    model_error.height_unknown.resize(problem.nodeCount());
-    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
-        model_error.height_unknown[i] = map.nodes[built.node_of[i]].height_m ? 0 : 1;
-    }
-    const MapCovariance confidence = mapCovariance(offsets ? corrected : problem, map_estimate, likelihood_, model_error);
+    const bool offsets = result.offsets;
+    const MapCovariance &confidence = result.confidence;
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         map.nodes[built.node_of[i]].range_offset_m = offsets ? solved.offsets.offset_m[i] : 0.0;
     }

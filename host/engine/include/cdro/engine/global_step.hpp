@@ -126,13 +126,26 @@ public:
 private:
     // A solve under way: the problem as the map stood at its start, and its result to come
     // (shared: a copied engine adopts the same result at the same range).
+    // What the solve ends with, all of it worked out on the solve's thread: the solve, the map
+    // chosen from it (the filter's own, refined, or the solve's best) and that map's confidence.
+    struct SolvedMap {
+        GlobalSolveResult solved;
+        MapHypothesis chosen;
+        bool offsets = false;         // the chosen map comes with the range offsets (the best's)
+        MapCovariance confidence;
+    };
     struct PendingSolve {
         StateProblem built;
         MapEstimate current;          // the filter's map at the start
+        std::vector<uint8_t> height_unknown; // per node of the problem, at the start
         bool refresh = false;         // the same links and nodes as the last full solve
         bool settling = false;
-        std::shared_future<GlobalSolveResult> result; // last: destroyed first, waiting for the worker
+        std::shared_future<SolvedMap> result; // last: destroyed first, waiting for the worker
     };
+    // The solve, the choice and the confidence, from what the job owns and copies of the
+    // settings: run on the worker thread, nothing of the engine's is read.
+    static SolvedMap solveAndAssess(const PendingSolve &job, const RangeLikelihood &likelihood,
+                                    const GlobalSolveParams &solve, double min_gain_nats, MapModelError model_error);
 
     EngineParams params_;
     RangeLikelihood likelihood_;   // the engine's model without the floor (map_problem.hpp)
