@@ -26,9 +26,12 @@ import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-BIN = ROOT / "build" / "bin"
+# The build whose cdro-hostd and cdro-netgen are scored ($CDRO_BUILD_DIR, as for the tests).
+BIN = pathlib.Path(os.environ.get("CDRO_BUILD_DIR", ROOT / "build")) / "bin"
 VENV = ROOT / ".venv" / "bin"
 FAMILIES = ("random", "corridor", "wings", "walls", "biased")
+# --set SECTION.KEY=VALUE passed to every cdro-hostd run (--set on the command line).
+HOSTD_SETTINGS: list[str] = []
 BASELINES = ("mds", "lsq-huber", "lsq-drop")
 
 
@@ -53,6 +56,8 @@ def engine_run(network: pathlib.Path, name: str) -> dict:
     """cdro-hostd on the network's ranges (defaults), then cdro-eval on its estimates."""
     out = network / f"engine-{name}.csv"
     args = [BIN / "cdro-hostd", "--ranges-csv", network / "ranges.csv", "--out-csv", out]
+    for setting in HOSTD_SETTINGS:
+        args += ["--set", setting]
     if (network / "heights.csv").stat().st_size > len("id,z\n"):
         args += ["--heights-csv", network / "heights.csv"]
     run(args)
@@ -170,7 +175,10 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="draws run at once")
     parser.add_argument("--out", default=str(ROOT / "out" / "scorecard"))
     parser.add_argument("--markdown", help="also write the tables to this file")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="an engine setting for every cdro-hostd run (repeatable), e.g. engine.solve.threads=1")
     args = parser.parse_args()
+    HOSTD_SETTINGS.extend(args.set)
     if "-" in args.seeds:
         first, last = (int(x) for x in args.seeds.split("-"))
         seeds = list(range(first, last + 1))
