@@ -139,9 +139,9 @@ TEST(Alignment, NoPointsOrMismatchedGiveTheIdentityOnePointTheShift)
     EXPECT_EQ(mismatched.rotation, Matrix2::Identity());
 }
 
-// One fit in two languages: the cases of tests/golden/alignment_cases.json (exact transforms, and
-// noisy ones with the Python fit's answer) give the same transform here as in the tools
-// (tests/tools/test_alignment_golden.py).
+// One fit in two languages: the cases of tests/golden/alignment_cases.json (exact transforms,
+// noisy ones with the Python fit's answer, collinear ones that both fit with the rotation) give
+// the same transform here as in the tools (tests/tools/test_alignment_golden.py).
 TEST(Alignment, GivesTheGoldenCasesAsThePythonFitDoes)
 {
     std::ifstream in(std::string(CDRO_GOLDEN_DIR) + "/alignment_cases.json");
@@ -149,7 +149,7 @@ TEST(Alignment, GivesTheGoldenCasesAsThePythonFitDoes)
     std::stringstream text;
     text << in.rdbuf();
     const nlohmann::json golden = nlohmann::json::parse(text.str());
-    ASSERT_GE(golden["cases"].size(), 5U);
+    ASSERT_GE(golden["cases"].size(), 12U);
     for (const nlohmann::json &c : golden["cases"]) {
         SCOPED_TRACE(c["name"].get<std::string>());
         std::vector<Vector2> source;
@@ -167,6 +167,10 @@ TEST(Alignment, GivesTheGoldenCasesAsThePythonFitDoes)
         }
         EXPECT_NEAR(fit.rms_error_m, c["rmse_m"].get<double>(), 1e-9);
         EXPECT_EQ(fit.reflected, fit.rotation.determinant() < 0.0);
+        Matrix2 golden_rotation;
+        golden_rotation << c["rotation"][0][0].get<double>(), c["rotation"][0][1].get<double>(),
+            c["rotation"][1][0].get<double>(), c["rotation"][1][1].get<double>();
+        EXPECT_EQ(fit.reflected, golden_rotation.determinant() < 0.0);
     }
 }
 
