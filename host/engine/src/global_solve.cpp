@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include "cdro/engine/alignment.hpp"
@@ -131,7 +132,7 @@ std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &refe
         if (map.placed[node] != 0 && reference.placed[node] != 0) {
             out[node] = (fit.apply(map.position_m[node]) - reference.position_m[node]).norm();
         } else if (map.placed[node] != reference.placed[node]) {
-            out[node] = INFINITY;
+            out[node] = std::numeric_limits<double>::infinity();
         }
     }
     return out;
