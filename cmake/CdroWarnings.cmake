@@ -15,16 +15,11 @@ if(NOT CMAKE_SYSTEM_PROCESSOR STREQUAL "avr")
   list(APPEND CDRO_CXX_WARNINGS -Wnull-dereference)
 endif()
 
-# cdro_target_warnings(<target>): apply the project's warning set to one of our targets.
+# cdro_target_warnings(<target>): apply the project's warning set to one of our targets. Tests,
+# benchmarks and the firmware-in-the-loop harness get the same set as the code they exercise:
+# a warning that finds a bug finds it in a test too.
 function(cdro_target_warnings target)
   target_compile_options(${target} PRIVATE
     $<$<COMPILE_LANGUAGE:C>:${CDRO_C_WARNINGS}>
     $<$<COMPILE_LANGUAGE:CXX>:${CDRO_CXX_WARNINGS}>)
-endfunction()
-
-# Test code gets the same set minus -Wswitch-enum / -Wfloat-equal, which GoogleTest macros trip.
-function(cdro_test_warnings target)
-  target_compile_options(${target} PRIVATE
-    $<$<COMPILE_LANGUAGE:C>:-Wall -Wextra -Werror -Wshadow -Wconversion -Wdouble-promotion>
-    $<$<COMPILE_LANGUAGE:CXX>:-Wall -Wextra -Werror -Wshadow -Wconversion -Wdouble-promotion>)
 endfunction()

@@ -43,6 +43,8 @@ DEVELOPMENT_PACKAGES=(
   mosquitto openssl
   systemd
   clang libclang-rt-14-dev
+  # scripts/tidy.sh (a step of scripts/test.sh) and scripts/format.sh
+  clang-tidy clang-format
   gcc-avr avr-libc arduino-core-avr binutils-avr avrdude
   simavr libsimavr-dev libelf-dev
   chromium chromium-driver

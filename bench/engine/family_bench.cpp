@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <exception>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
@@ -35,8 +37,8 @@ double seconds()
 }
 
 struct Fit {
-    double rmse_m = NAN;
-    double worst_m = NAN;
+    double rmse_m = std::numeric_limits<double>::quiet_NaN();
+    double worst_m = std::numeric_limits<double>::quiet_NaN();
     uint32_t placed = 0;
     uint32_t over_1m = 0;
 };
@@ -114,7 +116,7 @@ engine::MapProblem problemFrom(const netgen::World &world, const std::vector<net
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-bench-families: the global solve on the building families"};
     std::string family_name = "corridor";
@@ -303,7 +305,7 @@ int main(int argc, char **argv)
             netgen::Random jitter(draw_seed * 104729);
             const int starts = std::atoi(std::getenv("CDRO_BENCH_RANDOM"));
             double best_cost = 1e300;
-            double best_rmse = NAN;
+            double best_rmse = std::numeric_limits<double>::quiet_NaN();
             int below_ref = 0;
             for (int r = 0; r < starts; ++r) {
                 engine::MapEstimate jittered = reference;
@@ -468,7 +470,7 @@ int main(int argc, char **argv)
                 ct.push_back(truth[node]);
             }
             uint32_t covered2 = 0, covered95 = 0, wrong = 0;
-            double crmse = NAN;
+            double crmse = std::numeric_limits<double>::quiet_NaN();
             if (ce.size() >= 3) {
                 const engine::RigidTransform fitc = engine::fitRigid(ce, ct, true);
                 crmse = fitc.rms_error_m;
@@ -511,7 +513,7 @@ int main(int argc, char **argv)
                         converged.size(), problem.nodeCount(), crmse, wrong, covered2, covered95, why_links, why_fold,
                         why_disputed, why_reliability, why_spread, confidence.variance_factor);
         }
-        double engine_rmse = NAN;
+        double engine_rmse = std::numeric_limits<double>::quiet_NaN();
         uint32_t engine_converged_wrong = 0;
         if (run_engine) {
             engine::Engine streaming;
@@ -563,4 +565,16 @@ int main(int argc, char **argv)
         std::fflush(stdout);
     }
     return 0;
+}
+
+// An exception that escapes (from setting up the options, or a library's) ends the run with its
+// message and status 1, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-bench-families: %s\n", error.what());
+        return 1;
+    }
 }

@@ -39,7 +39,7 @@ template <typename Row> void reportProblems(const std::string &path, const hostd
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-reference: the engine's robust map solve started at the truth"};
     std::string truth_path;
@@ -126,4 +126,16 @@ int main(int argc, char **argv)
         return 1;
     }
     return 0;
+}
+
+// An exception that escapes (from setting up the options, or a library's) ends the run with its
+// message and status 1, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-reference: %s\n", error.what());
+        return 1;
+    }
 }

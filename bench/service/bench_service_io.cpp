@@ -32,6 +32,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -492,7 +493,7 @@ private:
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-bench-service: frames/s the service sustains from a pseudo-terminal, the latency from a\n"
                  "frame's arrival to its estimate going out (p50/p99/p99.9), and the resident memory over the run.\n"
@@ -793,4 +794,16 @@ int main(int argc, char **argv)
     ::close(slave);
     const std::string cleanup = "rm -rf '" + dir + "'";
     return std::system(cleanup.c_str()) == 0 ? 0 : 1;
+}
+
+// An exception that escapes (from setting up the options, or a library's) ends the run with its
+// message and status 1, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-bench-service: %s\n", error.what());
+        return 1;
+    }
 }

@@ -30,7 +30,8 @@ static cdro_result_t emit(cdro_sog_writer_t *writer, const uint8_t *bytes, size_
 cdro_result_t cdro_sog_write_header(cdro_sog_writer_t *writer, const cdro_sog_header_t *header)
 {
     uint8_t buffer[CDRO_SOG_MAGIC_SIZE + CDRO_SOG_HEADER_MAX_SIZE];
-    memcpy(buffer, CDRO_SOG_MAGIC, CDRO_SOG_MAGIC_SIZE);
+    /* The magic is 4 bytes on the wire, without the string's terminator. */
+    memcpy(buffer, CDRO_SOG_MAGIC, CDRO_SOG_MAGIC_SIZE); /* NOLINT(bugprone-not-null-terminated-result) */
     return emit(writer, buffer, CDRO_SOG_MAGIC_SIZE + encode_sog_header(header, buffer + CDRO_SOG_MAGIC_SIZE));
 }
 
@@ -128,28 +129,28 @@ cdro_result_t cdro_sog_reader_init(cdro_sog_reader_t *reader, const uint8_t *dat
     return CDRO_OK;
 }
 
-/* Reads one fixed-size record at the reader's position. */
-#define CDRO_READ_RECORD(NAME, name)                                                          \
+/* Reads one fixed-size record at the reader's position into *out. */
+#define CDRO_READ_RECORD(NAME, name, out)                                                     \
     if (reader->len - reader->position < (size_t)CDRO_##NAME##_MAX_SIZE) {                    \
         return CDRO_ERR_LENGTH;                                                               \
     }                                                                                         \
     reader->position += CDRO_##NAME##_MAX_SIZE;                                               \
     return decode_##name(reader->data + reader->position - CDRO_##NAME##_MAX_SIZE,            \
-                         CDRO_##NAME##_MAX_SIZE, record);
+                         CDRO_##NAME##_MAX_SIZE, out);
 
-cdro_result_t cdro_sog_read_node(cdro_sog_reader_t *reader, cdro_sog_node_t *record)
+cdro_result_t cdro_sog_read_node(cdro_sog_reader_t *reader, cdro_sog_node_t *node)
 {
-    CDRO_READ_RECORD(SOG_NODE, sog_node)
+    CDRO_READ_RECORD(SOG_NODE, sog_node, node)
 }
 
-cdro_result_t cdro_sog_read_pair(cdro_sog_reader_t *reader, cdro_sog_pair_t *record)
+cdro_result_t cdro_sog_read_pair(cdro_sog_reader_t *reader, cdro_sog_pair_t *pair)
 {
-    CDRO_READ_RECORD(SOG_PAIR, sog_pair)
+    CDRO_READ_RECORD(SOG_PAIR, sog_pair, pair)
 }
 
-cdro_result_t cdro_sog_read_component(cdro_sog_reader_t *reader, cdro_sog_component_t *record)
+cdro_result_t cdro_sog_read_component(cdro_sog_reader_t *reader, cdro_sog_component_t *component)
 {
-    CDRO_READ_RECORD(SOG_COMPONENT, sog_component)
+    CDRO_READ_RECORD(SOG_COMPONENT, sog_component, component)
 }
 
 cdro_result_t cdro_sog_read_extension(cdro_sog_reader_t *reader, uint16_t *tag, const uint8_t **bytes,

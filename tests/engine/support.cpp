@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
 
 #include <Eigen/Eigenvalues>
@@ -130,6 +131,9 @@ bool globallyRigid(const TestNetwork &network, Random &random)
     }
     const Eigen::JacobiSVD<Eigen::MatrixXd> svd(rigidity, Eigen::ComputeFullU);
     const Eigen::VectorXd singular = svd.singularValues();
+    if (singular.size() == 0) {
+        return false; // no link (and, for gcc's -Wnull-dereference, no empty vector read below)
+    }
     const double tolerance = 1e-9 * singular(0);
     Eigen::Index rank = 0;
     for (Eigen::Index i = 0; i < singular.size(); ++i) {
@@ -270,8 +274,8 @@ AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, cons
         target.push_back(truth[node.id]);
     }
     if (source.size() < 2) {
-        error.rmse_m = INFINITY;
-        error.max_m = INFINITY;
+        error.rmse_m = std::numeric_limits<double>::infinity();
+        error.max_m = std::numeric_limits<double>::infinity();
         return error;
     }
     const engine::RigidTransform transform = engine::fitRigid(source, target, true);

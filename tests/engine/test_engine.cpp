@@ -345,7 +345,7 @@ TEST(Engine, BadRangesAreRefusedCountedAndNeverChangeTheMap)
                             -1.0,
                             0.0,
                             -0.0,
-                            std::nextafter(max_m, INFINITY),
+                            std::nextafter(max_m, std::numeric_limits<double>::infinity()),
                             1e9};
     for (double range_m : bad_m) {
         EXPECT_EQ(engine.addRange(a, b, range_m), RangeVerdict::RejectedValue) << range_m;

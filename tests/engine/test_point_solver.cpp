@@ -2,6 +2,7 @@
 // recovery, a corrupted (NLOS) constraint written off, the covariance, the step limit, the
 // constraints read from a network.
 #include <cmath>
+#include <limits>
 
 #include <Eigen/LU>
 #include <gtest/gtest.h>
@@ -113,7 +114,7 @@ TEST(PointSolver, CovarianceIsTheInverseInformationAndShrinksWithMoreConstraints
     PointSolverParams params;
     params.range_sigma_m = 0.2;
     std::vector<RangeConstraint> all = ringOfAnchors(truth_m, 24, 10.0, random);
-    double previous_trace = INFINITY;
+    double previous_trace = std::numeric_limits<double>::infinity();
     for (size_t count : {3U, 6U, 12U, 24U}) {
         // Every other anchor of the denser sets: similar geometry, more of it.
         std::vector<RangeConstraint> subset;

@@ -3,6 +3,7 @@
 // weight update (eq. 8-11) and partial updates of the active set.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 #include <gtest/gtest.h>
@@ -264,7 +265,7 @@ TEST(RingSog, ApplyLikelihoodKeepsWeightsNormalisedAndFloored)
     const std::vector<SogComponentState> before = a.components();
     EXPECT_FALSE(a.applyLikelihood(std::vector<double>(n + 1, 1.0)));
     EXPECT_FALSE(a.applyLikelihood(std::vector<double>(n, 0.0)));
-    EXPECT_FALSE(a.applyLikelihood(std::vector<double>(n, INFINITY)));
+    EXPECT_FALSE(a.applyLikelihood(std::vector<double>(n, std::numeric_limits<double>::infinity())));
     for (uint32_t k = 0; k < n; ++k) {
         EXPECT_EQ(a.component(k).weight, before[k].weight);
     }

@@ -547,7 +547,7 @@ cdro_pozyx_status_t cdro_pozyx_discover(cdro_pozyx_t *dev, uint16_t *ids, uint8_
             return status;
         }
         for (i = 0; i < count; ++i) {
-            const uint16_t id = cdro_get_u16(raw + 2U * i);
+            const uint16_t id = cdro_get_u16(raw + (size_t)2U * i);
             uint8_t j;
             /* A page after the first must hold new, non-zero ids: a device that ignored the
              * offset repeats the first page. Its ids from here on are unknown: stop. */

@@ -39,8 +39,9 @@ constexpr uint64_t kBitsPerByte = 10; // 8N1: start, 8 data, stop
 constexpr uint64_t kAdvanceIntervalUs = 50;
 
 // simavr logs through one global function: ours sends its errors and warnings to stderr
-// (stdout carries the summary) and drops its chatter.
-void quietLogger(avr_t *, const int level, const char *format, va_list args)
+// (stdout carries the summary) and drops its chatter. Its format is simavr's printf format
+// (the attribute lets the compiler check the forwarding).
+__attribute__((format(printf, 3, 0))) void quietLogger(avr_t *, const int level, const char *format, va_list args)
 {
     if (level <= LOG_WARNING) {
         std::fputs("simavr: ", stderr);

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <memory>
 #include <string>
 
@@ -266,7 +267,7 @@ int run(const Options &options, int stdout_fd)
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-fil: the Uno firmware in simavr against a simulated Pozyx network, its UART on a "
                  "pseudo-terminal (docs/firmware.md, \"Firmware in the loop\")"};
@@ -321,6 +322,18 @@ int main(int argc, char **argv)
     signal(SIGPIPE, SIG_IGN);
     try {
         return run(options, stdout_fd);
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-fil: %s\n", error.what());
+        return 2;
+    }
+}
+
+// An exception that escapes (from setting up the options, or a library's) ends the run with its
+// message and status 2, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-fil: %s\n", error.what());
         return 2;

@@ -803,7 +803,7 @@ static void call_tx_send(pozyx_sim_t *sim)
     sim->local_air_from_us = sim->now_us;
     sim->local_air_until_us = sim->now_us + sim->config.uwb_message_us;
     /* The request and its reply each take one message; the remote node handles it in between. */
-    reply_at_us = sim->now_us + 2U * sim->config.uwb_message_us + sim->config.remote_processing_us;
+    reply_at_us = sim->now_us + 2U * (uint64_t)sim->config.uwb_message_us + sim->config.remote_processing_us;
     if (!link_ok(sim, self, node)) {
         return; /* nobody answers: the master times out */
     }
@@ -943,7 +943,7 @@ static void execute(pozyx_sim_t *sim)
         sim->result[0] = 1;
         for (i = 0; i < count; ++i) {
             const uint16_t id = (uint8_t)(offset + i) < sim->device_list_size ? sim->device_list[offset + i] : 0U;
-            put_u16(sim->result + 1 + 2U * i, id);
+            put_u16(sim->result + 1 + (size_t)2U * i, id);
         }
         sim->result_length = (uint8_t)(1U + 2U * count);
         break;

@@ -43,6 +43,26 @@ RigidTransform fitProper(const std::vector<Vector2> &source, const std::vector<V
     return transform;
 }
 
+// sqrt(mean |p_i - p_mean|^2) (m): how far the points lie from their centre.
+double spreadOf(const std::vector<Vector2> &points_m)
+{
+    Vector2 mean_m = Vector2::Zero();
+    for (const Vector2 &p : points_m) {
+        mean_m += p;
+    }
+    mean_m /= static_cast<double>(points_m.size());
+    double squared_m2 = 0.0;
+    for (const Vector2 &p : points_m) {
+        squared_m2 += (p - mean_m).squaredNorm();
+    }
+    return std::sqrt(squared_m2 / static_cast<double>(points_m.size()));
+}
+
+// A reflection is kept only when it fits better by more than this share of the points' spread:
+// on a collinear set both fit exactly as well, and rounding alone would pick one (differently in
+// Eigen and in the tools' LAPACK fit). cdro_tools/evaluation/alignment.py keeps the same rule.
+constexpr double kReflectionTie = 1e-9;
+
 } // namespace
 
 RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<Vector2> &target_m,
@@ -61,7 +81,8 @@ RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<
         return proper;
     }
     RigidTransform mirrored = fitProper(source_m, target_m, true);
-    return mirrored.rms_error_m < proper.rms_error_m ? mirrored : proper;
+    const double tie_m = kReflectionTie * (spreadOf(source_m) + spreadOf(target_m));
+    return mirrored.rms_error_m < proper.rms_error_m - tie_m ? mirrored : proper;
 }
 
 } // namespace cdro::engine

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <optional>
 #include <sstream>
 #include <thread>
@@ -164,7 +165,7 @@ std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &refe
         if (map.placed[node] != 0 && reference.placed[node] != 0) {
             out[node] = (fit.apply(map.position_m[node]) - reference.position_m[node]).norm();
         } else if (map.placed[node] != reference.placed[node]) {
-            out[node] = INFINITY;
+            out[node] = std::numeric_limits<double>::infinity();
         }
     }
     return out;

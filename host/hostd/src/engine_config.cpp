@@ -254,6 +254,7 @@ std::string emitKeys(const char *top, const std::vector<Key<Params>> &keys, cons
 template <typename Params> std::vector<std::string> keyNames(const char *top, const std::vector<Key<Params>> &keys)
 {
     std::vector<std::string> names;
+    names.reserve(keys.size());
     for (const Key<Params> &key : keys) {
         names.push_back(std::string(top) + "." + (key.group[0] != '\0' ? std::string(key.group) + "." : "") + key.name);
     }

@@ -7,6 +7,7 @@
 //
 // docs/service.md documents the service, docs/engine.md the engine and its parameters.
 #include <cstdio>
+#include <exception>
 #include <fstream>
 #include <sstream>
 
@@ -114,7 +115,7 @@ void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_se
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-hostd: cooperative range-only SLAM for Pozyx UWB networks.\n\n"
                  "Live:     cdro-hostd --config config/cdro-hostd.example.yaml --device /dev/ttyACM0\n"
@@ -258,6 +259,18 @@ int main(int argc, char **argv)
             line = std::make_unique<cdro::hostd::ProgressLine>(service, engine, stderr);
         }
         return service.run();
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-hostd: %s\n", error.what());
+        return 2;
+    }
+}
+
+// An exception that escapes (from setting up the options, before runMain's own handler) ends the
+// run with its message and status 2, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-hostd: %s\n", error.what());
         return 2;

@@ -11,6 +11,7 @@
 //   cdro-netgen --family corridor --seed 3 --out /tmp/corridor-3
 //   cdro-netgen --family random --nodes 300 --seed 1 --order staggered --out /tmp/r300
 #include <cstdio>
+#include <exception>
 #include <filesystem>
 #include <stdexcept>
 #include <string>
@@ -35,7 +36,7 @@ std::FILE *openOut(const std::filesystem::path &path)
 
 } // namespace
 
-int main(int argc, char **argv)
+static int runMain(int argc, char **argv)
 {
     CLI::App app{"cdro-netgen: a seeded network of one of the building families, written as CSV files"};
     std::string family_name = "random";
@@ -125,4 +126,16 @@ int main(int argc, char **argv)
         return 1;
     }
     return 0;
+}
+
+// An exception that escapes (from setting up the options, before runMain's own handler) ends the
+// run with its message and status 1, not with std::terminate's abort.
+int main(int argc, char **argv)
+{
+    try {
+        return runMain(argc, argv);
+    } catch (const std::exception &error) {
+        std::fprintf(stderr, "cdro-netgen: %s\n", error.what());
+        return 1;
+    }
 }

@@ -29,6 +29,8 @@ std::string nodeIdHex(uint16_t id)
 }
 
 namespace {
+// Bit for bit on purpose: -0.0 differs from 0.0 and a NaN equals itself.
+// NOLINTNEXTLINE(bugprone-suspicious-memory-comparison)
 bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 bool sameBits(const std::optional<double> &a, const std::optional<double> &b)
 {

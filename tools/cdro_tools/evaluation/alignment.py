@@ -17,12 +17,41 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 
+# A reflection is taken only when it fits better than the rotation by more than this share of the
+# points' spread: on a collinear set (in 3D, a coplanar one) both fit exactly as well, and which
+# one rounding favours differs between LAPACK and Eigen. The engine's fitRigid keeps the same rule.
+REFLECTION_TIE = 1e-9
+
+
+def _proper_fit(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation (det +1) and t minimising sum |R s_i + t - g_i|^2 (Kabsch): with
+    H = sum (s_i - s_mean)(g_i - g_mean)^T = U S V^T, R = V diag(1, .., det(V U^T)) U^T."""
+    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
+    correction = np.ones(source.shape[1])
+    if np.linalg.det(vt.T @ u.T) < 0.0:
+        correction[-1] = -1.0
+    rotation = vt.T @ np.diag(correction) @ u.T
+    return rotation, target_mean - rotation @ source_mean
+
+
+def _rms_m(source: np.ndarray, target: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> float:
+    return math.sqrt(float(np.mean(np.sum((source @ rotation.T + translation - target) ** 2, axis=1))))
+
+
+def _spread_m(points: np.ndarray) -> float:
+    """sqrt(mean |p_i - p_mean|^2): how far the points lie from their centre."""
+    return math.sqrt(float(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
+
+
 def rigid_fit(source: np.ndarray, target: np.ndarray, dim: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """R (dim x dim, orthogonal: rotation or reflection) and t minimising sum |R s_i + t - g_i|^2.
 
-    The orthogonal Procrustes solution: with H = sum (s_i - s_mean)(g_i - g_mean)^T = U S V^T,
-    R = V U^T. Not forcing det(R) = +1 is what allows the reflection (a mirror image fits
-    ranges as well in 3D as in 2D). One point fixes only the translation; no point gives the
+    The best rotation (Kabsch) and the best reflection (the rotation of the mirrored source,
+    mirror = diag(1, .., -1)), and the one that fits better; the reflection only when it is
+    better by more than rounding (REFLECTION_TIE), so that a collinear set gets the rotation. This
+    is the engine's fitRigid (alignment.hpp) step for step; tests/golden/alignment_cases.json holds
+    the two to the same answers. One point fixes only the translation; no point gives the
     identity. dim = 3 is for tracks of moving nodes in 3D (evaluation.tracking); the maps are 2D.
     """
     source = np.asarray(source, dtype=float).reshape(-1, dim)
@@ -31,12 +60,16 @@ def rigid_fit(source: np.ndarray, target: np.ndarray, dim: int = 2) -> tuple[np.
         raise ValueError(f"rigid_fit: {len(source)} source points but {len(target)} target points")
     if len(source) == 0:
         return np.eye(dim), np.zeros(dim)
-    source_mean, target_mean = source.mean(axis=0), target.mean(axis=0)
     if len(source) == 1:
-        return np.eye(2), target_mean - source_mean
-    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
-    rotation = vt.T @ u.T
-    return rotation, target_mean - rotation @ source_mean
+        return np.eye(dim), target[0] - source[0]
+    proper = _proper_fit(source, target)
+    mirror = np.diag([1.0] * (dim - 1) + [-1.0])
+    rotation, translation = _proper_fit(source @ mirror, target)
+    mirrored = (rotation @ mirror, translation)
+    tie_m = REFLECTION_TIE * (_spread_m(source) + _spread_m(target))
+    if _rms_m(source, target, *mirrored) < _rms_m(source, target, *proper) - tie_m:
+        return mirrored
+    return proper
 
 
 def rmse(errors_m: Mapping[int, float] | Sequence[float]) -> float:

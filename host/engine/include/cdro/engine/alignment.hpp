@@ -23,9 +23,11 @@ struct RigidTransform {
 };
 
 // Maps source onto target (same length) by least squares. allow_reflection: try both
-// handednesses and keep the better. One point gives the translation only, none (or lengths that
-// differ) the identity. The tools' Python fit (cdro_tools/evaluation/alignment.py) is the same
-// fit: tests/golden/alignment_cases.json holds both to the same answers.
+// handednesses and keep the better; the reflection only when it is better by more than rounding
+// (1e-9 of the points' spread), so a collinear set, which both fit alike, gets the rotation.
+// One point gives the translation only, none (or lengths that differ) the identity. The tools'
+// Python fit (cdro_tools/evaluation/alignment.py) is the same fit, step for step:
+// tests/golden/alignment_cases.json holds both to the same answers.
 RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<Vector2> &target_m,
                         bool allow_reflection);
 
