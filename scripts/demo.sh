@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The main job: installs what is missing, builds, and runs the whole system on a simulated
 # network for about a minute:
-#   cdro-sim --scenario demo  (the firmware itself, firmware/core built for the host; 7 Pozyx nodes at known heights in a 12 m x 9 m room, one of them
+#   cdro-sim --scenario demo  (7 Pozyx nodes at known heights in a 12 m x 9 m room, one of them
 #                              carried 5.2 m halfway through, two NLOS links, outliers, dropouts)
-#     acts as the Pozyx tag on the Uno, on a pseudo-terminal;
+#     acts as the Pozyx tag on the Uno, on a pseudo-terminal: the firmware itself runs there
+#     (firmware/core built for the host, firmware/host_device);
 #   (the heights as measured with a tape: out/demo-heights.csv, written by cdro-sim)
 #   cdro-hostd reads that pseudo-terminal as its serial port: handshake, SET_NODES/SET_SCHEDULE/
 #     START, the SLAM engine, the live map over HTTP, JSON Lines, the capture, checkpoints.

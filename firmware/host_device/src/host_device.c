@@ -13,6 +13,8 @@
  * 64 bytes, of which a ring buffer holds one less. */
 #define HD_TX_BUFFER 127U
 #define HD_RX_BUFFER 63U
+/* Host bytes on their way: they reach the receive buffer one every 10 bits at the baud rate. */
+#define HD_WIRE_BUFFER 4096U
 /* Wire's own cost per transaction beyond the bits on the wire, and the main loop's per step
  * (wdt_reset, millis, the call): the figures of the firmware's native tests (tests/firmware). */
 #define HD_WIRE_OVERHEAD_NS 20000U
@@ -39,7 +41,11 @@ struct cdro_hd {
     /* UART transmit side: bytes still to go out, drained at the baud rate */
     uint32_t tx_pending;
     uint64_t tx_drained_ns;
-    /* UART receive side: a ring buffer */
+    /* UART receive side: bytes on the wire, then the receive ring buffer */
+    uint8_t wire[HD_WIRE_BUFFER];
+    uint16_t wire_head;
+    uint16_t wire_count;
+    uint64_t wire_next_ns; /* when the wire's first byte reaches the receive buffer */
     uint8_t rx[HD_RX_BUFFER];
     uint16_t rx_head;
     uint16_t rx_count;
@@ -155,9 +161,11 @@ static void bus_recover(void *user)
 
 /* ---- serial ops: HardwareSerial ---------------------------------------------------------- */
 
+static uint64_t ns_per_serial_byte(void);
+
 static void tx_drain(cdro_hd_t *hd)
 {
-    const uint64_t ns_per_byte = 10ULL * 1000000000ULL / CDRO_FW_SERIAL_BAUD; /* 8N1 */
+    const uint64_t ns_per_byte = ns_per_serial_byte();
     uint64_t sent;
     if (hd->tx_pending == 0U) {
         hd->tx_drained_ns = hd->now_ns;
@@ -200,10 +208,34 @@ static void tx_write(void *user, const uint8_t *data, uint8_t length)
     }
 }
 
+static uint64_t ns_per_serial_byte(void)
+{
+    return 10ULL * 1000000000ULL / CDRO_FW_SERIAL_BAUD; /* 8N1 */
+}
+
+/* Bytes that have arrived by now into the receive buffer; those that find it full are lost
+ * (nothing read the buffer since the last call: every read calls this first). */
+static void rx_arrivals(cdro_hd_t *hd)
+{
+    while (hd->wire_count > 0U && hd->wire_next_ns <= hd->now_ns) {
+        const uint8_t byte = hd->wire[hd->wire_head];
+        hd->wire_head = (uint16_t)((hd->wire_head + 1U) % HD_WIRE_BUFFER);
+        --hd->wire_count;
+        hd->wire_next_ns += ns_per_serial_byte();
+        if (hd->rx_count < HD_RX_BUFFER) {
+            hd->rx[(hd->rx_head + hd->rx_count) % HD_RX_BUFFER] = byte;
+            ++hd->rx_count;
+        } else {
+            ++hd->rx_lost;
+        }
+    }
+}
+
 static int16_t rx_read(void *user)
 {
     cdro_hd_t *hd = (cdro_hd_t *)user;
     uint8_t byte;
+    rx_arrivals(hd);
     if (hd->rx_count == 0U) {
         return -1;
     }
@@ -322,6 +354,7 @@ void cdro_hd_power_on(cdro_hd_t *hd, uint8_t reset_cause)
     hd->powered = 1;
     hd->boot_ns = hd->now_ns;
     hd->next_due_ns = hd->now_ns;
+    rx_arrivals(hd);
     hd->rx_head = 0;
     hd->rx_count = 0;
     ++hd->boots;
@@ -347,8 +380,11 @@ void cdro_hd_idle_to(cdro_hd_t *hd, uint64_t t_us)
 
 uint64_t cdro_hd_next_due_us(const cdro_hd_t *hd)
 {
-    if (hd->rx_count > 0U && hd->fw.state == CDRO_FW_STATE_READY) {
-        return hd->now_ns / 1000U;
+    if (hd->fw.state == CDRO_FW_STATE_READY && (hd->rx_count > 0U || hd->wire_count > 0U)) {
+        /* the main loop reads host bytes at every step: as soon as they are there */
+        const uint64_t arrival_ns = hd->rx_count > 0U ? hd->now_ns : hd->wire_next_ns;
+        const uint64_t due_ns = arrival_ns < hd->next_due_ns ? arrival_ns : hd->next_due_ns;
+        return (due_ns > hd->now_ns ? due_ns : hd->now_ns) / 1000U;
     }
     return hd->next_due_ns / 1000U;
 }
@@ -367,9 +403,13 @@ void cdro_hd_step(cdro_hd_t *hd)
 uint16_t cdro_hd_receive(cdro_hd_t *hd, const uint8_t *data, uint16_t length)
 {
     uint16_t taken = 0;
-    while (taken < length && hd->rx_count < HD_RX_BUFFER) {
-        hd->rx[(hd->rx_head + hd->rx_count) % HD_RX_BUFFER] = data[taken];
-        ++hd->rx_count;
+    rx_arrivals(hd);
+    if (hd->wire_count == 0U) {
+        hd->wire_next_ns = hd->now_ns + ns_per_serial_byte();
+    }
+    while (taken < length && hd->wire_count < HD_WIRE_BUFFER) {
+        hd->wire[(hd->wire_head + hd->wire_count) % HD_WIRE_BUFFER] = data[taken];
+        ++hd->wire_count;
         ++taken;
     }
     hd->rx_lost += (uint32_t)(length - taken);

@@ -11,7 +11,8 @@
  *     stretching, Wire's timeout for a hung bus);
  *   - the serial port: the Uno's HardwareSerial, a 127-byte transmit buffer drained at the baud
  *     rate (frames that do not fit are dropped by the firmware) and a 63-byte receive buffer
- *     (bytes beyond it are lost);
+ *     that host bytes reach one by one at the baud rate (those that find it full are lost:
+ *     while the firmware boots and discovers, it does not read it);
  *   - the world, through callbacks of the caller: where each node is (so the model finds which
  *     links work), what each ranging reports (the caller's error model) and what each
  *     accelerometer reads; and where the bytes the firmware writes go.
@@ -100,12 +101,14 @@ uint64_t cdro_hd_now_us(const cdro_hd_t *hd);
 uint64_t cdro_hd_boot_us(const cdro_hd_t *hd);
 /* Lets simulated time pass up to t_us (never backwards). */
 void cdro_hd_idle_to(cdro_hd_t *hd, uint64_t t_us);
-/* When the firmware next wants to run: what its last step asked, or now while host bytes wait. */
+/* When the firmware next wants to run: what its last step asked, or earlier when host bytes
+ * arrive (once it is ready; before, they wait in the receive buffer). */
 uint64_t cdro_hd_next_due_us(const cdro_hd_t *hd);
 /* One cdro_fw_step at the current time; simulated time moves by what it spends. */
 void cdro_hd_step(cdro_hd_t *hd);
 
-/* Host bytes into the receive buffer; returns how many it took (the rest are lost). */
+/* Host bytes sent now: they reach the receive buffer at the baud rate, after what is still on
+ * its way. Returns how many were taken (the rest, beyond 4096 on their way, are lost). */
 uint16_t cdro_hd_receive(cdro_hd_t *hd, const uint8_t *data, uint16_t length);
 
 void cdro_hd_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out);
