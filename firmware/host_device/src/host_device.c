@@ -416,7 +416,7 @@ uint16_t cdro_hd_receive(cdro_hd_t *hd, const uint8_t *data, uint16_t length)
     return taken;
 }
 
-void cdro_hd_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out)
+void cdro_hd_read_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out)
 {
     const cdro_fw_t *fw = &hd->fw;
     memset(out, 0, sizeof(*out));

@@ -135,7 +135,7 @@ class FirmwareDevice:
 
     def _counters(self) -> host_device.Counters:
         counters = host_device.Counters()
-        self.lib.cdro_hd_counters(self._hd, ctypes.byref(counters))
+        self.lib.cdro_hd_read_counters(self._hd, ctypes.byref(counters))
         return counters
 
     @property

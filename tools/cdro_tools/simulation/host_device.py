@@ -96,7 +96,7 @@ def _prototypes(lib: ctypes.CDLL) -> None:
         "cdro_hd_next_due_us": (ctypes.c_uint64, [p]),
         "cdro_hd_step": (None, [p]),
         "cdro_hd_receive": (ctypes.c_uint16, [p, ctypes.c_char_p, ctypes.c_uint16]),
-        "cdro_hd_counters": (None, [p, ctypes.POINTER(Counters)]),
+        "cdro_hd_read_counters": (None, [p, ctypes.POINTER(Counters)]),
         "cdro_hd_running": (ctypes.c_uint8, [p]),
         "cdro_hd_state": (ctypes.c_uint8, [p]),
         "cdro_hd_moving": (ctypes.c_uint8, [p, ctypes.c_uint16]),

@@ -111,7 +111,7 @@ void cdro_hd_step(cdro_hd_t *hd);
  * its way. Returns how many were taken (the rest, beyond 4096 on their way, are lost). */
 uint16_t cdro_hd_receive(cdro_hd_t *hd, const uint8_t *data, uint16_t length);
 
-void cdro_hd_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out);
+void cdro_hd_read_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out);
 uint8_t cdro_hd_running(const cdro_hd_t *hd);
 /* cdro_fw_state_t: 0 boot (before HELLO), 1 discovery, 2 ready. */
 uint8_t cdro_hd_state(const cdro_hd_t *hd);
