@@ -5,8 +5,8 @@ cdro_host_device/host_device.h for the C side.
 
 The library is found, in this order, at $CDRO_HOST_DEVICE_LIB, in $CDRO_BUILD_DIR/lib, in the
 repository's build/lib (an editable install), and next to an installed environment
-(PREFIX/lib/cdro, where `cmake --install` puts it). A candidate that does not load (e.g. a
-sanitizer build's, which Python cannot load) is skipped.
+(PREFIX/lib/cdro, where `cmake --install` puts it). A sanitizer build's is passed over (ASan
+cannot be loaded into Python), and so is a candidate that does not load.
 """
 from __future__ import annotations
 
@@ -57,7 +57,12 @@ def candidates() -> list[pathlib.Path]:
     if os.environ.get("CDRO_HOST_DEVICE_LIB"):
         out.append(pathlib.Path(os.environ["CDRO_HOST_DEVICE_LIB"]))
     if os.environ.get("CDRO_BUILD_DIR"):
-        out.append(pathlib.Path(os.environ["CDRO_BUILD_DIR"]) / "lib" / LIBRARY)
+        build = pathlib.Path(os.environ["CDRO_BUILD_DIR"])
+        cache = build / "CMakeCache.txt"
+        # A sanitizer build's library cannot be loaded into Python (ASan would end the process
+        # rather than fail the load): the plain build's is used then.
+        if not (cache.is_file() and "CDRO_SANITIZE:BOOL=ON" in cache.read_text(errors="replace")):
+            out.append(build / "lib" / LIBRARY)
     out.append(pathlib.Path(__file__).resolve().parents[3] / "build" / "lib" / LIBRARY)
     out.append(pathlib.Path(sys.prefix).parent / LIBRARY)
     return out
