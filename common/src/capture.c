@@ -4,6 +4,18 @@
 
 #include "cdro/crc.h"
 #include "cdro/wire.h"
+#include "layout_codec.h"
+
+CDRO_CAPTURE_RECORD_LIST(CDRO_X_ENCODER)
+CDRO_CAPTURE_RECORD_LIST(CDRO_X_DECODER)
+
+/* The sizes capture_layout.def states for the readers that only see its constants (Python,
+ * the docs) must be the sums of its records. */
+typedef char cdro_capture_header_fixed_agrees[(CDRO_CAPTURE_HEADER_FIXED ==
+                                               CDRO_CAPTURE_MAGIC_SIZE + CDRO_CAPTURE_HEAD_MAX_SIZE + 2U) ? 1 : -1];
+typedef char cdro_capture_record_overhead_agrees[(CDRO_CAPTURE_RECORD_OVERHEAD ==
+                                                  CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE + 2U) ? 1 : -1];
+typedef char cdro_capture_magic_agrees[(sizeof CDRO_CAPTURE_MAGIC == CDRO_CAPTURE_MAGIC_SIZE) ? 1 : -1];
 
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap)
 {
@@ -16,12 +28,14 @@ size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *
         (header->context_len > 0U && header->context == NULL)) {
         return 0;
     }
+    cdro_capture_head_t head;
+    head.format_version = version;
+    head.header_size = (uint16_t)size;
+    head.created_unix_us = header->created_unix_us;
+    head.source_len = header->source_len;
     memcpy(p, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE); /* includes the 0x00 */
     p += CDRO_CAPTURE_MAGIC_SIZE;
-    p = cdro_put_u16(p, version);
-    p = cdro_put_u16(p, (uint16_t)size);
-    p = cdro_put_i64(p, header->created_unix_us);
-    p = cdro_put_u8(p, header->source_len);
+    p += encode_capture_head(&head, p);
     memcpy(p, header->source, header->source_len);
     p += header->source_len;
     if (header->context_len > 0U) {
@@ -38,6 +52,7 @@ cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_cap
 {
     size_t size;
     size_t covered;
+    cdro_capture_head_t head;
     if (len < CDRO_CAPTURE_HEADER_FIXED) {
         return (len >= CDRO_CAPTURE_MAGIC_SIZE && memcmp(in, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE) != 0)
                    ? CDRO_ERR_TYPE
@@ -47,12 +62,14 @@ cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_cap
         return CDRO_ERR_TYPE;
     }
     memset(out, 0, sizeof(*out));
-    out->format_version = cdro_get_u16(in + 8);
+    /* Cannot fail: the bytes are there (HEADER_FIXED covers the magic and the head). */
+    (void)decode_capture_head(in + CDRO_CAPTURE_MAGIC_SIZE, CDRO_CAPTURE_HEAD_MAX_SIZE, &head);
+    out->format_version = head.format_version;
     if (out->format_version == 0U || out->format_version > CDRO_CAPTURE_FORMAT_VERSION) {
         return CDRO_ERR_VERSION;
     }
-    size = cdro_get_u16(in + 10);
-    out->source_len = in[20];
+    size = head.header_size;
+    out->source_len = head.source_len;
     covered = CDRO_CAPTURE_HEADER_FIXED - 2U + out->source_len; /* bytes under the CRC */
     if (size < covered + 2U) {
         return CDRO_ERR_LENGTH;
@@ -64,8 +81,8 @@ cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_cap
     if (cdro_crc16(in, size - 2U) != cdro_get_u16(in + size - 2U)) {
         return CDRO_ERR_CRC;
     }
-    out->created_unix_us = cdro_get_i64(in + 12);
-    memcpy(out->source, in + 21, out->source_len);
+    out->created_unix_us = head.created_unix_us;
+    memcpy(out->source, in + CDRO_CAPTURE_MAGIC_SIZE + CDRO_CAPTURE_HEAD_MAX_SIZE, out->source_len);
     /* Bytes between the source and the CRC: the context, when they hold one whole (otherwise a
        layout this build does not know: skipped). */
     if (size - 2U - covered >= 2U) {
@@ -82,14 +99,16 @@ cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_cap
 size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *out, size_t out_cap)
 {
     const size_t size = CDRO_CAPTURE_RECORD_OVERHEAD + (size_t)record->data_len;
+    cdro_capture_record_head_t head;
     uint8_t *p = out;
     if (record->data_len > CDRO_CAPTURE_MAX_DATA || out_cap < size) {
         return 0;
     }
-    p = cdro_put_u8(p, (uint8_t)CDRO_CAPTURE_RECORD_MARKER);
-    p = cdro_put_u8(p, record->flags);
-    p = cdro_put_u16(p, record->data_len);
-    p = cdro_put_i64(p, record->host_time_us);
+    head.marker = (uint8_t)CDRO_CAPTURE_RECORD_MARKER;
+    head.flags = record->flags;
+    head.data_len = record->data_len;
+    head.host_time_us = record->host_time_us;
+    p += encode_capture_record_head(&head, p);
     if (record->data_len > 0U) {
         memcpy(p, record->data, record->data_len);
     }
@@ -102,29 +121,32 @@ cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_cap
                                          size_t *consumed)
 {
     size_t size;
+    cdro_capture_record_head_t head;
     if (len < 1U) {
         return CDRO_PENDING;
     }
     if (in[0] != CDRO_CAPTURE_RECORD_MARKER) {
         return CDRO_ERR_TYPE;
     }
-    if (len < 4U) {
+    if (len < CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE) {
         return CDRO_PENDING;
     }
-    out->flags = in[1];
-    out->data_len = cdro_get_u16(in + 2);
-    if (out->data_len > CDRO_CAPTURE_MAX_DATA) {
+    /* Cannot fail: the head's bytes are there. */
+    (void)decode_capture_record_head(in, CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE, &head);
+    if (head.data_len > CDRO_CAPTURE_MAX_DATA) {
         return CDRO_ERR_LENGTH;
     }
-    size = CDRO_CAPTURE_RECORD_OVERHEAD + (size_t)out->data_len;
+    size = CDRO_CAPTURE_RECORD_OVERHEAD + (size_t)head.data_len;
     if (len < size) {
         return CDRO_PENDING;
     }
     if (cdro_crc16(in, size - 2U) != cdro_get_u16(in + size - 2U)) {
         return CDRO_ERR_CRC;
     }
-    out->host_time_us = cdro_get_i64(in + 4);
-    out->data = in + 12;
+    out->flags = head.flags;
+    out->data_len = head.data_len;
+    out->host_time_us = head.host_time_us;
+    out->data = in + CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE;
     *consumed = size;
     return CDRO_OK;
 }

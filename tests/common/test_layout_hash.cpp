@@ -27,6 +27,22 @@ TEST(LayoutHash, SogLayoutHashMatchesTheTable)
         << ", bump CDRO_SOG_LAYOUT_VERSION and add the pair to tests/golden/layout_history.json";
 }
 
+TEST(LayoutHash, CaptureLayoutHashMatchesTheTable)
+{
+    EXPECT_EQ(hashOf(CDRO_CAPTURE_LAYOUT_DESCRIPTOR), CDRO_CAPTURE_LAYOUT_HASH)
+        << "capture_layout.def changed: set CDRO_CAPTURE_LAYOUT_HASH to 0x" << std::hex
+        << hashOf(CDRO_CAPTURE_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CAPTURE_FORMAT_VERSION and add the pair to tests/golden/layout_history.json";
+}
+
+TEST(LayoutHash, CheckpointLayoutHashMatchesTheTable)
+{
+    EXPECT_EQ(hashOf(CDRO_CHECKPOINT_LAYOUT_DESCRIPTOR), CDRO_CHECKPOINT_LAYOUT_HASH)
+        << "checkpoint_layout.def changed: set CDRO_CHECKPOINT_LAYOUT_HASH to 0x" << std::hex
+        << hashOf(CDRO_CHECKPOINT_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CHECKPOINT_SERVICE_INFO_VERSION and add the pair to tests/golden/layout_history.json";
+}
+
 TEST(LayoutHash, EachVersionHasExactlyOneLayout)
 {
     const auto history = nlohmann::json::parse(golden::readFile(std::string(CDRO_GOLDEN_DIR) + "/layout_history.json"));
@@ -36,6 +52,15 @@ TEST(LayoutHash, EachVersionHasExactlyOneLayout)
     ASSERT_TRUE(history["sog"].contains(sog_version)) << "record SoG layout version " << sog_version;
     EXPECT_EQ(std::stoul(history["frames"][frame_version].get<std::string>(), nullptr, 16), CDRO_LAYOUT_HASH);
     EXPECT_EQ(std::stoul(history["sog"][sog_version].get<std::string>(), nullptr, 16), CDRO_SOG_LAYOUT_HASH);
+    const std::string capture_version = std::to_string(CDRO_CAPTURE_FORMAT_VERSION);
+    ASSERT_TRUE(history["capture"].contains(capture_version)) << "record capture format version " << capture_version;
+    EXPECT_EQ(std::stoul(history["capture"][capture_version].get<std::string>(), nullptr, 16),
+              CDRO_CAPTURE_LAYOUT_HASH);
+    const std::string checkpoint_version = std::to_string(CDRO_CHECKPOINT_SERVICE_INFO_VERSION);
+    ASSERT_TRUE(history["checkpoint"].contains(checkpoint_version))
+        << "record service block version " << checkpoint_version;
+    EXPECT_EQ(std::stoul(history["checkpoint"][checkpoint_version].get<std::string>(), nullptr, 16),
+              CDRO_CHECKPOINT_LAYOUT_HASH);
 }
 
 }  // namespace

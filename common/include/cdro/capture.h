@@ -3,7 +3,9 @@
  * serial link, byte for byte, with the host's clock, and (format version 2) the robot's
  * odometry messages it accepted: replaying it reproduces a run exactly.
  *
- * File = header, then records, back to back. All integers little-endian.
+ * File = header, then records, back to back. All integers little-endian. The fixed fields and
+ * the constants are defined once, in capture_layout.def (CAPTURE_HEAD, CAPTURE_RECORD_HEAD),
+ * which also generates the Python codec's table; the offsets below follow from it.
  *
  * Header (23 + n bytes, or 25 + n + m with a context):
  *   0   8  magic "CDROCAP" followed by 0x00
@@ -50,27 +52,21 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "cdro/frames.h"
+#include "cdro/capture_layout.def"
+#include "cdro/layout_kinds.h"
+#include "cdro/result.h"
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-#define CDRO_CAPTURE_MAGIC "CDROCAP"  /* 7 characters + the terminating 0x00 = 8 bytes */
-#define CDRO_CAPTURE_MAGIC_SIZE 8U
-#define CDRO_CAPTURE_FORMAT_VERSION 2U /* the newest version this build reads and writes */
-#define CDRO_CAPTURE_HEADER_FIXED 23U /* header bytes without the source */
-#define CDRO_CAPTURE_MAX_SOURCE 255U
-#define CDRO_CAPTURE_RECORD_MARKER 0xC5U
-#define CDRO_CAPTURE_RECORD_OVERHEAD 14U
-#define CDRO_CAPTURE_MAX_DATA 4096U   /* bytes; longer garbage runs are cut and flagged */
+/* The constants, CAPTURE_HEAD and CAPTURE_RECORD_HEAD (cdro_capture_head_t,
+ * cdro_capture_record_head_t, CDRO_CAPTURE_HEAD_MAX_SIZE etc.) come from capture_layout.def. */
+CDRO_CAPTURE_RECORD_LIST(CDRO_X_STRUCT)
+CDRO_CAPTURE_RECORD_LIST(CDRO_X_SIZES)
+
 /* Bytes of the header's context at most (the header size is a u16). */
 #define CDRO_CAPTURE_MAX_CONTEXT (65535U - CDRO_CAPTURE_HEADER_FIXED - CDRO_CAPTURE_MAX_SOURCE - 2U)
-
-#define CDRO_CAPTURE_FLAG_TO_DEVICE 0x01U /* sent by the host; otherwise received */
-#define CDRO_CAPTURE_FLAG_TRUNCATED 0x02U /* the chunk was longer than the data kept */
-#define CDRO_CAPTURE_FLAG_ODOMETRY 0x04U  /* version 2: an odometry message, not a device chunk;
-                                             written alone (never with the other flags) */
 
 typedef struct cdro_capture_header {
     uint16_t format_version;   /* decode: the file's; encode: 0 = CDRO_CAPTURE_FORMAT_VERSION */
@@ -111,8 +107,9 @@ size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *
 /*
  * Decodes the record at in[0]. Returns CDRO_OK and sets *consumed (out->data points into in);
  * CDRO_PENDING if the bytes end inside the record (at the end of a file: the file was cut
- * short and this is its truncated last record); CDRO_ERR_TYPE if in[0] is not the marker; CDRO_ERR_LENGTH if the length field is impossible; CDRO_ERR_CRC if corrupt. After an
- * error other than CDRO_PENDING, a reader skips one byte and tries again (resynchronisation).
+ * short and this is its truncated last record); CDRO_ERR_TYPE if in[0] is not the marker;
+ * CDRO_ERR_LENGTH if the length field is impossible; CDRO_ERR_CRC if corrupt. After an error
+ * other than CDRO_PENDING, a reader skips one byte and tries again (resynchronisation).
  */
 cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out,
                                          size_t *consumed);

@@ -57,56 +57,44 @@ std::vector<int> freeNumbers(const MapProblem &problem, const std::vector<uint8_
     return number;
 }
 
-// One pair's terms in the normal equations (a link, or an unheard pair), u = d distance / d p_a:
-// the information weight u u^T in the blocks of a and b (numbers na, nb; -1 for a node that does
-// not move), and the descent (-d cost / dx) moved by `push` (-d cost / d distance) along u at a
-// and against it at b.
-void addPairTerms(int na, int nb, const std::array<double, kMaxEmbeddingDimensions> &u, Eigen::Index dims,
-                  double weight, double push, std::vector<Triplet> &triplets, Eigen::VectorXd &descent)
-{
-    const int ca = na >= 0 ? static_cast<int>(na * dims) : -1;
-    const int cb = nb >= 0 ? static_cast<int>(nb * dims) : -1;
-    for (Eigen::Index i = 0; i < dims; ++i) {
-        for (Eigen::Index j = 0; j < dims; ++j) {
-            const double value = weight * u[static_cast<size_t>(i)] * u[static_cast<size_t>(j)];
-            const int ii = static_cast<int>(i);
-            const int jj = static_cast<int>(j);
-            if (ca >= 0) {
-                triplets.emplace_back(ca + ii, ca + jj, value);
-            }
-            if (cb >= 0) {
-                triplets.emplace_back(cb + ii, cb + jj, value);
-            }
-            if (ca >= 0 && cb >= 0) {
-                triplets.emplace_back(ca + ii, cb + jj, -value);
-                triplets.emplace_back(cb + ii, ca + jj, -value);
-            }
-        }
-    }
-    for (Eigen::Index d = 0; d < dims; ++d) {
-        if (ca >= 0) {
-            descent(ca + d) += push * u[static_cast<size_t>(d)];
-        }
-        if (cb >= 0) {
-            descent(cb + d) -= push * u[static_cast<size_t>(d)];
-        }
-    }
-}
+// One pair's terms in the normal equations (a link, or an unheard pair): the numbers of its two
+// nodes (-1 for a node that does not move), u = d distance / d p_a, the information weight (u u^T
+// in the blocks of a and b) and the push (-d cost / d distance: the descent moves along u at a
+// and against it at b).
+struct PairTerm {
+    int na = -1;
+    int nb = -1;
+    std::array<double, kMaxEmbeddingDimensions> u{};
+    double weight = 0.0;
+    double push = 0.0;
+};
 
-// Normal equations of the links at `positions` (one row per node, D columns): information (IRLS
-// weights, or the line-of-sight Fisher weights) and the descent direction b = -d cost / dx.
-void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
-                     const RangeLikelihood &likelihood, const std::vector<int> &number, Eigen::Index unknowns,
-                     double variance, bool fisher, std::vector<Triplet> &triplets, Eigen::VectorXd &descent)
+// Each link's residual and its evaluation where the refinement last computed its cost (the
+// positions its next normal equations start from): the terms reuse an evaluation when the
+// residual they compute is the same to the bit, so each link's likelihood is evaluated once per
+// accepted step instead of twice.
+struct LinkEvaluations {
+    std::vector<double> residual_m;
+    std::vector<ResidualEvaluation> at;
+    void clear(size_t links)
+    {
+        residual_m.assign(links, std::numeric_limits<double>::quiet_NaN());
+        at.resize(links);
+    }
+};
+
+// The pairs' terms at `positions` (one row per node, D columns), in the order the normal
+// equations sum them: the links, then the close unheard pairs (not for the Fisher information:
+// they are a soft prior, not information from ranges). IRLS weights, or the line-of-sight
+// Fisher weights.
+void pairTerms(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
+               const RangeLikelihood &likelihood, const std::vector<int> &number, double variance, bool fisher,
+               std::vector<PairTerm> &terms, const LinkEvaluations *known = nullptr)
 {
     const auto dims = positions.cols();
-    const Eigen::Index size = unknowns * dims;
-    triplets.clear();
-    descent.setZero(size);
-    for (Eigen::Index i = 0; i < size; ++i) {
-        triplets.emplace_back(static_cast<int>(i), static_cast<int>(i), 0.0);
-    }
-    for (const MapLink &link : problem.links) {
+    terms.clear();
+    for (size_t index = 0; index < problem.links.size(); ++index) {
+        const MapLink &link = problem.links[index];
         const int na = number[link.a];
         const int nb = number[link.b];
         if (placed[link.a] == 0 || placed[link.b] == 0 || (na < 0 && nb < 0)) {
@@ -117,15 +105,16 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         if (distance < 1e-9) {
             continue;
         }
-        const std::array<double, kMaxEmbeddingDimensions> &u = direction.u; // d distance / d p_a
         const double residual = link.range_m - distance;
-        const ResidualEvaluation at = likelihood.evaluate(residual, variance);
+        const ResidualEvaluation at = known != nullptr && known->residual_m[index] == residual
+                                          ? known->at[index]
+                                          : likelihood.evaluate(residual, variance);
         const double weight = fisher ? at.inlier_probability / variance : likelihood.irlsWeight(residual, variance, at);
         // cost = -log p(e), e = r - |p_a - p_b|: d cost / d p_a = slope * u, so push = -slope.
-        addPairTerms(na, nb, u, dims, weight, -at.slope_per_m, triplets, descent);
+        terms.push_back(PairTerm{na, nb, direction.u, weight, -at.slope_per_m});
     }
     if (fisher || problem.unheard_radius_m <= 0.0) {
-        return; // the unheard pairs are a soft prior, not information from ranges
+        return;
     }
     // cost k (1 - d/R)^2 = 1/2 w (R - d)^2 with w = 2 k / R^2, for d < R.
     const double radius = problem.unheard_radius_m;
@@ -136,13 +125,202 @@ void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &plac
         if (distance < 1e-9 || (na < 0 && nb < 0)) {
             return;
         }
-        std::array<double, kMaxEmbeddingDimensions> u{};
+        PairTerm term{na, nb, {}, weight, weight * (radius - distance)};
         for (Eigen::Index d = 0; d < dims; ++d) {
-            u[static_cast<size_t>(d)] = (positions(a, d) - positions(b, d)) / distance;
+            term.u[static_cast<size_t>(d)] = (positions(a, d) - positions(b, d)) / distance;
         }
-        addPairTerms(na, nb, u, dims, weight, weight * (radius - distance), triplets, descent);
+        terms.push_back(term);
     });
 }
+
+// The descent direction b = -d cost / dx of the terms, summed in their order.
+void addDescent(const std::vector<PairTerm> &terms, Eigen::Index dims, Eigen::VectorXd &descent)
+{
+    for (const PairTerm &term : terms) {
+        for (Eigen::Index d = 0; d < dims; ++d) {
+            const double along = term.push * term.u[static_cast<size_t>(d)];
+            if (term.na >= 0) {
+                descent(term.na * dims + d) += along;
+            }
+            if (term.nb >= 0) {
+                descent(term.nb * dims + d) -= along;
+            }
+        }
+    }
+}
+
+// Normal equations of the links at `positions` as a triplet list (every entry of the symmetric
+// matrix, the diagonal always present) and the descent direction: the Fisher information, for
+// the covariance, which adds the range offsets' rows to the same list.
+void normalEquations(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
+                     const RangeLikelihood &likelihood, const std::vector<int> &number, Eigen::Index unknowns,
+                     double variance, bool fisher, std::vector<Triplet> &triplets, Eigen::VectorXd &descent)
+{
+    const auto dims = positions.cols();
+    const Eigen::Index size = unknowns * dims;
+    std::vector<PairTerm> terms;
+    pairTerms(problem, placed, positions, likelihood, number, variance, fisher, terms);
+    triplets.clear();
+    descent.setZero(size);
+    for (Eigen::Index i = 0; i < size; ++i) {
+        triplets.emplace_back(static_cast<int>(i), static_cast<int>(i), 0.0);
+    }
+    for (const PairTerm &term : terms) {
+        const int ca = term.na >= 0 ? static_cast<int>(term.na * dims) : -1;
+        const int cb = term.nb >= 0 ? static_cast<int>(term.nb * dims) : -1;
+        for (Eigen::Index i = 0; i < dims; ++i) {
+            for (Eigen::Index j = 0; j < dims; ++j) {
+                const double value = term.weight * term.u[static_cast<size_t>(i)] * term.u[static_cast<size_t>(j)];
+                const int ii = static_cast<int>(i);
+                const int jj = static_cast<int>(j);
+                if (ca >= 0) {
+                    triplets.emplace_back(ca + ii, ca + jj, value);
+                }
+                if (cb >= 0) {
+                    triplets.emplace_back(cb + ii, cb + jj, value);
+                }
+                if (ca >= 0 && cb >= 0) {
+                    triplets.emplace_back(ca + ii, cb + jj, -value);
+                    triplets.emplace_back(cb + ii, ca + jj, -value);
+                }
+            }
+        }
+    }
+    addDescent(terms, dims, descent);
+}
+
+// The refinement's normal equations, assembled straight into the compressed column storage of
+// their lower triangle (all the solver reads): the nonzero pattern is the pairs' blocks, and each
+// entry is summed in the pairs' order, which are the sums setFromTriplets makes of the triplet
+// list above, so the steps are the same to the bit; what it saves is sorting a list of D^2 x 4
+// triplets per link every iteration, the largest cost of a solve after the factorization.
+class LowerNormalEquations {
+public:
+    // The pattern and the values of the terms, over `unknowns` nodes of `dims` coordinates.
+    void assemble(const std::vector<PairTerm> &terms, Eigen::Index unknowns, Eigen::Index dims)
+    {
+        dims_ = dims;
+        const auto nodes = static_cast<size_t>(unknowns);
+        // Block column k holds the blocks of the numbered nodes above k that share a term with it.
+        below_.assign(nodes, {});
+        for (const PairTerm &term : terms) {
+            if (term.na >= 0 && term.nb >= 0 && term.na != term.nb) {
+                below_[static_cast<size_t>(std::min(term.na, term.nb))].push_back(std::max(term.na, term.nb));
+            }
+        }
+        for (std::vector<int> &list : below_) {
+            std::sort(list.begin(), list.end());
+            list.erase(std::unique(list.begin(), list.end()), list.end());
+        }
+        const Eigen::Index size = unknowns * dims;
+        column_start_.assign(static_cast<size_t>(size) + 1, 0);
+        for (size_t k = 0; k < nodes; ++k) {
+            for (Eigen::Index j = 0; j < dims; ++j) {
+                const auto column = static_cast<size_t>(static_cast<Eigen::Index>(k) * dims + j);
+                const auto entries = (dims - j) + static_cast<Eigen::Index>(below_[k].size()) * dims;
+                column_start_[column + 1] = column_start_[column] + static_cast<int>(entries);
+            }
+        }
+        const auto nonzeros = static_cast<Eigen::Index>(column_start_.back());
+        rows_.resize(static_cast<size_t>(nonzeros));
+        values_.resize(static_cast<size_t>(nonzeros));
+        for (size_t k = 0; k < nodes; ++k) {
+            for (Eigen::Index j = 0; j < dims; ++j) {
+                const auto column = static_cast<Eigen::Index>(k) * dims + j;
+                auto slot = static_cast<size_t>(column_start_[static_cast<size_t>(column)]);
+                // An entry nothing adds to stays -0.0 + nothing; -0.0 + x is x to the bit, as the
+                // first triplet's value is; the diagonal starts from the list's explicit 0.0.
+                for (Eigen::Index i = j; i < dims; ++i, ++slot) {
+                    rows_[slot] = static_cast<int>(static_cast<Eigen::Index>(k) * dims + i);
+                    values_[slot] = i == j ? 0.0 : -0.0;
+                }
+                for (const int above : below_[k]) {
+                    for (Eigen::Index i = 0; i < dims; ++i, ++slot) {
+                        rows_[slot] = static_cast<int>(above * dims + i);
+                        values_[slot] = -0.0;
+                    }
+                }
+            }
+        }
+        for (const PairTerm &term : terms) {
+            addDiagonalBlock(term.na, term);
+            addDiagonalBlock(term.nb, term);
+            if (term.na >= 0 && term.nb >= 0 && term.na != term.nb) {
+                const int low = std::min(term.na, term.nb);
+                const int high = std::max(term.na, term.nb);
+                const std::vector<int> &list = below_[static_cast<size_t>(low)];
+                const auto index = std::lower_bound(list.begin(), list.end(), high) - list.begin();
+                for (Eigen::Index j = 0; j < dims; ++j) {
+                    const auto first = static_cast<size_t>(column_start_[static_cast<size_t>(low * dims + j)] +
+                                                           (dims - j) + index * dims);
+                    for (Eigen::Index i = 0; i < dims; ++i) {
+                        values_[first + static_cast<size_t>(i)] += -(term.weight * term.u[static_cast<size_t>(i)] *
+                                                                    term.u[static_cast<size_t>(j)]);
+                    }
+                }
+            }
+        }
+    }
+
+    // Adds `value` to the diagonal entry of `row` (after the terms, as a triplet appended to the list).
+    void addToDiagonal(Eigen::Index row, double value)
+    {
+        values_[static_cast<size_t>(column_start_[static_cast<size_t>(row)])] += value;
+    }
+
+    // The matrix, with `damping` x (its diagonal + floor) added to the diagonal, into `out` (the
+    // same pattern is copied only when it changed).
+    void write(SparseMatrix &out, const Eigen::VectorXd *damping_diagonal) const
+    {
+        const auto size = static_cast<Eigen::Index>(column_start_.size() - 1);
+        const auto nonzeros = static_cast<Eigen::Index>(values_.size());
+        if (out.rows() != size || out.cols() != size || out.nonZeros() != nonzeros || !out.isCompressed() ||
+            !std::equal(column_start_.begin(), column_start_.end(), out.outerIndexPtr()) ||
+            !std::equal(rows_.begin(), rows_.end(), out.innerIndexPtr())) {
+            out.resize(size, size);
+            out.resizeNonZeros(nonzeros);
+            std::copy(column_start_.begin(), column_start_.end(), out.outerIndexPtr());
+            std::copy(rows_.begin(), rows_.end(), out.innerIndexPtr());
+        }
+        std::copy(values_.begin(), values_.end(), out.valuePtr());
+        if (damping_diagonal != nullptr) {
+            for (Eigen::Index i = 0; i < size; ++i) {
+                out.valuePtr()[column_start_[static_cast<size_t>(i)]] += (*damping_diagonal)(i);
+            }
+        }
+    }
+
+    Eigen::VectorXd diagonal() const
+    {
+        const auto size = static_cast<Eigen::Index>(column_start_.size() - 1);
+        Eigen::VectorXd out(size);
+        for (Eigen::Index i = 0; i < size; ++i) {
+            out(i) = values_[static_cast<size_t>(column_start_[static_cast<size_t>(i)])];
+        }
+        return out;
+    }
+
+private:
+    void addDiagonalBlock(int n, const PairTerm &term)
+    {
+        if (n < 0) {
+            return;
+        }
+        for (Eigen::Index j = 0; j < dims_; ++j) {
+            const auto first = static_cast<size_t>(column_start_[static_cast<size_t>(n * dims_ + j)]);
+            for (Eigen::Index i = j; i < dims_; ++i) {
+                values_[first + static_cast<size_t>(i - j)] +=
+                    term.weight * term.u[static_cast<size_t>(i)] * term.u[static_cast<size_t>(j)];
+            }
+        }
+    }
+
+    Eigen::Index dims_ = 2;
+    std::vector<std::vector<int>> below_;
+    std::vector<int> column_start_;
+    std::vector<int> rows_;
+    std::vector<double> values_;
+};
 
 // A link whose standardised residual (Baarda's w) is beyond kBiasSigmas reads off by more than
 // its noise (mapCovariance); a redundancy below kMinShownRedundancy counts as that much (a link
@@ -164,13 +342,21 @@ bool samePattern(const SparseMatrix &x, const SparseMatrix &y)
 }
 
 double embeddingCost(const MapProblem &problem, const std::vector<uint8_t> &placed, const Eigen::MatrixXd &positions,
-                     const RangeLikelihood &likelihood, double variance, double squeeze_per_m2)
+                     const RangeLikelihood &likelihood, double variance, double squeeze_per_m2,
+                     LinkEvaluations *evaluations = nullptr)
 {
     double cost = 0.0;
-    for (const MapLink &link : problem.links) {
+    for (size_t index = 0; index < problem.links.size(); ++index) {
+        const MapLink &link = problem.links[index];
         if (placed[link.a] != 0 && placed[link.b] != 0) {
             const double distance = (positions.row(link.a) - positions.row(link.b)).norm();
-            cost -= likelihood.logDensity(link.range_m - distance, variance);
+            const double residual = link.range_m - distance;
+            const ResidualEvaluation at = likelihood.evaluate(residual, variance);
+            cost -= at.log_density;
+            if (evaluations != nullptr) {
+                evaluations->residual_m[index] = residual;
+                evaluations->at[index] = at;
+            }
         }
     }
     forEachCloseUnheardPair(problem, placed, positions,
@@ -210,9 +396,15 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
     Eigen::SimplicialLDLT<SparseMatrix> solver;
     bool analysed = false;
     SparseMatrix analysed_pattern;
-    std::vector<Triplet> triplets;
+    std::vector<PairTerm> terms;
+    LowerNormalEquations equations;
+    SparseMatrix normal;
+    SparseMatrix damped;
     Eigen::VectorXd descent;
+    Eigen::VectorXd damping_diagonal;
     Eigen::MatrixXd saved;
+    LinkEvaluations evaluations;
+    LinkEvaluations trial_evaluations;
     for (const RefineStage &stage : stages) {
         RangeLikelihoodParams stage_params = base_likelihood.params();
         if (stage.nlos_fraction >= 0.0) {
@@ -225,22 +417,25 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
         const double sigma = problem.sigma_m * stage.sigma_scale;
         const double variance = sigma * sigma;
         double damping = params.initial_damping;
-        double cost = embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2);
+        evaluations.clear(problem.links.size());
+        double cost = embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2, &evaluations);
         for (uint32_t iteration = 0; iteration < iterations_per_stage; ++iteration) {
-            normalEquations(problem, placed, positions, likelihood, number, unknowns, variance, false, triplets, descent);
+            pairTerms(problem, placed, positions, likelihood, number, variance, false, terms, &evaluations);
+            equations.assemble(terms, unknowns, dims);
+            descent.setZero(size);
+            addDescent(terms, dims, descent);
             if (squeeze_per_m2 > 0.0 && dims > 2) {
                 for (Eigen::Index i = 0; i < unknowns; ++i) {
                     const uint32_t node = free_nodes[static_cast<size_t>(i)];
                     for (Eigen::Index d = 2; d < dims; ++d) {
-                        const int row = static_cast<int>(i * dims + d);
-                        triplets.emplace_back(row, row, 2.0 * squeeze_per_m2);
+                        const Eigen::Index row = i * dims + d;
+                        equations.addToDiagonal(row, 2.0 * squeeze_per_m2);
                         descent(row) -= 2.0 * squeeze_per_m2 * positions(node, d);
                     }
                 }
             }
-            SparseMatrix normal(size, size);
-            normal.setFromTriplets(triplets.begin(), triplets.end());
-            const Eigen::VectorXd diagonal = normal.diagonal();
+            equations.write(normal, nullptr);
+            const Eigen::VectorXd diagonal = equations.diagonal();
             const double mean_diagonal = std::max(diagonal.sum() / static_cast<double>(size), 1e-12);
             // The unheard pairs that are close can change the pattern between iterations; the
             // ordering depends on the pattern alone, so it is computed again only when that changed.
@@ -251,10 +446,8 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
             }
             bool accepted = false;
             for (int attempt = 0; attempt < 10 && !accepted; ++attempt) {
-                SparseMatrix damped = normal;
-                for (Eigen::Index i = 0; i < size; ++i) {
-                    damped.coeffRef(i, i) += damping * (diagonal(i) + 1e-3 * mean_diagonal);
-                }
+                damping_diagonal = damping * (diagonal.array() + 1e-3 * mean_diagonal);
+                equations.write(damped, &damping_diagonal);
                 solver.factorize(damped);
                 if (solver.info() != Eigen::Success) {
                     damping *= 10.0;
@@ -272,8 +465,11 @@ MapRefineResult refineEmbedding(const MapProblem &problem, const std::vector<uin
                     positions.row(node) += step.segment(i * dims, dims).transpose();
                     longest = std::max(longest, step.segment(i * dims, dims).norm());
                 }
-                const double trial = embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2);
+                trial_evaluations.clear(problem.links.size());
+                const double trial =
+                    embeddingCost(problem, placed, positions, likelihood, variance, squeeze_per_m2, &trial_evaluations);
                 if (trial <= cost) {
+                    std::swap(evaluations, trial_evaluations);
                     accepted = true;
                     ++result.iterations;
                     damping = std::max(damping / 3.0, 1e-9);

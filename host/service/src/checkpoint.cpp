@@ -10,7 +10,7 @@
 
 #include "cdro/service/config.hpp"
 #include "cdro/service/output_file.hpp"
-#include "cdro/wire.h"
+#include "cdro/checkpoint_layout.h"
 
 namespace cdro::service {
 
@@ -53,23 +53,24 @@ const SogSnapshot::Extension *SogSnapshot::findExtension(uint16_t tag) const
 
 std::vector<uint8_t> encodeServiceInfo(const ServiceCheckpointInfo &info)
 {
-    std::vector<uint8_t> bytes(1 + 8 + 8 + 8);
-    uint8_t *p = bytes.data();
-    p = cdro_put_u8(p, 1); // version of this block
-    p = cdro_put_i64(p, info.run_start_unix_us);
-    p = cdro_put_i64(p, info.last_event_unix_us);
-    cdro_put_u64(p, info.frames_delivered);
+    cdro_service_info_t block{};
+    block.run_start_unix_us = info.run_start_unix_us;
+    block.last_event_unix_us = info.last_event_unix_us;
+    block.frames_delivered = info.frames_delivered;
+    std::vector<uint8_t> bytes(CDRO_SERVICE_INFO_MAX_SIZE);
+    bytes.resize(cdro_service_info_encode(&block, bytes.data()));
     return bytes;
 }
 
 bool decodeServiceInfo(const std::vector<uint8_t> &bytes, ServiceCheckpointInfo *info)
 {
-    if (bytes.size() < 25 || bytes[0] != 1) {
+    cdro_service_info_t block{};
+    if (cdro_service_info_decode(bytes.data(), bytes.size(), &block) != CDRO_OK) {
         return false;
     }
-    info->run_start_unix_us = cdro_get_i64(bytes.data() + 1);
-    info->last_event_unix_us = cdro_get_i64(bytes.data() + 9);
-    info->frames_delivered = cdro_get_u64(bytes.data() + 17);
+    info->run_start_unix_us = block.run_start_unix_us;
+    info->last_event_unix_us = block.last_event_unix_us;
+    info->frames_delivered = block.frames_delivered;
     return true;
 }
 

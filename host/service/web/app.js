@@ -242,10 +242,10 @@ function drawSigmaChart() {
   el('text', { class: 'chart-label', x: L, y: H - 4 }, svg).textContent = `t ${t0.toFixed(0)} s`;
   el('text', { class: 'chart-label', x: W - R, y: H - 4, 'text-anchor': 'end' }, svg).textContent = `${t1.toFixed(0)} s`;
   const ordered = [...sigmaHistory.entries()].sort(([a], [b]) => (a === selectedId) - (b === selectedId));
-  for (const [id, h] of ordered) {
-    if (h.length < 1) continue;
+  for (const [id, samples] of ordered) {
+    if (samples.length < 1) continue;
     el('polyline', { class: id === selectedId ? 'sigma-line selected' : 'sigma-line', 'data-id': id,
-      points: h.map(([t, r]) => `${x(t)},${y(r)}`).join(' ') }, svg);
+      points: samples.map(([t, r]) => `${x(t)},${y(r)}`).join(' ') }, svg);
   }
 }
 
@@ -439,10 +439,10 @@ let drag = null, dragMoved = false;
 // A client (screen) point in viewBox px.
 function toViewBox(clientX, clientY) {
   const svg = document.getElementById('map');
-  const p = svg.createSVGPoint();
-  p.x = clientX; p.y = clientY;
-  const q = p.matrixTransform(svg.getScreenCTM().inverse());
-  return [q.x, q.y];
+  const point = svg.createSVGPoint();
+  point.x = clientX; point.y = clientY;
+  const mapped = point.matrixTransform(svg.getScreenCTM().inverse());
+  return [mapped.x, mapped.y];
 }
 
 // Zooms by `factor` keeping the world point under viewBox point (px, py) where it is.

@@ -1,7 +1,10 @@
 """Capture files, the Python twin of common/include/cdro/capture.h (layout documented there
 and in docs/protocol.md): a checked header, then self-delimiting checked records, one per
 chunk received (or frame sent, or, from format version 2, odometry message accepted). A file
-cut short loses at most its last record. Version-1 files read unchanged."""
+cut short loses at most its last record. Version-1 files read unchanged.
+
+The fixed fields (CAPTURE_HEAD, CAPTURE_RECORD_HEAD) and the constants come from layout.py,
+generated from common/include/cdro/capture_layout.def, the table the C codec expands."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,18 +15,34 @@ import struct
 import time
 
 from .checksums import crc16
+from .frames import record_struct
+from .layout import CAPTURE_RECORDS, CONSTANTS, STRINGS
 
-MAGIC = b"CDROCAP\x00"
-FORMAT_VERSION = 2             # the newest version read and written; 1 is still read
-HEADER_FIXED = 23
-MAX_SOURCE = 255
-MAX_CONTEXT = 65535 - HEADER_FIXED - MAX_SOURCE - 2   # bytes of the header's context at most
-RECORD_MARKER = 0xC5
-RECORD_OVERHEAD = 14
-MAX_DATA = 4096
-FLAG_TO_DEVICE = 0x01
-FLAG_TRUNCATED = 0x02
-FLAG_ODOMETRY = 0x04           # version 2: the data is an odometry message (normalised JSON)
+MAGIC = STRINGS["CDRO_CAPTURE_MAGIC"].encode("ascii") + b"\x00"
+FORMAT_VERSION = CONSTANTS["CDRO_CAPTURE_FORMAT_VERSION"]  # the newest version read and written; 1 is still read
+LAYOUT_HASH = CONSTANTS["CDRO_CAPTURE_LAYOUT_HASH"]
+HEADER_FIXED = CONSTANTS["CDRO_CAPTURE_HEADER_FIXED"]      # bytes: magic, CAPTURE_HEAD, CRC
+MAX_SOURCE = CONSTANTS["CDRO_CAPTURE_MAX_SOURCE"]
+MAX_CONTEXT = 65535 - HEADER_FIXED - MAX_SOURCE - 2         # bytes of the header's context at most
+RECORD_MARKER = CONSTANTS["CDRO_CAPTURE_RECORD_MARKER"]
+RECORD_OVERHEAD = CONSTANTS["CDRO_CAPTURE_RECORD_OVERHEAD"]  # bytes: CAPTURE_RECORD_HEAD and the CRC
+MAX_DATA = CONSTANTS["CDRO_CAPTURE_MAX_DATA"]
+FLAG_TO_DEVICE = CONSTANTS["CDRO_CAPTURE_FLAG_TO_DEVICE"]
+FLAG_TRUNCATED = CONSTANTS["CDRO_CAPTURE_FLAG_TRUNCATED"]
+FLAG_ODOMETRY = CONSTANTS["CDRO_CAPTURE_FLAG_ODOMETRY"]  # version 2: the data is an odometry message (JSON)
+
+# Fields in table order: (format_version, header_size, created_unix_us, source_len) and
+# (marker, flags, data_len, host_time_us); the names are checked below.
+_HEAD = record_struct(CAPTURE_RECORDS["CAPTURE_HEAD"]["fields"])
+_RECORD_HEAD = record_struct(CAPTURE_RECORDS["CAPTURE_RECORD_HEAD"]["fields"])
+HEAD_SIZE = _HEAD.size
+RECORD_HEAD_SIZE = _RECORD_HEAD.size
+assert [f["name"] for f in CAPTURE_RECORDS["CAPTURE_HEAD"]["fields"]] == [
+    "format_version", "header_size", "created_unix_us", "source_len"], "capture_layout.def: CAPTURE_HEAD changed"
+assert [f["name"] for f in CAPTURE_RECORDS["CAPTURE_RECORD_HEAD"]["fields"]] == [
+    "marker", "flags", "data_len", "host_time_us"], "capture_layout.def: CAPTURE_RECORD_HEAD changed"
+assert len(MAGIC) + HEAD_SIZE + 2 == HEADER_FIXED and RECORD_HEAD_SIZE + 2 == RECORD_OVERHEAD, \
+    "capture_layout.def: the stated sizes disagree with its records"
 
 
 class CaptureError(ValueError):
@@ -81,8 +100,9 @@ def encode_header(header: CaptureHeader) -> bytes:
     if len(header.context) > MAX_CONTEXT:
         raise ValueError(f"context is {len(header.context)} bytes, at most {MAX_CONTEXT}")
     context = struct.pack("<H", len(header.context)) + header.context if header.context else b""
-    body = MAGIC + struct.pack("<HHqB", header.format_version, HEADER_FIXED + len(source) + len(context),
-                               header.created_unix_us, len(source)) + source + context
+    head = _HEAD.pack(header.format_version, HEADER_FIXED + len(source) + len(context), header.created_unix_us,
+                      len(source))
+    body = MAGIC + head + source + context
     return body + struct.pack("<H", crc16(body))
 
 
@@ -92,7 +112,7 @@ def decode_header(data: bytes) -> tuple[CaptureHeader, int]:
         raise CaptureError("not a CDRO capture file (bad magic)")
     if len(data) < HEADER_FIXED:
         raise CaptureError("file ends inside the header")
-    version, size, created, source_len = struct.unpack_from("<HHqB", data, 8)
+    version, size, created, source_len = _HEAD.unpack_from(data, len(MAGIC))
     if version == 0 or version > FORMAT_VERSION:
         raise CaptureError(f"capture format version {version}; this build reads up to {FORMAT_VERSION}")
     if size < HEADER_FIXED + source_len:
@@ -102,7 +122,8 @@ def decode_header(data: bytes) -> tuple[CaptureHeader, int]:
     (received,) = struct.unpack_from("<H", data, size - 2)
     if crc16(data[:size - 2]) != received:
         raise CaptureError("corrupt header (CRC mismatch)")
-    source = data[21:21 + source_len].decode("utf-8", errors="replace")
+    start = len(MAGIC) + HEAD_SIZE
+    source = data[start:start + source_len].decode("utf-8", errors="replace")
     # Between the source and the CRC: the context, when the bytes hold one whole (else a layout
     # this build does not know: skipped, as every reader does).
     covered = HEADER_FIXED - 2 + source_len
@@ -117,7 +138,7 @@ def decode_header(data: bytes) -> tuple[CaptureHeader, int]:
 def encode_record(record: CaptureRecord) -> bytes:
     if len(record.data) > MAX_DATA:
         raise ValueError(f"record data is {len(record.data)} bytes, at most {MAX_DATA}")
-    body = struct.pack("<BBHq", RECORD_MARKER, record.flags, len(record.data), record.host_time_us) + record.data
+    body = _RECORD_HEAD.pack(RECORD_MARKER, record.flags, len(record.data), record.host_time_us) + record.data
     return body + struct.pack("<H", crc16(body))
 
 
@@ -125,14 +146,14 @@ def _decode_record_at(data: bytes, offset: int) -> tuple[CaptureRecord, int] | N
     """The record at data[offset] if it is complete and checks out, else None."""
     if len(data) - offset < RECORD_OVERHEAD or data[offset] != RECORD_MARKER:
         return None
-    flags, length, host_time = struct.unpack_from("<BHq", data, offset + 1)
+    _, flags, length, host_time = _RECORD_HEAD.unpack_from(data, offset)
     size = RECORD_OVERHEAD + length
     if length > MAX_DATA or offset + size > len(data):
         return None
     (received,) = struct.unpack_from("<H", data, offset + size - 2)
     if crc16(data[offset:offset + size - 2]) != received:
         return None
-    return CaptureRecord(host_time, bytes(data[offset + 12:offset + size - 2]), flags), size
+    return CaptureRecord(host_time, bytes(data[offset + RECORD_HEAD_SIZE:offset + size - 2]), flags), size
 
 
 @dataclasses.dataclass

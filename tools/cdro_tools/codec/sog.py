@@ -2,7 +2,8 @@
 
 Records come from layout.py (generated from sog_layout.def); the file structure (magic,
 header, nodes, pairs with their components, extensions, end tag, CRC-32) is documented in
-sog_layout.h and docs/protocol.md.
+sog_layout.h and docs/protocol.md. The extension tags and the service's block come from
+checkpoint_layout.def (checkpoint_layout.h in C).
 """
 from __future__ import annotations
 
@@ -11,12 +12,18 @@ import struct
 
 from .checksums import crc32
 from .frames import SIZES, FrameError, pack_fields, unpack_fields
-from .layout import CONSTANTS, SOG_RECORDS
+from .layout import CHECKPOINT_RECORDS, CONSTANTS, SOG_RECORDS
 
 MAGIC = b"CDSG"
 LAYOUT_VERSION = CONSTANTS["CDRO_SOG_LAYOUT_VERSION"]
 LAYOUT_HASH = CONSTANTS["CDRO_SOG_LAYOUT_HASH"]
 RECORD_SIZES = {name: sum(SIZES[f["kind"]] for f in spec["fields"]) for name, spec in SOG_RECORDS.items()}
+TAG_ENGINE = CONSTANTS["CDRO_CHECKPOINT_TAG_ENGINE"]       # cdro-hostd's engine block
+TAG_MOVEMENT = CONSTANTS["CDRO_CHECKPOINT_TAG_MOVEMENT"]   # cdro-hostd's movement stage
+TAG_SERVICE = CONSTANTS["CDRO_CHECKPOINT_TAG_SERVICE"]     # SERVICE_INFO
+SERVICE_INFO_VERSION = CONSTANTS["CDRO_CHECKPOINT_SERVICE_INFO_VERSION"]
+_SERVICE_INFO = CHECKPOINT_RECORDS["SERVICE_INFO"]["fields"]
+SERVICE_INFO_SIZE = sum(SIZES[f["kind"]] for f in _SERVICE_INFO)
 
 
 class SogError(ValueError):
@@ -121,3 +128,20 @@ def decode_sog(data: bytes) -> SogSnapshot:
     if offset != len(body):
         raise SogError(f"{len(body) - offset} bytes after the end tag")
     return SogSnapshot(header, nodes, pairs, extensions)
+
+
+def encode_service_info(values: dict) -> bytes:
+    """The block of tag TAG_SERVICE: run_start_unix_us, last_event_unix_us (us since the epoch),
+    frames_delivered; the version is this build's."""
+    return pack_fields(_SERVICE_INFO, dict(values, version=SERVICE_INFO_VERSION))
+
+
+def decode_service_info(blob: bytes) -> dict:
+    """The fields of a TAG_SERVICE block, as checkpoint_layout.h reads it: bytes after the block
+    are ignored (a later version may append fields); another version is refused."""
+    if len(blob) < SERVICE_INFO_SIZE:
+        raise SogError(f"service block of {len(blob)} bytes, at least {SERVICE_INFO_SIZE}")
+    values = unpack_fields(_SERVICE_INFO, blob[:SERVICE_INFO_SIZE])
+    if values["version"] != SERVICE_INFO_VERSION:
+        raise SogError(f"service block version {values['version']}, this build reads {SERVICE_INFO_VERSION}")
+    return values

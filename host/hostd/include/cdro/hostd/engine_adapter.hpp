@@ -23,6 +23,7 @@
 #include <optional>
 #include <string>
 
+#include "cdro/checkpoint_layout.def"
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
 #include "cdro/service/checkpoint.hpp"
@@ -32,8 +33,9 @@
 
 namespace cdro::hostd {
 
-constexpr uint16_t kEngineExtensionTag = 0x0001;
-constexpr uint16_t kMovementExtensionTag = 0x0002; // the movement stage, when a robot is configured
+// The tags are defined with every other in common/include/cdro/checkpoint_layout.def.
+constexpr uint16_t kEngineExtensionTag = CDRO_CHECKPOINT_TAG_ENGINE;
+constexpr uint16_t kMovementExtensionTag = CDRO_CHECKPOINT_TAG_MOVEMENT; // the movement stage, when a robot is configured
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,

@@ -13,7 +13,8 @@
 //          CheckpointError with a message that says what is wrong: never half-loaded.
 //
 // Extension tags 0xF000..0xFFFF are reserved for the service (kServiceExtensionTag); the
-// engine uses tags below 0xF000.
+// engine uses tags below 0xF000. Every tag, and the service's block, is defined in
+// common/include/cdro/checkpoint_layout.def.
 #pragma once
 
 #include <cstdint>
@@ -21,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "cdro/checkpoint_layout.def"
 #include "cdro/sog_layout.h"
 
 namespace cdro::service {
@@ -47,8 +49,9 @@ struct SogSnapshot {
     const Extension *findExtension(uint16_t tag) const;
 };
 
-// The service's own extension: what it needs to continue a run (informative on resume).
-constexpr uint16_t kServiceExtensionTag = 0xF001;
+// The service's own extension (SERVICE_INFO of checkpoint_layout.def): what it needs to
+// continue a run (informative on resume).
+constexpr uint16_t kServiceExtensionTag = CDRO_CHECKPOINT_TAG_SERVICE;
 struct ServiceCheckpointInfo {
     int64_t run_start_unix_us = 0;   // us, the run's t_s origin
     int64_t last_event_unix_us = 0;  // us, event time of the last frame before the checkpoint
