@@ -102,9 +102,9 @@ def test_that_every_builtin_scenario_loads_and_runs(tmp_path):
     for name in builtin_names():
         assert name in listing
         sim("--scenario", name, "--duration", 10, "--ranges-csv", tmp_path / f"{name}.csv")
-        # robot-corridor: most pairs out of range, and the firmware waits out its reply and result
-        # timeouts (300 + 100 ms) on each of their attempts until they back off
-        assert len(rows(tmp_path / f"{name}.csv")) > (3 if name == "robot-corridor" else 20), name
+        # robot-corridor: some pairs out of range (the firmware waits out its reply and result
+        # timeouts on each of their attempts until they back off); 78 ranges in its first 10 s
+        assert len(rows(tmp_path / f"{name}.csv")) > 20, name
 
 
 def test_that_random_network_mode_writes_ranges_and_truth(tmp_path):
