@@ -206,6 +206,34 @@ TEST(GlobalSolve, RecoversExactNetworksWhateverTheOrder)
     }
 }
 
+TEST(GlobalSolve, AnyNumberOfThreadsGivesTheSameMapsBitForBit)
+{
+    // Noisy NLOS networks, so that the starts end in different maps and the rivals matter.
+    for (uint64_t seed : testSeeds({21, 22})) {
+        SCOPED_TRACE(seedTrace(seed));
+        const netgen::World world = netgen::makeWorld(netgen::Family::Random, seed);
+        const Exact noisy = problemOf(world, 0.1, seed, true);
+        GlobalSolveParams one;
+        one.threads = 1;
+        GlobalSolveParams three;
+        three.threads = 3;
+        const GlobalSolveResult a = solveGlobally(noisy.problem, likelihood(), one);
+        const GlobalSolveResult b = solveGlobally(noisy.problem, likelihood(), three);
+        ASSERT_GE(a.all.size(), 5U) << "every start refined";
+        ASSERT_EQ(a.all.size(), b.all.size());
+        for (size_t i = 0; i < a.all.size(); ++i) {
+            EXPECT_EQ(a.all[i].origin, b.all[i].origin);
+            EXPECT_EQ(a.all[i].estimate.position_m, b.all[i].estimate.position_m);
+            EXPECT_EQ(a.all[i].cost, b.all[i].cost);
+        }
+        EXPECT_EQ(a.best.estimate.position_m, b.best.estimate.position_m);
+        EXPECT_EQ(a.disputed, b.disputed);
+        EXPECT_EQ(a.rivals.size(), b.rivals.size());
+        EXPECT_EQ(a.counters.refine_iterations, b.counters.refine_iterations);
+        EXPECT_EQ(a.counters.escapes, b.counters.escapes);
+    }
+}
+
 TEST(MapCovariance, EllipsesCoverTheErrorsAsOftenAsTheyShould)
 {
     // Gaussian noise only, the robust solve started at the truth, 150 draws: the 2-sigma

@@ -1,8 +1,12 @@
 #include "cdro/engine/global_solve.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <functional>
+#include <optional>
 #include <sstream>
+#include <thread>
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/map_mds.hpp"
@@ -111,6 +115,35 @@ void anchorToFixed(const MapProblem &problem, MapEstimate &estimate)
     }
 }
 
+// job(i) for i in [0, count) on up to `threads` threads (the caller's among them), each index
+// once. The jobs write only their own slot, so what they produce does not depend on how many
+// threads ran them or in which order they finished.
+void forEachIndex(size_t count, uint32_t threads, const std::function<void(size_t)> &job)
+{
+    const size_t workers = std::min<size_t>(count, std::max<uint32_t>(threads, 1U));
+    if (workers <= 1) {
+        for (size_t i = 0; i < count; ++i) {
+            job(i);
+        }
+        return;
+    }
+    std::atomic<size_t> next{0};
+    auto work = [&]() {
+        for (size_t i = next++; i < count; i = next++) {
+            job(i);
+        }
+    };
+    std::vector<std::thread> helpers;
+    helpers.reserve(workers - 1);
+    for (size_t k = 1; k < workers; ++k) {
+        helpers.emplace_back(work);
+    }
+    work();
+    for (std::thread &helper : helpers) {
+        helper.join();
+    }
+}
+
 // The largest discrepancy per node between two maps, after the rigid fit of one onto the other.
 std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference, const std::vector<uint32_t> &part)
 {
@@ -151,21 +184,26 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     }
     result.part = parts.front();
     const std::vector<uint32_t> &part = result.part;
-    std::vector<MapHypothesis> hypotheses;
-    auto finish = [&](MapHypothesis hypothesis, bool lifted_mds = false) {
-        ++result.counters.starts;
+    // Each start is built and refined on its own (in parallel when params.threads allow); they
+    // are then taken in this order, whatever order they finished in.
+    struct Refined {
+        std::optional<MapHypothesis> hypothesis;
+        GlobalSolveCounters counters;
+    };
+    auto finish = [&](MapHypothesis hypothesis, bool lifted_mds, GlobalSolveCounters &counters) {
+        ++counters.starts;
         anchorToFixed(problem, hypothesis.estimate);
         MapRefineResult refined = params.lift || lifted_mds
                                       ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
                                       : refineMap(problem, hypothesis.estimate, likelihood, params.refine);
-        result.counters.refine_iterations += refined.iterations;
+        counters.refine_iterations += refined.iterations;
         if (params.lift || lifted_mds) {
             // The lifted refinement ends in the plane at the nominal noise, in the basin its own
             // schedule chose; annealing again in the plane (from the widest stage) lets the
             // links it judged outliers be judged again, where the map now is.
             MapEstimate annealed = hypothesis.estimate;
             const MapRefineResult again = refineMap(problem, annealed, likelihood, params.refine);
-            result.counters.refine_iterations += again.iterations;
+            counters.refine_iterations += again.iterations;
             if (again.cost < mapCost(problem, hypothesis.estimate, likelihood)) {
                 hypothesis.estimate = std::move(annealed);
             }
@@ -173,18 +211,20 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         for (uint32_t round = 0; round < params.escape_rounds; ++round) {
             const uint32_t moved = escapeNodeMinima(problem, hypothesis.estimate, likelihood, params.growth,
                                                     params.escape_gap_nats);
-            result.counters.escapes += moved;
+            counters.escapes += moved;
             if (moved == 0) {
                 break;
             }
             MapRefineParams again = params.refine;
             again.stages = {RefineStage{}};
             refined = refineMap(problem, hypothesis.estimate, likelihood, again);
-            result.counters.refine_iterations += refined.iterations;
+            counters.refine_iterations += refined.iterations;
         }
         hypothesis.cost = mapCost(problem, hypothesis.estimate, likelihood);
-        hypotheses.push_back(std::move(hypothesis));
+        return hypothesis;
     };
+    std::vector<std::function<void(Refined &)>> starts;
+    bool current_start = false;
     if (current != nullptr) {
         MapHypothesis start;
         start.estimate = MapEstimate::unplaced(problem.nodeCount());
@@ -194,43 +234,66 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         }
         if (start.estimate.placedCount() >= 3) {
             start.origin = "current";
-            finish(std::move(start));
+            current_start = true;
+            starts.emplace_back([start = std::move(start), &finish](Refined &out) mutable {
+                out.hypothesis = finish(std::move(start), false, out.counters);
+            });
         }
     }
-    const bool more_starts = !(params.only_current && !hypotheses.empty());
+    const bool more_starts = !(params.only_current && current_start);
     for (const auto &seed : more_starts ? seedTriangles(problem, part, params.growth, params.growth_seeds)
                                         : std::vector<std::array<uint32_t, 3>>{}) {
-        MapHypothesis start;
-        start.estimate = growMap(problem, part, seed, likelihood, params.growth);
-        std::ostringstream origin;
-        origin << "grown from " << problem.ids[seed[0]] << "," << problem.ids[seed[1]] << "," << problem.ids[seed[2]];
-        start.origin = origin.str();
-        finish(std::move(start));
+        starts.emplace_back([&, seed](Refined &out) {
+            MapHypothesis start;
+            start.estimate = growMap(problem, part, seed, likelihood, params.growth);
+            std::ostringstream origin;
+            origin << "grown from " << problem.ids[seed[0]] << "," << problem.ids[seed[1]] << ","
+                   << problem.ids[seed[2]];
+            start.origin = origin.str();
+            out.hypothesis = finish(std::move(start), false, out.counters);
+        });
     }
     if (params.patch_start && more_starts) {
-        MapHypothesis start;
-        start.estimate = patchMap(problem, part, likelihood);
-        start.origin = "patches";
-        if (start.estimate.placedCount() >= 3) {
-            finish(std::move(start));
-        }
+        starts.emplace_back([&](Refined &out) {
+            MapHypothesis start;
+            start.estimate = patchMap(problem, part, likelihood);
+            start.origin = "patches";
+            if (start.estimate.placedCount() >= 3) {
+                out.hypothesis = finish(std::move(start), false, out.counters);
+            }
+        });
     }
     if (params.mds_start && more_starts && problem.fixedCount() < 2) {
-        if (std::optional<MapEstimate> layout = mdsMap(problem, part)) {
-            MapHypothesis start;
-            start.estimate = std::move(*layout);
-            start.origin = "MDS-MAP";
-            finish(std::move(start));
-        }
+        starts.emplace_back([&](Refined &out) {
+            if (std::optional<MapEstimate> layout = mdsMap(problem, part)) {
+                MapHypothesis start;
+                start.estimate = std::move(*layout);
+                start.origin = "MDS-MAP";
+                out.hypothesis = finish(std::move(start), false, out.counters);
+            }
+        });
     }
     if (params.lifted_mds_start && more_starts && problem.fixedCount() < 2) {
-        MapHypothesis start;
-        start.estimate = MapEstimate::unplaced(problem.nodeCount());
-        for (uint32_t node : part) {
-            start.estimate.placed[node] = 1;
+        starts.emplace_back([&](Refined &out) {
+            MapHypothesis start;
+            start.estimate = MapEstimate::unplaced(problem.nodeCount());
+            for (uint32_t node : part) {
+                start.estimate.placed[node] = 1;
+            }
+            start.origin = "MDS-MAP in " + std::to_string(params.lifting.dimensions) + "D";
+            out.hypothesis = finish(std::move(start), true, out.counters);
+        });
+    }
+    std::vector<Refined> refined(starts.size());
+    forEachIndex(starts.size(), params.threads, [&](size_t i) { starts[i](refined[i]); });
+    std::vector<MapHypothesis> hypotheses;
+    for (Refined &one : refined) {
+        result.counters.starts += one.counters.starts;
+        result.counters.escapes += one.counters.escapes;
+        result.counters.refine_iterations += one.counters.refine_iterations;
+        if (one.hypothesis) {
+            hypotheses.push_back(std::move(*one.hypothesis));
         }
-        start.origin = "MDS-MAP in " + std::to_string(params.lifting.dimensions) + "D";
-        finish(std::move(start), true);
     }
     if (hypotheses.empty()) {
         return result;
@@ -258,7 +321,8 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     // that bends to fit long readings exactly must not win only because the prior thought long
     // readings rare.
     if (params.learn_rounds > 0) {
-        for (MapHypothesis &hypothesis : hypotheses) {
+        forEachIndex(hypotheses.size(), params.threads, [&](size_t i) {
+            MapHypothesis &hypothesis = hypotheses[i];
             RangeLikelihood own = likelihood;
             for (uint32_t round = 0; round < params.learn_rounds; ++round) {
                 own = RangeLikelihood(learnNlosModel(problem, hypothesis.estimate, own));
@@ -269,7 +333,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             hypothesis.cost = mapCost(problem, hypothesis.estimate, own);
             hypothesis.nlos_fraction = own.params().nlos_fraction;
             hypothesis.nlos_mean_excess_m = own.params().nlos_mean_excess_m;
-        }
+        });
         rank();
         result.learnt_nlos_fraction = hypotheses.front().nlos_fraction;
         result.learnt_nlos_mean_excess_m = hypotheses.front().nlos_mean_excess_m;

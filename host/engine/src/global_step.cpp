@@ -4,6 +4,7 @@
 #include <cmath>
 #include <future>
 #include <memory>
+#include <thread>
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/map_refine.hpp"
@@ -104,6 +105,7 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
 GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
 {
     solve_.range_offsets = params.solve.range_offsets;
+    solve_.threads = params.solve.threads > 0 ? params.solve.threads : std::max(std::thread::hardware_concurrency(), 1U);
 }
 
 bool GlobalStep::enabled() const { return params_.solve.enabled; }

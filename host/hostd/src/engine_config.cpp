@@ -89,6 +89,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_REAL("solve", "min_gain_nats", 0.0, kHuge, solve.min_gain_nats),
         CDRO_REAL("solve", "adopt_after_sweeps", 0.0, kHuge, solve.adopt_after_sweeps),
         CDRO_FLAG("solve", "range_offsets", solve.range_offsets),
+        CDRO_COUNT("solve", "threads", 0, 256, solve.threads),
         CDRO_FLAG("motion", "reset", motion.reset),
         CDRO_FLAG("motion", "infer_from_ranges", motion.infer_from_ranges),
         CDRO_REAL("motion", "inferred_residual_m", 0.0, kHuge, motion.inferred_residual_m),

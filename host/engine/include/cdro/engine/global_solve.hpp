@@ -39,6 +39,7 @@ struct GlobalSolveParams {
     bool range_offsets = true;           // estimate each node's range offset with the best map (range_offsets.hpp)
     bool only_current = false;           // the caller's map the only start (its links were all
                                          // solved from every start before: a refresh)
+    uint32_t threads = 1;                // starts refined at once (the result is the same for any)
     MapLiftParams lifting;
     MapRefineParams refine;
     MapGrowthParams growth;

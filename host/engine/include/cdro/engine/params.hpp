@@ -71,6 +71,8 @@ struct SolveParams {
                                    // docs/engine.md); 0: it runs inside addRange, adopted at once
     bool range_offsets = true;     // estimate each node's range offset (uncalibrated antenna
                                    // delays, range_offsets.hpp); false: radios known calibrated
+    uint32_t threads = 0;          // threads a solve refines its starts on (0: one per core); the
+                                   // estimates are the same for any number, only the time differs
 };
 
 // Moving nodes (paper Fig. 4): a node reported moving stops being an anchor for the others; every
