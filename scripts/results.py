@@ -197,7 +197,7 @@ def plaza(summary: dict) -> None:
 def cooperative_robot(summary: dict) -> None:
     summary["cooperative_robot"] = {}
     for scenario, start_s, what in (
-            ("robot-corridor", 15.0, "8 anchors in a corridor, mostly out of range of each other"),
+            ("robot-corridor", 15.0, "8 anchors in a corridor, each in range of its 3 nearest on each side"),
             ("plaza-like", 20.0, "8 anchors that all range each other")):
         print(f"== Simulated robot, {scenario}: {what}")
         runs = []

@@ -175,6 +175,49 @@ TEST(PozyxSim, LocalRangingCompletesAfterItsDurationWithTheGeometricDistance)
     EXPECT_GT(rss, -110);
 }
 
+// config.range_fn: the caller decides each ranging (cdro-sim's world), on links the model finds working.
+struct GivenRanges {
+    std::vector<uint8_t> codes{0, POZYX_ERROR_RANGING};
+    size_t calls = 0;
+    static void outcome(void *context, uint16_t ranger, uint16_t partner, double, pozyx_sim_range_outcome_t *out)
+    {
+        auto *self = static_cast<GivenRanges *>(context);
+        EXPECT_EQ(ranger, 0x6000);
+        EXPECT_EQ(partner, 0x6001);
+        out->error_code = self->codes[self->calls++ % self->codes.size()];
+        out->distance_mm = 1234;
+        out->rss_dbm = -77;
+    }
+};
+
+TEST(PozyxSim, ARangeFunctionDecidesEachRangingsDistanceOrFailure)
+{
+    Sim sim(11, 0.0);
+    GivenRanges given;
+    sim->config.range_fn = &GivenRanges::outcome;
+    sim->config.range_context = &given;
+    sim.add(0x6001, false, 3.0, 4.0, 0.0); // 5 m by the geometry
+    sim.add(0x6002, false, 80.0, 0.0, 0.0); // beyond max_range_m: never asked
+    (void)sim.intStatus();
+
+    EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {0x01, 0x60}, 0)[0], 1);
+    pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us);
+    EXPECT_EQ(sim.intStatus() & (POZYX_INT_FUNC | POZYX_INT_ERR), POZYX_INT_FUNC);
+    const auto info = sim.call(POZYX_FN_DEVICE_GETRANGEINFO, {0x01, 0x60}, 10);
+    EXPECT_EQ(u32(info, 5), 1234U);
+    EXPECT_EQ(static_cast<int16_t>(info[9] | (info[10] << 8)), -77);
+
+    EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {0x01, 0x60}, 0)[0], 1);
+    pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us);
+    EXPECT_EQ(sim.intStatus() & POZYX_INT_ERR, POZYX_INT_ERR);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_ERRORCODE, 1)[0], POZYX_ERROR_RANGING);
+
+    EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {0x02, 0x60}, 0)[0], 1);
+    pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us);
+    EXPECT_EQ(sim.readRegs(POZYX_REG_ERRORCODE, 1)[0], POZYX_ERROR_RTIMEOUT1);
+    EXPECT_EQ(given.calls, 2U);
+}
+
 TEST(PozyxSim, RangingToAnAbsentNodeRaisesErr)
 {
     Sim sim;

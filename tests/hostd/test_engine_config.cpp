@@ -76,6 +76,7 @@ engine::EngineParams unusual()
     p.solve.min_gain_nats = 0.5;
     p.solve.adopt_after_sweeps = 0.25;
     p.solve.range_offsets = false;
+    p.solve.threads = 3;
     p.convergence.reliable_m = 0.75;
     p.convergence.common_excess_m = 0.125;
     p.convergence.smoothing = 0.95;

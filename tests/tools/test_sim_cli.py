@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from cdro_tools import codec
+from cdro_tools.simulation import host_device
 from cdro_tools.simulation.scenario import builtin_names, load_scenario
 
 
@@ -100,9 +101,10 @@ def test_that_every_builtin_scenario_loads_and_runs(tmp_path):
     listing = sim("--list-scenarios").stdout
     for name in builtin_names():
         assert name in listing
-        # robot-corridor: most pairs out of range
         sim("--scenario", name, "--duration", 10, "--ranges-csv", tmp_path / f"{name}.csv")
-        assert len(rows(tmp_path / f"{name}.csv")) > 20
+        # robot-corridor: some pairs out of range (the firmware waits out its reply and result
+        # timeouts on each of their attempts until they back off); 78 ranges in its first 10 s
+        assert len(rows(tmp_path / f"{name}.csv")) > 20, name
 
 
 def test_that_random_network_mode_writes_ranges_and_truth(tmp_path):
@@ -206,7 +208,10 @@ def test_that_a_vanish_with_reboot_boots_the_device_again_when_it_returns(tmp_pa
                     hellos.append((record.host_time_us, event.frame["reset_cause"], event.frame.sequence))
     epoch_us = int(load_scenario("demo").epoch_unix_s * 1e6)
     assert [(cause, seq) for _, cause, seq in hellos] == [(1, 0), (2, 0)]        # power on, then external
-    # back at 6.5 s (at the end of the operation under way), HELLO 300 ms after the boot
-    assert 6_800_000 <= hellos[1][0] - epoch_us <= 6_800_000 + 110_000
+    # back at 6.5 s (the firmware restarts at the end of the step under way, which is at most a
+    # remote range with its timeouts), HELLO POZYX_BOOT_MS after the restart
+    boot_ms = host_device.constant("POZYX_BOOT_MS")
+    longest_ms = host_device.constant("LONGEST_OPERATION_MS")
+    assert (6_500 + boot_ms) * 1000 <= hellos[1][0] - epoch_us <= (6_500 + boot_ms + longest_ms) * 1000
     counts = json.loads(report.read_text())["counts"]["vanish"]
     assert counts == {"injected": 1, "seconds": 1.5, "reboots": 1}

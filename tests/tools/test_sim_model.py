@@ -24,12 +24,12 @@ def two_nodes(distance_m=10.0, **uwb):
 def model(sc, seed):
     print(f"seed {seed}")
     world = World(sc)
-    return UwbModel(sc, world, random.Random(f"{seed}l"), random.Random(f"{seed}r"), random.Random(f"{seed}d"))
+    return UwbModel(sc, world, random.Random(f"{seed}l"), random.Random(f"{seed}r"))
 
 
-def errors_m(uwb, a, b, count, remote=False):
+def errors_m(uwb, a, b, count):
     true_m = uwb.world.distance_m(a, b, 0.0)
-    outcomes = [uwb.measure(a, b, 0.0, remote) for _ in range(count)]
+    outcomes = [uwb.measure(a, b, 0.0) for _ in range(count)]
     return [o.distance_mm / 1000.0 - true_m for o in outcomes if o.ok], outcomes
 
 
@@ -84,20 +84,18 @@ def test_that_dropouts_fail_at_the_configured_rate_with_the_pozyx_code():
 
 def test_that_ranges_beyond_the_maximum_fail_with_a_timeout():
     uwb = model(two_nodes(distance_m=30.0, max_range_m=20.0), seed=17)
-    far = [uwb.measure(A, B, 0.0, False) for _ in range(50)]
-    near = [uwb.measure(A, C3, 0.0, False) for _ in range(50)]
+    far = [uwb.measure(A, B, 0.0) for _ in range(50)]
+    near = [uwb.measure(A, C3, 0.0) for _ in range(50)]
     assert all(not o.ok and o.error_code == POZYX_RANGING_TIMEOUT for o in far)
     assert all(o.ok for o in near)
-    assert not uwb.measure(A, 0x7777, 0.0, False).ok           # no such node
+    assert not uwb.measure(A, 0x7777, 0.0).ok           # no such node
 
 
-def test_that_durations_and_rss_are_plausible():
+def test_that_rss_is_plausible():
+    # (how long a ranging takes is the Pozyx model's, firmware/pozyx_sim, not this model's)
     uwb = model(two_nodes(), seed=18)
-    direct = [uwb.measure(A, B, 0.0, False) for _ in range(200)]
-    remote = [uwb.measure(B, C3, 0.0, True) for _ in range(200)]
-    assert all(15_000 <= o.duration_us <= 25_000 for o in direct)
-    assert all(40_000 <= o.duration_us <= 70_000 for o in remote)
-    near = statistics.fmean(o.rss_dbm for o in [uwb.measure(A, C3, 0.0, False) for _ in range(200)])  # 6.1 m
+    direct = [uwb.measure(A, B, 0.0) for _ in range(200)]
+    near = statistics.fmean(o.rss_dbm for o in [uwb.measure(A, C3, 0.0) for _ in range(200)])  # 6.1 m
     far = statistics.fmean(o.rss_dbm for o in direct)                                                 # 10 m
     assert -90 < far < near < -75
 
@@ -106,7 +104,7 @@ def test_that_the_3d_distance_is_measured():
     sc = parse_scenario({"own_id": A,
                          "nodes": [{"id": A, "x": 0, "y": 0, "z": 0.0}, {"id": B, "x": 3, "y": 0, "z": 4.0}],
                          "uwb": {"noise_std_m": 0.0}}, "test")
-    assert model(sc, seed=19).measure(A, B, 0.0, False).distance_mm == 5000
+    assert model(sc, seed=19).measure(A, B, 0.0).distance_mm == 5000
 
 
 def test_that_a_carried_node_moves_along_its_waypoints_at_its_speed():

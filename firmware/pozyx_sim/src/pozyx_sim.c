@@ -392,9 +392,23 @@ static uint8_t take(pozyx_sim_t *sim, uint32_t *counter)
     return 1;
 }
 
+/* The caller's outcome of `node` ranging with `partner` now (config.range_fn); 0 without one. */
+static uint8_t given_outcome(pozyx_sim_t *sim, const pozyx_sim_node_t *node, const pozyx_sim_node_t *partner,
+                             pozyx_sim_range_outcome_t *out)
+{
+    memset(out, 0, sizeof(*out));
+    if (sim->config.range_fn == NULL) {
+        return 0;
+    }
+    sim->config.range_fn(sim->config.range_context, node->config.id, partner->config.id, seconds(sim), out);
+    return 1;
+}
+
 /* Stores the result of `node` ranging with `partner`, as the real device does: the last entry
- * per partner. Applies the garbage and stale faults. */
-static uint8_t store_range(pozyx_sim_t *sim, pozyx_sim_node_t *node, const pozyx_sim_node_t *partner)
+ * per partner; the distance is the caller's (`given`) or the model's. Applies the garbage and
+ * stale faults. */
+static uint8_t store_range(pozyx_sim_t *sim, pozyx_sim_node_t *node, const pozyx_sim_node_t *partner,
+                           const pozyx_sim_range_outcome_t *given)
 {
     pozyx_sim_range_entry_t *entry = NULL;
     double d_mm;
@@ -421,17 +435,22 @@ static uint8_t store_range(pozyx_sim_t *sim, pozyx_sim_node_t *node, const pozyx
             entry = &node->ranges[POZYX_SIM_MAX_RANGE_ENTRIES - 1];
         }
     }
-    d_mm = distance_m(sim, node, partner) * 1000.0 + sim->config.range_bias_mm +
-           sim->config.range_noise_std_mm * rng_normal(sim);
-    if (d_mm < 0.0) {
-        d_mm = 0.0;
-    }
     entry->partner = partner->config.id;
     entry->timestamp_ms = node_clock_ms(sim, node);
-    entry->distance_mm = (uint32_t)lround(d_mm);
-    {
-        const double d_m = d_mm / 1000.0 > 0.1 ? d_mm / 1000.0 : 0.1;
-        entry->rss_dbm = (int16_t)lround(-70.0 - 20.0 * log10(d_m));
+    if (given != NULL) {
+        entry->distance_mm = given->distance_mm;
+        entry->rss_dbm = given->rss_dbm;
+    } else {
+        d_mm = distance_m(sim, node, partner) * 1000.0 + sim->config.range_bias_mm +
+               sim->config.range_noise_std_mm * rng_normal(sim);
+        if (d_mm < 0.0) {
+            d_mm = 0.0;
+        }
+        entry->distance_mm = (uint32_t)lround(d_mm);
+        {
+            const double d_m = d_mm / 1000.0 > 0.1 ? d_mm / 1000.0 : 0.1;
+            entry->rss_dbm = (int16_t)lround(-70.0 - 20.0 * log10(d_m));
+        }
     }
     if (take(sim, &sim->faults.garbage_range)) {
         entry->distance_mm = POZYX_SIM_GARBAGE_DISTANCE_MM;
@@ -472,6 +491,7 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
     switch (event->kind) {
     case EVENT_LOCAL_RANGING: {
         pozyx_sim_node_t *partner = pozyx_sim_find(sim, event->a);
+        pozyx_sim_range_outcome_t outcome;
         sim->busy = 0;
         if (self == NULL || !self->config.powered) {
             break;
@@ -480,7 +500,9 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
             raise_error(sim, sim->faults.error_code);
         } else if (!link_ok(sim, self, partner) || busy_at(sim, partner, sim->now_us)) {
             raise_error(sim, POZYX_ERROR_RTIMEOUT1);
-        } else if (!store_range(sim, self, partner)) {
+        } else if (given_outcome(sim, self, partner, &outcome) && outcome.error_code != 0U) {
+            raise_error(sim, outcome.error_code);
+        } else if (!store_range(sim, self, partner, sim->config.range_fn != NULL ? &outcome : NULL)) {
             raise_error(sim, POZYX_ERROR_DEVICE_LIST_FULL);
         } else {
             sim->int_status = (uint8_t)(sim->int_status | POZYX_INT_FUNC);
@@ -540,6 +562,7 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
     case EVENT_REMOTE_RANGING: {
         pozyx_sim_node_t *ranger = pozyx_sim_find(sim, event->a);
         pozyx_sim_node_t *partner = pozyx_sim_find(sim, event->b);
+        pozyx_sim_range_outcome_t outcome;
         if (ranger == NULL || !ranger->config.powered) {
             break;
         }
@@ -552,7 +575,11 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
             trace(sim, "remote ranging 0x%04X-0x%04X failed: no link", event->a, event->b, 0);
             break; /* no result message: the local device times out */
         }
-        if (!store_range(sim, ranger, partner)) {
+        if (given_outcome(sim, ranger, partner, &outcome) && outcome.error_code != 0U) {
+            raise_error(sim, outcome.error_code); /* as error_completion: an ERR on the local device */
+            break;
+        }
+        if (!store_range(sim, ranger, partner, sim->config.range_fn != NULL ? &outcome : NULL)) {
             break; /* the same for a full device list */
         }
         if (link_ok(sim, ranger, self)) {

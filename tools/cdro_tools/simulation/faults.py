@@ -17,6 +17,7 @@ ABSURD_KINDS = ("distance", "self_range", "unknown_node")
 
 
 class Transport(Protocol):
+    def room(self) -> int: ...
     def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool: ...
     def go_down(self, time_us: int) -> None: ...
     def come_back(self, time_us: int, connected: Callable[[], None]) -> None: ...
@@ -54,6 +55,9 @@ class FaultLink:
         self.unknown_id = unknown
 
     # -- the device's sink --
+
+    def room(self) -> int:
+        return self.transport.room()
 
     def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool:
         if frame is not None and self.flips_armed:

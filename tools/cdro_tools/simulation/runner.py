@@ -14,7 +14,7 @@ from typing import Callable
 from ..codec import CaptureWriter, Frame, StreamDecoder, encode_frame
 from ..codec.capture_file import FLAG_TO_DEVICE
 from ..codec.frames import COUNTER_NAMES
-from .device import SimDevice
+from .device import FirmwareDevice
 from .faults import FaultLink
 from .link import Chunker, PtyLink
 from .scenario import Scenario
@@ -27,7 +27,7 @@ READER_GRACE_S = 0.1           # after a reader opens the link, before the first
 
 def streams(seed: int) -> dict[str, random.Random]:
     """Independent random streams, one per concern, all fixed by the seed."""
-    names = ("links", "ranges", "durations", "accel", "odometry", "faults")
+    names = ("links", "ranges", "accel", "odometry", "faults")
     return {name: random.Random(f"cdro-sim:{seed}:{name}") for name in names}
 
 
@@ -76,15 +76,16 @@ class Simulation:
         self.seed = seed
         self.rng = streams(seed)
         self.world = World(scenario)
-        self.uwb = UwbModel(scenario, self.world, self.rng["links"], self.rng["ranges"], self.rng["durations"])
+        self.uwb = UwbModel(scenario, self.world, self.rng["links"], self.rng["ranges"])
         self.ranges: list[tuple[int, int, int, int]] = []     # (t_us, from, to, distance_mm)
         self.transport = transport
         faults = scenario.faults if faults_enabled else []
         self.faults = FaultLink(faults, self.rng["faults"], transport, {n.id for n in scenario.nodes})
-        self.device: SimDevice | None = None
+        self.device: FirmwareDevice | None = None
 
-    def power_on(self) -> SimDevice:
-        self.device = SimDevice(self.scenario, self.world, self.uwb, self.rng["accel"], self.faults, self._on_frame)
+    def power_on(self) -> FirmwareDevice:
+        self.device = FirmwareDevice(self.scenario, self.world, self.uwb, self.rng["accel"], self.faults,
+                                     self._on_frame, self.seed)
         self.faults.device = self.device
         return self.device
 
@@ -120,6 +121,9 @@ class OfflineTransport:
         self.stats = LinkStats()
         self.on_delivered: Callable[[int, Frame], None] | None = None
 
+    def room(self) -> int:
+        return 0xFFFF
+
     def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool:
         if not self.up:
             self.stats.frames_lost_while_gone += frame is not None
@@ -143,24 +147,26 @@ class OfflineTransport:
 
 class ScriptedHost:
     """The host side of an offline run: configures the device after every HELLO (at boot and
-    after a reset) with the scenario's nodes (as many as the device takes), the scenario's
-    schedule, and START."""
+    after a reset) with the scenario's nodes (as many as HELLO.max_nodes says the device takes),
+    the scenario's schedule, and START."""
 
     def __init__(self, scenario: Scenario):
         self.scenario = scenario
         self.sequence = 0
         self.due_us: int | None = None
+        self.max_nodes = 0
 
     def on_frame(self, time_us: int, frame: Frame) -> None:
         if frame.type == "HELLO":
             self.due_us = time_us + HOST_REACTION_US
+            self.max_nodes = frame.fields["max_nodes"]
 
     def next_due_us(self) -> float:
         return float("inf") if self.due_us is None else self.due_us
 
     def commands(self) -> list[bytes]:
         self.due_us = None
-        ids = self.scenario.remote_ids[:self.scenario.device.max_nodes]
+        ids = self.scenario.remote_ids[:self.max_nodes]
         frames = [Frame("SET_NODES", 0, {"node_ids": ids}),
                   Frame("SET_SCHEDULE", 0, self.scenario.schedule.fields()),
                   Frame("START", 0, {})]
@@ -230,6 +236,11 @@ class LiveTransport:
     @property
     def up(self) -> bool:
         return self.state == "up"
+
+    def room(self) -> int:
+        if not self.up or self.capacity_bytes is None:
+            return 0xFFFF
+        return max(0, self.capacity_bytes - self.queued_bytes)
 
     def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool:
         if not self.up:

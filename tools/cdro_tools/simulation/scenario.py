@@ -94,16 +94,6 @@ class Nlos:
     rss_loss_db: float = 6.0               # RSS lower on biased links
 
 
-DEFAULT_DURATIONS_MS = {
-    "direct": (15.0, 25.0),        # own node to a remote node, success
-    "remote": (40.0, 70.0),        # remote to remote, success
-    "direct_fail": (25.0, 35.0),   # until the Pozyx reports the failure
-    "remote_fail": (95.0, 110.0),  # the firmware's 100 ms wait for the result message
-    "local_accel": (1.0, 2.0),     # I2C read of the own node's accelerometer
-    "remote_accel": (15.0, 25.0),  # remote register read over UWB
-}
-
-
 @dataclasses.dataclass
 class Uwb:
     noise_std_m: float = 0.1                                # Pozyx nominal accuracy
@@ -112,8 +102,6 @@ class Uwb:
     max_range_m: float = 100.0                              # beyond: the range fails (timeout)
     dropout_probability: float = 0.0                        # per attempt: fails (Pozyx 0x11)
     nlos: Nlos = dataclasses.field(default_factory=Nlos)
-    durations_ms: dict[str, tuple[float, float]] = dataclasses.field(
-        default_factory=lambda: dict(DEFAULT_DURATIONS_MS))
 
 
 @dataclasses.dataclass
@@ -125,13 +113,11 @@ class Accelerometer:
 
 @dataclasses.dataclass
 class Device:
-    firmware_version: int = 0x0100         # major << 8 | minor
+    """What the firmware cannot know about its board. Everything else (its version, how many
+    nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim)."""
+
     pozyx_firmware: int = 0x12             # Pozyx FIRMWARE_VER, major << 4 | minor
-    max_nodes: int = C["CDRO_MAX_NODES"]
-    discovery: bool = True                 # NODE_LIST (DISCOVERY) at boot: nodes in range
-    pozyx_present: bool = True            # False: ERROR POZYX_ABSENT at boot, START NACKed
-    boot_ms: float = 300.0                 # power-up to HELLO (Pozyx start-up wait and self-test)
-    discovery_ms: float = 200.0            # HELLO to NODE_LIST
+    pozyx_present: bool = True            # False: the shield does not answer on I2C
     free_ram_bytes: int = 612              # reported in STATUS
     tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
 
@@ -385,9 +371,6 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     pairs = len(nodes) * (len(nodes) - 1) // 2
     if uwb.nlos.random_links + len(uwb.nlos.links) > pairs:
         raise r.fail("uwb.nlos.random_links", f"more NLOS links than the {pairs} node pairs")
-    d = r.mapping(u.get("durations_ms"), "uwb.durations_ms", set(DEFAULT_DURATIONS_MS))
-    for key, value in d.items():
-        uwb.durations_ms[key] = r.pair(value, f"uwb.durations_ms.{key}", 0)
     scenario.uwb = uwb
 
     a = r.mapping(top.get("accelerometer"), "accelerometer", _fields(Accelerometer))
@@ -399,13 +382,8 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     dv = r.mapping(top.get("device"), "device", _fields(Device))
     scenario.device = Device(
-        firmware_version=r.integer(dv.get("firmware_version", 0x0100), "device.firmware_version", 0, 0xFFFF),
         pozyx_firmware=r.integer(dv.get("pozyx_firmware", 0x12), "device.pozyx_firmware", 0, 0xFF),
-        max_nodes=r.integer(dv.get("max_nodes", C["CDRO_MAX_NODES"]), "device.max_nodes", 1, C["CDRO_MAX_NODES"]),
-        discovery=r.boolean(dv.get("discovery", True), "device.discovery"),
         pozyx_present=r.boolean(dv.get("pozyx_present", True), "device.pozyx_present"),
-        boot_ms=r.number(dv.get("boot_ms", 300.0), "device.boot_ms", 0, 10000),
-        discovery_ms=r.number(dv.get("discovery_ms", 200.0), "device.discovery_ms", 0, 10000),
         free_ram_bytes=r.integer(dv.get("free_ram_bytes", 612), "device.free_ram_bytes", 0, 0xFFFF),
         tx_buffer_bytes=r.integer(dv.get("tx_buffer_bytes", 4096), "device.tx_buffer_bytes", 128, 1 << 24))
 

@@ -1,5 +1,6 @@
-"""The UWB error model: what a Pozyx two-way range reports for two nodes at a given time, how
-long the operation takes, and when it fails.
+"""The UWB error model: what a Pozyx two-way range reports for two nodes at a given time, and
+when it fails. (How long it takes is the Pozyx model's, firmware/pozyx_sim, which asks this
+model for every ranging the firmware runs.)
 
     measured_m = scale x true_3d_m + link_bias_m + N(0, link_std_m^2) [+ Exp(outlier_mean_m)]
 
@@ -31,7 +32,6 @@ RSS_NOISE_DB = 1.5
 @dataclasses.dataclass
 class RangeOutcome:
     ok: bool
-    duration_us: int
     distance_mm: int = 0
     rss_dbm: int = 0
     error_code: int = 0        # Pozyx ERRORCODE when not ok
@@ -42,12 +42,10 @@ def link_key(a: int, b: int) -> tuple[int, int]:
 
 
 class UwbModel:
-    def __init__(self, scenario: Scenario, world: World, link_rng: random.Random, range_rng: random.Random,
-                 duration_rng: random.Random):
+    def __init__(self, scenario: Scenario, world: World, link_rng: random.Random, range_rng: random.Random):
         self.model = scenario.uwb
         self.world = world
         self._range_rng = range_rng
-        self._duration_rng = duration_rng
         ids = sorted(n.id for n in scenario.nodes)
         pairs = list(itertools.combinations(ids, 2))
         self.link_std_m: dict[tuple[int, int], float] = {}
@@ -63,33 +61,20 @@ class UwbModel:
         for pair in link_rng.sample(candidates, self.model.nlos.random_links):
             self.link_bias_m[pair] = link_rng.uniform(*self.model.nlos.random_bias_m)
 
-    def _duration_us(self, kind: str) -> int:
-        low, high = self.model.durations_ms[kind]
-        return int(round(self._duration_rng.uniform(low, high) * 1000.0))
-
-    def operation_us(self, kind: str) -> int:
-        """Duration of a non-ranging operation (local_accel, remote_accel)."""
-        return self._duration_us(kind)
-
     def reachable(self, a: int, b: int, t_s: float) -> bool:
         return (self.world.has(a) and self.world.has(b)
                 and self.world.distance_m(a, b, t_s) <= self.model.max_range_m)
 
-    def dropout(self) -> bool:
-        return self._range_rng.random() < self.model.dropout_probability
-
-    def measure(self, a: int, b: int, t_s: float, remote: bool) -> RangeOutcome:
+    def measure(self, a: int, b: int, t_s: float) -> RangeOutcome:
         """One two-way ranging attempt between a and b starting at t_s."""
         rng = self._range_rng
         # the same draws for every attempt, so that one attempt's fate does not shift the rest
         u_drop, u_outlier, noise, tail, rss_noise = rng.random(), rng.random(), rng.gauss(0.0, 1.0), \
             rng.expovariate(1.0), rng.gauss(0.0, RSS_NOISE_DB)
         if not self.reachable(a, b, t_s):
-            return RangeOutcome(False, self._duration_us("remote_fail" if remote else "direct_fail"),
-                                error_code=POZYX_RANGING_TIMEOUT)
+            return RangeOutcome(False, error_code=POZYX_RANGING_TIMEOUT)
         if u_drop < self.model.dropout_probability:
-            return RangeOutcome(False, self._duration_us("remote_fail" if remote else "direct_fail"),
-                                error_code=POZYX_RANGING_FAILED)
+            return RangeOutcome(False, error_code=POZYX_RANGING_FAILED)
         key = link_key(a, b)
         true_m = self.world.distance_m(a, b, t_s)
         bias_m = self.link_bias_m.get(key, 0.0)
@@ -101,4 +86,4 @@ class UwbModel:
         if bias_m > 0.0:
             rss -= self.model.nlos.rss_loss_db
         rss_dbm = int(min(-40, max(-110, round(rss))))
-        return RangeOutcome(True, self._duration_us("remote" if remote else "direct"), distance_mm, rss_dbm)
+        return RangeOutcome(True, distance_mm, rss_dbm)

@@ -88,6 +88,17 @@ typedef pozyx_sim_vec3_t (*pozyx_sim_accel_fn)(void *context, double t_s);
 /* Optional trace of what the device does, one line per call/event (no newline). */
 typedef void (*pozyx_sim_trace_fn)(void *context, const char *line);
 
+/* What one two-way ranging reports, when the caller decides it (config.range_fn). */
+typedef struct pozyx_sim_range_outcome {
+    uint8_t error_code;   /* 0: a result; else the ranging fails with this ERRORCODE */
+    uint32_t distance_mm; /* mm, the stored distance (garbage and stale faults still apply) */
+    int16_t rss_dbm;
+} pozyx_sim_range_outcome_t;
+/* Decides the ranging of `ranger` with `partner` completing at t_s, on a link the model found
+ * working (both up, same UWB settings, within max_range_m, partner not busy). */
+typedef void (*pozyx_sim_range_fn)(void *context, uint16_t ranger, uint16_t partner, double t_s,
+                                   pozyx_sim_range_outcome_t *out);
+
 typedef struct pozyx_sim_node_config {
     uint16_t id;                    /* network id, non-zero */
     uint8_t is_tag;                 /* 1 = tag (has an accelerometer), 0 = anchor */
@@ -139,6 +150,12 @@ typedef struct pozyx_sim_config {
                                        (default 400000: past the firmware's 300 ms reply timeout) */
     pozyx_sim_trace_fn trace;       /* NULL = no trace */
     void *trace_context;
+    /* NULL (default): distances from the geometry with range_noise_std_mm and range_bias_mm.
+     * Set: every ranging's outcome comes from it (cdro-sim's error model: NLOS, outliers,
+     * dropouts); a failed one raises ERR with its code on the local device, for a local and for
+     * a remote ranging alike. */
+    pozyx_sim_range_fn range_fn;
+    void *range_context;
 } pozyx_sim_config_t;
 
 /* Faults: each counter arms that many occurrences; the simulator decrements it as it injects.
