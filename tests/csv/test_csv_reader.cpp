@@ -36,7 +36,7 @@ public:
 
     std::string write(const std::string &name, const std::string &bytes) const
     {
-        const std::string path = path_ + "/" + name;
+        std::string path = path_ + "/" + name;
         std::ofstream(path, std::ios::binary) << bytes;
         return path;
     }

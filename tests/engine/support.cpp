@@ -130,7 +130,7 @@ bool globallyRigid(const TestNetwork &network, Random &random)
         rigidity.block<1, 2>(l, 2 * static_cast<Eigen::Index>(b)) = -d.transpose();
     }
     const Eigen::JacobiSVD<Eigen::MatrixXd> svd(rigidity, Eigen::ComputeFullU);
-    const Eigen::VectorXd singular = svd.singularValues();
+    const Eigen::VectorXd &singular = svd.singularValues();
     if (singular.size() == 0) {
         return false; // no link (and, for gcc's -Wnull-dereference, no empty vector read below)
     }

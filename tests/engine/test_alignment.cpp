@@ -55,6 +55,7 @@ TEST(Alignment, RecoversARandomRotationAndTranslation)
         const Matrix2 rotation = rotationOf(random.uniform(0.0, kTwoPi));
         const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
         std::vector<Vector2> target;
+        target.reserve(source.size());
         for (const Vector2 &p : source) {
             target.push_back(rotation * p + translation_m);
         }
@@ -80,6 +81,7 @@ TEST(Alignment, RecoversAReflectionWhenAllowed)
         mirror.col(1) *= -1.0; // determinant -1
         const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
         std::vector<Vector2> target;
+        target.reserve(source.size());
         for (const Vector2 &p : source) {
             target.push_back(mirror * p + translation_m);
         }
@@ -110,6 +112,7 @@ TEST(Alignment, RmsErrorOfNoisyPointsIsThatOfTheReturnedTransform)
         const Vector2 translation_m(random.uniform(-10.0, 10.0), random.uniform(-10.0, 10.0));
         const double noise_m = 0.05;
         std::vector<Vector2> target;
+        target.reserve(source.size());
         for (const Vector2 &p : source) {
             target.push_back(rotation * p + translation_m + noise_m * Vector2(random.normal(), random.normal()));
         }

@@ -676,7 +676,9 @@ TEST(MovementStage, ABeaconThatFindsTheEkfFullIsNotPinnedOutsideIt)
     const size_t beacons = engine::RobotFilter::kMaxNodes + 4;
     std::vector<Vector2> truth_m;
     for (size_t i = 0; i < beacons; ++i) { // a 13 x 10 grid, 6 m apart, around the robot's path
-        truth_m.emplace_back(-27.0 + 6.0 * static_cast<double>(i % 13), -27.0 + 6.0 * static_cast<double>(i / 13));
+        const size_t column = i % 13;
+        const size_t row = i / 13;
+        truth_m.emplace_back(-27.0 + 6.0 * static_cast<double>(column), -27.0 + 6.0 * static_cast<double>(row));
     }
     Engine engine;
     MovementParams params;

@@ -13,14 +13,14 @@
 int main(int argc, char **argv)
 {
     using namespace cdro::service;
-    CLI::App app{"cdro-service-harness: the cdro-hostd service with a recording consumer"};
-    ServiceOverrides overrides;
-    addServiceOptions(app, overrides);
-    std::string received;
-    app.add_option("--received", received,
-                   "write every frame and odometry message the consumer receives, one JSON line each");
-    CLI11_PARSE(app, argc, argv);
     try {
+        CLI::App app{"cdro-service-harness: the cdro-hostd service with a recording consumer"};
+        ServiceOverrides overrides;
+        addServiceOptions(app, overrides);
+        std::string received;
+        app.add_option("--received", received,
+                       "write every frame and odometry message the consumer receives, one JSON line each");
+        CLI11_PARSE(app, argc, argv);
         ServiceConfig config = overrides.config_path.empty() ? ServiceConfig{} : loadServiceConfig(overrides.config_path);
         applyOverrides(config, overrides);
         setupLogging(config.logging);

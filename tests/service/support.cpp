@@ -8,6 +8,7 @@
 #include <cstring>
 #include <fstream>
 #include <stdexcept>
+#include <system_error>
 #include <thread>
 
 #include <arpa/inet.h>
@@ -258,7 +259,10 @@ uint16_t freePort(int type)
     address.sin_family = AF_INET;
     address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     address.sin_port = 0;
-    ::bind(fd, reinterpret_cast<sockaddr *>(&address), sizeof address);
+    if (::bind(fd, reinterpret_cast<sockaddr *>(&address), sizeof address) != 0) {
+        ::close(fd);
+        throw std::system_error(errno, std::generic_category(), "freePort: bind");
+    }
     socklen_t len = sizeof address;
     ::getsockname(fd, reinterpret_cast<sockaddr *>(&address), &len);
     ::close(fd);

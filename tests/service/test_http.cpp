@@ -1,7 +1,9 @@
 // The live map's HTTP server: page and assets, the JSON API, components fetched on the loop
 // thread, and server-sent events carrying a newly published map.
 #include <atomic>
+#include <cerrno>
 #include <chrono>
+#include <system_error>
 #include <thread>
 
 #include <arpa/inet.h>
@@ -153,7 +155,10 @@ public:
         sockaddr_in local{};
         local.sin_family = AF_INET;
         ::inet_pton(AF_INET, source, &local.sin_addr);
-        ::bind(fd_, reinterpret_cast<sockaddr *>(&local), sizeof local); // a client address of our choice
+        // A client address of our choice.
+        if (::bind(fd_, reinterpret_cast<sockaddr *>(&local), sizeof local) != 0) {
+            throw std::system_error(errno, std::generic_category(), "RawClient: bind");
+        }
         sockaddr_in server{};
         server.sin_family = AF_INET;
         server.sin_port = htons(static_cast<uint16_t>(port));

@@ -6,11 +6,13 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
 #include <fstream>
 #include <mutex>
+#include <system_error>
 
 #include <gtest/gtest.h>
 #include <mosquitto.h>
@@ -124,7 +126,9 @@ public:
         sockaddr_in self{};
         self.sin_family = AF_INET;
         self.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-        ::bind(fd_, reinterpret_cast<sockaddr *>(&self), sizeof self);
+        if (::bind(fd_, reinterpret_cast<sockaddr *>(&self), sizeof self) != 0) {
+            throw std::system_error(errno, std::generic_category(), "UdpSender: bind");
+        }
         socklen_t len = sizeof self;
         ::getsockname(fd_, reinterpret_cast<sockaddr *>(&self), &len);
         port_ = ntohs(self.sin_port);

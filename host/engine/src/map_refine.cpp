@@ -536,7 +536,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         out.gauge_free = false;
         return out;
     }
-    const auto positions_size = static_cast<Eigen::Index>(2 * free_count);
+    const auto positions_size = 2 * static_cast<Eigen::Index>(free_count);
     const double variance = problem.sigma_m * problem.sigma_m;
     Eigen::MatrixXd positions(problem.nodeCount(), 2);
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {

@@ -129,7 +129,7 @@ RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate 
     out.cost_without_nats = mapCost(problem, start, likelihood);
     out.cost_nats = out.cost_without_nats;
     const uint32_t placed = start.placedCount();
-    if (placed < 4 || problem.links.size() < static_cast<size_t>(2 * placed)) {
+    if (placed < 4 || problem.links.size() < 2 * static_cast<size_t>(placed)) {
         return out; // the links cannot tell an offset per node from the map
     }
     // Golden section over the common part; each trial starts from the same map.
