@@ -125,13 +125,18 @@ def test_that_the_installed_python_tools_run_from_their_environment(build_dir, t
     where = subprocess.run([str(prefix / "lib/cdro/venv/bin/python"), "-c",
                             "import cdro_tools, numpy; print(cdro_tools.__file__); print(numpy.__file__)"],
                            capture_output=True, text=True, timeout=GUARD_S)
-    # cdro-sim runs the firmware from the library installed beside the environment
-    device = subprocess.run([str(prefix / "lib/cdro/venv/bin/python"), "-c",
+    # cdro-sim runs the firmware from the library installed beside the environment. A sanitizer
+    # build's library is installed too, but ASan cannot be loaded into an uninstrumented Python:
+    # there the install is checked and the plain build's run of this test runs it.
+    sanitized = "CDRO_SANITIZE:BOOL=ON" in (build_dir / "CMakeCache.txt").read_text(errors="replace")
+    if sanitized:
+        assert (prefix / "lib/cdro/libcdro_host_device.so").is_file()
+    device = None if sanitized else subprocess.run([str(prefix / "lib/cdro/venv/bin/python"), "-c",
                              "from cdro_tools.simulation import host_device; print(host_device.library()._name)"],
                             capture_output=True, text=True, timeout=GUARD_S, env={"PATH": "/usr/bin:/bin"})
-    simulated = subprocess.run([str(prefix / "bin/cdro-sim"), "--scenario", "demo", "--duration", "2", "--ranges-csv",
-                                str(tmp_path / "ranges.csv")], capture_output=True, text=True, timeout=GUARD_S,
-                               env={"PATH": "/usr/bin:/bin"})
+    simulated = None if sanitized else subprocess.run(
+        [str(prefix / "bin/cdro-sim"), "--scenario", "demo", "--duration", "2", "--ranges-csv",
+         str(tmp_path / "ranges.csv")], capture_output=True, text=True, timeout=GUARD_S, env={"PATH": "/usr/bin:/bin"})
 
     # Assert
     assert version.returncode == 0, version.stderr
@@ -141,10 +146,11 @@ def test_that_the_installed_python_tools_run_from_their_environment(build_dir, t
     package, numpy = where.stdout.split()
     assert pathlib.Path(package).is_relative_to(prefix / "lib/cdro/venv")      # the installed copy, not tools/
     assert not pathlib.Path(numpy).is_relative_to(prefix), numpy                 # the system's: nothing downloaded
-    assert device.returncode == 0, device.stderr
-    assert pathlib.Path(device.stdout.strip()) == prefix / "lib/cdro/libcdro_host_device.so"
-    assert simulated.returncode == 0, simulated.stderr
-    assert len((tmp_path / "ranges.csv").read_text().splitlines()) > 1              # a header and ranges
+    if device is not None and simulated is not None:
+        assert device.returncode == 0, device.stderr
+        assert pathlib.Path(device.stdout.strip()) == prefix / "lib/cdro/libcdro_host_device.so"
+        assert simulated.returncode == 0, simulated.stderr
+        assert len((tmp_path / "ranges.csv").read_text().splitlines()) > 1          # a header and ranges
 
 
 def test_that_systemd_analyze_verifies_the_installed_unit(staging, tmp_path):
