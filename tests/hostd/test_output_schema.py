@@ -23,11 +23,9 @@ import jsonschema
 import pytest
 
 from cdro_tools import outputs_schema
-from cdro_tools.codec import read_capture
-from cdro_tools.codec.capture_file import FLAG_ODOMETRY, CaptureRecord, CaptureWriter
+from robot_capture import ROBOT, write_robot_capture
 
 GUARD_S = 300.0
-ROBOT = 0x6001          # plaza-like: the device's own tag rides on the robot
 
 
 @pytest.fixture(scope="module")
@@ -132,25 +130,8 @@ def test_cdro_plot_reads_only_keys_of_the_schema(repo_root, schema):
 
 @pytest.fixture(scope="module")
 def robot_capture(tmp_path_factory):
-    """plaza-like for 120 s: its capture with the robot's odometry records put in their place."""
-    directory = tmp_path_factory.mktemp("schema")
-    subprocess.run([sys.executable, "-m", "cdro_tools.sim", "--scenario", "plaza-like", "--duration", "120",
-                    "--capture", str(directory / "frames.cdrocap"), "--odometry-csv", str(directory / "odometry.csv")],
-                   check=True, capture_output=True, timeout=GUARD_S)
-    frames = read_capture(directory / "frames.cdrocap")
-    start_us = frames.header.created_unix_us
-    records = [(r.host_time_us, 0, r) for r in frames.records]
-    for row in (directory / "odometry.csv").read_text().splitlines()[1:]:
-        t_s, distance_m, dheading_rad = map(float, row.split(","))
-        at_us = start_us + round(t_s * 1e6)
-        message = json.dumps({"t": at_us / 1e6, "distance_m": distance_m, "dheading_rad": dheading_rad,
-                              "source": "udp:127.0.0.1:40000"}, separators=(",", ":"))
-        records.append((at_us, 1, CaptureRecord(at_us, message.encode(), FLAG_ODOMETRY)))
-    records.sort(key=lambda r: (r[0], r[1]))
-    path = directory / "robot.cdrocap"
-    with CaptureWriter(path, frames.header.source, start_us) as writer:
-        for _, _, record in records:
-            writer.write(record)
+    """plaza-like for 120 s: its capture with the odometry records put in their place."""
+    path, _ = write_robot_capture(tmp_path_factory.mktemp("schema"), GUARD_S)
     return path
 
 
