@@ -74,7 +74,7 @@ engine::EngineParams unusual()
     p.solve.min_links = 9;
     p.solve.quiet_ranges_per_link = 3.5;
     p.solve.min_gain_nats = 0.5;
-    p.solve.adopt_after_sweeps = 0.25;
+    p.solve.adopt_after_sweeps = 1.5;
     p.solve.range_offsets = false;
     p.solve.threads = 3;
     p.convergence.reliable_m = 0.75;

@@ -24,6 +24,11 @@ constexpr double kUnheardRadiusShare = 0.5;
 // about a third of the noise: twice the noise is a change, not flicker).
 constexpr double kChangedLinkShare = 0.1;
 constexpr double kChangedSigmas = 2.0;
+// Whether the nodes to solve changed (a carried node settled) is looked at this many times a sweep
+// of the network: a node that stopped waits for the solve that takes it back in (convergence needs
+// it), so a quarter sweep plus the adoption's lag, not a whole sweep. It costs a pass over the
+// nodes each time, a few per sweep of the links.
+constexpr uint64_t kSolvableChecksPerSweep = 4;
 
 // Whether a share of the links' ranges moved by more than the noise since the last solve saw them.
 bool linksChanged(const MapState &map, double sigma_m)
@@ -184,9 +189,10 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
     }
     // No new link since the last solve, yet other nodes to solve: one settled after a carry or
     // started moving, and the map the last full solve found is of other nodes. (A node that joins
-    // brings links: the growth rules above see it.) Looked at once a sweep, at fixed points of
-    // the range stream.
-    if (ranges_received % static_cast<uint64_t>(links) == 0 && map.links.size() == schedule_.links_at_last &&
+    // brings links: the growth rules above see it.) Looked at kSolvableChecksPerSweep times a
+    // sweep, at fixed points of the range stream.
+    const uint64_t check_every = std::max<uint64_t>(map.links.size() / kSolvableChecksPerSweep, 1U);
+    if (ranges_received % check_every == 0 && map.links.size() == schedule_.links_at_last &&
         solvableNodes(map) != schedule_.nodes_at_full) {
         return true;
     }

@@ -13,12 +13,12 @@
 // what the full solve found disputed; settle() runs a full solve whenever ranges arrived since one.
 // The problem: the placed or placeable nodes that are not moving, numbered by id, their links'
 // ranges, fixed and pinned nodes where they are, and the unheard pairs of nodes that have listened
-// for two sweeps of the network. Where: in the caller's thread, adopted at once; or, with
-// `adopt_after_sweeps` > 0, on a worker thread, from a copy of the problem as the map stood when
-// it was due, its map adopted that many sweeps of the network later (that many ranges taken per
-// link at the start), at that range exactly, waiting for the worker if it is not done: the
-// estimates depend on the range stream only, never on the thread's timing. settle()'s solve
-// always runs in the caller's thread.
+// for two sweeps of the network. Where: with `adopt_after_sweeps` > 0 (the default), on a worker
+// thread, from a copy of the problem as the map stood when it was due, its map adopted that many
+// sweeps of the network later (that many ranges taken per link at the start), at that range
+// exactly, waiting for the worker if it is not done: the estimates depend on the range stream
+// only, never on the thread's timing; with 0, in the caller's thread, adopted at once. settle()'s
+// solve always runs in the caller's thread.
 // Adoption: the solve's best map, seen from the current frame (a
 // rigid fit on the nodes both place), unless the filter's own map, refined, explains the links
 // within `min_gain_nats` as well and is the same map (no jump for nothing); nodes the solve places and the filter had

@@ -65,10 +65,10 @@ struct SolveParams {
     double quiet_ranges_per_link = 2.0; // and once no link has appeared for this many ranges per
                                    // link, if links appeared since it last ran
     double min_gain_nats = 1.0;    // nats, how much better the solve's map must explain the links
-    double adopt_after_sweeps = 0.0; // > 0: the solve runs on a worker thread, its map adopted
+    double adopt_after_sweeps = 0.25; // > 0: the solve runs on a worker thread, its map adopted
                                    // this many ranges per link after it started (the estimates do
-                                   // not depend on its timing, but they are another run's: see
-                                   // docs/engine.md); 0: it runs inside addRange, adopted at once
+                                   // not depend on its timing: docs/engine.md); 0: it runs inside
+                                   // the addRange that makes it due, adopted at once
     bool range_offsets = true;     // estimate each node's range offset (uncalibrated antenna
                                    // delays, range_offsets.hpp); false: radios known calibrated
     uint32_t threads = 0;          // threads a solve refines its starts on (0: one per core); the
