@@ -1,0 +1,174 @@
+// The random geometric network (geometric.hpp): a seed is one network, and each option draws
+// what geometric.hpp says it does. The engine tests and cdro-bench-engine rely on both.
+#include <algorithm>
+#include <cmath>
+#include <set>
+#include <utility>
+
+#include <gtest/gtest.h>
+
+#include "cdro/netgen/geometric.hpp"
+#include "cdro/netgen/rigidity.hpp"
+
+namespace cdro::netgen {
+namespace {
+
+bool sameNetwork(const GeometricNetwork &a, const GeometricNetwork &b)
+{
+    if (a.ids != b.ids || a.position_m != b.position_m || a.height_m != b.height_m ||
+        a.links.size() != b.links.size()) {
+        return false;
+    }
+    for (size_t i = 0; i < a.links.size(); ++i) {
+        if (a.links[i].a != b.links[i].a || a.links[i].b != b.links[i].b ||
+            a.links[i].distance_m != b.links[i].distance_m) {
+            return false;
+        }
+    }
+    return true;
+}
+
+std::set<std::pair<uint32_t, uint32_t>> pairsOf(const GeometricNetwork &net)
+{
+    std::set<std::pair<uint32_t, uint32_t>> out;
+    for (const GeometricLink &link : net.links) {
+        out.insert(std::minmax(link.a, link.b));
+    }
+    return out;
+}
+
+GeometricOptions benchOptions(uint32_t nodes)
+{
+    GeometricOptions options;
+    options.nodes = nodes;
+    options.draw_directions = true;
+    options.shuffle_links = true;
+    return options;
+}
+
+TEST(Geometric, ASeedIsOneNetworkAndTheDrawSeedReplaysIt)
+{
+    // A degree of 4 is often disconnected: the accepted draw is seldom the first.
+    GeometricOptions options = benchOptions(40);
+    options.mean_degree = 4.0;
+    const GeometricNetwork first = drawGeometric(3, options);
+    EXPECT_GT(first.draws, 1U);
+    EXPECT_TRUE(sameNetwork(first, drawGeometric(3, options)));
+    EXPECT_FALSE(sameNetwork(first, drawGeometric(4, options)));
+    MersenneRandom replay(first.draw_seed);
+    const std::optional<GeometricNetwork> again = drawGeometricOnce(replay, options);
+    ASSERT_TRUE(again.has_value());
+    EXPECT_TRUE(sameNetwork(first, *again));
+}
+
+TEST(Geometric, ExpectedDegreeLinksEveryPairWithinTheRadius)
+{
+    double degree_sum = 0.0;
+    const int draws = 20;
+    for (int seed = 0; seed < draws; ++seed) {
+        const GeometricNetwork net = drawGeometric(static_cast<uint64_t>(seed), benchOptions(100));
+        EXPECT_NEAR(net.side_m, std::sqrt(100.0 * 80.0), 1e-9);
+        const std::set<std::pair<uint32_t, uint32_t>> linked = pairsOf(net);
+        EXPECT_EQ(linked.size(), net.links.size()) << "a pair linked twice";
+        for (uint32_t i = 0; i < 100; ++i) {
+            EXPECT_EQ(net.ids[i], i + 1U);
+            for (uint32_t j = i + 1; j < 100; ++j) {
+                const bool within = (net.position_m[i] - net.position_m[j]).norm() <= net.radius_m;
+                EXPECT_EQ(within, linked.count({i, j}) == 1) << i << "-" << j;
+            }
+        }
+        degree_sum += net.mean_degree;
+    }
+    // The radius is chosen for a mean degree of 10 in expectation (the square's edges included);
+    // 20 draws of 100 nodes average within a few percent of it.
+    EXPECT_NEAR(degree_sum / draws, 10.0, 0.6);
+}
+
+TEST(Geometric, DirectionsAndOrderAreDrawnOnlyWhenAsked)
+{
+    GeometricOptions plain = benchOptions(30);
+    plain.draw_directions = false;
+    plain.shuffle_links = false;
+    const GeometricNetwork ordered = drawGeometric(5, plain);
+    for (size_t k = 0; k < ordered.links.size(); ++k) {
+        EXPECT_LT(ordered.links[k].a, ordered.links[k].b);
+        if (k > 0) {
+            EXPECT_LT(std::make_pair(ordered.links[k - 1].a, ordered.links[k - 1].b),
+                      std::make_pair(ordered.links[k].a, ordered.links[k].b))
+                << "pair order";
+        }
+    }
+    const GeometricNetwork drawn = drawGeometric(5, benchOptions(30));
+    EXPECT_EQ(pairsOf(drawn), pairsOf(ordered)) << "the same pairs: directions and order come after the links";
+    size_t reversed = 0;
+    for (const GeometricLink &link : drawn.links) {
+        reversed += link.a > link.b ? 1U : 0U;
+    }
+    EXPECT_GT(reversed, drawn.links.size() / 4);
+    EXPECT_LT(reversed, 3 * drawn.links.size() / 4);
+}
+
+TEST(Geometric, ExactDegreeWithTheTestsOptions)
+{
+    GeometricOptions options;
+    options.nodes = 20;
+    options.mean_degree = 8.0;
+    options.area_per_node_m2 = 25.0;
+    options.radius = GeometricOptions::Radius::ExactDegree;
+    options.ids = GeometricOptions::Ids::Scattered;
+    options.min_separation_m = 1.0;
+    options.max_height_m = 3.0;
+    options.min_degree = 3;
+    options.require_globally_rigid = true;
+    for (uint64_t seed = 1; seed <= 10; ++seed) {
+        Random random(seed);
+        const GeometricNetwork net = drawGeometric(random, options);
+        ASSERT_EQ(net.links.size(), 80U) << "20 nodes of degree 8: exactly 80 links";
+        EXPECT_DOUBLE_EQ(net.mean_degree, 8.0);
+        EXPECT_DOUBLE_EQ(net.radius_m, net.links.back().distance_m);
+        for (size_t k = 1; k < net.links.size(); ++k) {
+            EXPECT_LE(net.links[k - 1].distance_m, net.links[k].distance_m) << "shortest first";
+        }
+        std::vector<uint32_t> degree(20, 0);
+        std::vector<std::pair<size_t, size_t>> pairs;
+        for (const GeometricLink &link : net.links) {
+            ++degree[link.a];
+            ++degree[link.b];
+            pairs.emplace_back(link.a, link.b);
+        }
+        EXPECT_GE(*std::min_element(degree.begin(), degree.end()), 3U);
+        ASSERT_EQ(net.height_m.size(), 20U);
+        for (uint32_t i = 0; i < 20; ++i) {
+            EXPECT_EQ(net.ids[i], 0x1000 + 37 * i + 5);
+            EXPECT_GE(net.height_m[i], 0.0);
+            EXPECT_LT(net.height_m[i], 3.0);
+            for (uint32_t j = i + 1; j < 20; ++j) {
+                EXPECT_GE((net.position_m[i] - net.position_m[j]).norm(), 1.0);
+            }
+        }
+        const GeometricLink &link = net.links.front();
+        const double dz_m = net.height_m[link.a] - net.height_m[link.b];
+        EXPECT_DOUBLE_EQ(net.rangeM(0), std::sqrt(link.distance_m * link.distance_m + dz_m * dz_m));
+        Random check(seed + 100);
+        EXPECT_TRUE(globallyRigid(net.position_m, pairs, check));
+    }
+}
+
+TEST(Geometric, WithinProbabilityIsThatOfTheUnitSquare)
+{
+    // Two uniform points of the unit square closer than t: the closed form against counting.
+    Random random(11);
+    const double t = 0.3;
+    const int samples = 200000;
+    int within = 0;
+    for (int i = 0; i < samples; ++i) {
+        const double dx = random.uniform() - random.uniform(); // either order: the same |dx|
+        const double dy = random.uniform() - random.uniform();
+        within += std::hypot(dx, dy) <= t ? 1 : 0;
+    }
+    EXPECT_NEAR(static_cast<double>(within) / samples, withinProbability(t), 0.004); // ~4 sigma
+    EXPECT_NEAR(withinProbability(1.0), 3.14159265358979323846 - 8.0 / 3.0 + 0.5, 1e-12);
+}
+
+} // namespace
+} // namespace cdro::netgen
