@@ -108,6 +108,36 @@ TEST(Geometric, DirectionsAndOrderAreDrawnOnlyWhenAsked)
     EXPECT_LT(reversed, 3 * drawn.links.size() / 4);
 }
 
+TEST(Geometric, AGivenRadiusLinksThePairsWithinItConnectedOrNot)
+{
+    GeometricOptions options;
+    options.nodes = 30;
+    options.area_per_node_m2 = 100.0;
+    options.radius = GeometricOptions::Radius::Given;
+    options.radius_m = 12.0;
+    options.require_connected = false;
+    options.min_degree = 0;
+    options.max_attempts = 1;
+    size_t disconnected = 0;
+    for (uint64_t seed = 1; seed <= 20; ++seed) {
+        Random random(seed);
+        const GeometricNetwork net = drawGeometric(random, options);
+        EXPECT_EQ(net.radius_m, 12.0);
+        const std::set<std::pair<uint32_t, uint32_t>> linked = pairsOf(net);
+        for (uint32_t i = 0; i < 30; ++i) {
+            for (uint32_t j = i + 1; j < 30; ++j) {
+                EXPECT_EQ((net.position_m[i] - net.position_m[j]).norm() <= 12.0, linked.count({i, j}) == 1);
+            }
+        }
+        GeometricOptions connected = options;
+        connected.require_connected = true;
+        Random again(seed);
+        disconnected += drawGeometricOnce(again, connected).has_value() ? 0U : 1U;
+    }
+    // A 55 m square and a 12 m reach: some draws fall apart, and are kept only when allowed.
+    EXPECT_GT(disconnected, 0U);
+}
+
 TEST(Geometric, ExactDegreeWithTheTestsOptions)
 {
     GeometricOptions options;

@@ -38,8 +38,8 @@ double sideM(const GeometricOptions &options)
     return std::sqrt(static_cast<double>(options.nodes) * options.area_per_node_m2);
 }
 
-// Connected, and every node with at least min_degree links.
-bool connectedWithDegree(uint32_t nodes, const std::vector<GeometricLink> &links, uint32_t min_degree)
+// Every node with at least min_degree links, and connected if asked.
+bool acceptable(uint32_t nodes, const std::vector<GeometricLink> &links, uint32_t min_degree, bool connected)
 {
     std::vector<std::vector<uint32_t>> adjacent(nodes);
     for (const GeometricLink &link : links) {
@@ -50,6 +50,9 @@ bool connectedWithDegree(uint32_t nodes, const std::vector<GeometricLink> &links
         if (neighbours.size() < min_degree) {
             return false;
         }
+    }
+    if (!connected) {
+        return true;
     }
     std::vector<bool> seen(nodes, false);
     std::vector<uint32_t> stack{0};
@@ -117,8 +120,10 @@ std::optional<GeometricNetwork> drawGeometricOnce(RandomSource &random, const Ge
         }
     }
     // 3. links
-    if (options.radius == GeometricOptions::Radius::ExpectedDegree) {
-        net.radius_m = expectedDegreeRadiusM(nodes, options.mean_degree, net.side_m);
+    if (options.radius != GeometricOptions::Radius::ExactDegree) {
+        net.radius_m = options.radius == GeometricOptions::Radius::Given
+                           ? options.radius_m
+                           : expectedDegreeRadiusM(nodes, options.mean_degree, net.side_m);
         for (uint32_t i = 0; i < nodes; ++i) {
             for (uint32_t j = i + 1; j < nodes; ++j) {
                 const double d_m = (net.position_m[i] - net.position_m[j]).norm();
@@ -153,7 +158,7 @@ std::optional<GeometricNetwork> drawGeometricOnce(RandomSource &random, const Ge
         }
     }
     // 5. acceptance
-    if (!connectedWithDegree(nodes, net.links, options.min_degree)) {
+    if (!acceptable(nodes, net.links, options.min_degree, options.require_connected)) {
         return std::nullopt;
     }
     if (options.require_globally_rigid) {

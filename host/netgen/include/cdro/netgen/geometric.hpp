@@ -14,12 +14,15 @@
 //                                edges included); links in pair order (0,1), (0,2) ... (1,2) ...;
 //        Radius::ExactDegree     the round(nodes * mean_degree / 2) shortest pairs, so this
 //                                draw's mean degree is the one asked; links shortest first;
+//        Radius::Given           every pair within radius_m (mean_degree is not used); links in
+//                                pair order;
 //      with fewer nodes than the degree asks for, every pair is a link;
 //   4. directions, if draw_directions: for each link in that order, who initiates (a) is drawn
 //      (else a is the lower index);
-//   5. acceptance: the draw is kept if it is connected, every node has at least min_degree
-//      links and, if require_globally_rigid, the ranges allow one map only (rigidity.hpp; this
-//      draws from the stream too); else the whole draw is made again;
+//   5. acceptance: the draw is kept if it is connected (unless require_connected is false),
+//      every node has at least min_degree links and, if require_globally_rigid, the ranges allow
+//      one map only (rigidity.hpp; this draws from the stream too); else the whole draw is made
+//      again;
 //   6. order, if shuffle_links: the links are shuffled (Fisher-Yates), the order a benchmark
 //      feeds them in.
 // Distances are planar (m); GeometricNetwork::rangeM adds the height difference.
@@ -44,18 +47,20 @@
 namespace cdro::netgen {
 
 struct GeometricOptions {
-    enum class Radius : uint8_t { ExpectedDegree, ExactDegree };
+    enum class Radius : uint8_t { ExpectedDegree, ExactDegree, Given };
     enum class Ids : uint8_t { Sequential, Scattered };
 
     uint32_t nodes = 10;
     double mean_degree = 10.0;        // links per node
     double area_per_node_m2 = 80.0;   // m^2 of the square per node
     Radius radius = Radius::ExpectedDegree;
+    double radius_m = 0.0;            // m, Radius::Given: the longest link
     Ids ids = Ids::Sequential;
     double min_separation_m = 0.0;    // m, no two nodes closer (0: no constraint)
     double max_height_m = 0.0;        // m, heights uniform in [0, this); 0: planar
     bool draw_directions = false;     // draw which end of each link initiates
-    uint32_t min_degree = 1;          // links every node must have (1: connected is enough)
+    bool require_connected = true;
+    uint32_t min_degree = 1;          // links every node must have
     bool require_globally_rigid = false;
     bool shuffle_links = false;       // the links in a random order
     uint32_t max_attempts = 10000;    // draws before giving up (std::runtime_error)
