@@ -11,7 +11,6 @@
 
 #include "cdro/csv/reader.hpp"
 #include "cdro/engine/alignment.hpp"
-#include "cdro/netgen/geometric.hpp"
 #include "cdro/netgen/rigidity.hpp"
 
 #ifndef CDRO_SOURCE_DIR
@@ -91,7 +90,11 @@ TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heig
     options.max_height_m = heights ? 3.0 : 0.0;
     options.min_degree = 3;
     options.require_globally_rigid = true;
-    const netgen::GeometricNetwork drawn = netgen::drawGeometric(random, options);
+    return fromGeometric(netgen::drawGeometric(random, options));
+}
+
+TestNetwork fromGeometric(const netgen::GeometricNetwork &drawn)
+{
     TestNetwork network;
     network.ids = drawn.ids;
     network.truth_m = drawn.position_m;

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/netgen/geometric.hpp"
 #include "cdro/netgen/random.hpp"
 
 namespace cdro::enginetest {
@@ -73,6 +74,9 @@ struct TestNetwork {
 // otherwise the ranges themselves allow another map, and no engine could be asked to find the
 // true one.
 TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heights);
+
+// A network drawn by netgen (cdro/netgen/geometric.hpp) as the tests hold it.
+TestNetwork fromGeometric(const netgen::GeometricNetwork &drawn);
 
 // netgen::globallyRigid (cdro/netgen/rigidity.hpp) on the network's true positions.
 bool globallyRigid(const TestNetwork &network, Random &random);
