@@ -6,7 +6,8 @@ cdro_host_device/host_device.h for the C side.
 The library is found, in this order, at $CDRO_HOST_DEVICE_LIB, in $CDRO_BUILD_DIR/lib, in the
 repository's build/lib (an editable install), and next to an installed environment
 (PREFIX/lib/cdro, where `cmake --install` puts it). A sanitizer build's is passed over (ASan
-cannot be loaded into Python), and so is a candidate that does not load.
+cannot be loaded into Python), and so is a candidate that does not load. Loading checks that the
+Structures below have the sizes and field offsets of the C structs they mirror (LayoutMismatch).
 """
 from __future__ import annotations
 
