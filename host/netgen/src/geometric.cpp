@@ -114,7 +114,7 @@ std::optional<GeometricNetwork> drawGeometricOnce(RandomSource &random, const Ge
     // 2. heights and ids
     for (uint32_t i = 0; i < nodes; ++i) {
         net.ids.push_back(options.ids == GeometricOptions::Ids::Sequential ? static_cast<NodeId>(i + 1)
-                                                                          : static_cast<NodeId>(0x1000 + 37 * i + 5));
+                                                                           : static_cast<NodeId>(0x1000 + 37 * i + 5));
         if (options.max_height_m > 0.0) {
             net.height_m.push_back(random.uniform(0.0, options.max_height_m));
         }
@@ -141,8 +141,9 @@ std::optional<GeometricNetwork> drawGeometricOnce(RandomSource &random, const Ge
             }
         }
         std::sort(pairs.begin(), pairs.end());
-        const size_t wanted = std::min(
-            pairs.size(), static_cast<size_t>(std::lround(0.5 * options.mean_degree * static_cast<double>(nodes))));
+        const size_t wanted =
+            std::min(pairs.size(),
+                     static_cast<size_t>(std::lround(0.5 * options.mean_degree * static_cast<double>(nodes))));
         for (size_t k = 0; k < wanted; ++k) {
             const auto [d_m, i, j] = pairs[k];
             net.links.push_back(GeometricLink{i, j, d_m});

@@ -51,37 +51,37 @@ struct GeometricOptions {
     enum class Ids : uint8_t { Sequential, Scattered };
 
     uint32_t nodes = 10;
-    double mean_degree = 10.0;        // links per node
-    double area_per_node_m2 = 80.0;   // m^2 of the square per node
+    double mean_degree = 10.0;      // links per node
+    double area_per_node_m2 = 80.0; // m^2 of the square per node
     Radius radius = Radius::ExpectedDegree;
-    double radius_m = 0.0;            // m, Radius::Given: the longest link
+    double radius_m = 0.0; // m, Radius::Given: the longest link
     Ids ids = Ids::Sequential;
-    double min_separation_m = 0.0;    // m, no two nodes closer (0: no constraint)
-    double max_height_m = 0.0;        // m, heights uniform in [0, this); 0: planar
-    bool draw_directions = false;     // draw which end of each link initiates
+    double min_separation_m = 0.0; // m, no two nodes closer (0: no constraint)
+    double max_height_m = 0.0;     // m, heights uniform in [0, this); 0: planar
+    bool draw_directions = false;  // draw which end of each link initiates
     bool require_connected = true;
-    uint32_t min_degree = 1;          // links every node must have
+    uint32_t min_degree = 1; // links every node must have
     bool require_globally_rigid = false;
-    bool shuffle_links = false;       // the links in a random order
-    uint32_t max_attempts = 10000;    // draws before giving up (std::runtime_error)
+    bool shuffle_links = false;    // the links in a random order
+    uint32_t max_attempts = 10000; // draws before giving up (std::runtime_error)
 };
 
 struct GeometricLink {
-    uint32_t a = 0;                   // node indices; a initiates
+    uint32_t a = 0; // node indices; a initiates
     uint32_t b = 0;
-    double distance_m = 0.0;          // m, planar, true
+    double distance_m = 0.0; // m, planar, true
 };
 
 struct GeometricNetwork {
     std::vector<NodeId> ids;
-    std::vector<Vector2> position_m;  // m
-    std::vector<double> height_m;     // m, empty when planar
+    std::vector<Vector2> position_m; // m
+    std::vector<double> height_m;    // m, empty when planar
     std::vector<GeometricLink> links;
-    double side_m = 0.0;              // m, the square
-    double radius_m = 0.0;            // m, the longest link allowed (ExactDegree: the longest drawn)
-    double mean_degree = 0.0;         // links per node, of this draw
-    uint64_t draw_seed = 0;           // drawGeometric(seed, ...): the accepted attempt's seed
-    uint32_t draws = 0;               // attempts made (the rejected ones included)
+    double side_m = 0.0;      // m, the square
+    double radius_m = 0.0;    // m, the longest link allowed (ExactDegree: the longest drawn)
+    double mean_degree = 0.0; // links per node, of this draw
+    uint64_t draw_seed = 0;   // drawGeometric(seed, ...): the accepted attempt's seed
+    uint32_t draws = 0;       // attempts made (the rejected ones included)
 
     double rangeM(size_t link) const; // m, the true range, 3D when there are heights
 };
