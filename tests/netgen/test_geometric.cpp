@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <set>
+#include <string>
 #include <utility>
 
 #include <gtest/gtest.h>
@@ -59,6 +60,44 @@ TEST(Geometric, ASeedIsOneNetworkAndTheDrawSeedReplaysIt)
     const std::optional<GeometricNetwork> again = drawGeometricOnce(replay, options);
     ASSERT_TRUE(again.has_value());
     EXPECT_TRUE(sameNetwork(first, *again));
+}
+
+// docs/bench.md's figures were measured on cdro-bench-engine's networks (bench_engine.cpp's
+// options): two of them pinned as cdro-bench-engine --one-network N --seed S --write-csv wrote them
+// before the generator moved here (truth.csv, and the first link of ranges.csv as fed).
+TEST(Geometric, TheBenchmarkNetworksAreTheOnesDocsBenchMdWasMeasuredOn)
+{
+    struct Pinned {
+        uint32_t nodes;
+        double degree;
+        uint64_t seed;
+        size_t links;
+        uint32_t draws;
+        uint64_t draw_seed;
+        Vector2 first_m;   // m, node 1
+        Vector2 last_m;    // m, node n
+        NodeId first_from; // the first link fed
+        NodeId first_to;
+    };
+    const Pinned pinned[] = {
+        {100, 10.0, 2, 501, 1, 17236537114025726793ULL, Vector2(39.520180642108208, 47.043539376494685),
+         Vector2(27.264937294329144, 42.297439962710236), 23, 13},
+        {40, 4.0, 3, 72, 74, 11336161459575425111ULL, Vector2(35.35713079912135, 8.5942544061839818),
+         Vector2(44.375868574209328, 15.828300067286412), 5, 28},
+    };
+    for (const Pinned &p : pinned) {
+        SCOPED_TRACE(std::to_string(p.nodes) + " nodes, seed " + std::to_string(p.seed));
+        GeometricOptions options = benchOptions(p.nodes);
+        options.mean_degree = p.degree;
+        const GeometricNetwork net = drawGeometric(p.seed, options);
+        EXPECT_EQ(net.links.size(), p.links);
+        EXPECT_EQ(net.draws, p.draws);
+        EXPECT_EQ(net.draw_seed, p.draw_seed);
+        EXPECT_EQ(net.position_m.front(), p.first_m); // bit for bit (%.17g reads back exactly)
+        EXPECT_EQ(net.position_m.back(), p.last_m);
+        EXPECT_EQ(net.ids[net.links.front().a], p.first_from);
+        EXPECT_EQ(net.ids[net.links.front().b], p.first_to);
+    }
 }
 
 TEST(Geometric, ExpectedDegreeLinksEveryPairWithinTheRadius)
