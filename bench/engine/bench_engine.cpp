@@ -4,10 +4,10 @@
 //   PLANT    the real 28-node network (../shared/data/plant), its 1205 ranges in file order
 //            replayed N times. The first pass builds the map (placement, re-initializations):
 //            it is reported on its own; the steady state is passes 2..N.
-//   networks random geometric networks of 10, 30, 100, 300 nodes, mean degree ~10, Gaussian
-//            range noise, every link ranged once per sweep in a seeded random order. Each draw
-//            runs in a fresh process (this program again, --one-network), so that its peak
-//            resident memory is its own.
+//   networks random geometric networks of 10, 30, 100, 300 nodes (host/netgen: geometric.hpp),
+//            mean degree ~10, Gaussian range noise, every link ranged once per sweep in a
+//            seeded random order. Each draw runs in a fresh process (this program again,
+//            --one-network), so that its peak resident memory is its own.
 //
 // The engine is single-threaded, so ranges/s is per core. Wall-clock rates are what a user
 // gets; CPU-time rates (CLOCK_PROCESS_CPUTIME_ID) are less disturbed when other jobs share the
@@ -28,7 +28,6 @@
 #include <fstream>
 #include <functional>
 #include <map>
-#include <random>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -46,6 +45,8 @@
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/engine.hpp"
+#include "cdro/netgen/geometric.hpp"
+#include "cdro/netgen/random.hpp"
 #include "plant_data.hpp"
 
 namespace {
@@ -110,52 +111,6 @@ Json memoryJson(const Memory &memory)
                 {"vm_hwm_kib", memory.vm_hwm_kib},
                 {"vm_rss_kib", memory.vm_rss_kib},
                 {"heap_in_use_kib", memory.heap_in_use_kib}};
-}
-
-// ---- randomness -----------------------------------------------------------------------------
-
-// mt19937_64's sequence is fixed by the standard, but std::uniform_real_distribution and
-// std::normal_distribution are not (libstdc++ and libc++ differ): the draws are made here, so a
-// seed gives the same networks and noise everywhere.
-class Rng {
-public:
-    explicit Rng(uint64_t seed) : engine_(seed) {}
-    double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; } // [0, 1)
-    uint64_t below(uint64_t n)                                                     // [0, n)
-    {
-        const uint64_t limit = UINT64_MAX - UINT64_MAX % n; // rejection: no modulo bias
-        uint64_t x = engine_();
-        while (x >= limit) {
-            x = engine_();
-        }
-        return x % n;
-    }
-    double gaussian() // Box-Muller, both values used
-    {
-        if (has_spare_) {
-            has_spare_ = false;
-            return spare_;
-        }
-        const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
-        const double angle = 2.0 * 3.14159265358979323846 * uniform();
-        spare_ = radius * std::sin(angle);
-        has_spare_ = true;
-        return radius * std::cos(angle);
-    }
-
-private:
-    std::mt19937_64 engine_;
-    bool has_spare_ = false;
-    double spare_ = 0.0;
-};
-
-// splitmix64: independent streams (one per network size and draw) from one printed seed.
-uint64_t mixSeed(uint64_t x)
-{
-    x += 0x9E3779B97F4A7C15ULL;
-    x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-    return x ^ (x >> 31);
 }
 
 // ---- the workload ---------------------------------------------------------------------------
@@ -633,101 +588,21 @@ Json plantJson(const Plant &plant, const std::vector<PlantRun> &runs, uint32_t p
 
 // ---- random geometric networks --------------------------------------------------------------
 
-struct Link {
-    NodeId a = 0;
-    NodeId b = 0;
-    double distance_m = 0.0; // m, true
-};
-
-struct GeometricNetwork {
-    uint32_t nodes = 0;
-    double side_m = 0.0;      // m, the square
-    double radius_m = 0.0;    // m, the radio range
-    double mean_degree = 0.0; // of this draw
-    uint64_t draw_seed = 0;   // the Rng seed of the accepted draw
-    uint32_t draws = 0;       // draws made (the disconnected ones are discarded)
-    std::map<NodeId, Vector2> truth_m;
-    std::vector<Link> links;  // in feeding order, each with its (random) direction
-};
-
-// Probability that two points uniform in the unit square are within t (0 <= t <= 1) of each
-// other: pi t^2 - 8/3 t^3 + 1/2 t^4 (the square's edges make it less than pi t^2).
-constexpr double kPi = 3.14159265358979323846;
-double withinProbability(double t) { return kPi * t * t - 8.0 / 3.0 * t * t * t + 0.5 * t * t * t * t; }
-
-GeometricNetwork drawNetwork(uint32_t nodes, double degree, double area_per_node_m2, uint64_t seed)
+// The networks of docs/bench.md: netgen's geometric network (cdro/netgen/geometric.hpp, which
+// says what is drawn and how the seed is used): ids 1..n, every pair within the radius of the
+// expected mean degree, each link's direction drawn, connected, the links in a drawn feeding
+// order; attempt k of a size from its own seed, so each size and seed is one network.
+cdro::netgen::GeometricNetwork drawNetwork(uint32_t nodes, double degree, double area_per_node_m2, uint64_t seed)
 {
-    GeometricNetwork net;
-    net.nodes = nodes;
-    net.side_m = std::sqrt(static_cast<double>(nodes) * area_per_node_m2);
-    const double wanted = degree / static_cast<double>(nodes - 1);
-    if (wanted >= withinProbability(1.0)) {
-        // Fewer nodes than the degree asks for (10 nodes: at most 9): every pair is a link.
-        net.radius_m = net.side_m * std::sqrt(2.0) * 1.0001;
-    } else {
-        double low = 0.0;
-        double high = 1.0;
-        for (int i = 0; i < 60; ++i) {
-            const double mid = 0.5 * (low + high);
-            (withinProbability(mid) < wanted ? low : high) = mid;
-        }
-        net.radius_m = net.side_m * 0.5 * (low + high);
-    }
-    for (uint32_t attempt = 0; attempt < 10000; ++attempt) {
-        const uint64_t draw_seed = mixSeed(mixSeed(mixSeed(seed) ^ nodes) ^ attempt);
-        Rng rng(draw_seed);
-        std::vector<Vector2> position(nodes);
-        for (Vector2 &p : position) {
-            p.x() = net.side_m * rng.uniform();
-            p.y() = net.side_m * rng.uniform();
-        }
-        std::vector<Link> links;
-        std::vector<std::vector<uint32_t>> adjacent(nodes);
-        for (uint32_t i = 0; i < nodes; ++i) {
-            for (uint32_t j = i + 1; j < nodes; ++j) {
-                const double d = (position[i] - position[j]).norm();
-                if (d <= net.radius_m) {
-                    // Ids 1..n; the direction of each link (who initiates) is drawn too.
-                    const bool flip = rng.uniform() < 0.5;
-                    const auto a = static_cast<NodeId>((flip ? j : i) + 1);
-                    const auto b = static_cast<NodeId>((flip ? i : j) + 1);
-                    links.push_back(Link{a, b, d});
-                    adjacent[i].push_back(j);
-                    adjacent[j].push_back(i);
-                }
-            }
-        }
-        std::vector<bool> seen(nodes, false);
-        std::vector<uint32_t> stack{0};
-        seen[0] = true;
-        size_t reached = 1;
-        while (!stack.empty()) {
-            const uint32_t node = stack.back();
-            stack.pop_back();
-            for (uint32_t other : adjacent[node]) {
-                if (!seen[other]) {
-                    seen[other] = true;
-                    ++reached;
-                    stack.push_back(other);
-                }
-            }
-        }
-        if (reached != nodes) {
-            continue;
-        }
-        for (size_t i = links.size(); i > 1; --i) { // Fisher-Yates: the round-robin order
-            std::swap(links[i - 1], links[rng.below(i)]);
-        }
-        net.draw_seed = draw_seed;
-        net.draws = attempt + 1;
-        net.links = std::move(links);
-        net.mean_degree = 2.0 * static_cast<double>(net.links.size()) / static_cast<double>(nodes);
-        for (uint32_t i = 0; i < nodes; ++i) {
-            net.truth_m[static_cast<NodeId>(i + 1)] = position[i];
-        }
-        return net;
-    }
-    throw std::runtime_error("no connected network in 10000 draws of " + std::to_string(nodes) + " nodes");
+    cdro::netgen::GeometricOptions options;
+    options.nodes = nodes;
+    options.mean_degree = degree;
+    options.area_per_node_m2 = area_per_node_m2;
+    options.radius = cdro::netgen::GeometricOptions::Radius::ExpectedDegree;
+    options.ids = cdro::netgen::GeometricOptions::Ids::Sequential;
+    options.draw_directions = true;
+    options.shuffle_links = true;
+    return cdro::netgen::drawGeometric(seed, options);
 }
 
 struct NetworkOptions {
@@ -745,12 +620,16 @@ struct NetworkOptions {
 
 Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
 {
-    const GeometricNetwork net = drawNetwork(nodes, options.degree, options.area_per_node_m2, seed);
+    const cdro::netgen::GeometricNetwork net = drawNetwork(nodes, options.degree, options.area_per_node_m2, seed);
     const uint64_t links = net.links.size();
+    std::map<NodeId, Vector2> truth_m;
+    for (size_t i = 0; i < net.ids.size(); ++i) {
+        truth_m[net.ids[i]] = net.position_m[i];
+    }
     const uint32_t sweeps = std::max<uint32_t>(
         options.min_sweeps,
         options.warmup_sweeps + static_cast<uint32_t>((options.steady_ranges + links - 1) / links));
-    Rng noise(mixSeed(net.draw_seed ^ 0x6E6F697365ULL)); // "noise": its own stream
+    cdro::netgen::MersenneRandom noise(cdro::netgen::mixSeed(net.draw_seed ^ 0x6E6F697365ULL)); // "noise": its own stream
     std::vector<Range> sweep_ranges(links);
     // The same stream as files, so that a case can be replayed through cdro-hostd --ranges-csv
     // and judged by cdro-eval (%.17g: the doubles read back exactly, the engine repeats itself).
@@ -762,7 +641,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
             throw std::runtime_error("cannot write into " + options.write_csv_dir);
         }
         std::fprintf(truth_csv, "id,x,y\n");
-        for (const auto &[id, position_m] : net.truth_m) {
+        for (const auto &[id, position_m] : truth_m) {
             std::fprintf(truth_csv, "%u,%.17g,%.17g\n", static_cast<unsigned>(id), position_m.x(), position_m.y());
         }
         std::fclose(truth_csv);
@@ -784,10 +663,10 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     for (uint32_t sweep = 0; sweep < sweeps; ++sweep) {
         // The noisy ranges of this sweep are drawn before the clock starts.
         for (size_t i = 0; i < links; ++i) {
-            const Link &link = net.links[i];
+            const cdro::netgen::GeometricLink &link = net.links[i];
             // A range cannot be zero or negative (the engine would refuse it): clip at 1 cm.
-            sweep_ranges[i] = Range{link.a, link.b,
-                                    std::max(0.01, link.distance_m + options.noise_sigma_m * noise.gaussian())};
+            sweep_ranges[i] = Range{net.ids[link.a], net.ids[link.b],
+                                    std::max(0.01, link.distance_m + options.noise_sigma_m * noise.normal())};
         }
         if (ranges_csv != nullptr) {
             for (const Range &range : sweep_ranges) {
@@ -810,7 +689,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
         std::fclose(ranges_csv);
     }
     const uint64_t reinit_steady = engine.counters().solve.solves - reinit_warmup;
-    const Accuracy end = accuracy(engine, net.truth_m);
+    const Accuracy end = accuracy(engine, truth_m);
     // Which nodes the map left out, with their links: a node with one link cannot be placed, one
     // with two has two mirror positions that its ranges cannot tell apart.
     Json unplaced = Json::array();
@@ -827,19 +706,19 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
                                     {"times_placed", node.placements}});
         }
     }
-    std::vector<uint32_t> degree(nodes + 1, 0);
-    for (const Link &link : net.links) {
+    std::vector<uint32_t> degree(nodes, 0); // by node index
+    for (const cdro::netgen::GeometricLink &link : net.links) {
         ++degree[link.a];
         ++degree[link.b];
     }
     const auto below_three = static_cast<size_t>(
-        std::count_if(degree.begin() + 1, degree.end(), [](uint32_t links_of_node) { return links_of_node < 3; }));
+        std::count_if(degree.begin(), degree.end(), [](uint32_t links_of_node) { return links_of_node < 3; }));
     const StateSize state = stateSize(engine);
     const Memory after = memoryNow();
     const double settle_wall0 = wallSeconds();
     const uint64_t settled_updates = engine.settle(settleBudget(engine));
     const double settle_s = wallSeconds() - settle_wall0;
-    const Accuracy settled = accuracy(engine, net.truth_m);
+    const Accuracy settled = accuracy(engine, truth_m);
     const EngineCounters &c = engine.counters();
     return Json{
         {"nodes", nodes},

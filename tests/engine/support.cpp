@@ -9,11 +9,9 @@
 #include <limits>
 #include <map>
 
-#include <Eigen/Eigenvalues>
-#include <Eigen/SVD>
-
 #include "cdro/csv/reader.hpp"
 #include "cdro/engine/alignment.hpp"
+#include "cdro/netgen/rigidity.hpp"
 
 #ifndef CDRO_SOURCE_DIR
 #error "CDRO_SOURCE_DIR must be defined (tests/engine/CMakeLists.txt)"
@@ -54,8 +52,6 @@ uint64_t Random::next()
 
 double Random::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
 
-double Random::uniform(double low, double high) { return low + (high - low) * uniform(); }
-
 double Random::normal()
 {
     // 1 - uniform() is in (0, 1]: the logarithm is finite.
@@ -76,143 +72,37 @@ double TestNetwork::trueRange(size_t link) const
     return std::sqrt(planar_m * planar_m + dz_m * dz_m);
 }
 
-namespace {
-
-bool usable(const TestNetwork &network)
-{
-    const size_t count = network.ids.size();
-    std::vector<size_t> degree(count, 0);
-    std::vector<std::vector<size_t>> adjacent(count);
-    for (const auto &[a, b] : network.links) {
-        ++degree[a];
-        ++degree[b];
-        adjacent[a].push_back(b);
-        adjacent[b].push_back(a);
-    }
-    for (size_t d : degree) {
-        if (d < 3) {
-            return false;
-        }
-    }
-    std::vector<bool> seen(count, false);
-    std::vector<size_t> stack{0};
-    seen[0] = true;
-    size_t reached = 0;
-    while (!stack.empty()) {
-        const size_t node = stack.back();
-        stack.pop_back();
-        ++reached;
-        for (size_t other : adjacent[node]) {
-            if (!seen[other]) {
-                seen[other] = true;
-                stack.push_back(other);
-            }
-        }
-    }
-    return reached == count;
-}
-
-} // namespace
-
 bool globallyRigid(const TestNetwork &network, Random &random)
 {
-    // Rigidity matrix: one row per link, d|p_a - p_b| / d(p_a, p_b).
-    const Eigen::Index n = static_cast<Eigen::Index>(network.truth_m.size());
-    const Eigen::Index m = static_cast<Eigen::Index>(network.links.size());
-    if (n < 4) {
-        return n == 3 && m == 3;
-    }
-    Eigen::MatrixXd rigidity = Eigen::MatrixXd::Zero(m, 2 * n);
-    for (Eigen::Index l = 0; l < m; ++l) {
-        const auto [a, b] = network.links[static_cast<size_t>(l)];
-        const Vector2 d = network.truth_m[a] - network.truth_m[b];
-        rigidity.block<1, 2>(l, 2 * static_cast<Eigen::Index>(a)) = d.transpose();
-        rigidity.block<1, 2>(l, 2 * static_cast<Eigen::Index>(b)) = -d.transpose();
-    }
-    const Eigen::JacobiSVD<Eigen::MatrixXd> svd(rigidity, Eigen::ComputeFullU);
-    const Eigen::VectorXd &singular = svd.singularValues();
-    if (singular.size() == 0) {
-        return false; // no link (and, for gcc's -Wnull-dereference, no empty vector read below)
-    }
-    const double tolerance = 1e-9 * singular(0);
-    Eigen::Index rank = 0;
-    for (Eigen::Index i = 0; i < singular.size(); ++i) {
-        rank += singular(i) > tolerance ? 1 : 0;
-    }
-    if (rank != 2 * n - 3) {
-        return false; // not even infinitesimally rigid
-    }
-    // Equilibrium stresses: the left null space of the rigidity matrix. A generic random
-    // combination of them has the largest stress-matrix rank there is; n - 3 means globally
-    // rigid (Connelly; Gortler, Healy, Thurston).
-    const Eigen::MatrixXd stresses = svd.matrixU().rightCols(m - rank);
-    if (stresses.cols() == 0) {
-        return false;
-    }
-    Eigen::VectorXd mix(stresses.cols());
-    for (Eigen::Index i = 0; i < mix.size(); ++i) {
-        mix(i) = random.normal();
-    }
-    const Eigen::VectorXd omega = stresses * mix;
-    Eigen::MatrixXd stress = Eigen::MatrixXd::Zero(n, n);
-    for (Eigen::Index l = 0; l < m; ++l) {
-        const auto [a, b] = network.links[static_cast<size_t>(l)];
-        const Eigen::Index i = static_cast<Eigen::Index>(a);
-        const Eigen::Index j = static_cast<Eigen::Index>(b);
-        stress(i, j) -= omega(l);
-        stress(j, i) -= omega(l);
-        stress(i, i) += omega(l);
-        stress(j, j) += omega(l);
-    }
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(stress);
-    const Eigen::VectorXd values = eigen.eigenvalues().cwiseAbs();
-    const double largest = values.maxCoeff();
-    Eigen::Index stress_rank = 0;
-    for (Eigen::Index i = 0; i < values.size(); ++i) {
-        stress_rank += values(i) > 1e-9 * largest ? 1 : 0;
-    }
-    return stress_rank == n - 3;
+    return netgen::globallyRigid(network.truth_m, network.links, random);
 }
 
 TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heights)
 {
-    const double area_per_node_m2 = 25.0;
-    const double side_m = std::sqrt(area_per_node_m2 * static_cast<double>(nodes));
-    for (;;) {
-        TestNetwork network;
-        while (network.truth_m.size() < nodes) {
-            const Vector2 candidate(random.uniform(0.0, side_m), random.uniform(0.0, side_m));
-            bool crowded = false;
-            for (const Vector2 &other : network.truth_m) {
-                crowded = crowded || (other - candidate).norm() < 1.0;
-            }
-            if (!crowded) {
-                network.truth_m.push_back(candidate);
-            }
-        }
-        for (size_t i = 0; i < nodes; ++i) {
-            // Ids that are neither 1..n nor in the order of the nodes: the engine must not care.
-            network.ids.push_back(static_cast<NodeId>(0x1000 + 37 * i + 5));
-            if (heights) {
-                network.height_m.push_back(random.uniform(0.0, 3.0));
-            }
-        }
-        // The radius that gives exactly the mean degree asked for: the (n d / 2)-th shortest pair.
-        std::vector<std::pair<double, std::pair<size_t, size_t>>> pairs;
-        for (size_t i = 0; i < nodes; ++i) {
-            for (size_t j = i + 1; j < nodes; ++j) {
-                pairs.push_back({(network.truth_m[i] - network.truth_m[j]).norm(), {i, j}});
-            }
-        }
-        std::sort(pairs.begin(), pairs.end());
-        const size_t wanted = std::min(pairs.size(), static_cast<size_t>(std::lround(0.5 * degree * static_cast<double>(nodes))));
-        for (size_t k = 0; k < wanted; ++k) {
-            network.links.push_back(pairs[k].second);
-        }
-        if (usable(network) && globallyRigid(network, random)) {
-            return network;
-        }
+    netgen::GeometricOptions options;
+    options.nodes = static_cast<uint32_t>(nodes);
+    options.mean_degree = degree;
+    options.area_per_node_m2 = 25.0;
+    options.radius = netgen::GeometricOptions::Radius::ExactDegree;
+    // Ids that are neither 1..n nor adjacent: the engine must not care.
+    options.ids = netgen::GeometricOptions::Ids::Scattered;
+    options.min_separation_m = 1.0;
+    options.max_height_m = heights ? 3.0 : 0.0;
+    options.min_degree = 3;
+    options.require_globally_rigid = true;
+    return fromGeometric(netgen::drawGeometric(random, options));
+}
+
+TestNetwork fromGeometric(const netgen::GeometricNetwork &drawn)
+{
+    TestNetwork network;
+    network.ids = drawn.ids;
+    network.truth_m = drawn.position_m;
+    network.height_m = drawn.height_m;
+    for (const netgen::GeometricLink &link : drawn.links) {
+        network.links.emplace_back(link.a, link.b);
     }
+    return network;
 }
 
 std::vector<TestRange> roundRobin(const TestNetwork &network, Random &random, uint32_t sweeps, double noise_sigma_m)

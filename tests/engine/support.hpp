@@ -1,9 +1,9 @@
 // Test support for the engine suites: seeded randomness that can be replayed, random planar
 // networks with their range streams, aligned errors against the truth, and the PLANT data.
 //
-// Randomness: a small generator of our own (splitmix64) and our own uniform/normal/shuffle, so
-// that a seed gives the same network on every standard library (std::uniform_real_distribution
-// and std::shuffle are implementation-defined). Every randomised test prints its seed; the
+// Randomness: splitmix64 with our own uniform/normal/shuffle (below), so that a seed gives the
+// same network on every standard library (std::uniform_real_distribution and std::shuffle are
+// implementation-defined). Every randomised test prints its seed; the
 // environment variable CDRO_TEST_SEED replays one (as tests/firmware does).
 #pragma once
 
@@ -14,6 +14,8 @@
 #include <vector>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/netgen/geometric.hpp"
+#include "cdro/netgen/random.hpp"
 
 namespace cdro::enginetest {
 
@@ -41,20 +43,17 @@ std::vector<uint64_t> testSeeds(const std::vector<uint64_t> &defaults);
 uint64_t testSeed(uint64_t fallback);
 std::string seedTrace(uint64_t seed); // "seed N (set CDRO_TEST_SEED=N to replay)"
 
-class Random {
+// splitmix64, with uniform and shuffle as netgen::Random draws them; normal() (one value per
+// pair of uniforms) and below() (a scaled uniform) are this class's own, kept so that every
+// seeded case draws the networks and ranges it always drew.
+class Random final : public netgen::RandomSource {
 public:
     explicit Random(uint64_t seed) : state_(seed) {}
+    using netgen::RandomSource::uniform;
     uint64_t next();
-    double uniform();                           // [0, 1)
-    double uniform(double low, double high);    // [low, high)
-    double normal();                            // standard normal (Box-Muller)
-    size_t below(size_t count);                 // [0, count)
-    template <typename T> void shuffle(std::vector<T> &items)
-    {
-        for (size_t i = items.size(); i > 1; --i) {
-            std::swap(items[i - 1], items[below(i)]);
-        }
-    }
+    double uniform() override;                  // [0, 1)
+    double normal() override;                   // standard normal (Box-Muller)
+    size_t below(size_t count) override;        // [0, count)
 
 private:
     uint64_t state_;
@@ -68,14 +67,18 @@ struct TestNetwork {
     double trueRange(size_t link) const;     // m, 3D when heights are set
 };
 
-// Nodes uniformly in a square (one node per 25 m^2), linked when closer than the radius that
-// gives a mean degree of `degree`; no two nodes closer than 1 m. Redrawn until every node has
-// at least 3 links and the network is globally rigid (below): otherwise the ranges themselves
-// allow another map, and no engine could be asked to find the true one.
+// netgen's geometric network (cdro/netgen/geometric.hpp) with the tests' options: nodes uniformly
+// in a square (one node per 25 m^2), no two closer than 1 m, heights 0..3 m if `heights`, ids
+// 0x1000 + 37 i + 5, linked to the shortest pairs for a mean degree of exactly `degree`. Redrawn
+// (on `random`) until every node has at least 3 links and the network is globally rigid:
+// otherwise the ranges themselves allow another map, and no engine could be asked to find the
+// true one.
 TestNetwork randomNetwork(Random &random, size_t nodes, double degree, bool heights);
 
-// Generic global rigidity in the plane at the true positions: the rigidity matrix has rank
-// 2n - 3 and an equilibrium stress has a stress matrix of rank n - 3.
+// A network drawn by netgen (cdro/netgen/geometric.hpp) as the tests hold it.
+TestNetwork fromGeometric(const netgen::GeometricNetwork &drawn);
+
+// netgen::globallyRigid (cdro/netgen/rigidity.hpp) on the network's true positions.
 bool globallyRigid(const TestNetwork &network, Random &random);
 
 struct TestRange {

@@ -11,6 +11,7 @@
 
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/foldable.hpp"
+#include "cdro/netgen/geometric.hpp"
 #include "support.hpp"
 
 namespace {
@@ -168,21 +169,19 @@ TEST(Foldable, AGloballyRigidNetworkHasNoFoldableNode)
     uint32_t with_folds = 0;
     for (int draw = 0; draw < 150; ++draw) {
         const size_t count = 6 + random.below(20);
-        TestNetwork network;
-        const double side_m = 10.0 * std::sqrt(static_cast<double>(count));
-        for (size_t i = 0; i < count; ++i) {
-            network.ids.push_back(static_cast<cdro::engine::NodeId>(i + 1));
-            network.truth_m.emplace_back(random.uniform(0.0, side_m), random.uniform(0.0, side_m));
-        }
-        const double radius_m = side_m * random.uniform(0.3, 0.6);
+        // One node per 100 m^2, linked within 0.3-0.6 of the square's side, connected or not.
+        cdro::netgen::GeometricOptions options;
+        options.nodes = static_cast<uint32_t>(count);
+        options.area_per_node_m2 = 100.0;
+        options.radius = cdro::netgen::GeometricOptions::Radius::Given;
+        options.radius_m = std::sqrt(100.0 * static_cast<double>(count)) * random.uniform(0.3, 0.6);
+        options.require_connected = false;
+        options.min_degree = 0;
+        options.max_attempts = 1; // every draw is kept
+        const TestNetwork network = cdro::enginetest::fromGeometric(cdro::netgen::drawGeometric(random, options));
         Edges edges;
-        for (size_t a = 0; a < count; ++a) {
-            for (size_t b = a + 1; b < count; ++b) {
-                if ((network.truth_m[a] - network.truth_m[b]).norm() < radius_m) {
-                    network.links.emplace_back(a, b);
-                    edges.emplace_back(static_cast<uint32_t>(a), static_cast<uint32_t>(b));
-                }
-            }
+        for (const auto &[a, b] : network.links) {
+            edges.emplace_back(static_cast<uint32_t>(a), static_cast<uint32_t>(b));
         }
         const Foldable folds = foldableOf(static_cast<uint32_t>(count), edges);
         const bool globally_rigid = cdro::enginetest::globallyRigid(network, random);

@@ -6,6 +6,7 @@ joint: the Python world answering the firmware's Pozyx (positions, the UWB error
 accelerometer), the serial port, resets and the faults cdro-sim injects. test_sim_pty.py runs
 the same device behind a pseudo-terminal end to end."""
 import collections
+import ctypes
 import json
 import random
 import struct
@@ -104,6 +105,45 @@ def test_that_the_constants_are_the_firmwares():
     assert host_device.constant("RANGING_ERROR_STREAK") == 5 and host_device.constant("BACKOFF_MAX_ROUNDS") == 4
     with pytest.raises(KeyError):
         host_device.constant("NO_SUCH_CONSTANT")
+
+
+def test_that_the_structures_match_the_c_structs_and_a_wrong_one_is_named():
+    # Fixture: the same fields in the wrong order, and one field too few
+    lib = host_device.library()  # loading checks the real ones
+
+    class Reordered(ctypes.Structure):
+        _fields_ = [("max_range_m", ctypes.c_double), ("seed", ctypes.c_uint64), ("pozyx_firmware", ctypes.c_uint8),
+                    ("pozyx_present", ctypes.c_uint8), ("free_ram_bytes", ctypes.c_uint16)]
+
+    class Short(ctypes.Structure):
+        _fields_ = [(name, ctypes.c_uint32) for name in host_device.COUNTER_FIELDS[:-1]]
+
+    # Test and verify
+    host_device.check_layouts(lib)
+    with pytest.raises(host_device.LayoutMismatch, match=r"Reordered .*cdro_hd_config_t.*field max_range_m at byte 0"):
+        host_device.check_layouts(lib, {"cdro_hd_config_t": Reordered})
+    with pytest.raises(host_device.LayoutMismatch, match=r"Short .*cdro_hd_counters_t.*52 bytes here, 56 in C"):
+        host_device.check_layouts(lib, {"cdro_hd_counters_t": Short})
+    with pytest.raises(host_device.LayoutMismatch, match="no struct cdro_hd_nothing_t"):
+        host_device.check_layouts(lib, {"cdro_hd_nothing_t": Short})
+
+
+def test_that_loading_the_library_checks_the_structures(monkeypatch):
+    # Fixture: Counters one field short, as if a counter were added in C only
+    class Counters(ctypes.Structure):
+        _fields_ = [(name, ctypes.c_uint32) for name in host_device.COUNTER_FIELDS[:-1]]
+
+    monkeypatch.setitem(host_device.STRUCTURES, "cdro_hd_counters_t", Counters)
+    host_device.library.cache_clear()
+
+    # Test and verify
+    try:
+        with pytest.raises(host_device.LayoutMismatch, match="cdro_hd_counters_t"):
+            host_device.library()
+    finally:
+        monkeypatch.undo()
+        host_device.library.cache_clear()
+    host_device.library()
 
 
 def test_that_a_missing_library_says_how_to_build_it(monkeypatch, tmp_path):

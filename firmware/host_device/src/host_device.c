@@ -3,6 +3,7 @@
  */
 #include "cdro_host_device/host_device.h"
 
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -518,6 +519,64 @@ int64_t cdro_hd_constant(const char *name, uint8_t *found)
         if (strcmp(kConstants[i].name, name) == 0) {
             *found = 1;
             return kConstants[i].value;
+        }
+    }
+    *found = 0;
+    return 0;
+}
+
+/* ---- layouts --------------------------------------------------------------------------------- */
+
+/* Every struct a ctypes binding declares by hand, with every field: the binding compares its own
+ * sizes and offsets with these when it loads the library, so a field added, removed or retyped on
+ * one side only fails there instead of corrupting memory. */
+typedef struct hd_layout {
+    const char *name;
+    size_t bytes;
+} hd_layout_t;
+
+#define HD_FIELD(type, field) {#type "." #field, offsetof(type, field)}
+
+static const hd_layout_t kLayouts[] = {
+    {"cdro_hd_config_t", sizeof(cdro_hd_config_t)},
+    HD_FIELD(cdro_hd_config_t, seed),
+    HD_FIELD(cdro_hd_config_t, max_range_m),
+    HD_FIELD(cdro_hd_config_t, pozyx_firmware),
+    HD_FIELD(cdro_hd_config_t, pozyx_present),
+    HD_FIELD(cdro_hd_config_t, free_ram_bytes),
+    {"cdro_hd_callbacks_t", sizeof(cdro_hd_callbacks_t)},
+    HD_FIELD(cdro_hd_callbacks_t, context),
+    HD_FIELD(cdro_hd_callbacks_t, position),
+    HD_FIELD(cdro_hd_callbacks_t, accel),
+    HD_FIELD(cdro_hd_callbacks_t, range),
+    HD_FIELD(cdro_hd_callbacks_t, room),
+    HD_FIELD(cdro_hd_callbacks_t, write),
+    {"cdro_hd_counters_t", sizeof(cdro_hd_counters_t)},
+    HD_FIELD(cdro_hd_counters_t, ranges_ok_direct),
+    HD_FIELD(cdro_hd_counters_t, ranges_ok_remote),
+    HD_FIELD(cdro_hd_counters_t, ranges_failed_direct),
+    HD_FIELD(cdro_hd_counters_t, ranges_failed_remote),
+    HD_FIELD(cdro_hd_counters_t, retries),
+    HD_FIELD(cdro_hd_counters_t, bus_errors),
+    HD_FIELD(cdro_hd_counters_t, timeouts),
+    HD_FIELD(cdro_hd_counters_t, frames_sent),
+    HD_FIELD(cdro_hd_counters_t, frames_dropped),
+    HD_FIELD(cdro_hd_counters_t, commands_rejected),
+    HD_FIELD(cdro_hd_counters_t, stale_results),
+    HD_FIELD(cdro_hd_counters_t, accel_failures),
+    HD_FIELD(cdro_hd_counters_t, host_bytes_lost),
+    HD_FIELD(cdro_hd_counters_t, boots),
+};
+
+#undef HD_FIELD
+
+uint32_t cdro_hd_layout(const char *name, uint8_t *found)
+{
+    size_t i;
+    for (i = 0; i < sizeof kLayouts / sizeof kLayouts[0]; ++i) {
+        if (strcmp(kLayouts[i].name, name) == 0) {
+            *found = 1;
+            return (uint32_t)kLayouts[i].bytes;
         }
     }
     *found = 0;

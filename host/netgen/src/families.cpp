@@ -107,7 +107,11 @@ World drawRandom(Random &random, const FamilyOptions &options)
     const uint32_t count = options.nodes > 0 ? options.nodes : static_cast<uint32_t>(15 + random.below(5));
     const double side_m = std::sqrt(25.0 * static_cast<double>(count));
     while (world.nodes.size() < count) {
-        const Vector2 candidate(random.uniform(0.0, side_m), random.uniform(0.0, side_m));
+        // y is drawn before x: what GCC made of the one-expression form the published worlds were
+        // drawn with (argument order is the compiler's choice); written out, every compiler agrees.
+        const double y_m = random.uniform(0.0, side_m);
+        const double x_m = random.uniform(0.0, side_m);
+        const Vector2 candidate(x_m, y_m);
         bool crowded = false;
         for (const WorldNode &other : world.nodes) {
             crowded = crowded || (other.position_m.head<2>() - candidate).norm() < 1.0;
@@ -463,7 +467,9 @@ World drawWalls(Random &random, const FamilyOptions &options)
         }
     }
     while (world.nodes.size() < count) {
-        const Vector2 p(random.uniform(0.2, width_m - 0.2), random.uniform(0.2, height_m - 0.2));
+        const double y_m = random.uniform(0.2, height_m - 0.2); // y first: see drawRandom
+        const double x_m = random.uniform(0.2, width_m - 0.2);
+        const Vector2 p(x_m, y_m);
         bool crowded = false;
         for (const WorldNode &other : world.nodes) {
             crowded = crowded || (other.position_m.head<2>() - p).norm() < 1.0;
@@ -497,7 +503,9 @@ World drawBiased(Random &random, const FamilyOptions &options)
     const double width_m = random.uniform(8.0, 14.0);
     const double depth_m = random.uniform(6.0, 10.0);
     while (world.nodes.size() < count) {
-        const Vector2 p(random.uniform(0.0, width_m), random.uniform(0.0, depth_m));
+        const double y_m = random.uniform(0.0, depth_m); // y first: see drawRandom
+        const double x_m = random.uniform(0.0, width_m);
+        const Vector2 p(x_m, y_m);
         bool crowded = false;
         for (const WorldNode &other : world.nodes) {
             crowded = crowded || (other.position_m.head<2>() - p).norm() < 1.5;

@@ -23,8 +23,6 @@ uint64_t Random::next()
 
 double Random::uniform() { return static_cast<double>(next() >> 11U) * 0x1.0p-53; }
 
-double Random::uniform(double low, double high) { return low + (high - low) * uniform(); }
-
 double Random::normal()
 {
     if (has_spare_) {
@@ -47,6 +45,32 @@ size_t Random::below(size_t count)
     uint64_t x = next();
     while (x >= limit) {
         x = next();
+    }
+    return static_cast<size_t>(x % n);
+}
+
+double MersenneRandom::uniform() { return static_cast<double>(engine_() >> 11U) * 0x1.0p-53; }
+
+double MersenneRandom::normal()
+{
+    if (has_spare_) {
+        has_spare_ = false;
+        return spare_;
+    }
+    const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
+    const double angle = 6.283185307179586476925 * uniform();
+    spare_ = radius * std::sin(angle);
+    has_spare_ = true;
+    return radius * std::cos(angle);
+}
+
+size_t MersenneRandom::below(size_t count)
+{
+    const uint64_t n = count;
+    const uint64_t limit = UINT64_MAX - UINT64_MAX % n; // rejection: no modulo bias
+    uint64_t x = engine_();
+    while (x >= limit) {
+        x = engine_();
     }
     return static_cast<size_t>(x % n);
 }

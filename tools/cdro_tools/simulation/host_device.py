@@ -6,7 +6,8 @@ cdro_host_device/host_device.h for the C side.
 The library is found, in this order, at $CDRO_HOST_DEVICE_LIB, in $CDRO_BUILD_DIR/lib, in the
 repository's build/lib (an editable install), and next to an installed environment
 (PREFIX/lib/cdro, where `cmake --install` puts it). A sanitizer build's is passed over (ASan
-cannot be loaded into Python), and so is a candidate that does not load.
+cannot be loaded into Python), and so is a candidate that does not load. Loading checks that the
+Structures below have the sizes and field offsets of the C structs they mirror (LayoutMismatch).
 """
 from __future__ import annotations
 
@@ -22,6 +23,10 @@ BUILD_COMMAND = "cmake -S . -B build -G Ninja && cmake --build build --target cd
 
 class HostDeviceMissing(OSError):
     """The firmware library is not built (the message says how to build it)."""
+
+
+class LayoutMismatch(RuntimeError):
+    """A Structure below does not match the C struct of host_device.h it mirrors."""
 
 
 class Config(ctypes.Structure):
@@ -50,6 +55,10 @@ COUNTER_FIELDS = ("ranges_ok_direct", "ranges_ok_remote", "ranges_failed_direct"
 
 class Counters(ctypes.Structure):
     _fields_ = [(name, ctypes.c_uint32) for name in COUNTER_FIELDS]
+
+
+# The C struct (host_device.h) each Structure above mirrors by hand; library() checks them.
+STRUCTURES = {"cdro_hd_config_t": Config, "cdro_hd_callbacks_t": Callbacks, "cdro_hd_counters_t": Counters}
 
 
 def candidates() -> list[pathlib.Path]:
@@ -82,6 +91,8 @@ def library() -> ctypes.CDLL:
             tried.append(f"{path} ({error})")
             continue
         _prototypes(lib)
+        # A mismatch is a bug on one side, not a library to pass over: no other candidate is tried.
+        check_layouts(lib)
         return lib
     raise HostDeviceMissing(f"cdro-sim runs the firmware built for the host ({LIBRARY}), which was not found: "
                             f"{'; '.join(tried)}. Build it with: {BUILD_COMMAND} (or set CDRO_BUILD_DIR to a "
@@ -109,11 +120,34 @@ def _prototypes(lib: ctypes.CDLL) -> None:
         "cdro_hd_injected_frame": (None, [p, ctypes.c_uint8]),
         "cdro_hd_tx_free": (ctypes.c_uint16, [p]),
         "cdro_hd_constant": (ctypes.c_int64, [ctypes.c_char_p, ctypes.POINTER(ctypes.c_uint8)]),
+        "cdro_hd_layout": (ctypes.c_uint32, [ctypes.c_char_p, ctypes.POINTER(ctypes.c_uint8)]),
     }
     for name, (restype, argtypes) in signatures.items():
         function = getattr(lib, name)
         function.restype = restype
         function.argtypes = argtypes
+
+
+def check_layouts(lib: ctypes.CDLL, structures: dict[str, type[ctypes.Structure]] | None = None) -> None:
+    """LayoutMismatch, naming the struct and field, unless every Structure has the size and field
+    offsets (bytes) the library reports for its C struct (cdro_hd_layout). The fields are
+    declared twice, in C and here; this is what keeps the two the same."""
+    for c_name, structure in (STRUCTURES if structures is None else structures).items():
+        where = f"{structure.__name__} ({__name__}) against {c_name} (host_device.h)"
+        found = ctypes.c_uint8(0)
+        size = lib.cdro_hd_layout(c_name.encode(), ctypes.byref(found))
+        if not found.value:
+            raise LayoutMismatch(f"{where}: the library has no struct {c_name}")
+        if ctypes.sizeof(structure) != size:
+            raise LayoutMismatch(f"{where}: {ctypes.sizeof(structure)} bytes here, {size} in C")
+        for field in structure._fields_:
+            name = field[0]
+            offset = lib.cdro_hd_layout(f"{c_name}.{name}".encode(), ctypes.byref(found))
+            if not found.value:
+                raise LayoutMismatch(f"{where}: field {name} is not in the C struct")
+            if getattr(structure, name).offset != offset:
+                raise LayoutMismatch(f"{where}: field {name} at byte {getattr(structure, name).offset} here, "
+                                     f"{offset} in C")
 
 
 def constant(name: str) -> int:

@@ -130,6 +130,12 @@ uint16_t cdro_hd_tx_free(cdro_hd_t *hd);
  * without the CDRO_FW_ prefix, e.g. "MOVING_ABOVE_MG"; *found = 0 for an unknown name. */
 int64_t cdro_hd_constant(const char *name, uint8_t *found);
 
+/* The layout of the structs above, in bytes, for a binding that declares them by hand (ctypes,
+ * tools/cdro_tools/simulation/host_device.py, checks its own against it when it loads the
+ * library): "cdro_hd_config_t" is its sizeof, "cdro_hd_config_t.seed" the offsetof of that field.
+ * *found = 0 for an unknown name. */
+uint32_t cdro_hd_layout(const char *name, uint8_t *found);
+
 #ifdef __cplusplus
 }
 #endif
