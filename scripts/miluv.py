@@ -14,7 +14,9 @@ horizontal RMSE / 3D p95 (m) and its number of estimates:
 - (a) trilateration, (b) the EKF per tag, (c-ref) the EKF over all tags with the tag-to-tag ranges;
 - (c) cdro-hostd --ranges-csv R --fixed-csv (the anchors' x, y) --heights-csv (their z) --moving
   (every tag) --out-trajectory T: the engine's joint 3D track of the tags, with the tag-to-tag
-  ranges (docs/engine.md, "Nodes that never stop"); anchor 0 is given as 100 (below);
+  ranges (docs/engine.md, "Nodes that never stop"); anchor 0 is given as 100 (below); and the same
+  with --moving-body A:B:SEPARATION_M for each robot's two tags (the distance between their lever
+  arms in tags.csv: the robot's calibration);
 - "room centre": a constant at the anchors' centroid 1 m below them, at every tag-anchor range,
   i.e. what an estimate that learns nothing scores;
 - "replica": the same baselines on the same schedule with every range recomputed from the truth
@@ -69,7 +71,8 @@ RENUMBERED_FILES = ("ranges.csv", "ranges_detail.csv", "nodes.csv", "tag_truth.c
 # conversion, not a measurement to skip.
 DETAIL_FORMAT = Format(("from", "to", "range_m", "gt_range_m", "anchor_obstructed"))
 TITLES = {"trilateration": "(a) trilateration", "ekf": "(b) EKF per tag", "coop-ekf": "(c-ref) cooperative EKF",
-          "engine": "(c) the engine's 3D tracker", "room-centre": "room centre (learns nothing)"}
+          "engine": "(c) the engine's 3D tracker", "engine-body": "(c) + two tags a body (--moving-body)",
+          "room-centre": "room centre (learns nothing)"}
 
 
 def centre_rows(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray]) -> list:
@@ -145,6 +148,23 @@ def run_engine(hostd: pathlib.Path, ranges_csv: pathlib.Path, anchors: dict[int,
     rows.sort(key=lambda row: row[0])   # stable: the file's order at equal times
     summary = next((line for line in result.stderr.splitlines() if "moving nodes tracked in 3D" in line), "")
     return rows, summary
+
+
+def body_arguments(tags_csv: pathlib.Path) -> list[str]:
+    """--moving-body A:B:SEPARATION_M for each robot's two tags, the separation the distance
+    between their lever arms (tags.csv: id,robot,arm_x,arm_y,arm_z; the robot's calibration, what
+    an installer knows)."""
+    by_robot: dict[str, list[tuple[int, np.ndarray]]] = {}
+    with open(tags_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            arm = np.array([float(row["arm_x"]), float(row["arm_y"]), float(row["arm_z"])])
+            by_robot.setdefault(row["robot"], []).append((int(row["id"]), arm))
+    out = []
+    for robot, tags in sorted(by_robot.items()):
+        if len(tags) == 2:
+            (a, arm_a), (b, arm_b) = tags
+            out += ["--moving-body", f"{a}:{b}:{float(np.linalg.norm(arm_a - arm_b)):.4f}"]
+    return out
 
 
 def write_ranges(path: pathlib.Path, ranges: tb.TimedRanges) -> None:
@@ -237,7 +257,7 @@ def print_experiment(name: str, summary: dict) -> None:
     s = summary["ranges"]
     print(f"\n### {name}: {len(summary['tags'])} tags, {s['tag_anchor']} tag-anchor and {s['tag_tag']} tag-tag ranges, "
           f"{s['duration_s']:.0f} s\n")
-    columns = ["trilateration", "ekf", "coop-ekf", "engine", "room-centre"]
+    columns = ["trilateration", "ekf", "coop-ekf", "engine", "engine-body", "room-centre"]
     print("| tag | " + " | ".join(TITLES[c] for c in columns) + " |")
     print("|---" * (len(columns) + 1) + "|")
     for tag in summary["tags"]:
@@ -256,12 +276,13 @@ def print_experiment(name: str, summary: dict) -> None:
     if never:
         print(f"Tags the EKFs never started (no range to an anchor): {never}.")
     inside = [f"{TITLES[c]} {summary['scores'][c]['overall']['inside_95_3d']:.0%}"
-              for c in ("ekf", "coop-ekf", "engine")]
+              for c in ("ekf", "coop-ekf", "engine", "engine-body")]
     same, ekf = summary["coop_at_ekf_rows"], summary["scores"]["ekf"]["overall"]
     engine_same = summary["engine_at_ekf_rows"]
     print("Errors inside the 95 % region (3D): " + ", ".join(inside) + f". At (b)'s rows: (c-ref) "
           f"{same['rmse_3d_m']:.2f} / {same['rmse_h_m']:.2f} m ({same['points']}), (c) "
-          f"{engine_same['rmse_3d_m']:.2f} / {engine_same['rmse_h_m']:.2f} m ({engine_same['points']}), (b) "
+          f"{engine_same['rmse_3d_m']:.2f} / {engine_same['rmse_h_m']:.2f} m ({engine_same['points']}), (c) + body "
+          f"{summary['body_at_ekf_rows']['rmse_3d_m']:.2f} / {summary['body_at_ekf_rows']['rmse_h_m']:.2f} m, (b) "
           f"{ekf['rmse_3d_m']:.2f} / {ekf['rmse_h_m']:.2f} m.")
     print(f"(c): {summary['engine_summary']}")
     print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) beyond the gate | "
@@ -320,6 +341,9 @@ def main() -> int:
         tags = sorted({int(t) for t in truth})
         scratch = pathlib.Path(copies.name) / "engine"
         rows["engine"], engine_summary = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, name)
+        bodies = body_arguments(data / name / "tags.csv")
+        rows["engine-body"], _ = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, f"{name}-body",
+                                            bodies)
         rows["room-centre"] = centre_rows(ranges, anchors)
         scores = {n: score(r, truth) for n, r in rows.items()}
         replica_ranges = replica(ranges, anchors, truth, REPLICA_SEED)
@@ -328,9 +352,13 @@ def main() -> int:
         replica_engine, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
                                        f"{name}-replica")
         replica_scores["engine"] = score(replica_engine, truth)
+        replica_body, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
+                                     f"{name}-replica-body", bodies)
+        replica_scores["engine-body"] = score(replica_body, truth)
         ekf_rows = {(t, node) for t, node, _, _ in results["ekf"].rows}
         coop_at_ekf_rows = score([r for r in results["coop-ekf"].rows if (r[0], r[1]) in ekf_rows], truth)["overall"]
         engine_at_ekf_rows = score([r for r in rows["engine"] if (r[0], r[1]) in ekf_rows], truth)["overall"]
+        body_at_ekf_rows = score([r for r in rows["engine-body"] if (r[0], r[1]) in ekf_rows], truth)["overall"]
         kinds = [(a in anchors) != (b in anchors) for a, b in zip(ranges.from_ids.tolist(), ranges.to_ids.tolist())]
         summary = {
             "tags": sorted({int(t) for t in truth}),
@@ -338,12 +366,15 @@ def main() -> int:
                        "duration_s": float(ranges.t_s[-1] - ranges.t_s[0]), "bad_rows": len(bad)},
             "scores": scores, "replica": replica_scores, "coop_at_ekf_rows": coop_at_ekf_rows,
             "engine_at_ekf_rows": engine_at_ekf_rows, "engine_summary": engine_summary,
+            "body_at_ekf_rows": body_at_ekf_rows,
             "counts": {n: r.counts() for n, r in results.items()},
             "notes": {n: r.notes for n, r in results.items()},
             "anchors": anchor_report(folder / "ranges_detail.csv", ranges, anchors, results)}
         print_experiment(name, summary)
         report[name] = {"baselines": {n: scores[n] for n in results}, "room_centre": scores["room-centre"],
                         "engine": scores["engine"], "engine_at_ekf_rows": engine_at_ekf_rows,
+                        "engine_body": scores["engine-body"], "engine_body_at_ekf_rows": body_at_ekf_rows,
+                        "bodies": bodies,
                         "engine_summary": engine_summary,
                         "replica": {n: s["overall"] for n, s in replica_scores.items()},
                         "coop_at_ekf_rows": coop_at_ekf_rows,
@@ -351,6 +382,7 @@ def main() -> int:
                         "anchors": summary["anchors"]}
         if out:
             shutil.copyfile(scratch / f"{name}-engine.csv", out / f"{name}-engine.csv")
+            shutil.copyfile(scratch / f"{name}-body-engine.csv", out / f"{name}-engine-body.csv")
             if args.trace:
                 write_trace(out / f"{name}-engine-trace.csv", rows["engine"], truth)
             for n, r in results.items():

@@ -6,6 +6,7 @@
 #include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -252,6 +253,62 @@ TEST(MotionTrack3D, ATrackedNodeLeavesTheStaticMapAsItWas)
         EXPECT_EQ(plain[i].covariance_m2, with_tag[i].covariance_m2);
         EXPECT_EQ(plain[i].lifecycle, with_tag[i].lifecycle);
     }
+}
+
+// Two tags on one body (0.45 m apart, the body turning at 0.3 rad/s): tag A ranges an anchor in 4
+// of 5 slots, tag B in the fifth. Returns B's 3D RMSE from 10 s on, with or without the body.
+double bodyFlightRmseOfB(uint64_t seed, bool body)
+{
+    const Vector3 arm_a(0.15, -0.165, -0.05);
+    const Vector3 arm_b(-0.155, 0.16, -0.05);
+    auto position = [&](const Vector3 &arm, double t_s) {
+        const double yaw = 0.3 * t_s;
+        const Vector3 turned(std::cos(yaw) * arm.x() - std::sin(yaw) * arm.y(),
+                             std::sin(yaw) * arm.x() + std::cos(yaw) * arm.y(), arm.z());
+        return Vector3(truth(0, t_s) + turned);
+    };
+    Random random(seed);
+    Engine engine = anchoredEngine();
+    if (body) {
+        engine.trackOnOneBody(kTags[0], kTags[1], (arm_a - arm_b).norm());
+    }
+    double sum = 0.0;
+    size_t rows = 0;
+    for (size_t slot = 0; static_cast<double>(slot) * kSlotS < kDurationS; ++slot) {
+        const double t_s = static_cast<double>(slot) * kSlotS;
+        const bool is_b = slot % 5 == 4;
+        const size_t a = (slot / 5 + (is_b ? 3 : slot % 5)) % kAnchors.size();
+        const Vector3 tag = position(is_b ? arm_b : arm_a, t_s);
+        const NodeId id = kTags[is_b ? 1 : 0];
+        engine.addRange(id, kAnchors[a], (tag - kAnchorPositions[a]).norm() + kNoiseM * random.normal(), t_s);
+        const std::optional<FlightEstimate> b = engine.flightEstimate(kTags[1]);
+        if (t_s >= 10.0 && b && b->status == FlightStatus::Tracking) {
+            sum += (b->position_m - position(arm_b, t_s)).squaredNorm();
+            ++rows;
+        }
+    }
+    EXPECT_GT(rows, 400U);
+    return std::sqrt(sum / static_cast<double>(std::max<size_t>(rows, 1)));
+}
+
+TEST(MotionTrack3D, TwoTagsOnOneBodyHelpTheOneThatRangesLess)
+{
+    // Observed on seeds 1-3: B's RMSE 3D 0.283-0.295 m with the body, 0.388-0.436 m without
+    // (printed); stated: with the body at most 0.8 times without. (A tie applied at full weight at
+    // every prediction failed this: 0.39-0.41 m, the two tags pulled onto one point.)
+    for (uint64_t seed : testSeeds({1, 2, 3})) {
+        SCOPED_TRACE(seedTrace(seed));
+        const double with = bodyFlightRmseOfB(seed, true);
+        const double without = bodyFlightRmseOfB(seed, false);
+        std::printf("one body, %s: tag B's RMSE 3D %.3f m with the body, %.3f m without\n", seedTrace(seed).c_str(),
+                    with, without);
+        EXPECT_LE(with, 0.8 * without);
+    }
+    Engine engine = anchoredEngine();
+    EXPECT_THROW(engine.trackOnOneBody(kTags[0], 99, 0.4), std::invalid_argument);   // 99 is not tracked
+    EXPECT_THROW(engine.trackOnOneBody(kTags[0], kTags[1], 0.0), std::invalid_argument);
+    engine.trackOnOneBody(kTags[0], kTags[1], 0.45);
+    EXPECT_THROW(engine.trackOnOneBody(kTags[1], kTags[0], 0.45), std::invalid_argument); // already on a body
 }
 
 TEST(MotionTrack3D, AFixedOrHeightKnownNodeCannotBeTracked)

@@ -10,7 +10,9 @@
   an id in --moving that has no range, a moving id that is also fixed (--fixed-csv) or has a
   known height, an id that is no node id, ranges without t, --moving without --out-trajectory or
   with the movement stage;
-- the same input gives the same trajectory, byte for byte.
+- the same input gives the same trajectory, byte for byte;
+- --moving-body A:B:SEPARATION_M ties two moving nodes to one body; a malformed one, or one whose
+  nodes are not in --moving, is refused.
 
 The binary is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO_TEST_SEED
 replays one."""
@@ -170,3 +172,20 @@ def test_that_moving_needs_times_a_trajectory_and_no_movement_stage(hostd, tmp_p
     assert no_trajectory.returncode == 2 and "--moving needs --out-trajectory" in no_trajectory.stderr
     assert with_odometry.returncode == 2 and "--moving is not for the movement stage" in with_odometry.stderr
     assert not (folder / "trajectory.csv").exists()
+
+
+def test_that_moving_body_ties_two_moving_nodes_and_refuses_bad_input(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(6), duration_s=10.0)
+
+    good = run(hostd, *moving_args(folder), "--moving-body", "10:20:0.45")
+    malformed = run(hostd, *moving_args(folder, trajectory="m.csv"), "--moving-body", "10:20")
+    not_moving = run(hostd, *moving_args(folder, moving="10", trajectory="n.csv"), "--moving-body", "10:20:0.45")
+    no_moving = run(hostd, "--ranges-csv", folder / "ranges.csv", "--out-csv", folder / "x.csv",
+                    "--moving-body", "10:20:0.45")
+
+    assert good.returncode == 0, good.stderr
+    assert "one-body updates" in good.stderr and " 0 one-body updates" not in good.stderr
+    assert malformed.returncode == 2 and "--moving-body: '10:20' is not A:B:SEPARATION_M" in malformed.stderr
+    assert not_moving.returncode == 2 and "both must be in --moving" in not_moving.stderr, not_moving.stderr
+    assert no_moving.returncode == 2 and "--moving-body needs --moving" in no_moving.stderr
+    assert not (folder / "m.csv").exists() and not (folder / "n.csv").exists()

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 namespace cdro::engine {
 
@@ -113,6 +114,55 @@ void FlightTracks::add(NodeId id)
     covariance_ = std::move(covariance);
 }
 
+void FlightTracks::addBody(NodeId a, NodeId b, double separation_m)
+{
+    const uint32_t ia = find(a);
+    const uint32_t ib = find(b);
+    if (ia == kNone || ib == kNone || ia == ib) {
+        throw std::invalid_argument("a body needs two distinct nodes tracked in 3D (" + std::to_string(a) + ", " +
+                                    std::to_string(b) + ")");
+    }
+    if (!std::isfinite(separation_m) || !(separation_m > 0.0)) {
+        throw std::invalid_argument("the separation of nodes " + std::to_string(a) + " and " + std::to_string(b) +
+                                    " on one body must be a positive number of metres");
+    }
+    for (const Body &body : bodies_) {
+        for (const uint32_t i : {ia, ib}) {
+            if (body.a == i || body.b == i) {
+                throw std::invalid_argument("node " + std::to_string(ids_[i]) + " is already on a body");
+            }
+        }
+    }
+    bodies_.push_back({ia, ib, separation_m});
+}
+
+void FlightTracks::applyBodies(double dt_s)
+{
+    // Once per correlation time at most at full weight: predicted often (a range every 0.1 s), the
+    // tie is applied as often, and each time with the noise scaled up by tau / dt, so that what it
+    // teaches per second does not grow with the ranging rate.
+    const double scale = std::max(1.0, motion_.flight_speed_tau_s / dt_s);
+    for (const Body &body : bodies_) {
+        if (nodes_[body.a].status == FlightStatus::Waiting || nodes_[body.b].status == FlightStatus::Waiting) {
+            continue;
+        }
+        const Eigen::Index ba = 6 * static_cast<Eigen::Index>(body.a);
+        const Eigen::Index bb = 6 * static_cast<Eigen::Index>(body.b);
+        const double noise_m2 = scale * body.separation_m * body.separation_m / 3.0;
+        for (Eigen::Index axis = 0; axis < 3; ++axis) {
+            // h = e_a - e_b on this axis; the measurement is 0 (m).
+            const Eigen::VectorXd ph = covariance_.col(ba + axis) - covariance_.col(bb + axis);
+            const double hph = ph(ba + axis) - ph(bb + axis);
+            const double innovation = state_(bb + axis) - state_(ba + axis);
+            const Eigen::VectorXd k = ph / (hph + noise_m2);
+            state_ += k * innovation;
+            covariance_ -= k * ph.transpose();
+            covariance_ = 0.5 * (covariance_ + covariance_.transpose());
+        }
+        ++counters_.body_updates;
+    }
+}
+
 void FlightTracks::setAnchors(const std::vector<std::pair<NodeId, Vector3>> &anchors)
 {
     anchors_ = anchors;
@@ -157,6 +207,7 @@ void FlightTracks::predict(double t_s)
                 covariance_.block<6, 6>(b, b) += q;
             }
         }
+        applyBodies(t_s - *t_s_);
     }
     t_s_ = t_s_ ? std::max(*t_s_, t_s) : t_s;
 }

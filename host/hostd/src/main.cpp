@@ -152,6 +152,10 @@ static int runMain(int argc, char **argv)
                    "nodes of known height; with --out-trajectory: t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
         ->delimiter(',')
         ->needs(ranges_option);
+    app.add_option("--moving-body", offline.moving_bodies,
+                   "offline, with --moving: A:B:SEPARATION_M, moving nodes A and B on one rigid body SEPARATION_M "
+                   "(m) apart (repeatable)")
+        ->needs(ranges_option);
     bool no_settle = false;
     app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")->needs(ranges_option);
     app.add_flag("--verbose", offline.verbose, "offline: the engine's decisions (placements, motion, ...) on stderr")

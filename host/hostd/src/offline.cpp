@@ -4,6 +4,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -335,6 +336,33 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
             return 2;
         }
     }
+    for (const std::string &text : options.moving_bodies) {
+        // A:B:SEPARATION_M
+        const size_t first = text.find(':');
+        const size_t second = first == std::string::npos ? first : text.find(':', first + 1);
+        uint16_t a = 0;
+        uint16_t b = 0;
+        double separation_m = 0.0;
+        bool good = second != std::string::npos && csv::parseNodeId(text.substr(0, first), &a) &&
+                    csv::parseNodeId(text.substr(first + 1, second - first - 1), &b);
+        if (good) {
+            const std::string number = text.substr(second + 1);
+            char *end = nullptr;
+            separation_m = std::strtod(number.c_str(), &end);
+            good = !number.empty() && end == number.c_str() + number.size();
+        }
+        if (!good) {
+            std::fprintf(log, "cdro-hostd: --moving-body: '%s' is not A:B:SEPARATION_M (two node ids, metres)\n",
+                         text.c_str());
+            return 2;
+        }
+        try {
+            engine.trackOnOneBody(a, b, separation_m);
+        } catch (const std::invalid_argument &error) {
+            std::fprintf(log, "cdro-hostd: --moving-body %s: %s (both must be in --moving)\n", text.c_str(), error.what());
+            return 2;
+        }
+    }
     sortByTime(ranges, options.ranges_csv, log);
     File trajectory = openForWriting(options.out_trajectory, log);
     if (!trajectory) {
@@ -383,13 +411,13 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
                  "cdro-hostd: moving nodes tracked in 3D: %zu nodes, %llu trajectory rows; %llu ranges to anchors and "
                  "%llu between moving nodes taken (%llu down-weighted as NLOS-looking), %llu refused, %llu resets, "
                  "%llu waiting for an end to start, %llu to nodes that are no anchor (not fixed with a known height), "
-                 "%llu mirrored below the anchors, %llu truncated to the room\n",
+                 "%llu mirrored below the anchors, %llu truncated to the room, %llu one-body updates\n",
                  moving.size(), static_cast<unsigned long long>(rows_written),
                  static_cast<unsigned long long>(c.anchor_ranges), static_cast<unsigned long long>(c.tag_ranges),
                  static_cast<unsigned long long>(c.down_weighted), static_cast<unsigned long long>(c.refused),
                  static_cast<unsigned long long>(c.resets), static_cast<unsigned long long>(c.waiting),
                  static_cast<unsigned long long>(c.no_anchor), static_cast<unsigned long long>(c.mirrored),
-                 static_cast<unsigned long long>(c.truncated));
+                 static_cast<unsigned long long>(c.truncated), static_cast<unsigned long long>(c.body_updates));
     for (const engine::NodeId id : moving) {
         const std::optional<engine::FlightEstimate> track = engine.flightEstimate(id);
         if (track && track->status != engine::FlightStatus::Tracking) {
@@ -418,6 +446,10 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
         applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows, log);
+        if (options.moving.empty() && !options.moving_bodies.empty()) {
+            std::fprintf(log, "cdro-hostd: --moving-body needs --moving (its nodes are moving ones)\n");
+            return 2;
+        }
         const bool flights = !options.moving.empty();
         const bool movement =
             !flights && (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty());

@@ -123,6 +123,9 @@ public:
     // (another end not started, or a static end that is no anchor: counted in flightCounters())
     // and needs the range's time (RejectedValue without it). Not in checkpoints.
     void trackMoving3D(NodeId id);
+    // Two nodes tracked in 3D on one rigid body, separation_m (m) apart (a drone's two tags): each
+    // one's ranges move the other (motion_track_3d.hpp). Throws std::invalid_argument.
+    void trackOnOneBody(NodeId a, NodeId b, double separation_m) { flights_.addBody(a, b, separation_m); }
     std::optional<FlightEstimate> flightEstimate(NodeId id) const { return flights_.estimate(id); }
     const FlightCounters &flightCounters() const { return flights_.counters(); }
 

@@ -41,6 +41,8 @@
 // t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz (s, m, m^2; causal; cdro-eval-motion
 // --tag-trajectory reads it). Exit status 2 with a message for a moving node that is fixed, has a
 // known height or has no range in FILE, for an id that is no node id, and with the movement stage.
+// --moving-body A:B:SEPARATION_M (repeatable): moving nodes A and B are carried by one rigid body,
+// SEPARATION_M (m) apart (a drone's two tags: the distance between their lever arms).
 #pragma once
 
 #include <cstdio>
@@ -62,6 +64,7 @@ struct OfflineOptions {
     std::string out_trajectory;
     std::string motion_csv;       // t,id,moving (optional)
     std::vector<std::string> moving; // node ids moving from the start, tracked in 3D (--moving)
+    std::vector<std::string> moving_bodies; // "A:B:SEPARATION_M": two of them on one rigid body (--moving-body)
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;
