@@ -8,8 +8,8 @@
   bounds; here a loose one);
 - bad input is refused with exit status 2, a message that names the problem, and no outputs:
   an id in --moving that has no range, a moving id that is also fixed (--fixed-csv) or has a
-  known height, an id that is no node id, ranges without t, --moving without --out-trajectory or
-  with the movement stage;
+  known height, an id that is no node id, ranges without t, --moving without --out-trajectory,
+  with the movement stage or with --trace-csv;
 - the same input gives the same trajectory, byte for byte;
 - --moving-body A:B:SEPARATION_M ties two moving nodes to one body; a malformed one, or one whose
   nodes are not in --moving, is refused.
@@ -167,10 +167,13 @@ def test_that_moving_needs_times_a_trajectory_and_no_movement_stage(hostd, tmp_p
     no_trajectory = run(hostd, "--ranges-csv", folder / "ranges.csv", "--fixed-csv", folder / "anchors.csv",
                         "--heights-csv", folder / "heights.csv", "--moving", "10", "--out-csv", folder / "n.csv")
     with_odometry = run(hostd, *moving_args(folder), "--robot-id", "10")
+    with_trace = run(hostd, *moving_args(folder), "--trace-csv", folder / "trace.csv")
 
     assert no_time.returncode == 2 and "--moving needs a t column in the ranges" in no_time.stderr, no_time.stderr
     assert no_trajectory.returncode == 2 and "--moving needs --out-trajectory" in no_trajectory.stderr
     assert with_odometry.returncode == 2 and "--moving is not for the movement stage" in with_odometry.stderr
+    assert with_trace.returncode == 2 and "--trace-csv is not written with --moving" in with_trace.stderr
+    assert not (folder / "trace.csv").exists()
     assert not (folder / "trajectory.csv").exists()
 
 

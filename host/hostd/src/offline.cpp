@@ -302,6 +302,11 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
         std::fprintf(log, "cdro-hostd: --moving needs --out-trajectory (where the moving nodes' tracks go)\n");
         return 2;
     }
+    if (!options.trace_csv.empty()) {
+        std::fprintf(log, "cdro-hostd: --trace-csv is not written with --moving (the moving nodes' estimates are in "
+                          "--out-trajectory)\n");
+        return 2;
+    }
     std::vector<engine::NodeId> moving;
     for (const std::string &text : options.moving) {
         uint16_t id = 0;

@@ -40,7 +40,8 @@
 // TRAJ has a row after each range of a moving node once it has heard four distinct anchors:
 // t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz (s, m, m^2; causal; cdro-eval-motion
 // --tag-trajectory reads it). Exit status 2 with a message for a moving node that is fixed, has a
-// known height or has no range in FILE, for an id that is no node id, and with the movement stage.
+// known height or has no range in FILE, for an id that is no node id, with the movement stage and
+// with --trace-csv.
 // --moving-body A:B:SEPARATION_M (repeatable): moving nodes A and B are carried by one rigid body,
 // SEPARATION_M (m) apart (a drone's two tags: the distance between their lever arms).
 #pragma once
