@@ -295,7 +295,7 @@ TEST(MotionTrack3D, TwoTagsOnOneBodyHelpTheOneThatRangesLess)
 {
     // Observed on seeds 1-3: B's RMSE 3D 0.283-0.295 m with the body, 0.388-0.436 m without
     // (printed); stated: with the body at most 0.8 times without. (A tie applied at full weight at
-    // every prediction failed this: 0.39-0.41 m, the two tags pulled onto one point.)
+    // every prediction failed this: 0.39 and 0.41 m on seeds 2 and 3, the tags pulled together.)
     for (uint64_t seed : testSeeds({1, 2, 3})) {
         SCOPED_TRACE(seedTrace(seed));
         const double with = bodyFlightRmseOfB(seed, true);

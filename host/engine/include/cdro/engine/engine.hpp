@@ -119,8 +119,9 @@ public:
     // enter the static map, which is estimated exactly as without it. Before its first range,
     // before the first range of any node tracked so (the anchors are taken then); throws
     // std::logic_error for a node that is fixed, has a known height or has ranges already.
-    // addRange() then says Used for a range a track took, Stored for one it could not use
-    // (another end not started, or a static end that is no anchor: counted in flightCounters())
+    // addRange() then says Used for a range a track took, Stored for one it did not use (refused
+    // as an outlier, another end not started, or a static end that is no anchor: counted in
+    // flightCounters())
     // and needs the range's time (RejectedValue without it). Not in checkpoints.
     void trackMoving3D(NodeId id);
     // Two nodes tracked in 3D on one rigid body, separation_m (m) apart (a drone's two tags): each
