@@ -111,7 +111,8 @@ def main() -> int:
     anchors = {(ZERO_AS if i == 0 else i): p for i, p in sim.sparse_anchors().items()}
     extra = [a for kv in args.set for a in ("--set", kv)]
     print(f"seeds {seeds.start}-{seeds.stop - 1}; engine settings: {args.set or 'defaults'}")
-    print("| scenario | (b) EKF per tag | (c-ref) cooperative EKF | (c) engine | (c) at (b)'s rows | (c-ref) at (b)'s rows |")
+    print("| scenario | (b) EKF per tag | (c-ref) cooperative EKF | (c) engine | (c) at (b)'s rows "
+          "| (c-ref) at (b)'s rows |")
     print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(prefix="flights-") as scratch_dir:
         scratch = pathlib.Path(scratch_dir)
@@ -155,7 +156,8 @@ def main() -> int:
                 if key in ("engine", "body"):
                     sums[key + "_in"].append(sc["inside_95_3d"])
         m = {k: float(np.mean(v)) for k, v in sums.items() if v}
-        print(f"\nTwo tags a body (sparse schedule): (b) {m['ekf']:.3f}, (c-ref) {m['coop']:.3f}, (c) {m['engine']:.3f} "
+        print(f"\nTwo tags a body (sparse schedule): (b) {m['ekf']:.3f}, (c-ref) {m['coop']:.3f}, "
+              f"(c) {m['engine']:.3f} "
               f"({m['engine_in']:.0%} inside), (c) with --moving-body {m['body']:.3f} ({m['body_in']:.0%} inside); "
               f"at (b)'s rows (c) {m['engine_b']:.3f}, with --moving-body {m['body_b']:.3f}")
     print("Cells: mean over the seeds of the 3D RMSE (m); inside: errors inside the 95 % region (3D).")

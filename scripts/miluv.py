@@ -136,7 +136,8 @@ def run_engine(hostd: pathlib.Path, ranges_csv: pathlib.Path, anchors: dict[int,
     result = subprocess.run([str(hostd), "--ranges-csv", str(ranges_csv), "--fixed-csv", str(fixed),
                              "--heights-csv", str(heights), "--moving", ",".join(map(str, tags)),
                              "--out-csv", str(scratch / f"{name}-engine-nodes.csv"),
-                             "--out-trajectory", str(trajectory), *(extra or [])], capture_output=True, text=True, timeout=600)
+                             "--out-trajectory", str(trajectory), *(extra or [])],
+                            capture_output=True, text=True, timeout=600)
     if result.returncode != 0:
         raise RuntimeError(f"cdro-hostd failed ({result.returncode}): {result.stderr}")
     bad: list = []
@@ -160,7 +161,7 @@ def body_arguments(tags_csv: pathlib.Path) -> list[str]:
             arm = np.array([float(row["arm_x"]), float(row["arm_y"]), float(row["arm_z"])])
             by_robot.setdefault(row["robot"], []).append((int(row["id"]), arm))
     out = []
-    for robot, tags in sorted(by_robot.items()):
+    for _robot, tags in sorted(by_robot.items()):
         if len(tags) == 2:
             (a, arm_a), (b, arm_b) = tags
             out += ["--moving-body", f"{a}:{b}:{float(np.linalg.norm(arm_a - arm_b)):.4f}"]

@@ -161,7 +161,8 @@ def test_that_moving_needs_times_a_trajectory_and_no_movement_stage(hostd, tmp_p
     for name in ("anchors.csv", "heights.csv"):
         (untimed / name).write_text((folder / name).read_text())
     lines = (folder / "ranges.csv").read_text().splitlines()[1:]
-    (untimed / "ranges.csv").write_text("from,to,range_m\n" + "".join(",".join(l.split(",")[1:]) + "\n" for l in lines))
+    (untimed / "ranges.csv").write_text("from,to,range_m\n"
+                                        + "".join(",".join(line.split(",")[1:]) + "\n" for line in lines))
 
     no_time = run(hostd, *moving_args(untimed))
     no_trajectory = run(hostd, "--ranges-csv", folder / "ranges.csv", "--fixed-csv", folder / "anchors.csv",
