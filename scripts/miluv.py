@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """What a plain RTLS reaches on MiLUV's real flights (docs/results.md, "Moving nodes on real data:
 MiLUV"): the tracking baselines of cdro_tools.evaluation.tracking_baselines, with their defaults,
-on both experiments of ../shared/data/miluv (its README), scored against tag_truth.csv in the
-anchors' frame (no fit: the anchors are surveyed) by cdro_tools.evaluation.tracking.
+and (c) the engine's 3D tracker of moving nodes (cdro-hostd --moving, its defaults; the binary of
+$CDRO_BUILD_DIR, default ./build), on both experiments of ../shared/data/miluv (its README),
+scored against tag_truth.csv in the anchors' frame (no fit: the anchors are surveyed) by
+cdro_tools.evaluation.tracking.
 
     .venv/bin/python scripts/miluv.py [--data ../shared/data/miluv] [--out DIR] [--trace]
         [--speed-sigma 0.7] [--tau 2] [--sigma 0.1] [--gate]
@@ -10,13 +12,18 @@ anchors' frame (no fit: the anchors are surveyed) by cdro_tools.evaluation.track
 Per experiment it prints a markdown table, per tag and overall, of each baseline's 3D RMSE /
 horizontal RMSE / 3D p95 (m) and its number of estimates:
 - (a) trilateration, (b) the EKF per tag, (c-ref) the EKF over all tags with the tag-to-tag ranges;
+- (c) cdro-hostd --ranges-csv R --fixed-csv (the anchors' x, y) --heights-csv (their z) --moving
+  (every tag) --out-trajectory T: the engine's joint 3D track of the tags, with the tag-to-tag
+  ranges (docs/engine.md, "Nodes that never stop"); anchor 0 is given as 100 (below); and the same
+  with --moving-body A:B:SEPARATION_M for each robot's two tags (the distance between their lever
+  arms in tags.csv: the robot's calibration);
 - "room centre": a constant at the anchors' centroid 1 m below them, at every tag-anchor range,
   i.e. what an estimate that learns nothing scores;
 - "replica": the same baselines on the same schedule with every range recomputed from the truth
   plus N(0, 0.1 m) (numpy seed 1): what the schedule and the geometry allow when the ranges are
   what the filters assume, apart from what the real ranges' errors cost.
-Then the share of the EKFs' errors inside their 95 % regions (3D), (c-ref) scored at (b)'s rows
-only (after each tag-anchor range: the same times), and per anchor the residuals of its ranges
+Then the share of the EKFs' and the engine's errors inside their 95 % regions (3D), (c-ref) and
+(c) scored at (b)'s rows only (after each tag-anchor range: the same times), and per anchor the residuals of its ranges
 against the truth-derived range (ranges_detail's gt_range_m): mean, median, IQR, next to its
 anchor_obstructed label, and how many of its ranges the gates of (b) and (c-ref) down-weighted
 (of those they tested); a row for the tag-to-tag ranges.
@@ -37,7 +44,9 @@ import csv
 import json
 import os
 import pathlib
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 
@@ -62,6 +71,7 @@ RENUMBERED_FILES = ("ranges.csv", "ranges_detail.csv", "nodes.csv", "tag_truth.c
 # conversion, not a measurement to skip.
 DETAIL_FORMAT = Format(("from", "to", "range_m", "gt_range_m", "anchor_obstructed"))
 TITLES = {"trilateration": "(a) trilateration", "ekf": "(b) EKF per tag", "coop-ekf": "(c-ref) cooperative EKF",
+          "engine": "(c) the engine's 3D tracker", "engine-body": "(c) + two tags a body (--moving-body)",
           "room-centre": "room centre (learns nothing)"}
 
 
@@ -106,6 +116,64 @@ def run_baselines(ranges, anchors, args) -> dict[str, tb.TrackingResult]:
     ekf = {"speed_sigma_m_s": args.speed_sigma, "tau_s": args.tau, "sigma_m": args.sigma, "huber": not args.gate}
     return {"trilateration": tb.trilaterate(ranges, anchors), "ekf": tb.track_ekf(ranges, anchors, **ekf),
             "coop-ekf": tb.track_ekf(ranges, anchors, cooperative=True, **ekf)}
+
+
+def hostd_binary() -> pathlib.Path:
+    """The cdro-hostd of the native build (CDRO_BUILD_DIR, default ./build)."""
+    return pathlib.Path(os.environ.get("CDRO_BUILD_DIR", ROOT / "build")) / "bin" / "cdro-hostd"
+
+
+def run_engine(hostd: pathlib.Path, ranges_csv: pathlib.Path, anchors: dict[int, np.ndarray], tags: list[int],
+               scratch: pathlib.Path, name: str, extra: list[str] | None = None) -> tuple[list, str]:
+    """(c): cdro-hostd --moving, the tags tracked in 3D by the engine (motion_track_3d.hpp) against
+    the anchors given as fixed (x, y) with their heights (z), with the tag-to-tag ranges; its
+    defaults. Returns the trajectory's rows (t_s, id, p_m, cov_m2) and cdro-hostd's summary line."""
+    scratch.mkdir(parents=True, exist_ok=True)
+    fixed, heights = scratch / f"{name}-anchors.csv", scratch / f"{name}-heights.csv"
+    fixed.write_text("id,x,y\n" + "".join(f"{i},{float(p[0])!r},{float(p[1])!r}\n" for i, p in sorted(anchors.items())))
+    heights.write_text("id,z\n" + "".join(f"{i},{float(p[2])!r}\n" for i, p in sorted(anchors.items())))
+    trajectory = scratch / f"{name}-engine.csv"
+    result = subprocess.run([str(hostd), "--ranges-csv", str(ranges_csv), "--fixed-csv", str(fixed),
+                             "--heights-csv", str(heights), "--moving", ",".join(map(str, tags)),
+                             "--out-csv", str(scratch / f"{name}-engine-nodes.csv"),
+                             "--out-trajectory", str(trajectory), *(extra or [])],
+                            capture_output=True, text=True, timeout=600)
+    if result.returncode != 0:
+        raise RuntimeError(f"cdro-hostd failed ({result.returncode}): {result.stderr}")
+    bad: list = []
+    tracks = tracking.read_node_tracks(str(trajectory), bad)
+    if bad:
+        raise RuntimeError(f"{trajectory}: {len(bad)} bad rows, the first: {bad[0]}")
+    rows = [(float(t), node, track.p_m[k].copy(), track.cov_m2[k].copy())
+            for node, track in tracks.items() for k, t in enumerate(track.t_s)]
+    rows.sort(key=lambda row: row[0])   # stable: the file's order at equal times
+    summary = next((line for line in result.stderr.splitlines() if "moving nodes tracked in 3D" in line), "")
+    return rows, summary
+
+
+def body_arguments(tags_csv: pathlib.Path) -> list[str]:
+    """--moving-body A:B:SEPARATION_M for each robot's two tags, the separation the distance
+    between their lever arms (tags.csv: id,robot,arm_x,arm_y,arm_z; the robot's calibration, what
+    an installer knows)."""
+    by_robot: dict[str, list[tuple[int, np.ndarray]]] = {}
+    with open(tags_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            arm = np.array([float(row["arm_x"]), float(row["arm_y"]), float(row["arm_z"])])
+            by_robot.setdefault(row["robot"], []).append((int(row["id"]), arm))
+    out = []
+    for _robot, tags in sorted(by_robot.items()):
+        if len(tags) == 2:
+            (a, arm_a), (b, arm_b) = tags
+            out += ["--moving-body", f"{a}:{b}:{float(np.linalg.norm(arm_a - arm_b)):.4f}"]
+    return out
+
+
+def write_ranges(path: pathlib.Path, ranges: tb.TimedRanges) -> None:
+    with open(path, "w") as f:
+        f.write("t,from,to,range_m\n")
+        for t, a, b, r in zip(ranges.t_s.tolist(), ranges.from_ids.tolist(), ranges.to_ids.tolist(),
+                              ranges.range_m.tolist()):
+            f.write(f"{t!r},{a},{b},{r!r}\n")
 
 
 def renumbered(folder: pathlib.Path, into: pathlib.Path) -> pathlib.Path:
@@ -190,7 +258,7 @@ def print_experiment(name: str, summary: dict) -> None:
     s = summary["ranges"]
     print(f"\n### {name}: {len(summary['tags'])} tags, {s['tag_anchor']} tag-anchor and {s['tag_tag']} tag-tag ranges, "
           f"{s['duration_s']:.0f} s\n")
-    columns = ["trilateration", "ekf", "coop-ekf", "room-centre"]
+    columns = ["trilateration", "ekf", "coop-ekf", "engine", "engine-body", "room-centre"]
     print("| tag | " + " | ".join(TITLES[c] for c in columns) + " |")
     print("|---" * (len(columns) + 1) + "|")
     for tag in summary["tags"]:
@@ -208,11 +276,16 @@ def print_experiment(name: str, summary: dict) -> None:
     never = summary["notes"]["ekf"].get("never_started") or []
     if never:
         print(f"Tags the EKFs never started (no range to an anchor): {never}.")
-    inside = [f"{TITLES[c]} {summary['scores'][c]['overall']['inside_95_3d']:.0%}" for c in ("ekf", "coop-ekf")]
+    inside = [f"{TITLES[c]} {summary['scores'][c]['overall']['inside_95_3d']:.0%}"
+              for c in ("ekf", "coop-ekf", "engine", "engine-body")]
     same, ekf = summary["coop_at_ekf_rows"], summary["scores"]["ekf"]["overall"]
-    print("Errors inside the 95 % region (3D): " + ", ".join(inside) + f". (c-ref) at (b)'s rows: "
-          f"{same['rmse_3d_m']:.2f} / {same['rmse_h_m']:.2f} m ({same['points']}), (b) "
+    engine_same = summary["engine_at_ekf_rows"]
+    print("Errors inside the 95 % region (3D): " + ", ".join(inside) + f". At (b)'s rows: (c-ref) "
+          f"{same['rmse_3d_m']:.2f} / {same['rmse_h_m']:.2f} m ({same['points']}), (c) "
+          f"{engine_same['rmse_3d_m']:.2f} / {engine_same['rmse_h_m']:.2f} m ({engine_same['points']}), (c) + body "
+          f"{summary['body_at_ekf_rows']['rmse_3d_m']:.2f} / {summary['body_at_ekf_rows']['rmse_h_m']:.2f} m, (b) "
           f"{ekf['rmse_3d_m']:.2f} / {ekf['rmse_h_m']:.2f} m.")
+    print(f"(c): {summary['engine_summary']}")
     print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) beyond the gate | "
           "(c-ref) beyond the gate |")
     print("|---|---|---|---|---|---|")
@@ -250,6 +323,11 @@ def main() -> int:
           + ("gate" if args.gate else "Huber weights") + f" beyond nu^2/S > {tb.GATE_CHI2:g}, reset after "
           f"{tb.RESET_AFTER_REJECTS} in a row, room: the anchors' box + {tb.ROOM_MARGIN_M:g} m from z = "
           f"{tb.FLOOR_Z_M:g}; trilateration window {tb.WINDOW_S:g} s; replica seed {REPLICA_SEED}")
+    hostd = hostd_binary()
+    if not hostd.is_file():
+        print(f"miluv: {hostd} not found: build it (cmake --build build --target cdro-hostd) or set CDRO_BUILD_DIR",
+              file=sys.stderr)
+        return 2
     copies = tempfile.TemporaryDirectory(prefix="miluv-")
     for name in EXPERIMENTS:
         folder = renumbered(data / name, pathlib.Path(copies.name))
@@ -261,28 +339,53 @@ def main() -> int:
             print(f"miluv: {len(bad)} bad rows, the first: {bad[0]}", file=sys.stderr)
         results = run_baselines(ranges, anchors, args)
         rows = {n: r.rows for n, r in results.items()}
+        tags = sorted({int(t) for t in truth})
+        scratch = pathlib.Path(copies.name) / "engine"
+        rows["engine"], engine_summary = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, name)
+        bodies = body_arguments(data / name / "tags.csv")
+        rows["engine-body"], _ = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, f"{name}-body",
+                                            bodies)
         rows["room-centre"] = centre_rows(ranges, anchors)
         scores = {n: score(r, truth) for n, r in rows.items()}
         replica_ranges = replica(ranges, anchors, truth, REPLICA_SEED)
         replica_scores = {n: score(r.rows, truth) for n, r in run_baselines(replica_ranges, anchors, args).items()}
+        write_ranges(scratch / f"{name}-replica-ranges.csv", replica_ranges)
+        replica_engine, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
+                                       f"{name}-replica")
+        replica_scores["engine"] = score(replica_engine, truth)
+        replica_body, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
+                                     f"{name}-replica-body", bodies)
+        replica_scores["engine-body"] = score(replica_body, truth)
         ekf_rows = {(t, node) for t, node, _, _ in results["ekf"].rows}
         coop_at_ekf_rows = score([r for r in results["coop-ekf"].rows if (r[0], r[1]) in ekf_rows], truth)["overall"]
+        engine_at_ekf_rows = score([r for r in rows["engine"] if (r[0], r[1]) in ekf_rows], truth)["overall"]
+        body_at_ekf_rows = score([r for r in rows["engine-body"] if (r[0], r[1]) in ekf_rows], truth)["overall"]
         kinds = [(a in anchors) != (b in anchors) for a, b in zip(ranges.from_ids.tolist(), ranges.to_ids.tolist())]
         summary = {
             "tags": sorted({int(t) for t in truth}),
             "ranges": {"tag_anchor": sum(kinds), "tag_tag": len(kinds) - sum(kinds),
                        "duration_s": float(ranges.t_s[-1] - ranges.t_s[0]), "bad_rows": len(bad)},
             "scores": scores, "replica": replica_scores, "coop_at_ekf_rows": coop_at_ekf_rows,
+            "engine_at_ekf_rows": engine_at_ekf_rows, "engine_summary": engine_summary,
+            "body_at_ekf_rows": body_at_ekf_rows,
             "counts": {n: r.counts() for n, r in results.items()},
             "notes": {n: r.notes for n, r in results.items()},
             "anchors": anchor_report(folder / "ranges_detail.csv", ranges, anchors, results)}
         print_experiment(name, summary)
         report[name] = {"baselines": {n: scores[n] for n in results}, "room_centre": scores["room-centre"],
+                        "engine": scores["engine"], "engine_at_ekf_rows": engine_at_ekf_rows,
+                        "engine_body": scores["engine-body"], "engine_body_at_ekf_rows": body_at_ekf_rows,
+                        "bodies": bodies,
+                        "engine_summary": engine_summary,
                         "replica": {n: s["overall"] for n, s in replica_scores.items()},
                         "coop_at_ekf_rows": coop_at_ekf_rows,
                         "ranges": summary["ranges"], "counts": summary["counts"], "notes": summary["notes"],
                         "anchors": summary["anchors"]}
         if out:
+            shutil.copyfile(scratch / f"{name}-engine.csv", out / f"{name}-engine.csv")
+            shutil.copyfile(scratch / f"{name}-body-engine.csv", out / f"{name}-engine-body.csv")
+            if args.trace:
+                write_trace(out / f"{name}-engine-trace.csv", rows["engine"], truth)
             for n, r in results.items():
                 tracking.write_trajectory(str(out / f"{name}-{n}.csv"), r.rows)
                 if args.trace and n != "trilateration":

@@ -102,6 +102,9 @@ engine::EngineParams unusual()
     p.motion.track_speed_sigma_mps = 1.25;
     p.motion.track_warmup = 4;
     p.motion.track_max_speed_mps = 2.5;
+    p.motion.flight_speed_sigma_mps = 0.9;
+    p.motion.flight_speed_tau_s = 3.5;
+    p.motion.flight_floor_z_m = -0.25;
     p.frame.origin = 0x6001;
     p.frame.x_axis = 0x6002;
     p.frame.positive_y = 65535;

@@ -628,6 +628,26 @@ def test_that_scripts_miluv_reproduces_the_recorded_figures(miluv, tmp_path):
     assert at_ekf_rows["rmse_h_m"] == pytest.approx(0.823, abs=0.02)
     for name in ("trilateration", "ekf", "coop-ekf"):
         assert (tmp_path / f"3robots_cirObstacles_random_0-{name}.csv").is_file()
+    # (c), the engine's 3D tracker (cdro-hostd --moving, from $CDRO_BUILD_DIR)
+    engine_three = report["3robots_cirObstacles_random_0"]["engine"]["overall"]
+    engine_at_ekf_rows = report["3robots_cirObstacles_random_0"]["engine_at_ekf_rows"]
+    engine_one = report["1robot_cirObstacles_random3_0"]["engine"]["overall"]
+    assert engine_three["rmse_3d_m"] == pytest.approx(1.056, abs=0.02)
+    assert engine_at_ekf_rows["points"] == three["ekf"]["overall"]["points"]
+    assert engine_at_ekf_rows["rmse_3d_m"] == pytest.approx(0.956, abs=0.02)
+    assert engine_at_ekf_rows["rmse_h_m"] == pytest.approx(0.848, abs=0.02)
+    assert engine_one["rmse_3d_m"] == pytest.approx(0.657, abs=0.02)
+    assert engine_one["rmse_h_m"] == pytest.approx(0.530, abs=0.02)
+    assert engine_one["inside_95_3d"] == pytest.approx(0.727, abs=0.02)
+    assert (tmp_path / "3robots_cirObstacles_random_0-engine.csv").is_file()
+    # (c) with each robot's two tags on one body (--moving-body, separations from tags.csv)
+    body_three = report["3robots_cirObstacles_random_0"]["engine_body_at_ekf_rows"]
+    body_one = report["1robot_cirObstacles_random3_0"]["engine_body"]["overall"]
+    assert body_three["rmse_3d_m"] == pytest.approx(0.731, abs=0.02)
+    assert body_three["rmse_h_m"] == pytest.approx(0.584, abs=0.02)
+    assert body_one["rmse_3d_m"] == pytest.approx(0.572, abs=0.02)
+    assert report["3robots_cirObstacles_random_0"]["bodies"] == [
+        "--moving-body", "10:11:0.4506", "--moving-body", "20:21:0.4534", "--moving-body", "30:31:0.4515"]
     anchors_report = report["3robots_cirObstacles_random_0"]["anchors"]
     assert {a["anchor"] for a in anchors_report if a["obstructed"]} == {1, 3, 4}
     assert "| anchor |" in result.stdout

@@ -9,7 +9,8 @@ namespace cdro::engine {
 Engine::Engine(const EngineParams &params)
     : params_(params), likelihood_(params.likelihood), intake_(params.range), sogs_(params, likelihood_),
       placement_(params, likelihood_), refiner_(params, likelihood_), global_(params),
-      convergence_(params, likelihood_), motion_(params, likelihood_), frame_(params.frame)
+      convergence_(params, likelihood_), motion_(params, likelihood_),
+      flights_(params.motion, params.range.sigma_m, params.sog.gate_sigma, likelihood_), frame_(params.frame)
 {
 }
 
@@ -23,10 +24,21 @@ uint32_t Engine::nodeIndex(NodeId id)
     return index;
 }
 
-void Engine::setHeight(NodeId id, double height_m) { map_.nodes[nodeIndex(id)].height_m = height_m; }
+void Engine::setHeight(NodeId id, double height_m)
+{
+    if (flights_.tracks(id) || flights_.anchorsSet()) {
+        throw std::logic_error("node " + std::to_string(id) + ": a height is known before the first range of a node "
+                               "tracked in 3D, and never for such a node");
+    }
+    map_.nodes[nodeIndex(id)].height_m = height_m;
+}
 
 void Engine::setFixed(NodeId id, const Vector2 &position_m)
 {
+    if (flights_.tracks(id) || flights_.anchorsSet()) {
+        throw std::logic_error("node " + std::to_string(id) + ": fixed nodes are set before the first range of a node "
+                               "tracked in 3D, and such a node is never fixed");
+    }
     frame_.setFixed(id, position_m);
     nodeIndex(id);
 }
@@ -38,6 +50,48 @@ void Engine::setMoving(NodeId id, bool moving)
         ++revision_;
         enqueueNeighbours(node); // they lose (or regain) an anchor
     }
+}
+
+void Engine::trackMoving3D(NodeId id)
+{
+    const std::string node = "node " + std::to_string(id);
+    const uint32_t index = map_.findNode(id);
+    for (const auto &[fixed_id, position] : frame_.fixedPositions()) {
+        if (fixed_id == id) {
+            throw std::logic_error(node + " is fixed: it cannot also be tracked as moving");
+        }
+    }
+    if (index != kNoIndex && map_.nodes[index].height_m) {
+        throw std::logic_error(node + " has a known height: a 3D track is for a node whose height is not known");
+    }
+    if (index != kNoIndex || flights_.anchorsSet()) {
+        throw std::logic_error(node + ": a node is declared moving in 3D before the first range of any such node");
+    }
+    flights_.add(id);
+}
+
+RangeVerdict Engine::addFlightRange(NodeId from, NodeId to, double range_m, double t_s)
+{
+    if (from == to) {
+        return RangeVerdict::RejectedSelf;
+    }
+    if (!std::isfinite(range_m) || !(range_m > 0.0) || range_m > params_.range.max_range_m || !std::isfinite(t_s)) {
+        return RangeVerdict::RejectedValue;
+    }
+    if (!flights_.anchorsSet()) {
+        // The anchors: the fixed nodes of known height (none can be added from now on).
+        std::vector<std::pair<NodeId, Vector3>> anchors;
+        for (const auto &[id, position] : frame_.fixedPositions()) {
+            const uint32_t index = map_.findNode(id);
+            if (index != kNoIndex && map_.nodes[index].height_m) {
+                anchors.emplace_back(id, Vector3(position.x(), position.y(), *map_.nodes[index].height_m));
+            }
+        }
+        flights_.setAnchors(anchors);
+    }
+    ++revision_;
+    const FlightRangeUse use = flights_.addRange(from, to, range_m, t_s);
+    return use == FlightRangeUse::Used || use == FlightRangeUse::Reset ? RangeVerdict::Used : RangeVerdict::Stored;
 }
 
 void Engine::pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2)
@@ -71,6 +125,9 @@ void Engine::unpinNode(NodeId id)
 
 RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s)
 {
+    if (!flights_.empty() && (flights_.tracks(from) || flights_.tracks(to))) {
+        return addFlightRange(from, to, range_m, t_s); // a node that never stops: its own 3D track
+    }
     // 1. Intake.
     const TakenRange taken = intake_.take(map_, from, to, range_m, t_s);
     if (taken.verdict == RangeVerdict::RejectedSelf || taken.verdict == RangeVerdict::RejectedValue) {

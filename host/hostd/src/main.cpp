@@ -144,7 +144,17 @@ static int runMain(int argc, char **argv)
     app.add_option("--robot-id", offline.robot_id, "offline movement stage: the robot's node id")->needs(ranges_option);
     app.add_option("--motion-csv", offline.motion_csv, "offline: motion reports t,id,moving")->needs(ranges_option);
     app.add_option("--out-trajectory", offline.out_trajectory,
-                   "offline movement stage: causal robot estimate t,x,y,heading_rad,var_x,cov_xy,var_y,frame (odometry or map)")
+                   "offline movement stage: causal robot estimate t,x,y,heading_rad,var_x,cov_xy,var_y,frame (odometry or map); "
+                   "with --moving: the moving nodes' 3D trajectories")
+        ->needs(ranges_option);
+    app.add_option("--moving", offline.moving,
+                   "offline: node ids (comma separated) that move from the start, tracked in 3D against the fixed "
+                   "nodes of known height; with --out-trajectory: t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
+        ->delimiter(',')
+        ->needs(ranges_option);
+    app.add_option("--moving-body", offline.moving_bodies,
+                   "offline, with --moving: A:B:SEPARATION_M, moving nodes A and B on one rigid body SEPARATION_M "
+                   "(m) apart (repeatable)")
         ->needs(ranges_option);
     bool no_settle = false;
     app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")->needs(ranges_option);

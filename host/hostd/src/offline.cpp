@@ -4,15 +4,19 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <fcntl.h>
 #include <unistd.h>
 
+#include "cdro/csv/reader.hpp"
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
 #include "cdro/hostd/csv_input.hpp"
@@ -284,6 +288,152 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     return 0;
 }
 
+// --moving: the nodes tracked in 3D. Returns 2 with a message on `log` when the options or the
+// ranges do not allow it (nothing written then but NODES, which the caller removes).
+int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvTable<RangeRow> &ranges_table,
+               std::FILE *out, std::FILE *log)
+{
+    if (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.motion_csv.empty()) {
+        std::fprintf(log, "cdro-hostd: --moving is not for the movement stage or motion reports (no --odometry-csv, "
+                          "--robot-id or --motion-csv with it)\n");
+        return 2;
+    }
+    if (options.out_trajectory.empty()) {
+        std::fprintf(log, "cdro-hostd: --moving needs --out-trajectory (where the moving nodes' tracks go)\n");
+        return 2;
+    }
+    if (!options.trace_csv.empty()) {
+        std::fprintf(log, "cdro-hostd: --trace-csv is not written with --moving (the moving nodes' estimates are in "
+                          "--out-trajectory)\n");
+        return 2;
+    }
+    std::vector<engine::NodeId> moving;
+    for (const std::string &text : options.moving) {
+        uint16_t id = 0;
+        if (!csv::parseNodeId(text, &id)) {
+            std::fprintf(log, "cdro-hostd: --moving: '%s' is not a node id (1..65535, decimal or 0x hex)\n",
+                         text.c_str());
+            return 2;
+        }
+        if (std::find(moving.begin(), moving.end(), id) == moving.end()) {
+            moving.push_back(id);
+        }
+    }
+    std::vector<RangeRow> ranges = ranges_table.rows;
+    for (const RangeRow &row : ranges) {
+        if (!row.has_time) {
+            std::fprintf(log, "cdro-hostd: %s: --moving needs a t column in the ranges\n", options.ranges_csv.c_str());
+            return 2;
+        }
+    }
+    for (const engine::NodeId id : moving) {
+        const bool ranged = std::any_of(ranges.begin(), ranges.end(),
+                                        [id](const RangeRow &row) { return row.from == id || row.to == id; });
+        if (!ranged) {
+            std::fprintf(log, "cdro-hostd: --moving: node %u (%s) has no range in %s\n", static_cast<unsigned>(id),
+                         service::nodeIdHex(id).c_str(), options.ranges_csv.c_str());
+            return 2;
+        }
+        try {
+            engine.trackMoving3D(id);
+        } catch (const std::logic_error &error) {
+            std::fprintf(log, "cdro-hostd: --moving: %s\n", error.what());
+            return 2;
+        }
+    }
+    for (const std::string &text : options.moving_bodies) {
+        // A:B:SEPARATION_M
+        const size_t first = text.find(':');
+        const size_t second = first == std::string::npos ? first : text.find(':', first + 1);
+        uint16_t a = 0;
+        uint16_t b = 0;
+        double separation_m = 0.0;
+        bool good = second != std::string::npos && csv::parseNodeId(text.substr(0, first), &a) &&
+                    csv::parseNodeId(text.substr(first + 1, second - first - 1), &b);
+        if (good) {
+            const std::string number = text.substr(second + 1);
+            char *end = nullptr;
+            separation_m = std::strtod(number.c_str(), &end);
+            good = !number.empty() && end == number.c_str() + number.size();
+        }
+        if (!good) {
+            std::fprintf(log, "cdro-hostd: --moving-body: '%s' is not A:B:SEPARATION_M (two node ids, metres)\n",
+                         text.c_str());
+            return 2;
+        }
+        try {
+            engine.trackOnOneBody(a, b, separation_m);
+        } catch (const std::invalid_argument &error) {
+            std::fprintf(log, "cdro-hostd: --moving-body %s: %s (both must be in --moving)\n", text.c_str(), error.what());
+            return 2;
+        }
+    }
+    sortByTime(ranges, options.ranges_csv, log);
+    File trajectory = openForWriting(options.out_trajectory, log);
+    if (!trajectory) {
+        return 2;
+    }
+    std::fputs("t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz\n", trajectory.get());
+    uint64_t refused = 0;
+    uint64_t rows_written = 0;
+    for (const RangeRow &row : ranges) {
+        const engine::RangeVerdict verdict = engine.addRange(row.from, row.to, row.range_m, row.t_s);
+        if (verdict == engine::RangeVerdict::RejectedSelf || verdict == engine::RangeVerdict::RejectedValue) {
+            if (refused++ < options.max_reported_rows) {
+                std::fprintf(log, "cdro-hostd: %s:%zu: skipped: %s (%u -> %u, %.17g m)\n", options.ranges_csv.c_str(),
+                             row.line, engine::rangeVerdictName(verdict), static_cast<unsigned>(row.from),
+                             static_cast<unsigned>(row.to), row.range_m);
+            }
+            continue;
+        }
+        for (const engine::NodeId end : {row.from, row.to}) {
+            const std::optional<engine::FlightEstimate> track = engine.flightEstimate(end);
+            if (track && track->status == engine::FlightStatus::Tracking) {
+                const engine::Vector3 &p = track->position_m;
+                const engine::Matrix3 &c = track->covariance_m2;
+                std::fprintf(trajectory.get(), "%.17g,%u,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n",
+                             row.t_s, static_cast<unsigned>(end), p.x(), p.y(), p.z(), c(0, 0), c(0, 1), c(1, 1),
+                             c(2, 2), c(0, 2), c(1, 2));
+                ++rows_written;
+            }
+        }
+    }
+    if (options.settle) {
+        engine.settle(200ULL * engine.map().nodes.size() + 1000ULL);
+    }
+    writeNodesHeader(out);
+    for (const engine::NodeOutput &node : engine.estimates()) {
+        if (node.link_count > 0 || node.fixed()) {
+            writeNodeRow(out, node);
+        }
+    }
+    if (std::fflush(trajectory.get()) != 0 || std::ferror(trajectory.get())) {
+        std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_trajectory.c_str(), std::strerror(errno));
+        return 2;
+    }
+    const engine::FlightCounters &c = engine.flightCounters();
+    std::fprintf(log,
+                 "cdro-hostd: moving nodes tracked in 3D: %zu nodes, %llu trajectory rows; %llu ranges to anchors and "
+                 "%llu between moving nodes taken (%llu down-weighted as NLOS-looking), %llu refused, %llu resets, "
+                 "%llu waiting for an end to start, %llu to nodes that are no anchor (not fixed with a known height), "
+                 "%llu mirrored below the anchors, %llu truncated to the room, %llu one-body updates\n",
+                 moving.size(), static_cast<unsigned long long>(rows_written),
+                 static_cast<unsigned long long>(c.anchor_ranges), static_cast<unsigned long long>(c.tag_ranges),
+                 static_cast<unsigned long long>(c.down_weighted), static_cast<unsigned long long>(c.refused),
+                 static_cast<unsigned long long>(c.resets), static_cast<unsigned long long>(c.waiting),
+                 static_cast<unsigned long long>(c.no_anchor), static_cast<unsigned long long>(c.mirrored),
+                 static_cast<unsigned long long>(c.truncated), static_cast<unsigned long long>(c.body_updates));
+    for (const engine::NodeId id : moving) {
+        const std::optional<engine::FlightEstimate> track = engine.flightEstimate(id);
+        if (track && track->status != engine::FlightStatus::Tracking) {
+            std::fprintf(log, "cdro-hostd: moving node %u heard %u distinct anchors: not enough for a 3D track (%u), "
+                              "no rows\n",
+                         static_cast<unsigned>(id), track->anchors_heard, engine::FlightTracks::kMinAnchors);
+        }
+    }
+    return 0;
+}
+
 } // namespace
 
 int runOffline(const OfflineOptions &options, const engine::EngineParams &params, std::FILE *log)
@@ -301,7 +451,13 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
         applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows, log);
-        const bool movement = !options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty();
+        if (options.moving.empty() && !options.moving_bodies.empty()) {
+            std::fprintf(log, "cdro-hostd: --moving-body needs --moving (its nodes are moving ones)\n");
+            return 2;
+        }
+        const bool flights = !options.moving.empty();
+        const bool movement =
+            !flights && (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty());
 
         // Open the outputs before the work, so that an unwritable path fails at once.
         File out = openForWriting(options.out_csv, log);
@@ -326,6 +482,24 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             writeTraceHeader(trace.get());
         }
 
+        if (flights) {
+            const RateClock clock;
+            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv, options.max_reported_rows);
+            reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
+            reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
+            if (ranges.rows.empty()) {
+                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) + " bad rows skipped)");
+            }
+            int code = runFlights(options, engine, ranges, out.get(), log);
+            if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
+                std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
+                code = 2;
+            }
+            if (code != 0) {
+                removeOutputs(options);
+            }
+            return code;
+        }
         if (movement) {
             if (options.odometry_csv.empty() || options.robot_id < 0 || options.out_trajectory.empty()) {
                 std::fprintf(log, "cdro-hostd: the movement stage needs --odometry-csv, --robot-id and --out-trajectory\n");

@@ -31,6 +31,7 @@
 #include "cdro/engine/convergence.hpp"
 #include "cdro/engine/global_step.hpp"
 #include "cdro/engine/map_state.hpp"
+#include "cdro/engine/motion_track_3d.hpp"
 #include "cdro/engine/motion_tracker.hpp"
 #include "cdro/engine/output_frame.hpp"
 #include "cdro/engine/params.hpp"
@@ -112,6 +113,23 @@ public:
     // A motion report (MOTION frame, motion CSV): the node is moving or still (params.motion).
     void setMoving(NodeId id, bool moving);
 
+    // A node that moves from the start and never stops, its height not known (a tag on a drone):
+    // tracked in 3D (motion_track_3d.hpp) from its ranges to the fixed nodes of known height
+    // (setFixed + setHeight: the anchors) and to the other nodes tracked so; its ranges never
+    // enter the static map, which is estimated exactly as without it. Before its first range,
+    // before the first range of any node tracked so (the anchors are taken then); throws
+    // std::logic_error for a node that is fixed, has a known height or has ranges already.
+    // addRange() then says Used for a range a track took, Stored for one it did not use (refused
+    // as an outlier, another end not started, or a static end that is no anchor: counted in
+    // flightCounters())
+    // and needs the range's time (RejectedValue without it). Not in checkpoints.
+    void trackMoving3D(NodeId id);
+    // Two nodes tracked in 3D on one rigid body, separation_m (m) apart (a drone's two tags): each
+    // one's ranges move the other (motion_track_3d.hpp). Throws std::invalid_argument.
+    void trackOnOneBody(NodeId a, NodeId b, double separation_m) { flights_.addBody(a, b, separation_m); }
+    std::optional<FlightEstimate> flightEstimate(NodeId id) const { return flights_.estimate(id); }
+    const FlightCounters &flightCounters() const { return flights_.counters(); }
+
     // The movement stage's EKF owns this node's position: here it is an anchor at that position
     // (not refined, not placed again) until unpinned.
     void pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2);
@@ -185,6 +203,7 @@ private:
     void enqueue(uint32_t node);
     void relax(uint64_t budget);
     void assess();
+    RangeVerdict addFlightRange(NodeId from, NodeId to, double range_m, double t_s);
     void trace(const std::string &message) const
     {
         if (trace_) {
@@ -202,6 +221,7 @@ private:
     GlobalStep global_;
     Convergence convergence_;
     MotionTracker motion_;
+    FlightTracks flights_;
     OutputFrame frame_;
     std::deque<uint32_t> relax_queue_;
     std::vector<uint8_t> in_relax_queue_;

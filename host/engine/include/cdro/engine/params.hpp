@@ -98,6 +98,12 @@ struct MotionParams {
     double track_speed_sigma_mps = 1.5; // m/s, prior std of its speed when it starts
     uint32_t track_warmup = 3;         // ranges before the track is the estimate
     double track_max_speed_mps = 3.0;  // m/s, a carried node is not faster; the track's speed is capped
+    // Nodes declared moving with no known height (Engine::trackMoving3D, motion_track_3d.hpp): each
+    // velocity component an Ornstein-Uhlenbeck process; chosen on seeded simulated flights
+    // (tests/tools/test_tracking.py), never on MiLUV.
+    double flight_speed_sigma_mps = 0.7; // m/s, its stationary sigma per axis (3D speed > 2 m/s with p 4 %)
+    double flight_speed_tau_s = 2.0;     // s, its correlation time (how long a heading lasts)
+    double flight_floor_z_m = 0.0;       // m, the floor: tracked nodes stay between it and the anchors' mean height
 };
 
 // Converged means: the estimate has settled (eq. 16), the node has three or more placed

@@ -30,10 +30,25 @@
 // in a file are reported, counted and sorted (stable). TRAJ has a row per odometry step once the
 // robot has a position in the map's frame: its estimate right after that step (causal: nothing
 // later is used).
+//
+// With --moving IDS and --out-trajectory the nodes listed (comma separated, decimal or 0x hex) move
+// from the start and are tracked in 3D (Engine::trackMoving3D, motion_track_3d.hpp) against the
+// fixed nodes of known height (--fixed-csv x, y with --heights-csv z) and against each other:
+//   cdro-hostd --ranges-csv FILE --fixed-csv ANCHORS --heights-csv HEIGHTS --moving 10,11,20
+//              --out-csv NODES --out-trajectory TRAJ
+// Ranges need their t column (rows out of time order are reported, counted and sorted, stable).
+// TRAJ has a row after each range of a moving node once it has heard four distinct anchors:
+// t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz (s, m, m^2; causal; cdro-eval-motion
+// --tag-trajectory reads it). Exit status 2 with a message for a moving node that is fixed, has a
+// known height or has no range in FILE, for an id that is no node id, with the movement stage and
+// with --trace-csv.
+// --moving-body A:B:SEPARATION_M (repeatable): moving nodes A and B are carried by one rigid body,
+// SEPARATION_M (m) apart (a drone's two tags: the distance between their lever arms).
 #pragma once
 
 #include <cstdio>
 #include <string>
+#include <vector>
 
 #include "cdro/engine/movement.hpp"
 #include "cdro/engine/params.hpp"
@@ -49,6 +64,8 @@ struct OfflineOptions {
     int robot_id = -1;            // -1 = none
     std::string out_trajectory;
     std::string motion_csv;       // t,id,moving (optional)
+    std::vector<std::string> moving; // node ids moving from the start, tracked in 3D (--moving)
+    std::vector<std::string> moving_bodies; // "A:B:SEPARATION_M": two of them on one rigid body (--moving-body)
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;

@@ -1,0 +1,329 @@
+// Nodes that never stop, tracked in 3D (motion_track_3d.hpp, Engine::trackMoving3D): a seeded
+// simulated flight of two tags among six nearly coplanar anchors (MiLUV's geometry: a 4 m x 4 m
+// room, anchors at 1.6-1.9 m, tags at 0.3-1.3 m), tracked from the known anchors, converges; the
+// tag-to-tag ranges move both ends; the same input gives the same output bit for bit; and the
+// static map is not touched by a tracked node.
+#include <Eigen/Cholesky>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <stdexcept>
+#include <vector>
+
+#include "cdro/engine/engine.hpp"
+#include "support.hpp"
+
+namespace cdro::enginetest {
+namespace {
+
+using namespace cdro::engine; // NOLINT(google-build-using-namespace): the engine's types throughout
+
+constexpr std::array<NodeId, 6> kAnchors = {1, 2, 3, 4, 5, 6};
+const std::array<Vector3, 6> kAnchorPositions = {Vector3(0.0, 0.0, 1.60), Vector3(4.0, 0.0, 1.90),
+                                                 Vector3(4.0, 4.0, 1.70), Vector3(0.0, 4.0, 1.85),
+                                                 Vector3(2.0, -0.2, 1.75), Vector3(2.0, 4.2, 1.65)};
+constexpr std::array<NodeId, 2> kTags = {10, 20};
+constexpr double kNoiseM = 0.1;     // m, range noise of the simulation (= range.sigma_m)
+constexpr double kSlotS = 0.1;      // s, one range every slot, round robin
+constexpr double kDurationS = 60.0; // s
+
+// Tag k's true position at t_s: a smooth closed flight, about 0.4-0.8 m/s.
+Vector3 truth(size_t k, double t_s)
+{
+    const double phase = 1.7 * static_cast<double>(k);
+    const double w = 0.45; // rad/s
+    return Vector3(2.0 + 1.3 * std::cos(w * t_s + phase), 2.0 + 1.3 * std::sin(0.8 * w * t_s + phase),
+                   0.8 + 0.5 * std::sin(0.5 * w * t_s + phase));
+}
+
+struct Range {
+    double t_s;
+    NodeId from;
+    NodeId to;
+    double range_m;
+};
+
+// The schedule: in every 5 slots, 4 tag-anchor ranges (tags alternating, anchors in a cycle) and
+// one tag-to-tag range (when tag_tag).
+std::vector<Range> simulate(uint64_t seed, bool tag_tag)
+{
+    Random random(seed);
+    std::vector<Range> out;
+    size_t next_anchor = 0;
+    for (size_t slot = 0; static_cast<double>(slot) * kSlotS < kDurationS; ++slot) {
+        const double t_s = static_cast<double>(slot) * kSlotS;
+        if (slot % 5 == 4) {
+            if (tag_tag) {
+                const double d = (truth(0, t_s) - truth(1, t_s)).norm();
+                out.push_back({t_s, kTags[0], kTags[1], d + kNoiseM * random.normal()});
+            }
+            continue;
+        }
+        const size_t k = slot % 2;
+        const size_t a = (next_anchor++ / 2) % kAnchors.size();
+        const double d = (truth(k, t_s) - kAnchorPositions[a]).norm();
+        out.push_back({t_s, kTags[k], kAnchors[a], d + kNoiseM * random.normal()});
+    }
+    return out;
+}
+
+Engine anchoredEngine()
+{
+    Engine engine;
+    for (size_t a = 0; a < kAnchors.size(); ++a) {
+        engine.setFixed(kAnchors[a], kAnchorPositions[a].head<2>());
+        engine.setHeight(kAnchors[a], kAnchorPositions[a].z());
+    }
+    for (NodeId tag : kTags) {
+        engine.trackMoving3D(tag);
+    }
+    return engine;
+}
+
+struct FlightScore {
+    double rmse_3d_m = 0.0;
+    double rmse_h_m = 0.0;
+    double inside_95 = 0.0; // share of errors inside the 95 % ellipsoid (chi2 3 dof: 7.815)
+    size_t rows = 0;
+    std::vector<double> outputs; // every estimate, for the determinism check
+};
+
+// Runs the flight; scores each tag's estimate after each of its ranges from t >= from_s.
+FlightScore fly(const std::vector<Range> &ranges, double from_s)
+{
+    Engine engine = anchoredEngine();
+    FlightScore score;
+    double sum_3d = 0.0;
+    double sum_h = 0.0;
+    size_t inside = 0;
+    for (const Range &r : ranges) {
+        EXPECT_EQ(engine.addRange(r.from, r.to, r.range_m, r.t_s), RangeVerdict::Used);
+        for (size_t k = 0; k < kTags.size(); ++k) {
+            if (r.from != kTags[k] && r.to != kTags[k]) {
+                continue;
+            }
+            const std::optional<FlightEstimate> e = engine.flightEstimate(kTags[k]);
+            if (!e || e->status != FlightStatus::Tracking) {
+                continue;
+            }
+            score.outputs.insert(score.outputs.end(), e->position_m.data(), e->position_m.data() + 3);
+            score.outputs.insert(score.outputs.end(), e->covariance_m2.data(), e->covariance_m2.data() + 9);
+            if (r.t_s < from_s) {
+                continue;
+            }
+            const Vector3 error = e->position_m - truth(k, r.t_s);
+            sum_3d += error.squaredNorm();
+            sum_h += error.head<2>().squaredNorm();
+            inside += error.dot(e->covariance_m2.ldlt().solve(error)) <= 7.815 ? 1U : 0U;
+            ++score.rows;
+        }
+    }
+    if (score.rows > 0) {
+        const double n = static_cast<double>(score.rows);
+        score.rmse_3d_m = std::sqrt(sum_3d / n);
+        score.rmse_h_m = std::sqrt(sum_h / n);
+        score.inside_95 = static_cast<double>(inside) / n;
+    }
+    return score;
+}
+
+TEST(MotionTrack3D, SimulatedFlightFromKnownAnchorsConverges)
+{
+    // Stated bounds, from 10 s on (the start is a prior over the whole room): 3D RMSE <= 0.30 m,
+    // horizontal <= 0.20 m, at least 80 % of the errors inside the 95 % ellipsoid. Observed on
+    // seeds 1-3: 0.224-0.238 m 3D (height is the weak axis under nearly coplanar anchors),
+    // 0.171-0.172 m horizontal, 99-100 % inside (printed).
+    for (uint64_t seed : testSeeds({1, 2, 3})) {
+        SCOPED_TRACE(seedTrace(seed));
+        const FlightScore score = fly(simulate(seed, true), 10.0);
+        std::printf("3D flight, %s: %zu rows, RMSE 3D %.3f m, horizontal %.3f m, %.0f %% inside the 95 %% region\n",
+                    seedTrace(seed).c_str(), score.rows, score.rmse_3d_m, score.rmse_h_m, 100.0 * score.inside_95);
+        ASSERT_GT(score.rows, 400U);
+        EXPECT_LE(score.rmse_3d_m, 0.30);
+        EXPECT_LE(score.rmse_h_m, 0.20);
+        EXPECT_GE(score.inside_95, 0.80);
+    }
+}
+
+TEST(MotionTrack3D, TheSameInputGivesTheSameOutputBitForBit)
+{
+    const uint64_t seed = testSeed(4);
+    SCOPED_TRACE(seedTrace(seed));
+    const std::vector<Range> ranges = simulate(seed, true);
+    const FlightScore a = fly(ranges, 0.0);
+    const FlightScore b = fly(ranges, 0.0);
+    ASSERT_EQ(a.outputs.size(), b.outputs.size());
+    ASSERT_FALSE(a.outputs.empty());
+    EXPECT_EQ(0, std::memcmp(a.outputs.data(), b.outputs.data(), a.outputs.size() * sizeof(double)));
+}
+
+TEST(MotionTrack3D, ATagToTagRangeMovesBothEnds)
+{
+    const uint64_t seed = testSeed(5);
+    SCOPED_TRACE(seedTrace(seed));
+    Engine engine = anchoredEngine();
+    const std::vector<Range> ranges = simulate(seed, false);
+    for (const Range &r : ranges) {
+        if (r.t_s > 20.0) {
+            break;
+        }
+        engine.addRange(r.from, r.to, r.range_m, r.t_s);
+    }
+    const FlightEstimate a0 = *engine.flightEstimate(kTags[0]);
+    const FlightEstimate b0 = *engine.flightEstimate(kTags[1]);
+    ASSERT_EQ(a0.status, FlightStatus::Tracking);
+    ASSERT_EQ(b0.status, FlightStatus::Tracking);
+    // A range 0.5 m shorter than the estimates' distance, 0.05 s after the last range.
+    const double d = (a0.position_m - b0.position_m).norm();
+    EXPECT_EQ(engine.addRange(kTags[0], kTags[1], d - 0.5, 19.95), RangeVerdict::Used);
+    const FlightEstimate a1 = *engine.flightEstimate(kTags[0]);
+    const FlightEstimate b1 = *engine.flightEstimate(kTags[1]);
+    EXPECT_GT((a1.position_m - a0.position_m).norm(), 0.01);
+    EXPECT_GT((b1.position_m - b0.position_m).norm(), 0.01);
+    EXPECT_LT((a1.position_m - b1.position_m).norm(), d);
+    EXPECT_EQ(engine.flightCounters().tag_ranges, 1U);
+}
+
+TEST(MotionTrack3D, CooperationHelpsOnTheSimulatedFlight)
+{
+    // The same flights with and without the tag-to-tag slots' ranges (the tag-anchor ranges are
+    // the same: the schedule keeps their slots), seeds 1-3, RMSE 3D summed: cooperation must not
+    // make it worse by more than 2 cm (observed: 0.687 m with, 0.700 m without).
+    double with = 0.0;
+    double without = 0.0;
+    for (uint64_t seed : testSeeds({1, 2, 3})) {
+        SCOPED_TRACE(seedTrace(seed));
+        with += fly(simulate(seed, true), 10.0).rmse_3d_m;
+        std::vector<Range> anchors_only;
+        for (const Range &r : simulate(seed, true)) {
+            if (r.to != kTags[1]) {
+                anchors_only.push_back(r);
+            }
+        }
+        without += fly(anchors_only, 10.0).rmse_3d_m;
+    }
+    std::printf("3D flight, RMSE 3D summed over the seeds: %.3f m with tag-to-tag ranges, %.3f m without\n", with,
+                without);
+    EXPECT_LE(with, without + 0.02);
+}
+
+TEST(MotionTrack3D, ATrackedNodeLeavesTheStaticMapAsItWas)
+{
+    // Four static nodes with unknown positions and heights known, ranged among themselves; the
+    // same with a tracked node's ranges interleaved: the static estimates are identical.
+    const std::array<Vector2, 4> positions = {Vector2(0.0, 0.0), Vector2(6.0, 0.0), Vector2(6.0, 5.0),
+                                              Vector2(0.0, 5.0)};
+    Random random(testSeed(6));
+    std::vector<Range> ranges;
+    for (int round = 0; round < 40; ++round) {
+        for (size_t i = 0; i < positions.size(); ++i) {
+            for (size_t j = i + 1; j < positions.size(); ++j) {
+                ranges.push_back({round * 1.0, static_cast<NodeId>(30 + i), static_cast<NodeId>(30 + j),
+                                  (positions[i] - positions[j]).norm() + 0.05 * random.normal()});
+            }
+        }
+    }
+    auto run = [&](bool with_tag) {
+        Engine engine;
+        for (size_t i = 0; i < positions.size(); ++i) {
+            engine.setHeight(static_cast<NodeId>(30 + i), 1.0);
+        }
+        if (with_tag) {
+            engine.trackMoving3D(kTags[0]);
+        }
+        for (const Range &r : ranges) {
+            engine.addRange(r.from, r.to, r.range_m, r.t_s);
+            if (with_tag) {
+                EXPECT_EQ(engine.addRange(kTags[0], r.from, 3.0, r.t_s), RangeVerdict::Stored); // no anchor there
+            }
+        }
+        engine.settle(10000);
+        return engine.estimates();
+    };
+    const std::vector<NodeOutput> plain = run(false);
+    const std::vector<NodeOutput> with_tag = run(true);
+    ASSERT_EQ(plain.size(), with_tag.size());
+    for (size_t i = 0; i < plain.size(); ++i) {
+        EXPECT_EQ(plain[i].id, with_tag[i].id);
+        EXPECT_EQ(plain[i].position_m, with_tag[i].position_m);
+        EXPECT_EQ(plain[i].covariance_m2, with_tag[i].covariance_m2);
+        EXPECT_EQ(plain[i].lifecycle, with_tag[i].lifecycle);
+    }
+}
+
+// Two tags on one body (0.45 m apart, the body turning at 0.3 rad/s): tag A ranges an anchor in 4
+// of 5 slots, tag B in the fifth. Returns B's 3D RMSE from 10 s on, with or without the body.
+double bodyFlightRmseOfB(uint64_t seed, bool body)
+{
+    const Vector3 arm_a(0.15, -0.165, -0.05);
+    const Vector3 arm_b(-0.155, 0.16, -0.05);
+    auto position = [&](const Vector3 &arm, double t_s) {
+        const double yaw = 0.3 * t_s;
+        const Vector3 turned(std::cos(yaw) * arm.x() - std::sin(yaw) * arm.y(),
+                             std::sin(yaw) * arm.x() + std::cos(yaw) * arm.y(), arm.z());
+        return Vector3(truth(0, t_s) + turned);
+    };
+    Random random(seed);
+    Engine engine = anchoredEngine();
+    if (body) {
+        engine.trackOnOneBody(kTags[0], kTags[1], (arm_a - arm_b).norm());
+    }
+    double sum = 0.0;
+    size_t rows = 0;
+    for (size_t slot = 0; static_cast<double>(slot) * kSlotS < kDurationS; ++slot) {
+        const double t_s = static_cast<double>(slot) * kSlotS;
+        const bool is_b = slot % 5 == 4;
+        const size_t a = (slot / 5 + (is_b ? 3 : slot % 5)) % kAnchors.size();
+        const Vector3 tag = position(is_b ? arm_b : arm_a, t_s);
+        const NodeId id = kTags[is_b ? 1 : 0];
+        engine.addRange(id, kAnchors[a], (tag - kAnchorPositions[a]).norm() + kNoiseM * random.normal(), t_s);
+        const std::optional<FlightEstimate> b = engine.flightEstimate(kTags[1]);
+        if (t_s >= 10.0 && b && b->status == FlightStatus::Tracking) {
+            sum += (b->position_m - position(arm_b, t_s)).squaredNorm();
+            ++rows;
+        }
+    }
+    EXPECT_GT(rows, 400U);
+    return std::sqrt(sum / static_cast<double>(std::max<size_t>(rows, 1)));
+}
+
+TEST(MotionTrack3D, TwoTagsOnOneBodyHelpTheOneThatRangesLess)
+{
+    // Observed on seeds 1-3: B's RMSE 3D 0.283-0.295 m with the body, 0.388-0.436 m without
+    // (printed); stated: with the body at most 0.8 times without. (A tie applied at full weight at
+    // every prediction failed this: 0.39 and 0.41 m on seeds 2 and 3, the tags pulled together.)
+    for (uint64_t seed : testSeeds({1, 2, 3})) {
+        SCOPED_TRACE(seedTrace(seed));
+        const double with = bodyFlightRmseOfB(seed, true);
+        const double without = bodyFlightRmseOfB(seed, false);
+        std::printf("one body, %s: tag B's RMSE 3D %.3f m with the body, %.3f m without\n", seedTrace(seed).c_str(),
+                    with, without);
+        EXPECT_LE(with, 0.8 * without);
+    }
+    Engine engine = anchoredEngine();
+    EXPECT_THROW(engine.trackOnOneBody(kTags[0], 99, 0.4), std::invalid_argument);   // 99 is not tracked
+    EXPECT_THROW(engine.trackOnOneBody(kTags[0], kTags[1], 0.0), std::invalid_argument);
+    engine.trackOnOneBody(kTags[0], kTags[1], 0.45);
+    EXPECT_THROW(engine.trackOnOneBody(kTags[1], kTags[0], 0.45), std::invalid_argument); // already on a body
+}
+
+TEST(MotionTrack3D, AFixedOrHeightKnownNodeCannotBeTracked)
+{
+    Engine engine;
+    engine.setFixed(1, Vector2(0.0, 0.0));
+    engine.setHeight(2, 1.0);
+    EXPECT_THROW(engine.trackMoving3D(1), std::logic_error);
+    EXPECT_THROW(engine.trackMoving3D(2), std::logic_error);
+    engine.trackMoving3D(10);
+    EXPECT_THROW(engine.setHeight(10, 1.0), std::logic_error);
+    EXPECT_THROW(engine.setFixed(10, Vector2(1.0, 1.0)), std::logic_error);
+    EXPECT_EQ(engine.addRange(10, 1, 2.0), RangeVerdict::RejectedValue); // no time: no track
+    EXPECT_EQ(engine.addRange(10, 10, 2.0, 0.0), RangeVerdict::RejectedSelf);
+}
+
+} // namespace
+} // namespace cdro::enginetest

@@ -1,0 +1,195 @@
+"""cdro-hostd's offline 3D tracking of nodes that never stop, run as a user runs it:
+
+    cdro-hostd --ranges-csv R --fixed-csv A --heights-csv H --moving 10,20 --out-csv N --out-trajectory T
+
+- T has the documented columns, a row per range of a moving node once it heard four anchors,
+  t non-decreasing, the covariance positive definite, the estimates near the truth of a seeded
+  simulated flight (the engine's own test, tests/engine/test_motion_track_3d.cpp, states the
+  bounds; here a loose one);
+- bad input is refused with exit status 2, a message that names the problem, and no outputs:
+  an id in --moving that has no range, a moving id that is also fixed (--fixed-csv) or has a
+  known height, an id that is no node id, ranges without t, --moving without --out-trajectory,
+  with the movement stage or with --trace-csv;
+- the same input gives the same trajectory, byte for byte;
+- --moving-body A:B:SEPARATION_M ties two moving nodes to one body; a malformed one, or one whose
+  nodes are not in --moving, is refused.
+
+The binary is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO_TEST_SEED
+replays one."""
+import csv
+import math
+import os
+import random
+import subprocess
+
+import numpy as np
+import pytest
+
+GUARD_S = 60
+TRAJECTORY_HEADER = "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz"
+ANCHORS = {1: (0.0, 0.0, 1.60), 2: (4.0, 0.0, 1.90), 3: (4.0, 4.0, 1.70), 4: (0.0, 4.0, 1.85),
+           5: (2.0, -0.2, 1.75), 6: (2.0, 4.2, 1.65)}
+TAGS = (10, 20)
+
+
+def run(hostd, *args):
+    return subprocess.run([str(hostd), *map(str, args)], capture_output=True, text=True, timeout=GUARD_S)
+
+
+def seed_of(default):
+    seed = int(os.environ.get("CDRO_TEST_SEED", str(default)), 0)
+    print(f"seed {seed} (set CDRO_TEST_SEED={seed} to replay)")
+    return seed
+
+
+def truth(k, t_s):
+    phase = 1.7 * k
+    return (2.0 + 1.3 * math.cos(0.45 * t_s + phase), 2.0 + 1.3 * math.sin(0.36 * t_s + phase),
+            0.8 + 0.5 * math.sin(0.225 * t_s + phase))
+
+
+def write_flight(folder, seed, duration_s=40.0):
+    """ranges.csv (t,from,to,range_m: every 0.1 s a range, tags alternating over the anchors, every
+    fifth a tag-to-tag one; noise 0.1 m), anchors.csv (id,x,y), heights.csv (id,z)."""
+    rng = random.Random(seed)
+    rows = ["t,from,to,range_m"]
+    next_anchor = 0
+    ids = sorted(ANCHORS)
+    for slot in range(int(duration_s / 0.1)):
+        t = slot * 0.1
+        if slot % 5 == 4:
+            d = math.dist(truth(0, t), truth(1, t))
+            rows.append(f"{t:.3f},{TAGS[0]},{TAGS[1]},{d + rng.gauss(0, 0.1):.4f}")
+            continue
+        k = slot % 2
+        a = ids[(next_anchor // 2) % len(ids)]
+        next_anchor += 1
+        d = math.dist(truth(k, t), ANCHORS[a])
+        rows.append(f"{t:.3f},{TAGS[k]},{a},{d + rng.gauss(0, 0.1):.4f}")
+    (folder / "ranges.csv").write_text("\n".join(rows) + "\n")
+    (folder / "anchors.csv").write_text("id,x,y\n" + "".join(f"{i},{p[0]},{p[1]}\n" for i, p in ANCHORS.items()))
+    (folder / "heights.csv").write_text("id,z\n" + "".join(f"{i},{p[2]}\n" for i, p in ANCHORS.items()))
+    return folder
+
+
+def moving_args(folder, moving="10,20", out="nodes.csv", trajectory="trajectory.csv"):
+    return ["--ranges-csv", folder / "ranges.csv", "--fixed-csv", folder / "anchors.csv",
+            "--heights-csv", folder / "heights.csv", "--moving", moving, "--out-csv", folder / out,
+            "--out-trajectory", folder / trajectory]
+
+
+def test_that_moving_writes_each_moving_nodes_3d_trajectory(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(1))
+
+    result = run(hostd, *moving_args(folder))
+
+    assert result.returncode == 0, result.stderr
+    assert "moving nodes tracked in 3D: 2 nodes" in result.stderr
+    text = (folder / "trajectory.csv").read_text()
+    assert text.split("\n", 1)[0] == TRAJECTORY_HEADER
+    rows = list(csv.DictReader(text.splitlines()))
+    ranges = list(csv.DictReader((folder / "ranges.csv").read_text().splitlines()))
+    # A row per range of a moving node (two for a tag-to-tag range) once it heard 4 anchors: at
+    # most that many, and all but the first few ranges of each tag.
+    per_range = sum((r["from"] in ("10", "20")) + (r["to"] in ("10", "20")) for r in ranges)
+    assert per_range - 20 <= len(rows) <= per_range
+    assert {r["id"] for r in rows} == {"10", "20"}
+    times = [float(r["t"]) for r in rows]
+    assert times == sorted(times)
+    errors = []
+    for r in rows:
+        cov = np.array([[float(r["var_x"]), float(r["cov_xy"]), float(r["cov_xz"])],
+                        [float(r["cov_xy"]), float(r["var_y"]), float(r["cov_yz"])],
+                        [float(r["cov_xz"]), float(r["cov_yz"]), float(r["var_z"])]])
+        assert np.all(np.linalg.eigvalsh(cov) > 0.0), r
+        t = float(r["t"])
+        if t >= 10.0:
+            p = np.array([float(r["x"]), float(r["y"]), float(r["z"])])
+            errors.append(float(np.linalg.norm(p - truth(TAGS.index(int(r["id"])), t))))
+    rmse = math.sqrt(sum(e * e for e in errors) / len(errors))
+    print(f"RMSE 3D from 10 s: {rmse:.3f} m over {len(errors)} rows")
+    assert rmse < 0.4
+    # The moving nodes are not in NODES (not part of the static map; here nothing is: no range
+    # between static nodes, so NODES is its header alone).
+    nodes_text = (folder / "nodes.csv").read_text()
+    assert nodes_text.startswith("id,x,y,")
+    nodes = {r["id"] for r in csv.DictReader(nodes_text.splitlines())}
+    assert not nodes & {"10", "20", "0x000A", "0x0014"}
+
+
+def test_that_the_same_input_gives_the_same_trajectory(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(2))
+    first = run(hostd, *moving_args(folder, trajectory="a.csv"))
+    second = run(hostd, *moving_args(folder, trajectory="b.csv"))
+    assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
+    assert (folder / "a.csv").read_bytes() == (folder / "b.csv").read_bytes()
+
+
+@pytest.mark.parametrize("moving, message", [
+    ("10,20,99", "--moving: node 99 (0x0063) has no range in"),
+    ("10,3", "--moving: node 3 is fixed: it cannot also be tracked as moving"),
+    ("10,abc", "--moving: 'abc' is not a node id"),
+    ("10,0", "--moving: '0' is not a node id"),
+])
+def test_that_a_bad_moving_list_is_refused_with_a_clear_message(hostd, tmp_path, moving, message):
+    folder = write_flight(tmp_path, seed_of(3), duration_s=5.0)
+
+    result = run(hostd, *moving_args(folder, moving=moving))
+
+    assert result.returncode == 2
+    assert message in result.stderr, result.stderr
+    assert not (folder / "trajectory.csv").exists()
+    assert not (folder / "nodes.csv").exists()
+
+
+def test_that_a_moving_node_with_a_known_height_is_refused(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(4), duration_s=5.0)
+    with open(folder / "heights.csv", "a") as f:
+        f.write("20,1.0\n")
+
+    result = run(hostd, *moving_args(folder))
+
+    assert result.returncode == 2
+    assert "--moving: node 20 has a known height" in result.stderr, result.stderr
+    assert not (folder / "trajectory.csv").exists()
+
+
+def test_that_moving_needs_times_a_trajectory_and_no_movement_stage(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(5), duration_s=5.0)
+    untimed = tmp_path / "untimed"
+    untimed.mkdir()
+    for name in ("anchors.csv", "heights.csv"):
+        (untimed / name).write_text((folder / name).read_text())
+    lines = (folder / "ranges.csv").read_text().splitlines()[1:]
+    (untimed / "ranges.csv").write_text("from,to,range_m\n"
+                                        + "".join(",".join(line.split(",")[1:]) + "\n" for line in lines))
+
+    no_time = run(hostd, *moving_args(untimed))
+    no_trajectory = run(hostd, "--ranges-csv", folder / "ranges.csv", "--fixed-csv", folder / "anchors.csv",
+                        "--heights-csv", folder / "heights.csv", "--moving", "10", "--out-csv", folder / "n.csv")
+    with_odometry = run(hostd, *moving_args(folder), "--robot-id", "10")
+    with_trace = run(hostd, *moving_args(folder), "--trace-csv", folder / "trace.csv")
+
+    assert no_time.returncode == 2 and "--moving needs a t column in the ranges" in no_time.stderr, no_time.stderr
+    assert no_trajectory.returncode == 2 and "--moving needs --out-trajectory" in no_trajectory.stderr
+    assert with_odometry.returncode == 2 and "--moving is not for the movement stage" in with_odometry.stderr
+    assert with_trace.returncode == 2 and "--trace-csv is not written with --moving" in with_trace.stderr
+    assert not (folder / "trace.csv").exists()
+    assert not (folder / "trajectory.csv").exists()
+
+
+def test_that_moving_body_ties_two_moving_nodes_and_refuses_bad_input(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(6), duration_s=10.0)
+
+    good = run(hostd, *moving_args(folder), "--moving-body", "10:20:0.45")
+    malformed = run(hostd, *moving_args(folder, trajectory="m.csv"), "--moving-body", "10:20")
+    not_moving = run(hostd, *moving_args(folder, moving="10", trajectory="n.csv"), "--moving-body", "10:20:0.45")
+    no_moving = run(hostd, "--ranges-csv", folder / "ranges.csv", "--out-csv", folder / "x.csv",
+                    "--moving-body", "10:20:0.45")
+
+    assert good.returncode == 0, good.stderr
+    assert "one-body updates" in good.stderr and " 0 one-body updates" not in good.stderr
+    assert malformed.returncode == 2 and "--moving-body: '10:20' is not A:B:SEPARATION_M" in malformed.stderr
+    assert not_moving.returncode == 2 and "both must be in --moving" in not_moving.stderr, not_moving.stderr
+    assert no_moving.returncode == 2 and "--moving-body needs --moving" in no_moving.stderr
+    assert not (folder / "m.csv").exists() and not (folder / "n.csv").exists()
