@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs what is missing, builds everything and runs every test, stopping at the first failure:
-#   1. native build (warnings as errors), clang-tidy over it (scripts/tidy.sh, .clang-tidy, every
-#      finding an error), and its CTest suites
+#   1. the C and C++ laid out as .clang-format says (scripts/format.sh --check), the native build
+#      (warnings as errors), clang-tidy over it (scripts/tidy.sh, .clang-tidy, every finding an
+#      error), and its CTest suites
 #   2. the same suites built with AddressSanitizer + UndefinedBehaviorSanitizer
 #   3. AVR cross builds with avr-gcc: the Uno image (with its flash/RAM budget) and the Mega image
 #   4. libFuzzer on the frame decoder: a short run with a fixed seed and a fixed number of inputs
@@ -25,7 +26,8 @@ ctest_timed() {
   rm -f "$log"
 }
 
-step "1/5 native build + clang-tidy + tests"
+step "1/5 clang-format + native build + clang-tidy + tests"
+scripts/format.sh --check
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo > /dev/null
 cmake --build build -j "$JOBS"
 scripts/tidy.sh build

@@ -72,11 +72,11 @@ double cpuSeconds()
 }
 
 struct Memory {
-    long max_rss_kib = -1; // getrusage ru_maxrss (KiB on Linux): peak resident set so far; Linux
-                           // carries it across exec, so a spawned child starts at its parent's
-    long vm_hwm_kib = -1;  // /proc/self/status VmHWM: the peak of this address space only (the
-                           // per-draw figure: the children are spawned)
-    long vm_rss_kib = -1;  // /proc/self/status VmRSS: resident now
+    long max_rss_kib = -1;     // getrusage ru_maxrss (KiB on Linux): peak resident set so far; Linux
+                               // carries it across exec, so a spawned child starts at its parent's
+    long vm_hwm_kib = -1;      // /proc/self/status VmHWM: the peak of this address space only (the
+                               // per-draw figure: the children are spawned)
+    long vm_rss_kib = -1;      // /proc/self/status VmRSS: resident now
     long heap_in_use_kib = -1; // glibc mallinfo2: bytes allocated and not freed (RSS keeps memory
                                // that was freed but not returned to the system; this does not)
 };
@@ -129,22 +129,22 @@ double median(std::vector<double> values)
 }
 
 struct Accuracy {
-    double rmse_m = std::nan("");  // m, aligned (rotation, translation, reflection), placed nodes
+    double rmse_m = std::nan(""); // m, aligned (rotation, translation, reflection), placed nodes
     size_t placed = 0;
     size_t converged = 0;
-    size_t total = 0;              // nodes with a truth position
-    bool finite = true;            // no NaN or infinity in any estimate
-    size_t over_1m = 0;            // placed nodes more than 1 m off after the alignment
+    size_t total = 0;   // nodes with a truth position
+    bool finite = true; // no NaN or infinity in any estimate
+    size_t over_1m = 0; // placed nodes more than 1 m off after the alignment
     // The same over the nodes the engine calls converged, fitted on them alone: how far the
     // engine's own claim can be trusted (a node a network cannot decide, e.g. with two links,
     // is placed but not converged, and moves the RMSE over all placed nodes).
     double converged_rmse_m = std::nan(""); // m
-    size_t converged_over_1m = 0;  // converged nodes more than 1 m off after that fit
+    size_t converged_over_1m = 0;           // converged nodes more than 1 m off after that fit
     // How well the map explains its own links (placed ends): a map far from the truth that
     // explains every link is a real ambiguity of the network (a flip about a hinge), one that
     // leaves links unexplained is a local minimum of the engine.
     size_t links_checked = 0;
-    size_t links_over_0_5m = 0;    // |link range - distance in the map| > 0.5 m (5 sigma)
+    size_t links_over_0_5m = 0; // |link range - distance in the map| > 0.5 m (5 sigma)
     double link_residual_rms_m = std::nan("");
     double median_error_m = std::nan(""); // m, the typical node's error (one lost node moves the RMSE)
     struct Worst {
@@ -152,7 +152,7 @@ struct Accuracy {
         NodeId id = 0;
         uint32_t links = 0;
     };
-    std::vector<Worst> worst;      // the largest errors, largest first
+    std::vector<Worst> worst; // the largest errors, largest first
 };
 
 Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m)
@@ -272,8 +272,7 @@ struct StateSize {
 StateSize stateSize(const Engine &engine)
 {
     constexpr size_t kHashEntryBytes = 32;
-    constexpr size_t kPerComponentBytes =
-        sizeof(cdro::engine::SogComponentState) + sizeof(double) + sizeof(uint32_t);
+    constexpr size_t kPerComponentBytes = sizeof(cdro::engine::SogComponentState) + sizeof(double) + sizeof(uint32_t);
     StateSize size;
     size.nodes = engine.map().nodes.size();
     size.links = engine.map().links.size();
@@ -293,8 +292,8 @@ StateSize stateSize(const Engine &engine)
 
 Json stateJson(const StateSize &s)
 {
-    return Json{{"nodes", s.nodes}, {"links", s.links}, {"rings", s.rings}, {"components", s.components},
-                {"bytes", s.bytes}};
+    return Json{
+        {"nodes", s.nodes}, {"links", s.links}, {"rings", s.rings}, {"components", s.components}, {"bytes", s.bytes}};
 }
 
 // The number of placed nodes over the run: an event each time it changes. Counting costs
@@ -363,7 +362,7 @@ struct Timed {
     double wall_s = 0.0;
     double cpu_s = 0.0;
     uint64_t ranges = 0;
-    uint64_t refused = 0; // ranges the engine rejected (none expected)
+    uint64_t refused = 0;        // ranges the engine rejected (none expected)
     double longest_call_s = 0.0; // s, the slowest addRange call (wall clock; with the ranges fed
                                  // back to back it includes waiting for the solve's worker)
     double rate() const { return wall_s > 0.0 ? static_cast<double>(ranges) / wall_s : 0.0; }
@@ -421,7 +420,6 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
 // cdro-hostd's offline default: enough neighbour updates for every node to move many times.
 uint64_t settleBudget(const Engine &engine) { return 200ULL * engine.map().nodes.size() + 1000ULL; }
 
-
 Json timedJson(const Timed &t)
 {
     return Json{{"ranges", t.ranges},
@@ -441,19 +439,19 @@ using cdro::bench::Plant;
 std::string findPlant(const std::string &option) { return cdro::bench::findPlant(option, CDRO_SOURCE_DIR); }
 
 // Its implicit move may throw (a member's move is not noexcept); the bench only returns it by value.
-struct PlantRun { // NOLINT(bugprone-exception-escape)
-    Timed first;                    // pass 1
-    std::vector<Timed> steady;      // passes 2..N
+struct PlantRun {              // NOLINT(bugprone-exception-escape)
+    Timed first;               // pass 1
+    std::vector<Timed> steady; // passes 2..N
     Timed steady_total;
-    Json first_map;                 // firstMapJson
-    uint64_t reinit_first = 0;      // re-initializations during pass 1
-    uint64_t reinit_steady = 0;     // ... during the steady state (0 expected: no new link)
-    Accuracy after_first;           // live estimates after pass 1
-    Accuracy after_first_settled;   // a copy settled as cdro-hostd does at the end of a file
-    Accuracy end;                   // live estimates after pass N
+    Json first_map;               // firstMapJson
+    uint64_t reinit_first = 0;    // re-initializations during pass 1
+    uint64_t reinit_steady = 0;   // ... during the steady state (0 expected: no new link)
+    Accuracy after_first;         // live estimates after pass 1
+    Accuracy after_first_settled; // a copy settled as cdro-hostd does at the end of a file
+    Accuracy end;                 // live estimates after pass N
     Accuracy end_settled;
     StateSize state;
-    long heap_kib = -1;             // heap in use by the engine after the last pass (mallinfo2)
+    long heap_kib = -1;                  // heap in use by the engine after the last pass (mallinfo2)
     EngineCounters after_first_counters; // the engine's counters after pass 1 ...
     EngineCounters counters;             // ... and after pass N (before the final settle)
 };
@@ -626,10 +624,11 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     for (size_t i = 0; i < net.ids.size(); ++i) {
         truth_m[net.ids[i]] = net.position_m[i];
     }
-    const uint32_t sweeps = std::max<uint32_t>(
-        options.min_sweeps,
-        options.warmup_sweeps + static_cast<uint32_t>((options.steady_ranges + links - 1) / links));
-    cdro::netgen::MersenneRandom noise(cdro::netgen::mixSeed(net.draw_seed ^ 0x6E6F697365ULL)); // "noise": its own stream
+    const uint32_t sweeps =
+        std::max<uint32_t>(options.min_sweeps,
+                           options.warmup_sweeps + static_cast<uint32_t>((options.steady_ranges + links - 1) / links));
+    cdro::netgen::MersenneRandom noise(
+        cdro::netgen::mixSeed(net.draw_seed ^ 0x6E6F697365ULL)); // "noise": its own stream
     std::vector<Range> sweep_ranges(links);
     // The same stream as files, so that a case can be replayed through cdro-hostd --ranges-csv
     // and judged by cdro-eval (%.17g: the doubles read back exactly, the engine repeats itself).
@@ -873,8 +872,7 @@ void printPlant(const Json &p)
     std::printf("  first pass (builds the map) %9.1f ms, %.1f us/range (%.1f per CPU time; median of repeats); %d "
                 "re-initializations\n",
                 1e3 * p["first_pass_s_median"].get<double>(), p["first_pass_us_per_range_median"].get<double>(),
-                p["first_pass_cpu_us_per_range_median"].get<double>(),
-                p["reinitializations_first_pass"].get<int>());
+                p["first_pass_cpu_us_per_range_median"].get<double>(), p["reinitializations_first_pass"].get<int>());
     const Json &work = p["steady_work_per_range"];
     std::printf("  steady-state work a range   %.2f node updates (%.2f neighbours), %.1f SoG component updates, "
                 "%.1f weight terms, %.2f weight updates deferred, %.2g global solves\n",
@@ -900,8 +898,7 @@ void printPlant(const Json &p)
                 "engine heap %ld KiB, ~%.0f KiB estimated from its parts (%d ring components)\n",
                 p["memory_after"]["max_rss_kib"].get<long>(), p["memory_after"]["vm_hwm_kib"].get<long>(),
                 p["memory_before"]["vm_rss_kib"].get<long>(), p["engine_heap_kib"].get<long>(),
-                p["engine_state"]["bytes"].get<double>() / 1024.0,
-                p["engine_state"]["components"].get<int>());
+                p["engine_state"]["bytes"].get<double>() / 1024.0, p["engine_state"]["components"].get<int>());
 }
 
 std::string formatRmse(const Json &a)
@@ -920,10 +917,9 @@ void printNetworks(const Json &networks)
 {
     std::printf("\nRandom geometric networks (a fresh process per draw; Gaussian range noise; every link once a\n"
                 "sweep, in a seeded random order)\n");
-    std::printf("%5s %5s %6s %6s %6s %6s | %9s %9s | %8s %8s %7s | %8s %8s %9s | %7s %8s %6s | %8s %8s %9s\n",
-                "nodes", "seed", "links", "degree", "radio", "sweeps", "ranges/s", "per_cpu_s", "map_rng", "map_s",
-                "placed", "rmse_m", "median_m", "bad_links", "conv", "conv_rms", "conv>1", "peak_MiB", "heap_MiB",
-                "state_MiB");
+    std::printf("%5s %5s %6s %6s %6s %6s | %9s %9s | %8s %8s %7s | %8s %8s %9s | %7s %8s %6s | %8s %8s %9s\n", "nodes",
+                "seed", "links", "degree", "radio", "sweeps", "ranges/s", "per_cpu_s", "map_rng", "map_s", "placed",
+                "rmse_m", "median_m", "bad_links", "conv", "conv_rms", "conv>1", "peak_MiB", "heap_MiB", "state_MiB");
     for (const Json &size : networks) {
         for (const Json &n : size["draws"]) {
             if (n.contains("error")) {
@@ -954,8 +950,8 @@ void printNetworks(const Json &networks)
                         n["nodes"].get<int>(), n["seed"].get<unsigned long long>(), n["links"].get<int>(),
                         n["mean_degree"].get<double>(), n["radius_m"].get<double>(), n["sweeps"].get<int>(),
                         n["steady"]["ranges_per_s"].get<double>(), n["steady"]["ranges_per_cpu_s"].get<double>(),
-                        map_ranges, map_s, placed, formatRmse(a).c_str(), a["median_error_m"].get<double>(),
-                        bad_links, a["converged"].get<int>(), converged_rmse, a["converged_over_1m"].get<int>(),
+                        map_ranges, map_s, placed, formatRmse(a).c_str(), a["median_error_m"].get<double>(), bad_links,
+                        a["converged"].get<int>(), converged_rmse, a["converged_over_1m"].get<int>(),
                         static_cast<double>(n["memory_after"]["vm_hwm_kib"].get<long>()) / 1024.0,
                         static_cast<double>(n["memory_after"]["heap_in_use_kib"].get<long>() -
                                             n["memory_before"]["heap_in_use_kib"].get<long>()) /
@@ -1094,7 +1090,8 @@ static int runMain(int argc, char **argv)
     NetworkOptions network;
     app.add_option("--data-dir", data_dir,
                    "folder that holds plant/ (default $CDRO_DATA_DIR, else ../shared/data from the repository root)");
-    app.add_option("--passes", passes, "PLANT: passes over the 1205 ranges per repeat (>= 2)")->capture_default_str()
+    app.add_option("--passes", passes, "PLANT: passes over the 1205 ranges per repeat (>= 2)")
+        ->capture_default_str()
         ->check(CLI::Range(2U, 1000000U));
     app.add_option("--repeat", repeats, "PLANT: repeats, each with a fresh engine; the median is reported")
         ->capture_default_str()
@@ -1104,7 +1101,8 @@ static int runMain(int argc, char **argv)
         ->delimiter(',')
         ->check(CLI::Range(3U, 60000U));
     app.add_option("--seed", seed, "seed of the first draw of each size; draw k uses seed + k")->capture_default_str();
-    app.add_option("--draws", draws, "networks drawn per size (each in a fresh process)")->capture_default_str()
+    app.add_option("--draws", draws, "networks drawn per size (each in a fresh process)")
+        ->capture_default_str()
         ->check(CLI::Range(1U, 1000U));
     app.add_option("--degree", network.degree, "mean degree of the networks")->capture_default_str();
     app.add_option("--area-per-node-m2", network.area_per_node_m2, "m^2 of the square per node")->capture_default_str();
@@ -1170,14 +1168,27 @@ static int runMain(int argc, char **argv)
                 Json results = Json::array();
                 for (uint32_t draw = 0; draw < draws; ++draw) {
                     const uint64_t draw_seed = seed + draw;
-                    const std::vector<std::string> arguments{
-                        argv[0], "--one-network", std::to_string(nodes), "--seed", std::to_string(draw_seed),
-                        "--degree", std::to_string(network.degree), "--area-per-node-m2",
-                        std::to_string(network.area_per_node_m2), "--noise-m", std::to_string(network.noise_sigma_m),
-                        "--warmup-sweeps", std::to_string(network.warmup_sweeps), "--min-sweeps",
-                        std::to_string(network.min_sweeps), "--steady-ranges", std::to_string(network.steady_ranges),
-                        "--pace", std::to_string(network.pace_ranges_per_s), "--adopt-after-sweeps",
-                        std::to_string(network.adopt_after_sweeps)};
+                    const std::vector<std::string> arguments{argv[0],
+                                                             "--one-network",
+                                                             std::to_string(nodes),
+                                                             "--seed",
+                                                             std::to_string(draw_seed),
+                                                             "--degree",
+                                                             std::to_string(network.degree),
+                                                             "--area-per-node-m2",
+                                                             std::to_string(network.area_per_node_m2),
+                                                             "--noise-m",
+                                                             std::to_string(network.noise_sigma_m),
+                                                             "--warmup-sweeps",
+                                                             std::to_string(network.warmup_sweeps),
+                                                             "--min-sweeps",
+                                                             std::to_string(network.min_sweeps),
+                                                             "--steady-ranges",
+                                                             std::to_string(network.steady_ranges),
+                                                             "--pace",
+                                                             std::to_string(network.pace_ranges_per_s),
+                                                             "--adopt-after-sweeps",
+                                                             std::to_string(network.adopt_after_sweeps)};
                     std::string failure;
                     Json result = spawnNetwork(arguments, &failure);
                     if (result.is_null()) {

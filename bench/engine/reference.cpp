@@ -65,8 +65,9 @@ static int runMain(int argc, char **argv)
         const auto ranges = hostd::readRangesCsv(ranges_path, kAll);
         reportProblems(ranges_path, ranges);
         for (const hostd::RangeRow &row : ranges.rows) {
-            const engine::TakenRange taken = intake.take(map, row.from, row.to, row.range_m,
-                                                            row.has_time ? row.t_s : std::numeric_limits<double>::quiet_NaN());
+            const engine::TakenRange taken =
+                intake.take(map, row.from, row.to, row.range_m,
+                            row.has_time ? row.t_s : std::numeric_limits<double>::quiet_NaN());
             if (taken.link != engine::kNoIndex) {
                 intake.refreshLinkRange(map, taken.link, false);
             }
@@ -101,7 +102,8 @@ static int runMain(int argc, char **argv)
             again.stages = {engine::RefineStage{}};
             engine::refineMap(problem, estimate, likelihood, again);
         }
-        const engine::MapCovariance confidence = engine::mapCovariance(problem, estimate, likelihood, engine::MapModelError{});
+        const engine::MapCovariance confidence =
+            engine::mapCovariance(problem, estimate, likelihood, engine::MapModelError{});
         std::FILE *out = std::fopen(out_path.c_str(), "w");
         if (out == nullptr) {
             throw std::runtime_error("cannot write " + out_path);
@@ -117,10 +119,11 @@ static int runMain(int argc, char **argv)
                          estimate.position_m[i].x(), estimate.position_m[i].y(), c(0, 0), c(0, 1), c(1, 1));
         }
         std::fclose(out);
-        std::printf("cost_nats %.6f\nnlos_fraction %.4f\nnlos_mean_excess_m %.4f\nvariance_factor %.4f\nnodes %u\nlinks %zu\n",
-                    engine::mapCost(problem, estimate, likelihood), likelihood.params().nlos_fraction,
-                    likelihood.params().nlos_mean_excess_m, confidence.variance_factor, problem.nodeCount(),
-                    problem.links.size());
+        std::printf(
+            "cost_nats %.6f\nnlos_fraction %.4f\nnlos_mean_excess_m %.4f\nvariance_factor %.4f\nnodes %u\nlinks %zu\n",
+            engine::mapCost(problem, estimate, likelihood), likelihood.params().nlos_fraction,
+            likelihood.params().nlos_mean_excess_m, confidence.variance_factor, problem.nodeCount(),
+            problem.links.size());
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-reference: %s\n", error.what());
         return 1;

@@ -296,13 +296,16 @@ void writeAll(int fd, const uint8_t *bytes, size_t len)
     }
 }
 
-size_t encode(const cdro_frame_t &frame, uint8_t *out) { return cdro_frame_encode(&frame, out, CDRO_MAX_ENCODED_FRAME); }
+size_t encode(const cdro_frame_t &frame, uint8_t *out)
+{
+    return cdro_frame_encode(&frame, out, CDRO_MAX_ENCODED_FRAME);
+}
 
 struct DeviceScript {
     uint16_t own_node = kOwnNode;
-    uint64_t frames = 0;   // 0 = until soak_s
-    double soak_s = 0.0;   // s; 0 = until frames
-    double rate_hz = 0.0;  // frames/s; 0 = as fast as the PTY takes them
+    uint64_t frames = 0;  // 0 = until soak_s
+    double soak_s = 0.0;  // s; 0 = until frames
+    double rate_hz = 0.0; // frames/s; 0 = as fast as the PTY takes them
     // The i-th RANGE frame's payload (device time included).
     std::function<void(uint64_t i, cdro_range_t &range)> range;
 };
@@ -389,7 +392,7 @@ void device(int master, const DeviceScript &script, std::atomic<bool> &stop)
 // ---- PLANT's map at the end -----------------------------------------------------------------
 
 struct MapScore {
-    size_t nodes = 0;      // with a surveyed position
+    size_t nodes = 0; // with a surveyed position
     size_t placed = 0;
     size_t converged = 0;
     double rmse_m = std::nan(""); // m, aligned (rotation, translation, reflection), placed nodes
@@ -558,8 +561,7 @@ static int runMain(int argc, char **argv)
             return 2;
         }
     }
-    const std::string run_text = soak_s > 0.0 ? shortNumber(soak_s) + " s soak"
-                                              : std::to_string(frames) + " frames";
+    const std::string run_text = soak_s > 0.0 ? shortNumber(soak_s) + " s soak" : std::to_string(frames) + " frames";
     const std::string rate_text = rate_hz > 0.0 ? shortNumber(rate_hz) + " frames/s" : "flood";
     const std::string jsonl_text = !jsonl                ? "off"
                                    : jsonl_rate_hz > 0.0 ? "on, all nodes at " + shortNumber(jsonl_rate_hz) + " Hz"
@@ -648,8 +650,8 @@ static int runMain(int argc, char **argv)
         };
     } else {
         script.range = [](uint64_t i, cdro_range_t &range) {
-            range = {static_cast<uint32_t>(1001U + i / 4U), kOwnNode, kRemoteNodes[i % 7],
-                     static_cast<uint32_t>(2000 + i % 5000), -80, 0};
+            range = {static_cast<uint32_t>(1001U + i / 4U),  kOwnNode, kRemoteNodes[i % 7],
+                     static_cast<uint32_t>(2000 + i % 5000), -80,      0};
         };
     }
 
@@ -707,8 +709,8 @@ static int runMain(int argc, char **argv)
     std::printf("frames delivered      %llu, rejected chunks %llu, frames lost %llu\n",
                 static_cast<unsigned long long>(ranges), static_cast<unsigned long long>(c.chunks_rejected),
                 static_cast<unsigned long long>(c.frames_lost));
-    std::printf("throughput            %.0f frames/s over %.2f s (goal > 20000)\n", static_cast<double>(ranges) / seconds,
-                timer.seconds());
+    std::printf("throughput            %.0f frames/s over %.2f s (goal > 20000)\n",
+                static_cast<double>(ranges) / seconds, timer.seconds());
     timer.all().print("arrival -> output");
     if (with_engine) {
         timer.afterWarmup().print("  from pass 3 on");
@@ -752,7 +754,8 @@ static int runMain(int argc, char **argv)
         }
         std::printf("                      end   %8ld %9ld\n", rss_end_kib, heap_end_kib);
     }
-    const auto minute = std::find_if(samples.begin(), samples.end(), [](const MemorySample &x) { return x.t_s >= 59.5; });
+    const auto minute =
+        std::find_if(samples.begin(), samples.end(), [](const MemorySample &x) { return x.t_s >= 59.5; });
     if (minute != samples.end()) {
         std::printf("memory growth         from %.0f s (%ld KiB resident, %ld KiB heap) to the end: %+ld KiB resident, "
                     "%+ld KiB heap\n",
@@ -764,11 +767,12 @@ static int runMain(int argc, char **argv)
     std::printf("load average          %s at the start, %s at the end\n", load_start.c_str(), load_end.c_str());
     if (with_engine) {
         const cdro::engine::EngineCounters e = engine.counters();
-        std::printf("engine ranges         received %llu, used %llu, stored %llu, refused %llu (self %llu, value %llu)\n",
-                    static_cast<unsigned long long>(e.intake.ranges_received), static_cast<unsigned long long>(e.ranges_used),
-                    static_cast<unsigned long long>(e.ranges_stored),
-                    static_cast<unsigned long long>(adapter.rangesRefused()),
-                    static_cast<unsigned long long>(e.intake.rejected_self), static_cast<unsigned long long>(e.intake.rejected_value));
+        std::printf(
+            "engine ranges         received %llu, used %llu, stored %llu, refused %llu (self %llu, value %llu)\n",
+            static_cast<unsigned long long>(e.intake.ranges_received), static_cast<unsigned long long>(e.ranges_used),
+            static_cast<unsigned long long>(e.ranges_stored), static_cast<unsigned long long>(adapter.rangesRefused()),
+            static_cast<unsigned long long>(e.intake.rejected_self),
+            static_cast<unsigned long long>(e.intake.rejected_value));
         std::printf("engine events         %llu global solves (%llu maps adopted), %llu placements, %llu motion starts "
                     "(%llu inferred), %llu track updates\n",
                     static_cast<unsigned long long>(e.solve.solves),
@@ -786,9 +790,10 @@ static int runMain(int argc, char **argv)
                     static_cast<unsigned long long>(timed.engineCallsOver1ms()), fill_us,
                     static_cast<unsigned long long>(timed.fills()), wall_us_per_frame - engine_us - fill_us);
         const MapScore score = scoreMap(engine, truth_m);
-        std::printf("map at the end        %zu of %zu nodes placed, %zu converged; aligned RMSE %.3f m (worst node %.3f "
-                    "m; live, not settled)\n",
-                    score.placed, score.nodes, score.converged, score.rmse_m, score.worst_m);
+        std::printf(
+            "map at the end        %zu of %zu nodes placed, %zu converged; aligned RMSE %.3f m (worst node %.3f "
+            "m; live, not settled)\n",
+            score.placed, score.nodes, score.converged, score.rmse_m, score.worst_m);
     }
     ::close(master);
     ::close(slave);

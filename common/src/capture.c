@@ -11,10 +11,11 @@ CDRO_CAPTURE_RECORD_LIST(CDRO_X_DECODER)
 
 /* The sizes capture_layout.def states for the readers that only see its constants (Python,
  * the docs) must be the sums of its records. */
-typedef char cdro_capture_header_fixed_agrees[(CDRO_CAPTURE_HEADER_FIXED ==
-                                               CDRO_CAPTURE_MAGIC_SIZE + CDRO_CAPTURE_HEAD_MAX_SIZE + 2U) ? 1 : -1];
-typedef char cdro_capture_record_overhead_agrees[(CDRO_CAPTURE_RECORD_OVERHEAD ==
-                                                  CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE + 2U) ? 1 : -1];
+typedef char cdro_capture_header_fixed_agrees
+    [(CDRO_CAPTURE_HEADER_FIXED == CDRO_CAPTURE_MAGIC_SIZE + CDRO_CAPTURE_HEAD_MAX_SIZE + 2U) ? 1 : -1];
+typedef char
+    cdro_capture_record_overhead_agrees[(CDRO_CAPTURE_RECORD_OVERHEAD == CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE + 2U) ? 1
+                                                                                                                 : -1];
 typedef char cdro_capture_magic_agrees[(sizeof CDRO_CAPTURE_MAGIC == CDRO_CAPTURE_MAGIC_SIZE) ? 1 : -1];
 
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap)
@@ -47,8 +48,7 @@ size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *
     return size;
 }
 
-cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_capture_header_t *out,
-                                         size_t *consumed)
+cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_capture_header_t *out, size_t *consumed)
 {
     size_t size;
     size_t covered;
@@ -117,8 +117,7 @@ size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *
     return size;
 }
 
-cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out,
-                                         size_t *consumed)
+cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out, size_t *consumed)
 {
     size_t size;
     cdro_capture_record_head_t head;
@@ -151,8 +150,8 @@ cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_cap
     return CDRO_OK;
 }
 
-cdro_result_t cdro_capture_next_record(const uint8_t *in, size_t len, cdro_capture_record_t *out,
-                                       size_t *skipped, size_t *consumed)
+cdro_result_t cdro_capture_next_record(const uint8_t *in, size_t len, cdro_capture_record_t *out, size_t *skipped,
+                                       size_t *consumed)
 {
     size_t offset;
     for (offset = 0; offset < len; ++offset) {

@@ -14,10 +14,7 @@ uint16_t cdro_crc16_update(uint16_t crc, const uint8_t *data, size_t len)
     return crc;
 }
 
-uint16_t cdro_crc16(const uint8_t *data, size_t len)
-{
-    return cdro_crc16_update(CDRO_CRC16_INIT, data, len);
-}
+uint16_t cdro_crc16(const uint8_t *data, size_t len) { return cdro_crc16_update(CDRO_CRC16_INIT, data, len); }
 
 uint32_t cdro_crc32_update(uint32_t state, const uint8_t *data, size_t len)
 {
@@ -32,10 +29,7 @@ uint32_t cdro_crc32_update(uint32_t state, const uint8_t *data, size_t len)
     return state;
 }
 
-uint32_t cdro_crc32_final(uint32_t state)
-{
-    return state ^ 0xFFFFFFFFUL;
-}
+uint32_t cdro_crc32_final(uint32_t state) { return state ^ 0xFFFFFFFFUL; }
 
 uint32_t cdro_crc32(const uint8_t *data, size_t len)
 {

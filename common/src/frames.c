@@ -81,28 +81,27 @@ size_t cdro_frame_encode(const cdro_frame_t *frame, uint8_t *out, size_t out_cap
         return 0;
     }
     switch (frame->type) {
-#define CDRO_X_ENCODE_CASE(NAME, name, id, doc)            \
-    case id:                                               \
-        if (CDRO_DEVICE_SIDE && (id) >= 0x40) {            \
-            return 0; /* a device never sends a host frame */ \
-        }                                                  \
+#define CDRO_X_ENCODE_CASE(NAME, name, id, doc)                \
+    case id:                                                   \
+        if (CDRO_DEVICE_SIDE && (id) >= 0x40) {                \
+            return 0; /* a device never sends a host frame */  \
+        }                                                      \
         payload_len = encode_##name(&frame->as.name, payload); \
         if (payload_len == 0U && CDRO_##NAME##_MIN_SIZE > 0) { \
-            return 0;                                      \
-        }                                                  \
+            return 0;                                          \
+        }                                                      \
         break;
-#define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
-    case id:                                     \
-        if (CDRO_DEVICE_SIDE && (id) >= 0x40) {  \
-            return 0;                            \
-        }                                        \
+#define CDRO_X_EMPTY_CASE(NAME, name, id, doc)  \
+    case id:                                    \
+        if (CDRO_DEVICE_SIDE && (id) >= 0x40) { \
+            return 0;                           \
+        }                                       \
         break;
         CDRO_FRAME_LIST(CDRO_X_ENCODE_CASE)
         CDRO_EMPTY_FRAME_LIST(CDRO_X_EMPTY_CASE)
 #undef CDRO_X_ENCODE_CASE
 #undef CDRO_X_EMPTY_CASE
-    default:
-        return 0;
+    default: return 0;
     }
     raw[0] = CDRO_PROTOCOL_VERSION;
     raw[1] = frame->type;
@@ -160,11 +159,11 @@ cdro_result_t cdro_frame_decode(const uint8_t *chunk, size_t len, cdro_frame_t *
         return CDRO_ERR_LENGTH;
     }
     switch (out->type) {
-#define CDRO_X_DECODE_CASE(NAME, name, id, doc)                                                   \
-    case id:                                                                                      \
-        if (CDRO_SKIPPED_BY_DEVICE(NAME, id)) {                                                   \
-            return payload_len == CDRO_##NAME##_MAX_SIZE ? CDRO_ERR_TYPE : CDRO_ERR_LENGTH;       \
-        }                                                                                         \
+#define CDRO_X_DECODE_CASE(NAME, name, id, doc)                                             \
+    case id:                                                                                \
+        if (CDRO_SKIPPED_BY_DEVICE(NAME, id)) {                                             \
+            return payload_len == CDRO_##NAME##_MAX_SIZE ? CDRO_ERR_TYPE : CDRO_ERR_LENGTH; \
+        }                                                                                   \
         return decode_##name(raw + CDRO_HEADER_SIZE, payload_len, &out->as.name);
 #define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
     case id: return (payload_len == 0U) ? CDRO_OK : CDRO_ERR_LENGTH;
@@ -172,8 +171,7 @@ cdro_result_t cdro_frame_decode(const uint8_t *chunk, size_t len, cdro_frame_t *
         CDRO_EMPTY_FRAME_LIST(CDRO_X_EMPTY_CASE)
 #undef CDRO_X_DECODE_CASE
 #undef CDRO_X_EMPTY_CASE
-    default:
-        return CDRO_ERR_TYPE;
+    default: return CDRO_ERR_TYPE;
     }
 }
 
@@ -206,13 +204,10 @@ static int other_rules_ok(const cdro_frame_t *frame)
 {
     switch (frame->type) {
 #if !CDRO_DEVICE_SIDE /* device-to-host types: refused by type before this on the device */
-    case CDRO_FRAME_RANGE:
-        return frame->as.range.from_id != frame->as.range.to_id;
-    case CDRO_FRAME_NODE_LIST:
-        return ids_distinct(frame->as.node_list.node_ids, frame->as.node_list.node_ids_count);
+    case CDRO_FRAME_RANGE: return frame->as.range.from_id != frame->as.range.to_id;
+    case CDRO_FRAME_NODE_LIST: return ids_distinct(frame->as.node_list.node_ids, frame->as.node_list.node_ids_count);
 #endif
-    case CDRO_FRAME_SET_NODES:
-        return ids_distinct(frame->as.set_nodes.node_ids, frame->as.set_nodes.node_ids_count);
+    case CDRO_FRAME_SET_NODES: return ids_distinct(frame->as.set_nodes.node_ids, frame->as.set_nodes.node_ids_count);
     case CDRO_FRAME_SET_UWB: {
         const cdro_set_uwb_t *u = &frame->as.set_uwb;
         const uint8_t bitrate = (uint8_t)(u->uwb_rates & 0x3FU);
@@ -222,8 +217,7 @@ static int other_rules_ok(const cdro_frame_t *frame)
                (p == 0x04U || p == 0x14U || p == 0x24U || p == 0x34U || p == 0x08U || p == 0x18U || p == 0x28U ||
                 p == 0x0CU);
     }
-    default:
-        return 1;
+    default: return 1;
     }
 }
 
@@ -237,34 +231,30 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame)
 /* On the device, a device-to-host type is refused by type (the device NACKs it UNKNOWN_TYPE
  * whatever its values), and its checks compile to nothing. */
 #define CDRO_X_VALIDATE_CASE(NAME, name, id, doc) \
-    case id:                                       \
-        if (CDRO_DEVICE_SIDE && (id) < 0x40) {     \
-            return CDRO_ERR_TYPE;                  \
-        }                                          \
-        ok = ranges_ok_##name(&frame->as.name);    \
+    case id:                                      \
+        if (CDRO_DEVICE_SIDE && (id) < 0x40) {    \
+            return CDRO_ERR_TYPE;                 \
+        }                                         \
+        ok = ranges_ok_##name(&frame->as.name);   \
         break;
 #define CDRO_X_EMPTY_CASE(NAME, name, id, doc) \
-    case id:                                     \
-        if (CDRO_DEVICE_SIDE && (id) < 0x40) {   \
-            return CDRO_ERR_TYPE;                \
-        }                                        \
+    case id:                                   \
+        if (CDRO_DEVICE_SIDE && (id) < 0x40) { \
+            return CDRO_ERR_TYPE;              \
+        }                                      \
         break;
         CDRO_FRAME_LIST(CDRO_X_VALIDATE_CASE)
         CDRO_EMPTY_FRAME_LIST(CDRO_X_EMPTY_CASE)
 #undef CDRO_X_VALIDATE_CASE
 #undef CDRO_X_EMPTY_CASE
-    default:
-        return CDRO_ERR_TYPE;
+    default: return CDRO_ERR_TYPE;
     }
     return (ok && other_rules_ok(frame)) ? CDRO_OK : CDRO_ERR_VALUE;
 }
 
 /* ---- streaming decoder ------------------------------------------------------------------ */
 
-void cdro_decoder_init(cdro_decoder_t *decoder)
-{
-    memset(decoder, 0, sizeof(*decoder));
-}
+void cdro_decoder_init(cdro_decoder_t *decoder) { memset(decoder, 0, sizeof(*decoder)); }
 
 static void count_rejection(cdro_decoder_counters_t *c, cdro_result_t status)
 {

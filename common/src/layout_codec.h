@@ -48,14 +48,13 @@
     for (i = 0; i < m->field##_count; ++i) {                  \
         p = cdro_put_##KIND(p, m->field[i]);                  \
     }
-#define CDRO_X_ENCODER(NAME, name, id, doc)                                 \
-    static size_t encode_##name(const cdro_##name##_t *m, uint8_t *out)  \
-    {                                                                       \
-        uint8_t *p = out;                                                   \
-        uint8_t i = 0;                                                      \
-        (void)i;                                                            \
-        CDRO_FIELDS_##NAME(CDRO_X_PUT, CDRO_X_PUT_RANGED, CDRO_X_PUT_ARRAY) \
-        return (size_t)(p - out);                                           \
+#define CDRO_X_ENCODER(NAME, name, id, doc)                                                           \
+    static size_t encode_##name(const cdro_##name##_t *m, uint8_t *out)                               \
+    {                                                                                                 \
+        uint8_t *p = out;                                                                             \
+        uint8_t i = 0;                                                                                \
+        (void)i;                                                                                      \
+        CDRO_FIELDS_##NAME(CDRO_X_PUT, CDRO_X_PUT_RANGED, CDRO_X_PUT_ARRAY) return (size_t)(p - out); \
     }
 
 #define CDRO_X_GET(KIND, field, unit, doc) \
@@ -66,32 +65,33 @@
     p += CDRO_SIZE_##KIND;                 \
     remaining -= CDRO_SIZE_##KIND;
 #define CDRO_X_GET_RANGED(KIND, field, unit, lo, hi, doc) CDRO_X_GET(KIND, field, unit, doc)
-#define CDRO_X_GET_ARRAY(KIND, field, max, unit, lo, hi, doc)                                 \
-    if (remaining < 1U) {                                                                     \
-        return CDRO_ERR_LENGTH;                                                               \
-    }                                                                                         \
-    m->field##_count = cdro_get_u8(p);                                                        \
-    p += 1;                                                                                   \
-    remaining -= 1U;                                                                          \
+#define CDRO_X_GET_ARRAY(KIND, field, max, unit, lo, hi, doc)                                  \
+    if (remaining < 1U) {                                                                      \
+        return CDRO_ERR_LENGTH;                                                                \
+    }                                                                                          \
+    m->field##_count = cdro_get_u8(p);                                                         \
+    p += 1;                                                                                    \
+    remaining -= 1U;                                                                           \
     if (m->field##_count > (max) || remaining < (size_t)m->field##_count * CDRO_SIZE_##KIND) { \
-        return CDRO_ERR_LENGTH;                                                               \
-    }                                                                                         \
-    for (i = 0; i < m->field##_count; ++i) {                                                  \
-        m->field[i] = cdro_get_##KIND(p);                                                     \
-        p += CDRO_SIZE_##KIND;                                                                \
-    }                                                                                         \
+        return CDRO_ERR_LENGTH;                                                                \
+    }                                                                                          \
+    for (i = 0; i < m->field##_count; ++i) {                                                   \
+        m->field[i] = cdro_get_##KIND(p);                                                      \
+        p += CDRO_SIZE_##KIND;                                                                 \
+    }                                                                                          \
     remaining -= (size_t)m->field##_count * CDRO_SIZE_##KIND;
-#define CDRO_X_DECODER(NAME, name, id, doc)                                               \
-    static cdro_result_t decode_##name(const uint8_t *in, size_t len, cdro_##name##_t *m) \
-    {                                                                                     \
-        const uint8_t *p = in;                                                            \
-        size_t remaining = len;                                                           \
-        uint8_t i = 0;                                                                    \
-        (void)i;                                                                          \
-        (void)p;                                                                          \
-        memset(m, 0, sizeof(*m));                                                         \
-        CDRO_FIELDS_##NAME(CDRO_X_GET, CDRO_X_GET_RANGED, CDRO_X_GET_ARRAY)               \
-        return (remaining == 0U) ? CDRO_OK : CDRO_ERR_LENGTH;                             \
+#define CDRO_X_DECODER(NAME, name, id, doc)                                                          \
+    static cdro_result_t decode_##name(const uint8_t *in, size_t len, cdro_##name##_t *m)            \
+    {                                                                                                \
+        const uint8_t *p = in;                                                                       \
+        size_t remaining = len;                                                                      \
+        uint8_t i = 0;                                                                               \
+        (void)i;                                                                                     \
+        (void)p;                                                                                     \
+        memset(m, 0, sizeof(*m));                                                                    \
+        CDRO_FIELDS_##NAME(CDRO_X_GET, CDRO_X_GET_RANGED, CDRO_X_GET_ARRAY) return (remaining == 0U) \
+            ? CDRO_OK                                                                                \
+            : CDRO_ERR_LENGTH;                                                                       \
     }
 
 /*
@@ -116,14 +116,13 @@ static inline int cdro_in_range_I32(int32_t value, int32_t lo, int32_t hi) { ret
             return 0;                                           \
         }                                                       \
     }
-#define CDRO_X_RANGE_CHECK(NAME, name, id, doc)                                      \
-    static int ranges_ok_##name(const cdro_##name##_t *m)                            \
-    {                                                                                \
-        uint8_t i = 0;                                                               \
-        (void)i;                                                                     \
-        (void)m;                                                                     \
-        CDRO_FIELDS_##NAME(CDRO_X_CHECK_ANY, CDRO_X_CHECK_RANGE, CDRO_X_CHECK_ARRAY) \
-        return 1;                                                                    \
+#define CDRO_X_RANGE_CHECK(NAME, name, id, doc)                                                \
+    static int ranges_ok_##name(const cdro_##name##_t *m)                                      \
+    {                                                                                          \
+        uint8_t i = 0;                                                                         \
+        (void)i;                                                                               \
+        (void)m;                                                                               \
+        CDRO_FIELDS_##NAME(CDRO_X_CHECK_ANY, CDRO_X_CHECK_RANGE, CDRO_X_CHECK_ARRAY) return 1; \
     }
 
 #endif /* CDRO_LAYOUT_CODEC_H */

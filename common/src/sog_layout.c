@@ -53,8 +53,7 @@ cdro_result_t cdro_sog_write_component(cdro_sog_writer_t *writer, const cdro_sog
     return emit(writer, buffer, encode_sog_component(component, buffer));
 }
 
-cdro_result_t cdro_sog_write_extension(cdro_sog_writer_t *writer, uint16_t tag, const uint8_t *bytes,
-                                       uint32_t len)
+cdro_result_t cdro_sog_write_extension(cdro_sog_writer_t *writer, uint16_t tag, const uint8_t *bytes, uint32_t len)
 {
     uint8_t prefix[6];
     cdro_result_t status;
@@ -130,31 +129,23 @@ cdro_result_t cdro_sog_reader_init(cdro_sog_reader_t *reader, const uint8_t *dat
 }
 
 /* Reads one fixed-size record at the reader's position into *out. */
-#define CDRO_READ_RECORD(NAME, name, out)                                                     \
-    if (reader->len - reader->position < (size_t)CDRO_##NAME##_MAX_SIZE) {                    \
-        return CDRO_ERR_LENGTH;                                                               \
-    }                                                                                         \
-    reader->position += CDRO_##NAME##_MAX_SIZE;                                               \
-    return decode_##name(reader->data + reader->position - CDRO_##NAME##_MAX_SIZE,            \
-                         CDRO_##NAME##_MAX_SIZE, out);
+#define CDRO_READ_RECORD(NAME, name, out)                                  \
+    if (reader->len - reader->position < (size_t)CDRO_##NAME##_MAX_SIZE) { \
+        return CDRO_ERR_LENGTH;                                            \
+    }                                                                      \
+    reader->position += CDRO_##NAME##_MAX_SIZE;                            \
+    return decode_##name(reader->data + reader->position - CDRO_##NAME##_MAX_SIZE, CDRO_##NAME##_MAX_SIZE, out);
 
-cdro_result_t cdro_sog_read_node(cdro_sog_reader_t *reader, cdro_sog_node_t *node)
-{
-    CDRO_READ_RECORD(SOG_NODE, sog_node, node)
-}
+cdro_result_t cdro_sog_read_node(cdro_sog_reader_t *reader,
+                                 cdro_sog_node_t *node){CDRO_READ_RECORD(SOG_NODE, sog_node, node)}
 
-cdro_result_t cdro_sog_read_pair(cdro_sog_reader_t *reader, cdro_sog_pair_t *pair)
-{
-    CDRO_READ_RECORD(SOG_PAIR, sog_pair, pair)
-}
+cdro_result_t
+    cdro_sog_read_pair(cdro_sog_reader_t *reader, cdro_sog_pair_t *pair){CDRO_READ_RECORD(SOG_PAIR, sog_pair, pair)}
 
-cdro_result_t cdro_sog_read_component(cdro_sog_reader_t *reader, cdro_sog_component_t *component)
-{
-    CDRO_READ_RECORD(SOG_COMPONENT, sog_component, component)
-}
+cdro_result_t cdro_sog_read_component(cdro_sog_reader_t *reader, cdro_sog_component_t *component){
+    CDRO_READ_RECORD(SOG_COMPONENT, sog_component, component)}
 
-cdro_result_t cdro_sog_read_extension(cdro_sog_reader_t *reader, uint16_t *tag, const uint8_t **bytes,
-                                      uint32_t *len)
+cdro_result_t cdro_sog_read_extension(cdro_sog_reader_t *reader, uint16_t *tag, const uint8_t **bytes, uint32_t *len)
 {
     const size_t remaining = reader->len - reader->position;
     if (remaining < 2U) {

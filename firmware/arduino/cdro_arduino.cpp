@@ -52,18 +52,17 @@ static uint8_t s_reset_flags __attribute__((section(".noinit")));
 extern "C" void cdro_paint_ram(void) __attribute__((naked, used, section(".init1")));
 void cdro_paint_ram(void)
 {
-    __asm__ __volatile__(
-        "ldi r30, lo8(_end)     \n\t"
-        "ldi r31, hi8(_end)     \n\t"
-        "ldi r24, " CDRO_STR(CDRO_STACK_PAINT) " \n\t"
-        "ldi r25, hi8(__stack)  \n\t"
-        "1: cpi r30, lo8(__stack) \n\t"
-        "cpc r31, r25           \n\t"
-        "brsh 2f                \n\t"
-        "st Z+, r24             \n\t"
-        "rjmp 1b                \n\t"
-        "2:                     \n\t" ::
-        : "r24", "r25", "r30", "r31", "memory");
+    __asm__ __volatile__("ldi r30, lo8(_end)     \n\t"
+                         "ldi r31, hi8(_end)     \n\t"
+                         "ldi r24, " CDRO_STR(CDRO_STACK_PAINT) " \n\t"
+                                                                "ldi r25, hi8(__stack)  \n\t"
+                                                                "1: cpi r30, lo8(__stack) \n\t"
+                                                                "cpc r31, r25           \n\t"
+                                                                "brsh 2f                \n\t"
+                                                                "st Z+, r24             \n\t"
+                                                                "rjmp 1b                \n\t"
+                                                                "2:                     \n\t" ::
+                                                                    : "r24", "r25", "r30", "r31", "memory");
 }
 
 /* .init3 (stack pointer and r1 set up, .data/.bss not yet): keep MCUSR, clear it, and stop a
@@ -77,9 +76,9 @@ void cdro_save_reset_cause(void)
     uint8_t flags = MCUSR;
     MCUSR = 0;
     wdt_disable();
-    s_reset_flags = static_cast<uint8_t>((flags != 0 ? flags : from_bootloader) &
-                                         (CDRO_RESET_POWER_ON | CDRO_RESET_EXTERNAL | CDRO_RESET_BROWN_OUT |
-                                          CDRO_RESET_WATCHDOG));
+    s_reset_flags =
+        static_cast<uint8_t>((flags != 0 ? flags : from_bootloader) &
+                             (CDRO_RESET_POWER_ON | CDRO_RESET_EXTERNAL | CDRO_RESET_BROWN_OUT | CDRO_RESET_WATCHDOG));
 }
 
 /* Bytes of free RAM never touched since reset: the painted bytes above the static data that
@@ -132,20 +131,11 @@ static cdro_i2c_result_t i2c_read(void *, uint8_t address, uint8_t *data, uint8_
     return CDRO_I2C_OK;
 }
 
-static void delay_ms(void *, uint16_t duration_ms)
-{
-    delay(duration_ms);
-}
+static void delay_ms(void *, uint16_t duration_ms) { delay(duration_ms); }
 
-static uint32_t now_ms(void *)
-{
-    return millis();
-}
+static uint32_t now_ms(void *) { return millis(); }
 
-static uint32_t now_us(void *)
-{
-    return micros();
-}
+static uint32_t now_us(void *) { return micros(); }
 
 /* SCL released: wait for it to go high, as a slave may stretch the clock (at most ~1 ms). */
 static void wait_scl_released()
@@ -199,15 +189,9 @@ static uint16_t tx_free(void *)
     return free_bytes > 0 ? static_cast<uint16_t>(free_bytes) : 0U;
 }
 
-static void tx_write(void *, const uint8_t *data, uint8_t length)
-{
-    (void)Serial.write(data, length);
-}
+static void tx_write(void *, const uint8_t *data, uint8_t length) { (void)Serial.write(data, length); }
 
-static int16_t rx_read(void *)
-{
-    return static_cast<int16_t>(Serial.read());
-}
+static int16_t rx_read(void *) { return static_cast<int16_t>(Serial.read()); }
 
 static const cdro_serial_ops_t kSerialOps = {tx_free, tx_write, rx_read};
 

@@ -19,7 +19,8 @@ std::string readFile(const std::string &path)
 
 const nlohmann::json &vectors()
 {
-    static const nlohmann::json parsed = nlohmann::json::parse(readFile(std::string(CDRO_GOLDEN_DIR) + "/vectors.json"));
+    static const nlohmann::json parsed =
+        nlohmann::json::parse(readFile(std::string(CDRO_GOLDEN_DIR) + "/vectors.json"));
     return parsed;
 }
 
@@ -57,23 +58,23 @@ uint8_t frameTypeId(const std::string &name)
 
 #define GOLDEN_X_FILL(KIND, field, unit, doc) m.field = static_cast<CDRO_CTYPE_##KIND>(j.at(#field).get<int64_t>());
 #define GOLDEN_X_FILL_RANGED(KIND, field, unit, lo, hi, doc) GOLDEN_X_FILL(KIND, field, unit, doc)
-#define GOLDEN_X_FILL_ARRAY(KIND, field, max, unit, lo, hi, doc)                       \
-    {                                                                                  \
-        const auto &items = j.at(#field);                                              \
-        m.field##_count = static_cast<uint8_t>(items.size());                          \
-        for (size_t i = 0; i < items.size() && i < (max); ++i) {                       \
-            m.field[i] = static_cast<CDRO_CTYPE_##KIND>(items[i].get<int64_t>());      \
-        }                                                                              \
+#define GOLDEN_X_FILL_ARRAY(KIND, field, max, unit, lo, hi, doc)                  \
+    {                                                                             \
+        const auto &items = j.at(#field);                                         \
+        m.field##_count = static_cast<uint8_t>(items.size());                     \
+        for (size_t i = 0; i < items.size() && i < (max); ++i) {                  \
+            m.field[i] = static_cast<CDRO_CTYPE_##KIND>(items[i].get<int64_t>()); \
+        }                                                                         \
     }
 #define GOLDEN_X_TO(KIND, field, unit, doc) out[#field] = static_cast<int64_t>(m.field);
 #define GOLDEN_X_TO_RANGED(KIND, field, unit, lo, hi, doc) GOLDEN_X_TO(KIND, field, unit, doc)
-#define GOLDEN_X_TO_ARRAY(KIND, field, max, unit, lo, hi, doc)    \
-    {                                                             \
-        auto items = nlohmann::json::array();                     \
-        for (size_t i = 0; i < m.field##_count; ++i) {            \
-            items.push_back(static_cast<int64_t>(m.field[i]));    \
-        }                                                         \
-        out[#field] = items;                                      \
+#define GOLDEN_X_TO_ARRAY(KIND, field, max, unit, lo, hi, doc) \
+    {                                                          \
+        auto items = nlohmann::json::array();                  \
+        for (size_t i = 0; i < m.field##_count; ++i) {         \
+            items.push_back(static_cast<int64_t>(m.field[i])); \
+        }                                                      \
+        out[#field] = items;                                   \
     }
 
 cdro_frame_t frameFromJson(const nlohmann::json &entry)
@@ -84,16 +85,14 @@ cdro_frame_t frameFromJson(const nlohmann::json &entry)
     frame.version = CDRO_PROTOCOL_VERSION;
     const nlohmann::json j = entry.contains("fields") ? entry.at("fields") : nlohmann::json::object();
     switch (frame.type) {
-#define GOLDEN_X_CASE(NAME, lower, id, doc)                                          \
-    case id: {                                                                       \
-        auto &m = frame.as.lower;                                                    \
-        CDRO_FIELDS_##NAME(GOLDEN_X_FILL, GOLDEN_X_FILL_RANGED, GOLDEN_X_FILL_ARRAY) \
-        break;                                                                       \
+#define GOLDEN_X_CASE(NAME, lower, id, doc)                                                 \
+    case id: {                                                                              \
+        auto &m = frame.as.lower;                                                           \
+        CDRO_FIELDS_##NAME(GOLDEN_X_FILL, GOLDEN_X_FILL_RANGED, GOLDEN_X_FILL_ARRAY) break; \
     }
         CDRO_FRAME_LIST(GOLDEN_X_CASE)
 #undef GOLDEN_X_CASE
-    default:
-        break;
+    default: break;
     }
     return frame;
 }
@@ -102,18 +101,16 @@ nlohmann::json fieldsToJson(const cdro_frame_t &frame)
 {
     nlohmann::json out = nlohmann::json::object();
     switch (frame.type) {
-#define GOLDEN_X_CASE(NAME, lower, id, doc)                                    \
-    case id: {                                                                 \
-        const auto &m = frame.as.lower;                                        \
-        CDRO_FIELDS_##NAME(GOLDEN_X_TO, GOLDEN_X_TO_RANGED, GOLDEN_X_TO_ARRAY) \
-        break;                                                                 \
+#define GOLDEN_X_CASE(NAME, lower, id, doc)                                           \
+    case id: {                                                                        \
+        const auto &m = frame.as.lower;                                               \
+        CDRO_FIELDS_##NAME(GOLDEN_X_TO, GOLDEN_X_TO_RANGED, GOLDEN_X_TO_ARRAY) break; \
     }
         CDRO_FRAME_LIST(GOLDEN_X_CASE)
 #undef GOLDEN_X_CASE
-    default:
-        break;
+    default: break;
     }
     return out;
 }
 
-}  // namespace golden
+} // namespace golden

@@ -23,4 +23,4 @@ cdro_frame_t frameFromJson(const nlohmann::json &entry);
 nlohmann::json fieldsToJson(const cdro_frame_t &frame);
 uint8_t frameTypeId(const std::string &name);
 
-}  // namespace golden
+} // namespace golden

@@ -87,14 +87,14 @@ TEST(Bounds, TheTableHoldsTheEdgesOfEveryRangeCDeclares)
 #define BOUNDS_X_ANY(KIND, field, unit, doc)
 #define BOUNDS_X_RANGE(KIND, field, unit, lo, hi, doc) \
     expected += expectEdges<CDRO_CTYPE_##KIND>(edges, record + "." #field, (lo), (hi));
-#define BOUNDS_X_ARRAY(KIND, field, max, unit, lo, hi, doc)                                          \
-    expected += expectEdges<CDRO_CTYPE_##KIND>(edges, record + "." #field, (lo), (hi));               \
-    expected += 3; /* its count: 0 and MAX accepted, MAX + 1 refused */                              \
-    EXPECT_EQ(edges.count({record + "." #field "_count", "min"}), 1U) << record << "." #field;       \
-    EXPECT_EQ(edges.at({record + "." #field "_count", "max"}), (max)) << record << "." #field;       \
+#define BOUNDS_X_ARRAY(KIND, field, max, unit, lo, hi, doc)                                    \
+    expected += expectEdges<CDRO_CTYPE_##KIND>(edges, record + "." #field, (lo), (hi));        \
+    expected += 3; /* its count: 0 and MAX accepted, MAX + 1 refused */                        \
+    EXPECT_EQ(edges.count({record + "." #field "_count", "min"}), 1U) << record << "." #field; \
+    EXPECT_EQ(edges.at({record + "." #field "_count", "max"}), (max)) << record << "." #field; \
     EXPECT_EQ(edges.at({record + "." #field "_count", "max+1"}), (max) + 1) << record << "." #field;
 #define BOUNDS_X_RECORD(NAME, name, id, doc) \
-    record = #NAME;                           \
+    record = #NAME;                          \
     CDRO_FIELDS_##NAME(BOUNDS_X_ANY, BOUNDS_X_RANGE, BOUNDS_X_ARRAY)
     CDRO_FRAME_LIST(BOUNDS_X_RECORD)
 #undef BOUNDS_X_RECORD
@@ -104,4 +104,4 @@ TEST(Bounds, TheTableHoldsTheEdgesOfEveryRangeCDeclares)
     EXPECT_EQ(edges.size(), expected) << "the table has edges of a range that C does not declare";
 }
 
-}  // namespace
+} // namespace

@@ -23,7 +23,8 @@ Parsed parse(const std::vector<uint8_t> &file, cdro_capture_header_t &header)
         cdro_capture_record_t record;
         size_t skipped = 0;
         size_t consumed = 0;
-        if (cdro_capture_next_record(file.data() + offset, file.size() - offset, &record, &skipped, &consumed) != CDRO_OK) {
+        if (cdro_capture_next_record(file.data() + offset, file.size() - offset, &record, &skipped, &consumed) !=
+            CDRO_OK) {
             parsed.tail_bytes = file.size() - offset;
             break;
         }
@@ -59,7 +60,7 @@ TEST(Capture, GoldenBytesDecodeToTheGoldenRecords)
 {
     const auto &v = golden::vectors()["capture"];
     cdro_capture_header_t header;
-    const auto file = golden::fromHex(v["bytes"]);  // records point into it
+    const auto file = golden::fromHex(v["bytes"]); // records point into it
     const Parsed parsed = parse(file, header);
     EXPECT_EQ(header.created_unix_us, v["header"]["created_unix_us"].get<int64_t>());
     EXPECT_EQ(std::string(header.source, header.source_len), v["header"]["source"].get<std::string>());
@@ -67,7 +68,8 @@ TEST(Capture, GoldenBytesDecodeToTheGoldenRecords)
     for (size_t i = 0; i < parsed.records.size(); ++i) {
         EXPECT_EQ(parsed.records[i].host_time_us, v["records"][i]["host_time_us"].get<int64_t>());
         EXPECT_EQ(parsed.records[i].flags, v["records"][i]["flags"].get<uint8_t>());
-        EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len), v["records"][i]["data"].get<std::string>());
+        EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len),
+                  v["records"][i]["data"].get<std::string>());
     }
     EXPECT_EQ(parsed.corrupt_bytes, 0U);
     EXPECT_EQ(parsed.tail_bytes, 0U);
@@ -192,4 +194,4 @@ TEST(Capture, RecordRefusesDataAboveTheMaximum)
     EXPECT_EQ(cdro_capture_record_encode(&record, out.data(), out.size()), 0U);
 }
 
-}  // namespace
+} // namespace

@@ -53,7 +53,7 @@ TEST(Cobs, EncodingNeverContainsZeroAndRoundTrips)
 TEST(Cobs, EncodeRefusesATooSmallBuffer)
 {
     const std::vector<uint8_t> data(10, 0x55);
-    std::vector<uint8_t> out(10);  // needs 11
+    std::vector<uint8_t> out(10); // needs 11
     EXPECT_EQ(cdro_cobs_encode(data.data(), data.size(), out.data(), out.size()), 0U);
 }
 
@@ -61,10 +61,10 @@ TEST(Cobs, DecodeRejectsInvalidInput)
 {
     std::vector<uint8_t> out(16);
     const std::vector<std::vector<uint8_t>> invalid = {
-        {},                  // empty: an encoding is never empty
-        {0x05, 0x01, 0x02},  // block runs past the end
-        {0x03, 0x00, 0x01},  // zero inside
-        {0x00},              // zero code
+        {},                 // empty: an encoding is never empty
+        {0x05, 0x01, 0x02}, // block runs past the end
+        {0x03, 0x00, 0x01}, // zero inside
+        {0x00},             // zero code
     };
     for (const auto &bytes : invalid) {
         EXPECT_EQ(cdro_cobs_decode(bytes.data(), bytes.size(), out.data(), out.size()), -1) << golden::toHex(bytes);
@@ -73,4 +73,4 @@ TEST(Cobs, DecodeRejectsInvalidInput)
     EXPECT_EQ(cdro_cobs_decode(long_block.data(), long_block.size(), out.data(), 3), -1) << "output too small";
 }
 
-}  // namespace
+} // namespace

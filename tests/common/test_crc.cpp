@@ -69,4 +69,4 @@ TEST(Crc16, DetectsEverySingleBitFlip)
     }
 }
 
-}  // namespace
+} // namespace

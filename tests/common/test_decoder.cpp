@@ -63,7 +63,8 @@ TEST(Decoder, KeepsTheLastChunkForCaptureFiles)
     }
     ASSERT_EQ(result, CDRO_OK);
     ASSERT_EQ(decoder.last_chunk_len, bytes.size() - 1);
-    EXPECT_EQ(golden::toHex(decoder.chunk, decoder.last_chunk_len), golden::toHex(bytes).substr(0, 2 * (bytes.size() - 1)));
+    EXPECT_EQ(golden::toHex(decoder.chunk, decoder.last_chunk_len),
+              golden::toHex(bytes).substr(0, 2 * (bytes.size() - 1)));
 }
 
 // Valid frames survive any garbage around them: every frame that follows a delimiter is
@@ -82,7 +83,7 @@ TEST(Decoder, RecoversEveryFrameFromSeededGarbage)
             for (size_t g = 0; g < garbage; ++g) {
                 stream.push_back(static_cast<uint8_t>(rng()));
             }
-            stream.push_back(0x00);  // a sender may prefix a delimiter to resynchronise quickly
+            stream.push_back(0x00); // a sender may prefix a delimiter to resynchronise quickly
             const auto &entry = golden_frames[rng() % golden_frames.size()];
             cdro_frame_t frame = golden::frameFromJson(entry);
             frame.sequence = static_cast<uint16_t>(k);
@@ -121,4 +122,4 @@ TEST(Decoder, AnOverlongRunIsOneErrorAndTheNextFrameDecodes)
     EXPECT_EQ(decoder.counters.bytes_discarded, 5000U);
 }
 
-}  // namespace
+} // namespace

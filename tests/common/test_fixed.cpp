@@ -65,4 +65,4 @@ TEST(Fixed, CovarianceRoundTripIsSymmetricPositiveSemiDefinite)
     EXPECT_GE(var_x * var_y - cov_xy * cov_xy, -1e-12);
 }
 
-}  // namespace
+} // namespace

@@ -49,7 +49,7 @@ TEST(Frames, GoldenRejectionsGiveTheirDistinctResult)
             result = cdro_frame_validate(&frame);
         }
         EXPECT_STREQ(cdro_result_name(result), v["result"].get<std::string>().c_str()) << v["name"];
-        if (v.contains("type")) {  // after a good CRC the header is reported
+        if (v.contains("type")) { // after a good CRC the header is reported
             EXPECT_EQ(frame.version, v["version"].get<uint8_t>()) << v["name"];
             EXPECT_EQ(frame.type, v["type"].get<uint8_t>()) << v["name"];
             EXPECT_EQ(frame.sequence, v["sequence"].get<uint16_t>()) << v["name"];
@@ -85,7 +85,7 @@ TEST(Frames, LargestFrameFitsTheDocumentedMaximum)
 {
     cdro_frame_t frame{};
     frame.type = CDRO_FRAME_STATUS;
-    std::memset(&frame.as.status, 0xFF, sizeof frame.as.status);  // no zero bytes: worst case for COBS
+    std::memset(&frame.as.status, 0xFF, sizeof frame.as.status); // no zero bytes: worst case for COBS
     uint8_t out[CDRO_MAX_ENCODED_FRAME];
     const size_t n = cdro_frame_encode(&frame, out, sizeof out);
     ASSERT_GT(n, 0U);
@@ -94,4 +94,4 @@ TEST(Frames, LargestFrameFitsTheDocumentedMaximum)
     EXPECT_LE(CDRO_NODE_LIST_MAX_SIZE, CDRO_MAX_PAYLOAD);
 }
 
-}  // namespace
+} // namespace

@@ -63,4 +63,4 @@ TEST(LayoutHash, EachVersionHasExactlyOneLayout)
               CDRO_CHECKPOINT_LAYOUT_HASH);
 }
 
-}  // namespace
+} // namespace

@@ -9,23 +9,22 @@
 namespace {
 
 #define SOG_X_FILL(KIND, field, unit, doc) \
-    if (j.contains(#field)) m.field = static_cast<CDRO_CTYPE_##KIND>(j.at(#field).get<int64_t>());
+    if (j.contains(#field))                \
+        m.field = static_cast<CDRO_CTYPE_##KIND>(j.at(#field).get<int64_t>());
 #define SOG_X_FILL_RANGED(KIND, field, unit, lo, hi, doc) SOG_X_FILL(KIND, field, unit, doc)
 #define SOG_X_TO(KIND, field, unit, doc) out[#field] = static_cast<int64_t>(m.field);
 #define SOG_X_TO_RANGED(KIND, field, unit, lo, hi, doc) SOG_X_TO(KIND, field, unit, doc)
 #define SOG_X_NO_ARRAY(KIND, field, max, unit, lo, hi, doc)
-#define SOG_X_CONVERT(NAME, name, id, doc)                                    \
-    [[maybe_unused]] cdro_##name##_t name##FromJson(const nlohmann::json &j) \
-    {                                                                         \
-        cdro_##name##_t m{};                                                  \
-        CDRO_FIELDS_##NAME(SOG_X_FILL, SOG_X_FILL_RANGED, SOG_X_NO_ARRAY)     \
-        return m;                                                             \
-    }                                                                         \
-    [[maybe_unused]] nlohmann::json name##ToJson(const cdro_##name##_t &m)    \
-    {                                                                         \
-        nlohmann::json out = nlohmann::json::object();                        \
-        CDRO_FIELDS_##NAME(SOG_X_TO, SOG_X_TO_RANGED, SOG_X_NO_ARRAY)         \
-        return out;                                                           \
+#define SOG_X_CONVERT(NAME, name, id, doc)                                          \
+    [[maybe_unused]] cdro_##name##_t name##FromJson(const nlohmann::json &j)        \
+    {                                                                               \
+        cdro_##name##_t m{};                                                        \
+        CDRO_FIELDS_##NAME(SOG_X_FILL, SOG_X_FILL_RANGED, SOG_X_NO_ARRAY) return m; \
+    }                                                                               \
+    [[maybe_unused]] nlohmann::json name##ToJson(const cdro_##name##_t &m)          \
+    {                                                                               \
+        nlohmann::json out = nlohmann::json::object();                              \
+        CDRO_FIELDS_##NAME(SOG_X_TO, SOG_X_TO_RANGED, SOG_X_NO_ARRAY) return out;   \
     }
 CDRO_SOG_RECORD_LIST(SOG_X_CONVERT)
 
@@ -67,7 +66,8 @@ std::vector<uint8_t> writeGolden()
     }
     for (const auto &e : v["extensions"]) {
         const auto data = golden::fromHex(e["data"]);
-        EXPECT_EQ(cdro_sog_write_extension(&writer, e["tag"].get<uint16_t>(), data.data(), static_cast<uint32_t>(data.size())),
+        EXPECT_EQ(cdro_sog_write_extension(&writer, e["tag"].get<uint16_t>(), data.data(),
+                                           static_cast<uint32_t>(data.size())),
                   CDRO_OK);
     }
     EXPECT_EQ(cdro_sog_write_end(&writer), CDRO_OK);
@@ -132,4 +132,4 @@ TEST(SogLayout, RejectsCorruptCutShortForeignAndOtherLayouts)
     EXPECT_EQ(cdro_sog_reader_init(&reader, foreign.data(), foreign.size(), &header), CDRO_ERR_TYPE);
 }
 
-}  // namespace
+} // namespace

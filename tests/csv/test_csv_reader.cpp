@@ -158,7 +158,8 @@ TEST(CsvReader, ReadsCrLfLinesAsLfLines)
 {
     TempDir dir;
     const std::string lf = dir.write("lf.csv", "from,to,range_m\n1,2,3.5\n# note\n\n2,3,4.5\n3,1,5.5");
-    const std::string crlf = dir.write("crlf.csv", "from,to,range_m\r\n1,2,3.5\r\n# note\r\n\r\n2,3,4.5\r\n3,1,5.5\r\n");
+    const std::string crlf =
+        dir.write("crlf.csv", "from,to,range_m\r\n1,2,3.5\r\n# note\r\n\r\n2,3,4.5\r\n3,1,5.5\r\n");
 
     const Read a = readRanges(lf, Policy::Strict);
     const Read b = readRanges(crlf, Policy::Strict);
@@ -172,7 +173,8 @@ TEST(CsvReader, SkipsBlankLinesAndCommentsAnywhereAndKeepsLineNumbers)
 {
     TempDir dir;
     const std::string path =
-        dir.write("r.csv", "\n# before the header\n  \t\nfrom,to,range_m\n  # indented comment\n1,2,3.0\n\n\t\n2,3,4.0\n#\n");
+        dir.write("r.csv",
+                  "\n# before the header\n  \t\nfrom,to,range_m\n  # indented comment\n1,2,3.0\n\n\t\n2,3,4.0\n#\n");
 
     const Read read = readRanges(path, Policy::Strict);
 
@@ -196,7 +198,8 @@ TEST(CsvReader, TrimsSpacesAndTabsAroundFieldsAndHeaderNames)
 TEST(CsvReader, SkipsAByteOrderMark)
 {
     TempDir dir;
-    const std::string path = dir.write("r.csv", "\xEF\xBB\xBF" "from,to,range_m\n1,2,3.0\n");
+    const std::string path = dir.write("r.csv", "\xEF\xBB\xBF"
+                                                "from,to,range_m\n1,2,3.0\n");
 
     const Read read = readRanges(path, Policy::Strict);
 
@@ -245,11 +248,18 @@ TEST(CsvReader, MakesARowWithABrokenQuoteBad)
 
 TEST(CsvReader, ParsesNodeIdsInDecimalAndHexWithinOneToFfff)
 {
-    const std::vector<std::pair<std::string, int>> cases = {
-        {"1", 1},       {"42", 42},       {"007", 7},  {"65535", 65535}, {"0x2A", 42}, {"0X2a", 42},
-        {"0xFFFF", 65535}, {"0x0001", 1}, {"0", -1},   {"0x0", -1},      {"65536", -1}, {"0x10000", -1},
-        {"", -1},       {"0x", -1},       {"-1", -1},  {"+5", 5}, {"+0x5", -1}, {"+", -1},       {"1.0", -1},   {"2a", -1},
-        {"0x2G", -1},   {"99999999999999999999", -1}, {" 5", -1}};
+    const std::vector<std::pair<std::string, int>> cases = {{"1", 1},          {"42", 42},
+                                                            {"007", 7},        {"65535", 65535},
+                                                            {"0x2A", 42},      {"0X2a", 42},
+                                                            {"0xFFFF", 65535}, {"0x0001", 1},
+                                                            {"0", -1},         {"0x0", -1},
+                                                            {"65536", -1},     {"0x10000", -1},
+                                                            {"", -1},          {"0x", -1},
+                                                            {"-1", -1},        {"+5", 5},
+                                                            {"+0x5", -1},      {"+", -1},
+                                                            {"1.0", -1},       {"2a", -1},
+                                                            {"0x2G", -1},      {"99999999999999999999", -1},
+                                                            {" 5", -1}};
     for (const auto &[text, expected] : cases) {
         uint16_t id = 0;
         const bool ok = parseNodeId(text, &id);
@@ -262,9 +272,10 @@ TEST(CsvReader, ParsesNodeIdsInDecimalAndHexWithinOneToFfff)
 
 TEST(CsvReader, ParsesOnlyWholeFiniteNumbers)
 {
-    const std::vector<std::pair<std::string, bool>> cases = {
-        {"1.5", true},  {"-2e3", true}, {"0", true},    {"0x1p3", true}, {"", false},    {"nan", false},
-        {"inf", false}, {"-inf", false}, {"1e999", false}, {"1.5 m", false}, {"1,5", false}, {"abc", false}};
+    const std::vector<std::pair<std::string, bool>> cases = {{"1.5", true},    {"-2e3", true},  {"0", true},
+                                                             {"0x1p3", true},  {"", false},     {"nan", false},
+                                                             {"inf", false},   {"-inf", false}, {"1e999", false},
+                                                             {"1.5 m", false}, {"1,5", false},  {"abc", false}};
     for (const auto &[text, expected] : cases) {
         double value = 0.0;
         EXPECT_EQ(parseNumber(text, &value), expected) << "'" << text << "'";
@@ -447,13 +458,15 @@ TEST(CsvReader, RefusesWhatIsNotACsvFileAtAll)
 {
     TempDir dir;
     const std::string nul = dir.write("nul.csv", std::string("from,to,range_m\n1,2,3.0\n1,2\0,3\n", 30));
-    const std::string long_line = dir.write("long.csv", "from,to,range_m\n1,2," + std::string(kMaxLineBytes, '9') + "\n");
+    const std::string long_line =
+        dir.write("long.csv", "from,to,range_m\n1,2," + std::string(kMaxLineBytes, '9') + "\n");
 
     EXPECT_EQ(errorOf(nul, Policy::Lenient), nul + ":3: a 0x00 byte: not a CSV file");
     EXPECT_EQ(errorOf(long_line, Policy::Lenient),
               long_line + ":2: a line longer than 4096 bytes: not a CSV file of this kind");
     EXPECT_EQ(errorOf(dir.path(), Policy::Lenient), dir.path() + ": is a directory, not a CSV file");
-    EXPECT_EQ(errorOf(dir.path() + "/missing.csv", Policy::Lenient).rfind(dir.path() + "/missing.csv: cannot open the file (", 0),
+    EXPECT_EQ(errorOf(dir.path() + "/missing.csv", Policy::Lenient)
+                  .rfind(dir.path() + "/missing.csv: cannot open the file (", 0),
               0U);
 }
 

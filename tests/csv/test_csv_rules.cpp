@@ -177,8 +177,8 @@ std::string caseName(const testing::TestParamInfo<size_t> &param)
     const nlohmann::json &c = manifest()["cases"][param.param];
     std::string name =
         c["file"].get<std::string>() + "_" + c["kind"].get<std::string>() + "_" + c["mode"].get<std::string>();
-    std::replace_if(name.begin(), name.end(), [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) == 0; },
-                    '_');
+    std::replace_if(
+        name.begin(), name.end(), [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) == 0; }, '_');
     return name;
 }
 

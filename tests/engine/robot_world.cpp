@@ -42,8 +42,7 @@ World simulate(const WorldSpec &spec, uint64_t seed)
             OdometryStep measured = true_step;
             if (moving) { // a standing robot's wheels report nothing
                 measured.distance_m *= 1.0 + spec.distance_noise_fraction * random.normal();
-                measured.dheading_rad +=
-                    spec.heading_noise_rad * random.normal() + spec.heading_drift_rad_s * kTickS;
+                measured.dheading_rad += spec.heading_noise_rad * random.normal() + spec.heading_drift_rad_s * kTickS;
             }
             dead = predictOdometry(dead, measured).pose;
             Event odometry;
@@ -81,10 +80,15 @@ World simulate(const WorldSpec &spec, uint64_t seed)
             if (!spec.links.empty()) {
                 const auto [a, b] = spec.links[next_link];
                 next_link = (next_link + 1) % spec.links.size();
-                world.events.push_back({Event::Kind::Range, t_s + 0.06, {}, spec.ids[a], spec.ids[b],
-                                        range(nodeAt(spec, a, t_s), spec.height_m[a], nodeAt(spec, b, t_s),
-                                              spec.height_m[b]),
-                                        0, false});
+                world.events.push_back(
+                    {Event::Kind::Range,
+                     t_s + 0.06,
+                     {},
+                     spec.ids[a],
+                     spec.ids[b],
+                     range(nodeAt(spec, a, t_s), spec.height_m[a], nodeAt(spec, b, t_s), spec.height_m[b]),
+                     0,
+                     false});
             }
         }
     }

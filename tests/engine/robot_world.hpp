@@ -46,7 +46,7 @@ struct WorldSpec {
     double stand_s = 5.0;       // s standing still (zero odometry steps) before the drive
     double end_stand_s = 0.0;   // s standing after it
     std::vector<NodeId> ids;
-    std::vector<Vector2> truth_m;  // where the nodes stand at first
+    std::vector<Vector2> truth_m; // where the nodes stand at first
     std::vector<double> height_m;
     std::vector<std::pair<size_t, size_t>> links; // node pairs that range each other
     double robot_max_range_m = std::numeric_limits<double>::infinity();
@@ -72,9 +72,9 @@ struct Event {
 
 struct World {
     WorldSpec spec;
-    std::vector<Event> events;       // in time order
-    std::vector<Pose2> robot_truth;  // after each odometry event
-    std::vector<Pose2> dead_reckoning; // the odometry integrated, from the true start
+    std::vector<Event> events;          // in time order
+    std::vector<Pose2> robot_truth;     // after each odometry event
+    std::vector<Pose2> dead_reckoning;  // the odometry integrated, from the true start
     std::vector<Vector2> final_truth_m; // where the nodes are at the end
 };
 

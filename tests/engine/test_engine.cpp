@@ -88,8 +88,7 @@ TEST_P(NoiseFreeRecovery, RecoversTheTruthUpToARigidTransform)
     feed(engine, network, ranges);
     const AlignedError error = alignedError(engine.estimates(), network.ids, network.truth_m);
     std::printf("%zu nodes, %zu links, %zu ranges: %zu placed, %zu converged, aligned RMSE %.3g m (max %.3g m)\n",
-                c.nodes, network.links.size(), ranges.size(), error.placed, error.converged, error.rmse_m,
-                error.max_m);
+                c.nodes, network.links.size(), ranges.size(), error.placed, error.converged, error.rmse_m, error.max_m);
     // A node that the ranges do not determine (a mirror position that fits about as well, a link
     // nothing checks) says why instead of being converged: that is the honest answer for it, so it
     // counts as long as it is also where the truth is (the RMSE below). After settling, none is
@@ -281,7 +280,9 @@ TEST(Engine, TheSteadyStateRunsNoGlobalSolveUntilTheRangesChange)
     feed(engine, network, roundRobin(network, random, 80, 0.1), false);
     const uint64_t solves_at_80 = engine.counters().solve.solves;
     feed(engine, network, roundRobin(network, random, 320, 0.1), false);
-    EXPECT_EQ(engine.counters().solve.solves, solves_at_80) << "80 sweeps: " << solves_at_80 << " offsets adopted " << engine.counters().solve.offsets_adopted << " refreshes " << engine.counters().solve.solve_refreshes;
+    EXPECT_EQ(engine.counters().solve.solves, solves_at_80)
+        << "80 sweeps: " << solves_at_80 << " offsets adopted " << engine.counters().solve.offsets_adopted
+        << " refreshes " << engine.counters().solve.solve_refreshes;
     // A quarter of the links now read 0.4 m long (a door closed, a cabinet moved): solved again,
     // on the same links and nodes (a refresh).
     std::vector<TestRange> changed = roundRobin(network, random, 200, 0.1);
@@ -690,7 +691,8 @@ TEST(Engine, AblationSwitchesGoTheWayTheyAreKnownTo)
             feed(engine, network, ranges, false);
             const AlignedError error = alignedError(engine.estimates(), network.ids, network.truth_m);
             std::printf("seed %llu: %-19s %zu placed, %zu converged, aligned RMSE %.3f m\n",
-                        static_cast<unsigned long long>(seed), variant.name, error.placed, error.converged, error.rmse_m);
+                        static_cast<unsigned long long>(seed), variant.name, error.placed, error.converged,
+                        error.rmse_m);
             EXPECT_GE(error.placed, 2U) << variant.name;
             variant.rmse_sum_m += error.rmse_m;
             results.push_back(engine.estimates());
@@ -771,10 +773,9 @@ TEST(Engine, WithoutRefinementTheEstimateIsTheMergedSog)
 TEST(Engine, OutputsStayNearTheNetworkWhileItIsBuilt)
 {
     const TestRange ranges[] = {
-        {4138, 4804, 12.320}, {4286, 4656, 5.224},  {4175, 4286, 11.120}, {4323, 4397, 9.077},
-        {4434, 4286, 12.522}, {4434, 4508, 7.633},  {4656, 4582, 6.371},  {4730, 4656, 3.293},
-        {4693, 4619, 5.759},  {4249, 4730, 11.847}, {4175, 4138, 6.700},  {4471, 4434, 6.325},
-        {4323, 4212, 10.902}, {4656, 4397, 4.110},
+        {4138, 4804, 12.320}, {4286, 4656, 5.224}, {4175, 4286, 11.120}, {4323, 4397, 9.077}, {4434, 4286, 12.522},
+        {4434, 4508, 7.633},  {4656, 4582, 6.371}, {4730, 4656, 3.293},  {4693, 4619, 5.759}, {4249, 4730, 11.847},
+        {4175, 4138, 6.700},  {4471, 4434, 6.325}, {4323, 4212, 10.902}, {4656, 4397, 4.110},
     };
     Engine engine;
     size_t count = 0;

@@ -41,8 +41,8 @@ PlantRun runPlant(const PlantData &plant, const std::vector<TestRange> &ranges)
             converged.push_back(node);
         }
     }
-    return {alignedError(engine.estimates(), plant.ids, plant.truth_m), alignedError(converged, plant.ids, plant.truth_m),
-            engine.counters()};
+    return {alignedError(engine.estimates(), plant.ids, plant.truth_m),
+            alignedError(converged, plant.ids, plant.truth_m), engine.counters()};
 }
 
 // 0: file order; k > 0: the ranges shuffled with seed 5000 + k.
@@ -56,8 +56,7 @@ TEST_P(Plant, EveryNodePlacedWithinTheGoalAndConvergedNodesWithinTheirPromise)
     std::string where;
     const std::optional<PlantData> plant = loadPlant(&where);
     if (!plant) {
-        GTEST_SKIP() << "PLANT data not found at " << where
-                     << " (set CDRO_DATA_DIR to the folder that holds plant/)";
+        GTEST_SKIP() << "PLANT data not found at " << where << " (set CDRO_DATA_DIR to the folder that holds plant/)";
     }
     std::vector<TestRange> ranges = plant->ranges;
     std::string order = "file order";

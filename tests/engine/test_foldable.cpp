@@ -21,9 +21,9 @@ using cdro::engine::findFoldable;
 using cdro::engine::Foldable;
 using cdro::engine::kNoHinge;
 using cdro::engine::NodeOutput;
+using cdro::engine::Vector2;
 using cdro::enginetest::Random;
 using cdro::enginetest::TestNetwork;
-using cdro::engine::Vector2;
 using Edges = std::vector<std::pair<uint32_t, uint32_t>>;
 
 void addClique(Edges &edges, std::vector<uint32_t> nodes)
@@ -189,8 +189,7 @@ TEST(Foldable, AGloballyRigidNetworkHasNoFoldableNode)
         with_folds += folds.count > 0 ? 1U : 0U;
         EXPECT_FALSE(globally_rigid && folds.count > 0) << "draw " << draw << ": " << count << " nodes";
     }
-    std::printf("Foldable property test: %u of 150 draws globally rigid, %u with foldable nodes\n", rigid,
-                with_folds);
+    std::printf("Foldable property test: %u of 150 draws globally rigid, %u with foldable nodes\n", rigid, with_folds);
     // The draws must exercise both sides, or the property says nothing.
     EXPECT_GT(rigid, 20U);
     EXPECT_GT(with_folds, 20U);
@@ -201,8 +200,8 @@ TEST(Foldable, AGloballyRigidNetworkHasNoFoldableNode)
 TEST(Foldable, TheEngineDoesNotCallAFoldablePartConverged)
 {
     TestNetwork network;
-    const std::vector<Vector2> positions_m = {{0, 0},  {8, 0},  {12, 6}, {4, 9},  {10, 12}, {2, 14},
-                                              {14, 20}, {6, 21}, {10, 26}};
+    const std::vector<Vector2> positions_m = {{0, 0},  {8, 0},   {12, 6}, {4, 9},  {10, 12},
+                                              {2, 14}, {14, 20}, {6, 21}, {10, 26}};
     for (size_t i = 0; i < positions_m.size(); ++i) {
         network.ids.push_back(static_cast<cdro::engine::NodeId>(0x100 + i));
         network.truth_m.push_back(positions_m[i]);
@@ -213,8 +212,8 @@ TEST(Foldable, TheEngineDoesNotCallAFoldablePartConverged)
             network.links.emplace_back(a, b);
         }
     }
-    for (const auto &[a, b] : std::vector<std::pair<size_t, size_t>>{{6, 7}, {6, 8}, {7, 8}, {6, 4}, {6, 5},
-                                                                     {7, 4}, {7, 5}, {8, 4}, {8, 5}}) {
+    for (const auto &[a, b] : std::vector<std::pair<size_t, size_t>>{
+             {6, 7}, {6, 8}, {7, 8}, {6, 4}, {6, 5}, {7, 4}, {7, 5}, {8, 4}, {8, 5}}) {
         network.links.emplace_back(a, b);
     }
     Random random(7);

@@ -23,8 +23,8 @@ namespace {
 using namespace cdro::engine; // NOLINT(google-build-using-namespace): the engine's types throughout
 
 constexpr std::array<NodeId, 6> kAnchors = {1, 2, 3, 4, 5, 6};
-const std::array<Vector3, 6> kAnchorPositions = {Vector3(0.0, 0.0, 1.60), Vector3(4.0, 0.0, 1.90),
-                                                 Vector3(4.0, 4.0, 1.70), Vector3(0.0, 4.0, 1.85),
+const std::array<Vector3, 6> kAnchorPositions = {Vector3(0.0, 0.0, 1.60),  Vector3(4.0, 0.0, 1.90),
+                                                 Vector3(4.0, 4.0, 1.70),  Vector3(0.0, 4.0, 1.85),
                                                  Vector3(2.0, -0.2, 1.75), Vector3(2.0, 4.2, 1.65)};
 constexpr std::array<NodeId, 2> kTags = {10, 20};
 constexpr double kNoiseM = 0.1;     // m, range noise of the simulation (= range.sigma_m)
@@ -305,7 +305,7 @@ TEST(MotionTrack3D, TwoTagsOnOneBodyHelpTheOneThatRangesLess)
         EXPECT_LE(with, 0.8 * without);
     }
     Engine engine = anchoredEngine();
-    EXPECT_THROW(engine.trackOnOneBody(kTags[0], 99, 0.4), std::invalid_argument);   // 99 is not tracked
+    EXPECT_THROW(engine.trackOnOneBody(kTags[0], 99, 0.4), std::invalid_argument); // 99 is not tracked
     EXPECT_THROW(engine.trackOnOneBody(kTags[0], kTags[1], 0.0), std::invalid_argument);
     engine.trackOnOneBody(kTags[0], kTags[1], 0.45);
     EXPECT_THROW(engine.trackOnOneBody(kTags[1], kTags[0], 0.45), std::invalid_argument); // already on a body

@@ -42,7 +42,7 @@ using engine::RobotOutput;
 
 // What a run gives: the robot after each odometry step, the estimates at chosen moments.
 struct StageRun {
-    std::vector<RobotOutput> robot;           // after each odometry event (robot() always has a value)
+    std::vector<RobotOutput> robot;                 // after each odometry event (robot() always has a value)
     std::vector<std::vector<NodeOutput>> snapshots; // estimates after the odometry events in `snapshot_at`
     std::vector<NodeOutput> final_estimates;
     engine::MovementCounters counters;
@@ -262,8 +262,8 @@ TEST(MovementStage, JoiningAMapTheHeadingBankDecidesAndTheRobotFollowsItsPath)
     const size_t end = run.robot.size();
     const double path_m = errorThroughFit(fit, run.robot, world.robot_truth, run.decided_at, end);
     const double undecided_m = errorThroughFit(fit, run.robot, world.robot_truth, run.started_at, run.decided_at);
-    const double dead_m = errorThroughFit(engine::RigidTransform{}, world.dead_reckoning, world.robot_truth,
-                                          run.decided_at, end);
+    const double dead_m =
+        errorThroughFit(engine::RigidTransform{}, world.dead_reckoning, world.robot_truth, run.decided_at, end);
     const double decided_after_m = std::hypot(world.robot_truth[run.decided_at].x_m - world.spec.robot_start.x_m,
                                               world.robot_truth[run.decided_at].y_m - world.spec.robot_start.y_m);
     std::printf("map: EKF from t %.1f s, heading decided at t %.1f s (%.2f m from the start); map %.3f m before the "
@@ -340,11 +340,11 @@ TEST(MovementStage, ANodeWithTwoMapNeighboursEndsOnTheCorrectSideOfTheRobotsLine
     const AlignedError all = alignedError(run.final_estimates, world.spec.ids, world.final_truth_m);
     std::printf("corridor: node 25 %s before the robot moved; at the end %s at (%.2f, %.2f), %.3f m from the truth "
                 "(24, 0), converged %d; all nodes %.3f m; %llu beacon SoGs, %llu nodes into the EKF; hypotheses %u\n",
-                before != nullptr && before->placed() ? ((before->doubt == engine::NodeDoubt::Ambiguous) ? "placed, ambiguous" : "placed")
-                                                    : "not placed",
+                before != nullptr && before->placed()
+                    ? ((before->doubt == engine::NodeDoubt::Ambiguous) ? "placed, ambiguous" : "placed")
+                    : "not placed",
                 node->placed() ? "placed" : "not placed", estimate_m.x(), estimate_m.y(), error_m,
-                node->converged() ? 1 : 0,
-                all.rmse_m, static_cast<unsigned long long>(run.counters.beacon_sogs),
+                node->converged() ? 1 : 0, all.rmse_m, static_cast<unsigned long long>(run.counters.beacon_sogs),
                 static_cast<unsigned long long>(run.counters.nodes_inserted), run.robot.back().hypotheses);
     // Measured (seed 5103): node 25 at (24.14, 0.02), 0.145 m off; all nodes 0.071 m. Seeds
     // 1-30: 0.12-0.24 m, all nodes at most 0.115 m. With the engine before that commit this test
@@ -403,8 +403,7 @@ TEST(MovementStage, ACarriedNodeLeavesTheEkfAndRejoinsAfterItStops)
     std::printf("carried: out of the EKF while carried %d; converged again %.0f s after it stopped (%.3f m off); at "
                 "the end %.3f m from where it was put; map %.3f m; %llu nodes into the EKF, %llu out\n",
                 out_while_carried ? 1 : 0, rejoined_after_s ? *rejoined_after_s : -1.0, rejoined_error_m, error_m,
-                map.rmse_m,
-                static_cast<unsigned long long>(run.counters.nodes_inserted),
+                map.rmse_m, static_cast<unsigned long long>(run.counters.nodes_inserted),
                 static_cast<unsigned long long>(run.counters.nodes_removed));
     // Measured (seed 5104): out of the EKF while carried, converged (back in the EKF) 2 s after
     // the stop 0.025 m off, 0.015 m off at the end; map 0.015 m. Seeds 1-30: always 2 s, at most
@@ -734,10 +733,11 @@ bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 
 bool sameRobot(const RobotOutput &a, const RobotOutput &b)
 {
-    bool same = a.id == b.id && a.localized == b.localized && a.placed == b.placed && a.frame == b.frame && a.hypotheses == b.hypotheses &&
-                sameBits(a.t_s, b.t_s) && sameBits(a.pose.x_m, b.pose.x_m) && sameBits(a.pose.y_m, b.pose.y_m) &&
-                sameBits(a.pose.heading_rad, b.pose.heading_rad) && sameBits(a.range_scale, b.range_scale) &&
-                sameBits(a.range_scale_sigma, b.range_scale_sigma) && sameBits(a.range_offset_m, b.range_offset_m) &&
+    bool same = a.id == b.id && a.localized == b.localized && a.placed == b.placed && a.frame == b.frame &&
+                a.hypotheses == b.hypotheses && sameBits(a.t_s, b.t_s) && sameBits(a.pose.x_m, b.pose.x_m) &&
+                sameBits(a.pose.y_m, b.pose.y_m) && sameBits(a.pose.heading_rad, b.pose.heading_rad) &&
+                sameBits(a.range_scale, b.range_scale) && sameBits(a.range_scale_sigma, b.range_scale_sigma) &&
+                sameBits(a.range_offset_m, b.range_offset_m) &&
                 sameBits(a.range_offset_sigma_m, b.range_offset_sigma_m);
     for (Eigen::Index i = 0; i < 9; ++i) {
         same = same && sameBits(a.covariance(i), b.covariance(i));
@@ -787,7 +787,7 @@ TEST(MovementStage, AStageRestoredFromItsSavedStateGoesOnAsTheOriginal)
     Engine restored_engine = engine; // stage 1 copied (its own checkpoint is tested in tests/hostd)
     MovementStage restored(restored_engine, params);
     restored.restore(stage.saved());
-    Engine fresh_engine = engine;   // what a resume did before: stage 2 started afresh
+    Engine fresh_engine = engine; // what a resume did before: stage 2 started afresh
     MovementStage fresh(fresh_engine, params);
     double fresh_apart_m = 0.0;
     for (; next < world.events.size(); ++next) {

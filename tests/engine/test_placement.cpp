@@ -15,9 +15,9 @@ using engine::chooseFrameTriangle;
 using engine::choosePlacement;
 using engine::MapState;
 using engine::PlacementCandidate;
+using engine::placementCandidates;
 using engine::PlacementDecision;
 using engine::PlacementParams;
-using engine::placementCandidates;
 using engine::PointSolverParams;
 using engine::RangeConstraint;
 using engine::RangeLikelihood;
@@ -80,8 +80,7 @@ TEST(Placement, ThreeNonCollinearConstraintsDecide)
     PlacementParams demanding;
     demanding.ambiguity_gap_nats = 1e6;
     if (candidates.size() > 1) {
-        EXPECT_EQ(choosePlacement(candidates, constraints.size(), demanding).decision,
-                  PlacementDecision::Ambiguous);
+        EXPECT_EQ(choosePlacement(candidates, constraints.size(), demanding).decision, PlacementDecision::Ambiguous);
     }
 }
 
@@ -197,8 +196,8 @@ TEST(FrameTriangle, IgnoresAPreferredTriangleThatCannotBeUsed)
     // Collinear: the preference is ignored.
     EXPECT_TRUE(same(chooseFrameTriangle(f.network, PlacementParams{}, all, std::array<uint32_t, 3>{0, 1, 2})));
     // Naming an unknown node.
-    EXPECT_TRUE(same(
-        chooseFrameTriangle(f.network, PlacementParams{}, all, std::array<uint32_t, 3>{0, engine::kNoIndex, 3})));
+    EXPECT_TRUE(
+        same(chooseFrameTriangle(f.network, PlacementParams{}, all, std::array<uint32_t, 3>{0, engine::kNoIndex, 3})));
     // Not eligible: a triangle without that node is chosen.
     std::vector<bool> without_d = all;
     without_d[3] = false;

@@ -15,7 +15,10 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-double normalPdf(double e, double variance) { return std::exp(-0.5 * e * e / variance) / std::sqrt(2.0 * kPi * variance); }
+double normalPdf(double e, double variance)
+{
+    return std::exp(-0.5 * e * e / variance) / std::sqrt(2.0 * kPi * variance);
+}
 
 RangeLikelihoodParams gaussian()
 {
@@ -24,8 +27,8 @@ RangeLikelihoodParams gaussian()
     return params;
 }
 
-const double kResiduals_m[] = {-1e6, -50.0, -3.0, -1.0, -0.31, -0.1, -0.02, 0.0, 0.02, 0.1,
-                               0.31, 1.0,   2.5,  7.0,  45.0,  1e3,  1e6};
+const double kResiduals_m[] = {-1e6, -50.0, -3.0, -1.0, -0.31, -0.1, -0.02, 0.0, 0.02,
+                               0.1,  0.31,  1.0,  2.5,  7.0,   45.0, 1e3,   1e6};
 const double kVariances_m2[] = {1e-6, 1e-4, 0.01, 0.0169, 0.25, 4.0};
 
 void expectConsistent(const RangeLikelihood &likelihood)
@@ -232,7 +235,8 @@ TEST(RangeLikelihood, SlopeIsTheDerivativeOfTheLogDensity)
                 const double h = 1e-6 * std::max(1.0, std::abs(e));
                 const double numeric = (likelihood.logDensity(e + h, s) - likelihood.logDensity(e - h, s)) / (2.0 * h);
                 const double analytic = likelihood.evaluate(e, s).slope_per_m;
-                EXPECT_NEAR(analytic, numeric, 1e-4 * (1.0 + std::abs(numeric))) << "e " << e << " m, S " << s << " m^2";
+                EXPECT_NEAR(analytic, numeric, 1e-4 * (1.0 + std::abs(numeric)))
+                    << "e " << e << " m, S " << s << " m^2";
             }
         }
     }

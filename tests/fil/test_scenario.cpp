@@ -82,7 +82,8 @@ TEST(FilScenario, MistakesNameTheLineAndTheKey)
     std::string message = errorOf(base + "    \n" + "seeed: 3\n");
     EXPECT_NE(message.find("test.yaml:7: scenario.seeed: unknown key"), std::string::npos) << message;
     EXPECT_NE(message.find("seed"), std::string::npos) << message;
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0, colour: red}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    message =
+        errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0, colour: red}\n  - {id: 2, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("test.yaml:3: nodes[0].colour: unknown key"), std::string::npos) << message;
     // Missing and malformed values.
     message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
@@ -124,7 +125,8 @@ TEST(FilScenario, TheIdealModelHasItsOwnTimingsAndUwbOverridesEither)
 TEST(FilScenario, MotionIsChecked)
 {
     const std::string base = kMinimal;
-    std::string message = errorOf(base + "motion:\n  - {node: 0x6A09, start_s: 1, speed_mps: 1, waypoints_m: [[1, 1]]}\n");
+    std::string message =
+        errorOf(base + "motion:\n  - {node: 0x6A09, start_s: 1, speed_mps: 1, waypoints_m: [[1, 1]]}\n");
     EXPECT_NE(message.find("motion[0].node: node 27145 is not in nodes"), std::string::npos) << message;
     message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[1]]}\n");
     EXPECT_NE(message.find("each waypoint is [x, y] or [x, y, z]"), std::string::npos) << message;
@@ -158,9 +160,10 @@ TEST(FilScenario, FaultsAreChecked)
     message = errorOf(base + "faults:\n  - {kind: nack_write, at_s: 1, error_code: 3}\n");
     EXPECT_NE(message.find("faults[0].error_code: unknown key"), std::string::npos) << message;
 
-    const Scenario s = parseScenario(base + "faults:\n  - {kind: error_completion, at_s: 2, count: 3, error_code: 0x17}\n"
-                                            "  - {kind: nack_write, at_s: 1}\n",
-                                     "test.yaml");
+    const Scenario s =
+        parseScenario(base + "faults:\n  - {kind: error_completion, at_s: 2, count: 3, error_code: 0x17}\n"
+                             "  - {kind: nack_write, at_s: 1}\n",
+                      "test.yaml");
     ASSERT_EQ(s.faults.size(), 2U);
     EXPECT_EQ(s.faults[0].kind, FaultKind::NackWrite);
     EXPECT_EQ(s.faults[0].count, 1U);

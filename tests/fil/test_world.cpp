@@ -37,15 +37,9 @@ motion:
   - {node: 0x6B02, start_s: 1, speed_mps: 2, waypoints_m: [[4, 3]]}
 )";
 
-Scenario scenario(const std::string &extra = "")
-{
-    return parseScenario(std::string(kScenario) + extra, "test.yaml");
-}
+Scenario scenario(const std::string &extra = "") { return parseScenario(std::string(kScenario) + extra, "test.yaml"); }
 
-uint64_t us(double t_s)
-{
-    return static_cast<uint64_t>(std::llround(t_s * 1e6));
-}
+uint64_t us(double t_s) { return static_cast<uint64_t>(std::llround(t_s * 1e6)); }
 
 // A function call on the bus as the driver makes it: START W fn params, repeated START R,
 // the return byte, STOP. Returns the return byte (0xFF if refused on the bus).
@@ -73,10 +67,7 @@ uint8_t doRanging(World &world, uint16_t partner, uint64_t at_us)
                 at_us);
 }
 
-double norm(const cdro::fil::Vec3 &a)
-{
-    return std::sqrt(a.x_m * a.x_m + a.y_m * a.y_m + a.z_m * a.z_m);
-}
+double norm(const cdro::fil::Vec3 &a) { return std::sqrt(a.x_m * a.x_m + a.y_m * a.y_m + a.z_m * a.z_m); }
 
 } // namespace
 

@@ -121,10 +121,7 @@ void SimBus::delayMs(void *user, uint16_t ms)
     self->advanceUs(static_cast<uint64_t>(ms) * 1000U);
 }
 
-uint32_t SimBus::msNow(void *user)
-{
-    return static_cast<SimBus *>(user)->nowMs();
-}
+uint32_t SimBus::msNow(void *user) { return static_cast<SimBus *>(user)->nowMs(); }
 
 void SimBus::busRecover(void *user)
 {
@@ -133,10 +130,7 @@ void SimBus::busRecover(void *user)
     self->advanceUs(self->recoveryUs);
 }
 
-uint32_t SimBus::usNow(void *user)
-{
-    return static_cast<uint32_t>(static_cast<SimBus *>(user)->nowUs());
-}
+uint32_t SimBus::usNow(void *user) { return static_cast<uint32_t>(static_cast<SimBus *>(user)->nowUs()); }
 
 // ---- FakeSerial ---------------------------------------------------------------------------
 
@@ -217,10 +211,7 @@ void FakeSerial::hostSend(cdro_frame_t frame)
     rx_.insert(rx_.end(), out, out + n);
 }
 
-void FakeSerial::hostSendBytes(const std::vector<uint8_t> &bytes)
-{
-    rx_.insert(rx_.end(), bytes.begin(), bytes.end());
-}
+void FakeSerial::hostSendBytes(const std::vector<uint8_t> &bytes) { rx_.insert(rx_.end(), bytes.begin(), bytes.end()); }
 
 std::vector<cdro_frame_t> FakeSerial::ofType(uint8_t type, size_t from) const
 {

@@ -24,7 +24,7 @@ uint64_t testSeed(uint64_t fallback);
 // per-transaction overhead of the Wire library) plus the device's clock stretching (a stretch
 // reaching Wire's timeout is a timeout); delay_ms advances simulated time.
 class SimBus {
-  public:
+public:
     explicit SimBus(pozyx_sim_t *sim, uint32_t i2c_clock_hz = CDRO_FW_I2C_CLOCK_HZ, uint32_t overhead_ns = 20000);
 
     const cdro_pozyx_ops_t *ops() const { return &ops_; }
@@ -36,16 +36,16 @@ class SimBus {
     void advanceUs(uint64_t us) { advanceNs(us * 1000U); }
     void advanceToUs(uint64_t us);
 
-    uint32_t writes = 0;       // i2c_write calls
-    uint32_t reads = 0;        // i2c_read calls
-    uint32_t delays = 0;       // delay_ms calls
-    uint32_t longestWrite = 0; // bytes in one i2c_write
-    uint32_t longestRead = 0;  // bytes in one i2c_read
+    uint32_t writes = 0;                             // i2c_write calls
+    uint32_t reads = 0;                              // i2c_read calls
+    uint32_t delays = 0;                             // delay_ms calls
+    uint32_t longestWrite = 0;                       // bytes in one i2c_write
+    uint32_t longestRead = 0;                        // bytes in one i2c_read
     uint32_t hangTimeoutUs = CDRO_FW_I2C_TIMEOUT_US; // what Wire's timeout costs when the device hangs
-    uint32_t recoveries = 0;        // bus_recover calls (the bus clear after a timeout)
-    uint32_t recoveryUs = 100;      // what a bus clear costs: 9 clocks and a STOP at 100 kHz
+    uint32_t recoveries = 0;                         // bus_recover calls (the bus clear after a timeout)
+    uint32_t recoveryUs = 100;                       // what a bus clear costs: 9 clocks and a STOP at 100 kHz
 
-  private:
+private:
     static cdro_i2c_result_t write(void *user, uint8_t address, const uint8_t *data, uint8_t length, uint8_t stop);
     static cdro_i2c_result_t read(void *user, uint8_t address, uint8_t *data, uint8_t length);
     static void delayMs(void *user, uint16_t ms);
@@ -70,7 +70,7 @@ struct ReceivedFrame {
 // simulated time (or not at all, to force drops), whose bytes a host-side cdro_decoder_t
 // turns into frames; and a receive queue the test fills with host frames.
 class FakeSerial {
-  public:
+public:
     FakeSerial(const SimBus *clock, uint16_t capacity = 127, uint32_t baud = 115200);
 
     const cdro_serial_ops_t *ops() const { return &ops_; }
@@ -82,15 +82,15 @@ class FakeSerial {
     void hostSendBytes(const std::vector<uint8_t> &bytes);
     uint16_t hostSequence = 100;
 
-    std::vector<uint8_t> wire;                 // every byte the firmware wrote
-    std::vector<ReceivedFrame> frames;         // decoded by the host-side decoder
-    cdro_decoder_t decoder;                    // host side; counters checked by tests
+    std::vector<uint8_t> wire;         // every byte the firmware wrote
+    std::vector<ReceivedFrame> frames; // decoded by the host-side decoder
+    cdro_decoder_t decoder;            // host side; counters checked by tests
     size_t rxPending() const { return rx_.size(); }
 
     std::vector<cdro_frame_t> ofType(uint8_t type, size_t from = 0) const;
     size_t count(uint8_t type, size_t from = 0) const { return ofType(type, from).size(); }
 
-  private:
+private:
     static uint16_t txFree(void *user);
     static void txWrite(void *user, const uint8_t *data, uint8_t length);
     static int16_t rxRead(void *user);
@@ -121,9 +121,9 @@ enum class Model { Realistic, Ideal };
 class Bench {
     std::unique_ptr<pozyx_sim_t> sim_; // first: the members below are built on it
 
-  public:
-    explicit Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag = true,
-                   uint16_t local_id = 0x6000, Model model = Model::Realistic);
+public:
+    explicit Bench(uint64_t seed, const std::vector<NodeSpec> &nodes, bool local_tag = true, uint16_t local_id = 0x6000,
+                   Model model = Model::Realistic);
 
     pozyx_sim_t *sim() { return sim_.get(); }
     SimBus bus;

@@ -27,8 +27,8 @@ const std::vector<NodeSpec> kNodes = {
 // A raw frame with any header values, CRC'd and COBS-encoded with its delimiter.
 std::vector<uint8_t> rawFrame(uint8_t version, uint8_t type, uint16_t sequence, const std::vector<uint8_t> &payload)
 {
-    std::vector<uint8_t> raw = {version, type, static_cast<uint8_t>(sequence & 0xFF), static_cast<uint8_t>(sequence >> 8),
-                                static_cast<uint8_t>(payload.size())};
+    std::vector<uint8_t> raw = {version, type, static_cast<uint8_t>(sequence & 0xFF),
+                                static_cast<uint8_t>(sequence >> 8), static_cast<uint8_t>(payload.size())};
     raw.insert(raw.end(), payload.begin(), payload.end());
     const uint16_t crc = cdro_crc16(raw.data(), raw.size());
     raw.push_back(static_cast<uint8_t>(crc & 0xFF));
@@ -55,8 +55,9 @@ struct Snapshot {
 
 Snapshot snapshot(const cdro_fw_t &fw)
 {
-    Snapshot s{fw.node_count, fw.running, fw.sched.mode, fw.sched.boost, fw.sched.max_retries,
-               fw.slot_period_ms, fw.motion_poll_ms, fw.status_period_ms, {}};
+    Snapshot s{fw.node_count,     fw.running,           fw.sched.mode,
+               fw.sched.boost,    fw.sched.max_retries, fw.slot_period_ms,
+               fw.motion_poll_ms, fw.status_period_ms,  {}};
     for (uint8_t i = 1; i <= fw.node_count; ++i) {
         s.ids.push_back(fw.nodes[i].id);
     }
@@ -64,7 +65,7 @@ Snapshot snapshot(const cdro_fw_t &fw)
 }
 
 class Commands : public ::testing::Test {
-  protected:
+protected:
     Commands() : bench(fwtest::testSeed(51), kNodes) {}
     void SetUp() override { bench.boot(); }
 
@@ -177,9 +178,9 @@ TEST_F(Commands, SetNodesRefusals)
         too_many.push_back(static_cast<uint16_t>(0x6100 + i));
     }
     expectNack(fwtest::setNodes(too_many), CDRO_NACK_TOO_MANY_NODES);
-    expectNack(fwtest::setNodes({0x6A01, 0x6A01}), CDRO_NACK_BAD_VALUE);      // duplicate
-    expectNack(fwtest::setNodes({0x6A01, 0x0000}), CDRO_NACK_BAD_VALUE);      // zero id
-    expectNack(fwtest::setNodes({0x6A01, 0x6000}), CDRO_NACK_BAD_VALUE);      // the own node
+    expectNack(fwtest::setNodes({0x6A01, 0x6A01}), CDRO_NACK_BAD_VALUE); // duplicate
+    expectNack(fwtest::setNodes({0x6A01, 0x0000}), CDRO_NACK_BAD_VALUE); // zero id
+    expectNack(fwtest::setNodes({0x6A01, 0x6000}), CDRO_NACK_BAD_VALUE); // the own node
     // More ids than the protocol's 20 cannot even be a valid SET_NODES payload.
     std::vector<uint8_t> payload = {21};
     for (int i = 0; i < 21; ++i) {
@@ -206,12 +207,12 @@ TEST_F(Commands, SetScheduleTakesEffectAndOutOfRangeValuesAreRefused)
     EXPECT_EQ(bench.fw.sched.mode, CDRO_SCHEDULE_DIRECT_ONLY);
     EXPECT_EQ(bench.fw.sched.boost, 3);
     EXPECT_EQ(bench.fw.sched.max_retries, 2);
-    expectNack(fwtest::setSchedule(50, 2, 0, 3, 500, 2), CDRO_NACK_BAD_VALUE);     // mode
-    expectNack(fwtest::setSchedule(50, 1, 0, 0, 500, 2), CDRO_NACK_BAD_VALUE);     // boost 0
-    expectNack(fwtest::setSchedule(50, 1, 0, 9, 500, 2), CDRO_NACK_BAD_VALUE);     // boost 9
-    expectNack(fwtest::setSchedule(50, 1, 0, 2, 99, 2), CDRO_NACK_BAD_VALUE);      // status period
-    expectNack(fwtest::setSchedule(50, 1, 0, 2, 500, 11), CDRO_NACK_BAD_VALUE);    // retries
-    expectNack(fwtest::setSchedule(60001, 1, 0, 2, 500, 1), CDRO_NACK_BAD_VALUE);  // slot period
+    expectNack(fwtest::setSchedule(50, 2, 0, 3, 500, 2), CDRO_NACK_BAD_VALUE);    // mode
+    expectNack(fwtest::setSchedule(50, 1, 0, 0, 500, 2), CDRO_NACK_BAD_VALUE);    // boost 0
+    expectNack(fwtest::setSchedule(50, 1, 0, 9, 500, 2), CDRO_NACK_BAD_VALUE);    // boost 9
+    expectNack(fwtest::setSchedule(50, 1, 0, 2, 99, 2), CDRO_NACK_BAD_VALUE);     // status period
+    expectNack(fwtest::setSchedule(50, 1, 0, 2, 500, 11), CDRO_NACK_BAD_VALUE);   // retries
+    expectNack(fwtest::setSchedule(60001, 1, 0, 2, 500, 1), CDRO_NACK_BAD_VALUE); // slot period
     // STATUS now comes every 500 ms.
     const size_t from = bench.serial.frames.size();
     bench.runForMs(2600);
@@ -323,9 +324,9 @@ TEST_F(Commands, UndecodableChunksAreCountedAndReportedNotAnswered)
     std::vector<uint8_t> bad_crc = rawFrame(CDRO_PROTOCOL_VERSION, CDRO_FRAME_PING, 601, {1, 2, 3, 4});
     bad_crc[3] ^= 0x40;
     bench.serial.hostSendBytes(bad_crc);
-    bench.serial.hostSendBytes({0x05, 0x01, 0x00});                 // COBS says 4 more bytes, gets 1
-    bench.serial.hostSendBytes({0x02, 0x01, 0x00});                 // too short for a header
-    bench.serial.hostSendBytes(std::vector<uint8_t>(200, 0x33));   // no delimiter within 73 bytes
+    bench.serial.hostSendBytes({0x05, 0x01, 0x00});              // COBS says 4 more bytes, gets 1
+    bench.serial.hostSendBytes({0x02, 0x01, 0x00});              // too short for a header
+    bench.serial.hostSendBytes(std::vector<uint8_t>(200, 0x33)); // no delimiter within 73 bytes
     bench.serial.hostSendBytes({0x00});
     cdro_frame_t ping = fwtest::makeFrame(CDRO_FRAME_PING);
     ping.as.ping.nonce = 7;

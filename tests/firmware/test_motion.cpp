@@ -10,10 +10,7 @@
 
 namespace {
 
-cdro_accel_t along_z(int16_t z_mg)
-{
-    return cdro_accel_t{0, 0, z_mg};
-}
+cdro_accel_t along_z(int16_t z_mg) { return cdro_accel_t{0, 0, z_mg}; }
 
 TEST(Motion, NormIsRoundedToTheNearestMilliG)
 {
@@ -40,7 +37,8 @@ TEST(Motion, StartsStillAndStaysStillUnderSensorNoise)
     std::mt19937_64 rng(fwtest::testSeed(32));
     std::normal_distribution<double> noise(0.0, 8.0); // mg per axis, a real sensor at rest
     for (int i = 0; i < 5000; ++i) {
-        const cdro_accel_t a{static_cast<int16_t>(std::lround(noise(rng))), static_cast<int16_t>(std::lround(noise(rng))),
+        const cdro_accel_t a{static_cast<int16_t>(std::lround(noise(rng))),
+                             static_cast<int16_t>(std::lround(noise(rng))),
                              static_cast<int16_t>(std::lround(1000.0 + noise(rng)))};
         ASSERT_EQ(cdro_motion_detector_update(&m, &a), 0) << "sample " << i;
     }

@@ -18,7 +18,7 @@ namespace {
 using fwtest::SimBus;
 
 class Driver : public ::testing::Test {
-  protected:
+protected:
     void SetUp() override
     {
         pozyx_sim_config_t config;
@@ -26,8 +26,8 @@ class Driver : public ::testing::Test {
         config.seed = 21;
         pozyx_sim_init(sim.get(), &config);
         add(kLocal, true, 0, 0, 0);
-        add(kAnchorA, false, 3, 4, 0);   // 5 m from the local node
-        add(kAnchorB, false, 3, -4, 0);  // 8 m from A
+        add(kAnchorA, false, 3, 4, 0);  // 5 m from the local node
+        add(kAnchorB, false, 3, -4, 0); // 8 m from A
         add(kTag, true, -2, 0, 1);
         cdro_pozyx_init(&dev, bus.ops(), bus.user(), 0x4B);
     }
@@ -276,7 +276,7 @@ TEST_F(Driver, RemoteRangeIgnoresOtherNodesMessagesWhileWaitingForTheResult)
 // second test collides with the request or the acknowledgement instead: no air time is free
 // between them).
 class DriverRace : public Driver, public ::testing::WithParamInterface<fwtest::Model> {
-  protected:
+protected:
     void SetUp() override
     {
         Driver::SetUp();
@@ -545,8 +545,8 @@ TEST_F(Driver, TransactionsPerOperation)
         const uint32_t r0 = sim->stats.bytes_read;
         const uint32_t d0 = bus.delays;
         ASSERT_EQ(op(), CDRO_POZYX_OK) << name;
-        rows.push_back({name, sim->stats.transactions - t0, sim->stats.bytes_written - w0,
-                        sim->stats.bytes_read - r0, bus.delays - d0});
+        rows.push_back({name, sim->stats.transactions - t0, sim->stats.bytes_written - w0, sim->stats.bytes_read - r0,
+                        bus.delays - d0});
     };
     cdro_pozyx_info_t info;
     cdro_accel_t accel;
@@ -566,10 +566,10 @@ TEST_F(Driver, TransactionsPerOperation)
     }
     // Fixed (non-poll) transactions: each register read or function call is one transaction
     // (write phase, repeated start, read phase). A poll is one INT_STATUS read.
-    EXPECT_EQ(rows[0].transactions, 2U);                  // status block, NETWORK_ID
+    EXPECT_EQ(rows[0].transactions, 2U); // status block, NETWORK_ID
     EXPECT_EQ(rows[1].transactions, 1U);
-    EXPECT_EQ(rows[2].transactions - rows[2].polls, 4U);  // clear, DO_RANGING, wait (1st read), GETRANGEINFO
-    EXPECT_EQ(rows[3].transactions - rows[3].polls, 6U);  // TX_DATA, clear, TX_SEND, wait, RX header, RX_DATA
+    EXPECT_EQ(rows[2].transactions - rows[2].polls, 4U); // clear, DO_RANGING, wait (1st read), GETRANGEINFO
+    EXPECT_EQ(rows[3].transactions - rows[3].polls, 6U); // TX_DATA, clear, TX_SEND, wait, RX header, RX_DATA
     EXPECT_EQ(rows[4].transactions - rows[4].polls, 14U);
 }
 

@@ -74,7 +74,8 @@ struct Sim {
         payload.insert(payload.begin(), 0);
         EXPECT_EQ(call(POZYX_FN_TX_DATA, payload, 0)[0], 1);
         (void)intStatus();
-        EXPECT_EQ(call(POZYX_FN_TX_SEND, {static_cast<uint8_t>(dest & 0xFF), static_cast<uint8_t>(dest >> 8), op}, 0)[0],
+        EXPECT_EQ(call(POZYX_FN_TX_SEND, {static_cast<uint8_t>(dest & 0xFF), static_cast<uint8_t>(dest >> 8), op},
+                       0)[0],
                   1);
     }
     uint64_t replyDelayUs() { return 2U * sim->config.uwb_message_us + sim->config.remote_processing_us; }
@@ -196,7 +197,7 @@ TEST(PozyxSim, ARangeFunctionDecidesEachRangingsDistanceOrFailure)
     GivenRanges given;
     sim->config.range_fn = &GivenRanges::outcome;
     sim->config.range_context = &given;
-    sim.add(0x6001, false, 3.0, 4.0, 0.0); // 5 m by the geometry
+    sim.add(0x6001, false, 3.0, 4.0, 0.0);  // 5 m by the geometry
     sim.add(0x6002, false, 80.0, 0.0, 0.0); // beyond max_range_m: never asked
     (void)sim.intStatus();
 
@@ -253,8 +254,8 @@ TEST(PozyxSim, RangeNoiseIsSeededAndGaussian)
         var += (v - mean) * (v - mean);
     }
     const double std_mm = std::sqrt(var / static_cast<double>(a.size() - 1));
-    EXPECT_NEAR(mean, 10000.0, 6.0);   // 4.2 sigma of the mean
-    EXPECT_NEAR(std_mm, 30.0, 4.5);    // ~4 sigma of the sample std
+    EXPECT_NEAR(mean, 10000.0, 6.0); // 4.2 sigma of the mean
+    EXPECT_NEAR(std_mm, 30.0, 4.5);  // ~4 sigma of the sample std
 }
 
 TEST(PozyxSim, RemoteReadRepliesAfterTwoMessagesWithFuncAndRxRegisters)
@@ -345,9 +346,7 @@ TEST(PozyxSim, AccelerometerFollowsTheTraceAt100Hz)
     Sim sim(9);
     sim->config.accel_noise_std_mg = 0.0;
     pozyx_sim_node_t *self = pozyx_sim_find(sim.get(), 0x6000);
-    self->config.accel_fn = [](void *, double t_s) -> pozyx_sim_vec3_t {
-        return {100.0 * t_s, -200.0, 1000.0};
-    };
+    self->config.accel_fn = [](void *, double t_s) -> pozyx_sim_vec3_t { return {100.0 * t_s, -200.0, 1000.0}; };
     pozyx_sim_advance(sim.get(), 1234567); // 1.23 s: the sample of 1.23 s
     const auto raw = sim.readRegs(POZYX_REG_ACCEL_X, 6);
     EXPECT_EQ(static_cast<int16_t>(raw[0] | (raw[1] << 8)), 123);
@@ -487,7 +486,8 @@ TEST(PozyxSimRealistic, ATwentyFirstRangingPartnerIsAnErrorNotAnEviction)
         }
         for (uint16_t i = 0; i < 21; ++i) {
             const uint16_t id = static_cast<uint16_t>(0x6100 + i);
-            EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {static_cast<uint8_t>(id & 0xFF), static_cast<uint8_t>(id >> 8)}, 0)[0],
+            EXPECT_EQ(sim.call(POZYX_FN_DO_RANGING, {static_cast<uint8_t>(id & 0xFF), static_cast<uint8_t>(id >> 8)},
+                               0)[0],
                       1);
             pozyx_sim_advance(sim.get(), sim->now_us + sim->config.ranging_duration_us);
             const uint8_t flags = sim.intStatus();

@@ -40,8 +40,7 @@ TEST(Scheduler, PairListOrder)
 {
     cdro_sched_t s = make(4, CDRO_SCHEDULE_ALL_PAIRS, 1, 0);
     ASSERT_EQ(cdro_sched_pair_count(&s), 10);
-    const std::vector<Pair> expected = {{0, 1}, {0, 2}, {0, 3}, {0, 4}, {1, 2},
-                                        {1, 3}, {1, 4}, {2, 3}, {2, 4}, {3, 4}};
+    const std::vector<Pair> expected = {{0, 1}, {0, 2}, {0, 3}, {0, 4}, {1, 2}, {1, 3}, {1, 4}, {2, 3}, {2, 4}, {3, 4}};
     for (uint8_t p = 0; p < 10; ++p) {
         uint8_t from = 0;
         uint8_t to = 0;
@@ -81,7 +80,7 @@ TEST(Scheduler, PairsWithAMovingNodeAreVisitedBoostTimesPerRoundAndSpread)
 {
     const uint8_t boost = 4;
     cdro_sched_t s = make(5, CDRO_SCHEDULE_ALL_PAIRS, boost, 0);
-    const uint32_t moving = 1U << 3; // remote node R3
+    const uint32_t moving = 1U << 3;           // remote node R3
     std::map<int, std::vector<int>> positions; // pair -> slot indices within the round
     const uint8_t pairs = cdro_sched_pair_count(&s);
     int slot_index = 0;

@@ -279,11 +279,8 @@ TEST(Setup, DiagnoseReportsEveryItemOfTheBenchChecklist)
             EXPECT_LT(d.value_b, d.value_c + model.stretch_function_us + 200U);
             EXPECT_GE(d.value_a, model.stretch_register_us);
             break;
-        case CDRO_DIAG_ACCEL:
-            EXPECT_NEAR(d.value_a, 1000.0, 30.0);
-            break;
-        default:
-            ADD_FAILURE() << "unexpected item";
+        case CDRO_DIAG_ACCEL: EXPECT_NEAR(d.value_a, 1000.0, 30.0); break;
+        default: ADD_FAILURE() << "unexpected item";
         }
     }
     // While ranging it is refused: it would take the Pozyx over for seconds.
@@ -300,8 +297,10 @@ TEST(Setup, DiagnoseReportsEveryItemOfTheBenchChecklist)
 TEST(Setup, RoundsKeepEveryStepWithinTheBoundWhenNodesAreSilent)
 {
     const std::vector<NodeSpec> nodes = {
-        {0x6A01, false, 4.0, 0.0, 0.0}, {0x6A02, false, 0.0, 5.0, 0.0},
-        {0x7001, true, 2.0, 2.0, 1.0},  {0x7002, true, 3.0, 1.0, 1.0},
+        {0x6A01, false, 4.0, 0.0, 0.0},
+        {0x6A02, false, 0.0, 5.0, 0.0},
+        {0x7001, true, 2.0, 2.0, 1.0},
+        {0x7002, true, 3.0, 1.0, 1.0},
     };
     Bench bench(fwtest::testSeed(89), nodes);
     bench.boot();

@@ -34,10 +34,7 @@ constexpr double kTolerance = 5.0 * kNoiseMm; // mm
 // plus the bookkeeping of a step (a few frames, 80 host bytes), generously 20 ms in simulation.
 constexpr uint64_t kStepBoundUs = (CDRO_FW_LONGEST_OPERATION_MS + 20U) * 1000U;
 
-std::pair<uint16_t, uint16_t> key(const cdro_frame_t &f)
-{
-    return {f.as.range.from_id, f.as.range.to_id};
-}
+std::pair<uint16_t, uint16_t> key(const cdro_frame_t &f) { return {f.as.range.from_id, f.as.range.to_id}; }
 
 void startRanging(Bench &bench, uint8_t mode = CDRO_SCHEDULE_ALL_PAIRS, uint8_t boost = 2, uint8_t retries = 1,
                   uint16_t motion_poll_ms = 200)
@@ -54,8 +51,8 @@ uint32_t sequenceGaps(const Bench &bench)
 {
     uint32_t gaps = 0;
     for (size_t i = 1; i < bench.serial.frames.size(); ++i) {
-        gaps += static_cast<uint16_t>(bench.serial.frames[i].frame.sequence - bench.serial.frames[i - 1].frame.sequence -
-                                      1U);
+        gaps += static_cast<uint16_t>(bench.serial.frames[i].frame.sequence -
+                                      bench.serial.frames[i - 1].frame.sequence - 1U);
     }
     return gaps;
 }
@@ -379,7 +376,10 @@ TEST(Stream, RandomFaultSoakKeepsEveryInvariant)
         case 1: f.nack_write += 1; break;
         case 2: f.hang += 1; break;
         case 3: f.no_completion += 1; break;
-        case 4: f.error_completion += 1; f.error_code = static_cast<uint8_t>(0x11 + rng() % 7); break;
+        case 4:
+            f.error_completion += 1;
+            f.error_code = static_cast<uint8_t>(0x11 + rng() % 7);
+            break;
         case 5: f.garbage_range += 1; break;
         case 6: f.stale_range += 1; break;
         case 7: f.drop_remote_reply += 1; break;

@@ -18,17 +18,17 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
-#define CHECK(condition) \
-    do {                 \
-        if (!(condition)) {  \
-            abort();     \
-        }                \
+#define CHECK(condition)    \
+    do {                    \
+        if (!(condition)) { \
+            abort();        \
+        }                   \
     } while (0)
 
 static uint32_t rejected(const cdro_decoder_counters_t *c)
 {
-    return c->cobs_errors + c->short_errors + c->crc_errors + c->version_errors + c->type_errors +
-           c->length_errors + c->value_errors + c->too_long_errors;
+    return c->cobs_errors + c->short_errors + c->crc_errors + c->version_errors + c->type_errors + c->length_errors +
+           c->value_errors + c->too_long_errors;
 }
 
 static void fuzz_stream(const uint8_t *data, size_t size)

@@ -15,7 +15,8 @@ int main(int argc, char **argv)
         FILE *file = fopen(argv[i], "rb");
         uint8_t *buffer;
         long size;
-        if (file == NULL || fseek(file, 0, SEEK_END) != 0 || (size = ftell(file)) < 0 || fseek(file, 0, SEEK_SET) != 0) {
+        if (file == NULL || fseek(file, 0, SEEK_END) != 0 || (size = ftell(file)) < 0 ||
+            fseek(file, 0, SEEK_SET) != 0) {
             fprintf(stderr, "cannot read %s\n", argv[i]);
             return 1;
         }

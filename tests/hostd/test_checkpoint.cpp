@@ -21,8 +21,8 @@ namespace {
 using engine::Engine;
 using engine::NodeOutput;
 
-constexpr double kPositionStepM = 0.5e-3;  // m: the layout stores millimetres (fixed.h)
-constexpr double kRounding = 1e-12;         // m: the conversions' own floating-point error
+constexpr double kPositionStepM = 0.5e-3; // m: the layout stores millimetres (fixed.h)
+constexpr double kRounding = 1e-12;       // m: the conversions' own floating-point error
 
 // Through the bytes of a checkpoint file, as --resume reads it.
 service::SogSnapshot throughTheLayout(const service::SogSnapshot &snapshot)
@@ -32,10 +32,10 @@ service::SogSnapshot throughTheLayout(const service::SogSnapshot &snapshot)
 }
 
 struct Difference {
-    double engine_frame_m = 0.0;  // largest position difference in the engine's frame
-    double output_m = 0.0;        // ... in the output frame (estimates())
-    double aligned_m = 0.0;       // ... after a rigid fit of one map onto the other
-    double covariance_m2 = 0.0;   // largest covariance element difference (output frame)
+    double engine_frame_m = 0.0; // largest position difference in the engine's frame
+    double output_m = 0.0;       // ... in the output frame (estimates())
+    double aligned_m = 0.0;      // ... after a rigid fit of one map onto the other
+    double covariance_m2 = 0.0;  // largest covariance element difference (output frame)
 };
 
 // How far rounding the positions to 0.5 mm can move a node's output: the output frame is
@@ -57,9 +57,7 @@ double outputRoundingBound(const Engine &engine, NodeId id)
     if (!ids || transform.rotation == engine::Matrix2::Identity()) {
         return corner_m + kRounding;
     }
-    const auto position = [&](NodeId node) {
-        return engine.map().nodes[engine.map().findNode(node)].position_m;
-    };
+    const auto position = [&](NodeId node) { return engine.map().nodes[engine.map().findNode(node)].position_m; };
     const double baseline_m = (position((*ids)[1]) - position((*ids)[0])).norm();
     const double distance_m = (position(id) - position((*ids)[0])).norm();
     return 2.0 * corner_m + 2.0 * corner_m * distance_m / baseline_m + kRounding;
@@ -257,8 +255,8 @@ TEST(Checkpoint, RestoredEngineMatchesToTheLayoutsResolutionAndContinuesClose)
         heights.emplace_back(network.ids[i], network.height_m[i]);
     }
     const long half = static_cast<long>(ranges.size() / 2);
-    const RoundTrip trip =
-        roundTrip(engine::EngineParams{}, heights, {ranges.begin(), ranges.begin() + half}, {ranges.begin() + half, ranges.end()});
+    const RoundTrip trip = roundTrip(engine::EngineParams{}, heights, {ranges.begin(), ranges.begin() + half},
+                                     {ranges.begin() + half, ranges.end()});
     report("random network", trip);
     EXPECT_LE(trip.at_restore.engine_frame_m, kPositionStepM + kRounding);
     EXPECT_LT(trip.after_continuing.output_m, kContinuedToleranceM);
@@ -302,10 +300,10 @@ RoundTrip resumedPlant(const PlantCheckpoints &plant, const engine::EngineParams
     return worst;
 }
 
-#define CDRO_NEED_PLANT(plant, where)                                                                 \
-    if (!(plant)) {                                                                                   \
-        GTEST_SKIP() << "PLANT data not found at " << (where)                                          \
-                     << " (set CDRO_DATA_DIR to the folder that holds plant/)";                        \
+#define CDRO_NEED_PLANT(plant, where)                                           \
+    if (!(plant)) {                                                             \
+        GTEST_SKIP() << "PLANT data not found at " << (where)                   \
+                     << " (set CDRO_DATA_DIR to the folder that holds plant/)"; \
     }
 
 TEST(Checkpoint, PlantResumedEndsWithTheSameMap)

@@ -192,12 +192,13 @@ TEST(EngineConfig, AnUnknownKeyNamesFileLineKeyAndTheKnownKeys)
     EXPECT_NE(message.find("test.yaml:4"), std::string::npos) << message;
     EXPECT_NE(message.find("'sigmaa_m'"), std::string::npos) << message;
     EXPECT_NE(message.find("engine.range"), std::string::npos) << message;
-    EXPECT_NE(message.find("known keys: max_range_m, sigma_m, unknown_height_spread_m, window"), std::string::npos) << message;
+    EXPECT_NE(message.find("known keys: max_range_m, sigma_m, unknown_height_spread_m, window"), std::string::npos)
+        << message;
     const std::string group = errorOf("engine:\n  rnage:\n    sigma_m: 0.2\n");
     EXPECT_NE(group.find("test.yaml:2"), std::string::npos) << group;
     EXPECT_NE(group.find("'rnage'"), std::string::npos) << group;
-    for (const char *known : {"convergence", "frame", "likelihood", "placement", "range", "refinement",
-                              "sog", "solve"}) {
+    for (const char *known :
+         {"convergence", "frame", "likelihood", "placement", "range", "refinement", "sog", "solve"}) {
         EXPECT_NE(group.find(known), std::string::npos) << group;
     }
     // Other sections of the file (the service's) are not the engine's business.
@@ -220,8 +221,9 @@ TEST(EngineConfig, BadValuesAreErrorsWithTheirLine)
     EXPECT_NE(errorOf("engine:\n  frame:\n    origin: 5\n").find("all three"), std::string::npos);
     EXPECT_NE(errorOf("engine:\n  frame:\n    origin: 5\n    x_axis: 5\n    positive_y: 6\n").find("three different"),
               std::string::npos);
-    EXPECT_NE(errorOf("engine:\n  frame:\n    origin: 70000\n    x_axis: 5\n    positive_y: 6\n").find("between 0 and 65535"),
-              std::string::npos);
+    EXPECT_NE(
+        errorOf("engine:\n  frame:\n    origin: 70000\n    x_axis: 5\n    positive_y: 6\n").find("between 0 and 65535"),
+        std::string::npos);
     EXPECT_NE(errorOf("- a\n- b\n").find("must be a map of sections"), std::string::npos);
 }
 

@@ -26,7 +26,8 @@ bool sameWorld(const World &a, const World &b)
         }
     }
     for (size_t i = 0; i < a.links.size(); ++i) {
-        if (a.links[i].a != b.links[i].a || a.links[i].b != b.links[i].b || a.links[i].excess_m != b.links[i].excess_m) {
+        if (a.links[i].a != b.links[i].a || a.links[i].b != b.links[i].b ||
+            a.links[i].excess_m != b.links[i].excess_m) {
             return false;
         }
     }
@@ -66,7 +67,8 @@ TEST(Netgen, FamiliesHaveTheirShape)
         const World random = makeWorld(Family::Random, seed);
         EXPECT_GE(random.nodes.size(), 15U);
         EXPECT_LE(random.nodes.size(), 19U);
-        EXPECT_NEAR(2.0 * static_cast<double>(random.links.size()) / static_cast<double>(random.nodes.size()), 10.0, 0.5);
+        EXPECT_NEAR(2.0 * static_cast<double>(random.links.size()) / static_cast<double>(random.nodes.size()), 10.0,
+                    0.5);
 
         const World corridor = makeWorld(Family::Corridor, seed);
         EXPECT_GE(corridor.nodes.size(), 30U - 10U); // thinned draws may fall a little short
@@ -170,7 +172,7 @@ TEST(Netgen, StaggeredAndLateNodesComeOnLater)
     for (const auto &[id, t] : first_s) {
         latest = std::max(latest, t);
     }
-    EXPECT_GT(latest, 10.0);   // nodes appear over the first minute
+    EXPECT_GT(latest, 10.0); // nodes appear over the first minute
     EXPECT_LT(latest, 70.0);
 
     StreamOptions late;
@@ -189,7 +191,8 @@ TEST(Netgen, StaggeredAndLateNodesComeOnLater)
     // The late node's first range comes after ten sweeps of the others.
     size_t late_links = 0;
     for (const WorldLink &link : world.links) {
-        late_links += (world.nodes[link.a].id == one_late.late_node || world.nodes[link.b].id == one_late.late_node) ? 1U : 0U;
+        late_links +=
+            (world.nodes[link.a].id == one_late.late_node || world.nodes[link.b].id == one_late.late_node) ? 1U : 0U;
     }
     EXPECT_GE(before_late, 10 * (world.links.size() - late_links));
 }
@@ -214,11 +217,12 @@ TEST(Netgen, AShuffleKeepsTheRanges)
 
 TEST(Netgen, WallsAreCountedWhereTheyAre)
 {
-    const std::vector<WallSegment> walls{{Vector2(1.0, -1.0), Vector2(1.0, 1.0)}, {Vector2(2.0, -1.0), Vector2(2.0, 1.0)}};
+    const std::vector<WallSegment> walls{{Vector2(1.0, -1.0), Vector2(1.0, 1.0)},
+                                         {Vector2(2.0, -1.0), Vector2(2.0, 1.0)}};
     EXPECT_EQ(wallsCrossed(walls, Vector2(0.0, 0.0), Vector2(3.0, 0.0)), 2U);
     EXPECT_EQ(wallsCrossed(walls, Vector2(0.0, 0.0), Vector2(1.5, 0.0)), 1U);
-    EXPECT_EQ(wallsCrossed(walls, Vector2(0.0, 2.0), Vector2(3.0, 2.0)), 0U);    // above them
-    EXPECT_EQ(wallsCrossed(walls, Vector2(1.0, -2.0), Vector2(1.0, 2.0)), 0U);   // along one
+    EXPECT_EQ(wallsCrossed(walls, Vector2(0.0, 2.0), Vector2(3.0, 2.0)), 0U);  // above them
+    EXPECT_EQ(wallsCrossed(walls, Vector2(1.0, -2.0), Vector2(1.0, 2.0)), 0U); // along one
 }
 
 } // namespace

@@ -21,7 +21,8 @@ int main(int argc, char **argv)
         app.add_option("--received", received,
                        "write every frame and odometry message the consumer receives, one JSON line each");
         CLI11_PARSE(app, argc, argv);
-        ServiceConfig config = overrides.config_path.empty() ? ServiceConfig{} : loadServiceConfig(overrides.config_path);
+        ServiceConfig config =
+            overrides.config_path.empty() ? ServiceConfig{} : loadServiceConfig(overrides.config_path);
         applyOverrides(config, overrides);
         setupLogging(config.logging);
         HarnessEngine engine(received);

@@ -85,8 +85,9 @@ void HarnessEngine::onOdometry(const OdometryMessage &m)
 {
     char line[200];
     // %.17g: every double reads back as itself, so live and replayed lines compare exactly.
-    std::snprintf(line, sizeof line, "{\"kind\":\"odometry\",\"t_s\":%.17g,\"distance_m\":%.17g,\"dheading_rad\":%.17g}",
-                  m.t_s, m.distance_m, m.dheading_rad);
+    std::snprintf(line, sizeof line,
+                  "{\"kind\":\"odometry\",\"t_s\":%.17g,\"distance_m\":%.17g,\"dheading_rad\":%.17g}", m.t_s,
+                  m.distance_m, m.dheading_rad);
     record(line);
     // Plaza convention: advance along the mid-point heading.
     const double mid_rad = robot_heading_rad_ + 0.5 * m.dheading_rad;
@@ -139,7 +140,8 @@ void HarnessEngine::position(uint16_t id, double *x_m, double *y_m) const
         }
         ++index;
     }
-    const double angle = 2.0 * kPi * static_cast<double>(index) / static_cast<double>(std::max<size_t>(1, nodes_.size()));
+    const double angle =
+        2.0 * kPi * static_cast<double>(index) / static_cast<double>(std::max<size_t>(1, nodes_.size()));
     *x_m = kCircleRadiusM * std::cos(angle);
     *y_m = kCircleRadiusM * std::sin(angle);
 }

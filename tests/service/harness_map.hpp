@@ -60,10 +60,10 @@ private:
     std::map<std::pair<uint16_t, uint16_t>, Link> links_;
     uint64_t revision_ = 0;
     uint32_t ranges_ = 0;
-    uint16_t own_id_ = 0;          // the device's node (HELLO), carried by the robot
+    uint16_t own_id_ = 0; // the device's node (HELLO), carried by the robot
     bool have_robot_ = false;
-    double robot_x_m_ = 0.0;       // m, dead reckoning from 0, 0
-    double robot_y_m_ = 0.0;       // m
+    double robot_x_m_ = 0.0; // m, dead reckoning from 0, 0
+    double robot_y_m_ = 0.0; // m
     double robot_heading_rad_ = 0.0;
     uint32_t odometry_steps_ = 0;
 };

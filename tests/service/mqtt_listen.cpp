@@ -28,7 +28,8 @@ int main(int argc, char **argv)
     mosquitto_message_callback_set(mosq, [](struct mosquitto *, void *, const mosquitto_message *message) {
         nlohmann::json line;
         line["topic"] = message->topic;
-        line["payload"] = std::string(static_cast<const char *>(message->payload), static_cast<size_t>(message->payloadlen));
+        line["payload"] =
+            std::string(static_cast<const char *>(message->payload), static_cast<size_t>(message->payloadlen));
         line["retained"] = message->retain;
         std::printf("%s\n", line.dump().c_str());
         std::fflush(stdout);

@@ -58,9 +58,9 @@ cdro_frame_t ackFrame(uint16_t sequence, uint8_t acked_type, uint16_t acked_sequ
 std::vector<cdro_frame_t> decodeAll(const std::vector<uint8_t> &bytes);
 
 struct Received {
-    std::string kind;            // "range", "motion", "hello", "status", "node_list", "error", "reset",
-                                 // "odometry"
-    cdro_frame_t frame{};        // the payload in frame.as
+    std::string kind;     // "range", "motion", "hello", "status", "node_list", "error", "reset",
+                          // "odometry"
+    cdro_frame_t frame{}; // the payload in frame.as
     service::FrameContext context;
     service::OdometryMessage odometry{0.0, 0.0, 0.0}; // kind "odometry"
 };
@@ -89,7 +89,7 @@ public:
     explicit Broker(uint16_t port);
     ~Broker();
     void start();
-    void kill();   // SIGKILL, to simulate a lost broker
+    void kill(); // SIGKILL, to simulate a lost broker
     uint16_t port() const { return port_; }
 
 private:

@@ -25,8 +25,8 @@ std::vector<uint8_t> readFile(const std::string &path)
 }
 void writeFile(const std::string &path, const std::vector<uint8_t> &bytes)
 {
-    std::ofstream(path, std::ios::binary).write(reinterpret_cast<const char *>(bytes.data()),
-                                                static_cast<std::streamsize>(bytes.size()));
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char *>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
 }
 std::vector<CaptureRecord> readAll(const std::string &path, CaptureReader **keep = nullptr)
 {
@@ -252,7 +252,7 @@ TEST(Capture, AFullDiskLosesOnlyTheRecordsThatDidNotFitAndWritingResumes)
     CaptureReader *reader = nullptr;
     const std::vector<CaptureRecord> records = readAll(config.path, &reader);
     ASSERT_EQ(records.size(), 13U);
-    EXPECT_EQ(reader->corruptBytes(), 0U);         // no half record left behind by the full disk
+    EXPECT_EQ(reader->corruptBytes(), 0U); // no half record left behind by the full disk
     EXPECT_EQ(reader->truncatedTailBytes(), 0U);
     EXPECT_EQ(records[10].host_time_us, 4000);
     std::ifstream in(logging.file);

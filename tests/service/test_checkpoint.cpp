@@ -50,8 +50,8 @@ std::vector<uint8_t> readFile(const std::string &path)
 }
 void writeFile(const std::string &path, const std::vector<uint8_t> &bytes)
 {
-    std::ofstream(path, std::ios::binary).write(reinterpret_cast<const char *>(bytes.data()),
-                                                static_cast<std::streamsize>(bytes.size()));
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char *>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
 }
 } // namespace
 

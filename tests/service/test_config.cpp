@@ -170,8 +170,8 @@ TEST(Config, CommandLineOverridesTheFile)
     CLI::App app{"test"};
     ServiceOverrides overrides;
     addServiceOptions(app, overrides);
-    const char *argv[] = {"test", "--config", path.c_str(), "--device", "/dev/b", "--http-port", "0", "--replay",
-                          path.c_str(), "--speed", "max", "--mqtt", "mqtt://127.0.0.1:1999"};
+    const char *argv[] = {"test",     "--config",   path.c_str(), "--device", "/dev/b", "--http-port",          "0",
+                          "--replay", path.c_str(), "--speed",    "max",      "--mqtt", "mqtt://127.0.0.1:1999"};
     app.parse(static_cast<int>(std::size(argv)), argv);
     ServiceConfig config = loadServiceConfig(overrides.config_path);
     applyOverrides(config, overrides);
@@ -234,8 +234,8 @@ TEST(Config, OdometryCommandLine)
     CLI::App app{"test"};
     ServiceOverrides overrides;
     addServiceOptions(app, overrides);
-    const char *argv[] = {"test", "--odometry-udp-port", "5006", "--odometry-mqtt-topic", "robot/odom", "--mqtt",
-                          "mqtt://127.0.0.1:1999"};
+    const char *argv[] = {"test",   "--odometry-udp-port",  "5006", "--odometry-mqtt-topic", "robot/odom",
+                          "--mqtt", "mqtt://127.0.0.1:1999"};
     app.parse(static_cast<int>(std::size(argv)), argv);
     ServiceConfig config;
     applyOverrides(config, overrides);

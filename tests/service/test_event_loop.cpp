@@ -18,7 +18,10 @@ TEST(EventLoop, TimersRunInDeadlineOrderAndCanBeCancelled)
     EventLoop loop(clock);
     std::vector<int> order;
     const int64_t now = clock.monotonicUs();
-    loop.addTimerAt(now + 3000, [&] { order.push_back(3); loop.stop(); });
+    loop.addTimerAt(now + 3000, [&] {
+        order.push_back(3);
+        loop.stop();
+    });
     loop.addTimerAt(now + 1000, [&] { order.push_back(1); });
     const auto cancelled = loop.addTimerAt(now + 2000, [&] { order.push_back(99); });
     loop.addTimerAt(now + 2000, [&] { order.push_back(2); });

@@ -26,7 +26,20 @@ std::string mapText(int nodes)
 {
     MapState map;
     for (int i = 0; i < nodes; ++i) {
-        map.nodes.push_back({static_cast<uint16_t>(100 + i), 1.0 * i, 2.0, 0.1, 0.0, 0.1, true, false, true, false, "converged", "", {}, {}});
+        map.nodes.push_back({static_cast<uint16_t>(100 + i),
+                             1.0 * i,
+                             2.0,
+                             0.1,
+                             0.0,
+                             0.1,
+                             true,
+                             false,
+                             true,
+                             false,
+                             "converged",
+                             "",
+                             {},
+                             {}});
     }
     return mapJson(map).dump();
 }
@@ -326,10 +339,10 @@ TEST_F(HttpTest, BodiesAreRefusedUnreadAndHugeHeadsAre431)
 TEST_F(HttpTest, NodeIdsOutsideTheirRangeAre400)
 {
     auto c = client();
-    for (const char *path : {"/api/nodes/99999999999999999999/components", "/api/nodes/65536/components",
-                             "/api/nodes/0/components", "/api/nodes/000000000000000000001/components",
-                             "/api/nodes/0x10000/components", "/api/nodes/0x/components", "/api/nodes/0x0/components",
-                             "/api/nodes/0xg1/components"}) {
+    for (const char *path :
+         {"/api/nodes/99999999999999999999/components", "/api/nodes/65536/components", "/api/nodes/0/components",
+          "/api/nodes/000000000000000000001/components", "/api/nodes/0x10000/components", "/api/nodes/0x/components",
+          "/api/nodes/0x0/components", "/api/nodes/0xg1/components"}) {
         auto response = c.Get(path);
         ASSERT_TRUE(response) << path;
         EXPECT_EQ(response->status, 400) << path;
@@ -340,19 +353,34 @@ TEST_F(HttpTest, NodeIdsOutsideTheirRangeAre400)
 TEST_F(HttpTest, NothingButThePagesAndTheApiIsServed)
 {
     store.publish(mapText(1), "{}");
-    for (const char *path : {"/../../../../etc/passwd", "/..%2f..%2f..%2fetc%2fpasswd", "/%2e%2e/%2e%2e/etc/passwd",
-                             "/static/../../etc/passwd", "//etc/passwd", "/index.html/../../etc/passwd",
-                             "/api/../../etc/passwd", "/app.js%00.png", "/.git/config", "/web/app.js",
-                             "/api/map/../../../etc/shadow", "/%c0%ae%c0%ae/%c0%ae%c0%ae/etc/passwd",
-                             "/....//....//etc/passwd", "/..\\..\\etc\\passwd", "/api/nodes/../../etc/passwd",
-                             "/proc/self/environ", "/api/nodes/1/../../../etc/passwd", "/./././etc/passwd",
-                             "/%252e%252e/etc/passwd", "/api/events/../../etc/passwd", "/style.css/..",
+    for (const char *path : {"/../../../../etc/passwd",
+                             "/..%2f..%2f..%2fetc%2fpasswd",
+                             "/%2e%2e/%2e%2e/etc/passwd",
+                             "/static/../../etc/passwd",
+                             "//etc/passwd",
+                             "/index.html/../../etc/passwd",
+                             "/api/../../etc/passwd",
+                             "/app.js%00.png",
+                             "/.git/config",
+                             "/web/app.js",
+                             "/api/map/../../../etc/shadow",
+                             "/%c0%ae%c0%ae/%c0%ae%c0%ae/etc/passwd",
+                             "/....//....//etc/passwd",
+                             "/..\\..\\etc\\passwd",
+                             "/api/nodes/../../etc/passwd",
+                             "/proc/self/environ",
+                             "/api/nodes/1/../../../etc/passwd",
+                             "/./././etc/passwd",
+                             "/%252e%252e/etc/passwd",
+                             "/api/events/../../etc/passwd",
+                             "/style.css/..",
                              "/index.html%2f..%2f..%2fetc%2fpasswd"}) {
         RawClient client(server->port());
         client.send(std::string("GET ") + path + " HTTP/1.1\r\nHost: x\r\n\r\n");
         const std::string response = client.receive(10000);
         const std::string status = statusLine(response);
-        EXPECT_TRUE(status == "HTTP/1.1 404 Not Found" || status == "HTTP/1.1 400 Bad Request") << path << ": " << status;
+        EXPECT_TRUE(status == "HTTP/1.1 404 Not Found" || status == "HTTP/1.1 400 Bad Request")
+            << path << ": " << status;
         EXPECT_EQ(response.find("root:"), std::string::npos) << path;
     }
     RawClient absolute(server->port());

@@ -96,9 +96,9 @@ TEST(Intake, AbsurdValuesAreCountedAndNeverDelivered)
 {
     Fixture f;
     f.feed(encode(rangeFrame(0, 10, 0x6000, 0x6069, 1000)));
-    f.feed(encode(rangeFrame(1, 20, 0x6000, 0x6069, CDRO_MAX_DISTANCE_MM + 1)));  // beyond 200 m
-    f.feed(encode(rangeFrame(2, 30, 0x6069, 0x6069, 1000)));                       // to itself
-    f.feed(encode(rangeFrame(3, 40, 0, 0x6069, 1000)));                            // node id 0
+    f.feed(encode(rangeFrame(1, 20, 0x6000, 0x6069, CDRO_MAX_DISTANCE_MM + 1))); // beyond 200 m
+    f.feed(encode(rangeFrame(2, 30, 0x6069, 0x6069, 1000)));                     // to itself
+    f.feed(encode(rangeFrame(3, 40, 0, 0x6069, 1000)));                          // node id 0
     cdro_frame_t motion{};
     motion.type = CDRO_FRAME_MOTION;
     motion.sequence = 4;
@@ -227,9 +227,9 @@ TEST(Intake, ResetsAreDetectedByBootHelloTimeAndUnexpectedHello)
     f.feed(encode(rangeFrame(4, 20, 0x6000, 0x6069, 1000))); // time went back a minute
     EXPECT_EQ(f.counters.device_resets, 2U);
     f.intake->noteSentFrame(CDRO_FRAME_HELLO_REQUEST);
-    f.feed(encode(helloFrame(5, 30)));                        // requested: no reset
+    f.feed(encode(helloFrame(5, 30))); // requested: no reset
     EXPECT_EQ(f.counters.device_resets, 2U);
-    f.feed(encode(helloFrame(6, 40)));                        // not requested, not at boot
+    f.feed(encode(helloFrame(6, 40))); // not requested, not at boot
     EXPECT_EQ(f.counters.device_resets, 3U);
     ASSERT_EQ(f.observer.resets.size(), 3U);
     EXPECT_EQ(f.observer.resets[0], DeviceResetReason::SequenceRestart);
@@ -271,7 +271,7 @@ TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
     // Policy learn, no node list known yet (nodes.ids empty, no NODE_LIST): an id becomes a
     // node once it has been seen in kFramesToConfirmNode frames; the frames before are dropped.
     Fixture learn(UnknownNodePolicy::Learn, {});
-    learn.feed(encode(helloFrame(0, 5, 0x6000)));                  // the own node becomes known
+    learn.feed(encode(helloFrame(0, 5, 0x6000))); // the own node becomes known
     for (uint16_t s = 1; s <= FrameIntake::kFramesToConfirmNode; ++s) {
         learn.feed(encode(rangeFrame(s, 10U * s, 0x6000, 0x6A11, 1000)));
     }
@@ -279,12 +279,12 @@ TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
     EXPECT_EQ(learn.counters.nodes_learned, 1U);
     EXPECT_EQ(learn.counters.unknown_node_frames, FrameIntake::kFramesToConfirmNode);
     EXPECT_EQ(learn.counters.frames_rejected_unknown_node, FrameIntake::kFramesToConfirmNode - 1U);
-    EXPECT_EQ(learn.consumer.count("range"), 2U);                  // the confirming frame and the next
+    EXPECT_EQ(learn.consumer.count("range"), 2U); // the confirming frame and the next
 
     Fixture reject(UnknownNodePolicy::Reject, {0x6069});
-    reject.feed(encode(helloFrame(0, 5, 0x6000)));                 // the own node becomes known
+    reject.feed(encode(helloFrame(0, 5, 0x6000))); // the own node becomes known
     reject.feed(encode(rangeFrame(1, 10, 0x6000, 0x6069, 1000)));
-    reject.feed(encode(rangeFrame(2, 20, 0x6069, 0x6A11, 1000)));  // 0x6A11 unknown
+    reject.feed(encode(rangeFrame(2, 20, 0x6069, 0x6A11, 1000))); // 0x6A11 unknown
     EXPECT_EQ(reject.counters.frames_rejected_unknown_node, 1U);
     EXPECT_EQ(reject.consumer.count("range"), 1U);
     cdro_frame_t list{};
@@ -293,7 +293,7 @@ TEST(Intake, UnknownNodesAreLearnedOrRejectedByPolicy)
     list.as.node_list.source = CDRO_NODE_SOURCE_HOST;
     list.as.node_list.node_ids_count = 1;
     list.as.node_list.node_ids[0] = 0x6A11;
-    reject.feed(encode(list));                                     // now listed by the device
+    reject.feed(encode(list)); // now listed by the device
     reject.feed(encode(rangeFrame(4, 30, 0x6069, 0x6A11, 1000)));
     EXPECT_EQ(reject.consumer.count("range"), 2U);
     EXPECT_EQ(reject.counters.nodes_learned, 0U);
@@ -356,7 +356,8 @@ TEST(Intake, IncompatibleHelloNamesBothVersionsAndStopsData)
     f.feed(encode(hello));
     ASSERT_EQ(f.observer.incompatible.size(), 1U);
     const std::string &message = f.observer.incompatible[0];
-    EXPECT_NE(message.find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION + 1)), std::string::npos) << message;
+    EXPECT_NE(message.find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION + 1)), std::string::npos)
+        << message;
     EXPECT_NE(message.find("0x1234"), std::string::npos) << message;
     EXPECT_NE(message.find("protocol version " + std::to_string(CDRO_PROTOCOL_VERSION)), std::string::npos) << message;
     EXPECT_NE(message.find("0x4D0F"), std::string::npos) << message;
@@ -364,7 +365,7 @@ TEST(Intake, IncompatibleHelloNamesBothVersionsAndStopsData)
     EXPECT_EQ(f.consumer.count("range"), 0U);
     EXPECT_EQ(f.counters.frames_dropped_incompatible, 1U);
     EXPECT_TRUE(f.intake->incompatible());
-    f.feed(encode(helloFrame(0, 5)));  // reflashed: compatible again
+    f.feed(encode(helloFrame(0, 5))); // reflashed: compatible again
     f.feed(encode(rangeFrame(1, 10, 0x6000, 0x6069, 1000)));
     EXPECT_FALSE(f.intake->incompatible());
     EXPECT_EQ(f.consumer.count("range"), 1U);

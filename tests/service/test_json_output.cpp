@@ -23,7 +23,8 @@ std::vector<nlohmann::json> readLines(const std::string &path)
 MapState twoNodes(double x0)
 {
     MapState map;
-    map.nodes.push_back({24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, {}});
+    map.nodes.push_back(
+        {24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, {}});
     map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}, {}});
     return map;
 }
@@ -31,7 +32,8 @@ MapState twoNodes(double x0)
 
 TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
 {
-    NodeEstimate node{24577, 3.214, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, 1.25};
+    NodeEstimate node{24577, 3.214, -0.502, 0.0041,      -0.0003, 0.0052, true,
+                      false, true,  false,  "converged", "",      {},     1.25};
     const OutputTime at{12.5, 1700000012.5};
     EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, at)),
               R"({"type":"node","schema":2,"t_s":12.5,"t_unix_s":1700000012.5,"id":24577,"id_hex":"0x6001",)"

@@ -28,8 +28,8 @@ public:
         mosquitto_message_callback_set(mosq_, [](struct mosquitto *, void *self, const mosquitto_message *msg) {
             auto *s = static_cast<Subscriber *>(self);
             std::lock_guard<std::mutex> lock(s->mutex_);
-            s->messages_.emplace_back(msg->topic,
-                                      std::string(static_cast<const char *>(msg->payload), static_cast<size_t>(msg->payloadlen)));
+            s->messages_.emplace_back(msg->topic, std::string(static_cast<const char *>(msg->payload),
+                                                              static_cast<size_t>(msg->payloadlen)));
             s->changed_.notify_all();
         });
         mosquitto_connect(mosq_, "127.0.0.1", port, 30);

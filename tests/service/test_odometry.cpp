@@ -159,8 +159,8 @@ TEST(OdometryParse, TheTwoFormsAndAnOptionalTime)
     ParsedOdometry p;
     OdometryReject reason = OdometryReject::NotJson;
     std::string why;
-    ASSERT_TRUE(parseOdometry(R"({"t": 1764600000.125, "distance_m": 0.012, "dheading_rad": -0.001})", &p, &reason,
-                              &why));
+    ASSERT_TRUE(
+        parseOdometry(R"({"t": 1764600000.125, "distance_m": 0.012, "dheading_rad": -0.001})", &p, &reason, &why));
     EXPECT_EQ(p.form, ParsedOdometry::Form::Step);
     EXPECT_TRUE(p.has_t);
     EXPECT_EQ(p.t_s, 1764600000.125);
@@ -333,8 +333,8 @@ TEST(OdometryIntake, VelocityClocksArePerSourceAndAStepEndsTheInterval)
     EXPECT_EQ(f.counters.odometry_clock_starts, 2U);
     f.push(velocity(kT0 + 0.5, 1.0, 0.0), kT0Us, "udp:a");
     ASSERT_EQ(f.consumer.received.size(), 1U);
-    EXPECT_DOUBLE_EQ(f.messages()[0].distance_m, 0.5); // 1 m/s over 0.5 s
-    f.push(step(kT0 + 0.6, 0.1, 0.0), kT0Us, "udp:a");  // a step covers up to its t ...
+    EXPECT_DOUBLE_EQ(f.messages()[0].distance_m, 0.5);     // 1 m/s over 0.5 s
+    f.push(step(kT0 + 0.6, 0.1, 0.0), kT0Us, "udp:a");     // a step covers up to its t ...
     f.push(velocity(kT0 + 0.7, 1.0, 0.0), kT0Us, "udp:a"); // ... so this only starts the clock again
     EXPECT_EQ(f.consumer.received.size(), 2U);
     EXPECT_EQ(f.counters.odometry_clock_starts, 3U);
@@ -447,8 +447,9 @@ TEST(OdometryIntake, RecordedMessagesAreDeliveredAsRecorded)
     EXPECT_EQ(f.intake.lastEventUnixUs(), kT0Us + 5'100'000);
     // A damaged or hand-made record never hands the consumer something it could not get live.
     const std::string bad[] = {"{\"t\":1764600000,\"v_mps\":1,\"omega_radps\":0}",
-                               "{\"distance_m\":0.1,\"dheading_rad\":0}", "{\"t\":1764600000,\"distance_m\":99,"
-                                                                         "\"dheading_rad\":0}",
+                               "{\"distance_m\":0.1,\"dheading_rad\":0}",
+                               "{\"t\":1764600000,\"distance_m\":99,"
+                               "\"dheading_rad\":0}",
                                "\x01\x02"};
     for (const std::string &text : bad) {
         f.intake.pushRecorded(reinterpret_cast<const uint8_t *>(text.data()), text.size(), kT0Us + 6'000'000);
@@ -538,8 +539,7 @@ TEST(OdometryUdp, ABusyPortOrABadAddressIsAClearError)
         FAIL() << "a second socket on the same port";
     } catch (const ConfigError &error) {
         const std::string message = error.what();
-        EXPECT_NE(message.find("cannot listen for UDP on 127.0.0.1:" + std::to_string(first.port())),
-                  std::string::npos)
+        EXPECT_NE(message.find("cannot listen for UDP on 127.0.0.1:" + std::to_string(first.port())), std::string::npos)
             << message;
         EXPECT_NE(message.find("in use"), std::string::npos) << message;
     }
@@ -827,8 +827,8 @@ TEST(OdometryService, AReplayInterleavesOdometryRecordsExactlyAsCaptured)
             distances.push_back(r.odometry.distance_m);
         }
     }
-    EXPECT_EQ(kinds, (std::vector<std::string>{"hello", "odometry", "range", "odometry", "odometry", "range",
-                                               "odometry"}));
+    EXPECT_EQ(kinds,
+              (std::vector<std::string>{"hello", "odometry", "range", "odometry", "odometry", "range", "odometry"}));
     EXPECT_EQ(distances, (std::vector<double>{0.1, 0.2, 0.3, 0.4}));
     EXPECT_EQ(consumer.received[3].odometry.t_s, static_cast<double>(kT0Us + 3000) / 1e6);
 }
@@ -854,8 +854,8 @@ TEST(OdometryService, AVersion1CaptureStillReplays)
         const size_t size = cdro_capture_record_encode(&record, bytes, sizeof bytes);
         file.insert(file.end(), bytes, bytes + size);
     }
-    std::ofstream(path, std::ios::binary).write(reinterpret_cast<const char *>(file.data()),
-                                                static_cast<std::streamsize>(file.size()));
+    std::ofstream(path, std::ios::binary)
+        .write(reinterpret_cast<const char *>(file.data()), static_cast<std::streamsize>(file.size()));
     EXPECT_EQ(CaptureReader(path).header().format_version, 1U);
 
     RunOptions run;

@@ -27,10 +27,7 @@ std::string readFile(const std::string &path)
     return text.str();
 }
 
-void writeFile(const std::string &path, const std::string &text)
-{
-    std::ofstream(path, std::ios::binary) << text;
-}
+void writeFile(const std::string &path, const std::string &text) { std::ofstream(path, std::ios::binary) << text; }
 
 // A file someone else cares about, and a link to it planted where the service writes.
 struct Planted {

@@ -227,7 +227,8 @@ TEST(LinkDiagnostics, BytesThatAreNotOurFramesAreNamedTwoSecondsAfterTheFirst)
     EXPECT_TRUE(d.check(22'000'000));
     EXPECT_NE(d.foreignMessage().find("bytes 81 9F E0"), std::string::npos) << d.foreignMessage();
 
-    for (const uint8_t version : {static_cast<uint8_t>(CDRO_PROTOCOL_VERSION), static_cast<uint8_t>(CDRO_PROTOCOL_VERSION + 1)}) {
+    for (const uint8_t version :
+         {static_cast<uint8_t>(CDRO_PROTOCOL_VERSION), static_cast<uint8_t>(CDRO_PROTOCOL_VERSION + 1)}) {
         d.reset(30'000'000);
         std::vector<uint8_t> bytes = {0x13, 0x37, 0x00}; // garbage first, as after a reset
         cdro_frame_t hello = cdro::test::helloFrame(0, 250);

@@ -132,7 +132,7 @@ TEST(Session, CommandTimeoutsAreRetriedThenTheHandshakeStartsOver)
         EXPECT_EQ(sent.type, CDRO_FRAME_SET_NODES);
     }
     EXPECT_NE(f.sink.sent[0].sequence, f.sink.sent[1].sequence); // a resend is a new frame
-    f.timeout(); // retries exhausted
+    f.timeout();                                                 // retries exhausted
     EXPECT_EQ(f.sink.sent.back().type, CDRO_FRAME_HELLO_REQUEST);
     EXPECT_EQ(f.counters.command_timeouts, 3U);
     EXPECT_EQ(f.session->linkState(), LinkState::Handshaking);

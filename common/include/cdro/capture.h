@@ -69,19 +69,19 @@ CDRO_CAPTURE_RECORD_LIST(CDRO_X_SIZES)
 #define CDRO_CAPTURE_MAX_CONTEXT (65535U - CDRO_CAPTURE_HEADER_FIXED - CDRO_CAPTURE_MAX_SOURCE - 2U)
 
 typedef struct cdro_capture_header {
-    uint16_t format_version;   /* decode: the file's; encode: 0 = CDRO_CAPTURE_FORMAT_VERSION */
-    int64_t created_unix_us;   /* us since the Unix epoch */
-    uint8_t source_len;        /* bytes in source */
+    uint16_t format_version;              /* decode: the file's; encode: 0 = CDRO_CAPTURE_FORMAT_VERSION */
+    int64_t created_unix_us;              /* us since the Unix epoch */
+    uint8_t source_len;                   /* bytes in source */
     char source[CDRO_CAPTURE_MAX_SOURCE]; /* not terminated */
-    uint16_t context_len;      /* bytes in context; 0 = none */
-    const uint8_t *context;    /* encode: read from here; decode: points into the input (NULL if none) */
+    uint16_t context_len;                 /* bytes in context; 0 = none */
+    const uint8_t *context;               /* encode: read from here; decode: points into the input (NULL if none) */
 } cdro_capture_header_t;
 
 typedef struct cdro_capture_record {
-    uint8_t flags;             /* CDRO_CAPTURE_FLAG_* */
-    int64_t host_time_us;      /* us since the Unix epoch */
-    uint16_t data_len;         /* bytes */
-    const uint8_t *data;       /* encode: read from here; decode: points into the input */
+    uint8_t flags;        /* CDRO_CAPTURE_FLAG_* */
+    int64_t host_time_us; /* us since the Unix epoch */
+    uint16_t data_len;    /* bytes */
+    const uint8_t *data;  /* encode: read from here; decode: points into the input */
 } cdro_capture_record_t;
 
 /*
@@ -98,8 +98,7 @@ size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *
  * capture); CDRO_ERR_VERSION for a newer format version; CDRO_ERR_LENGTH for an inconsistent
  * size; CDRO_ERR_CRC for a corrupt header.
  */
-cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_capture_header_t *out,
-                                         size_t *consumed);
+cdro_result_t cdro_capture_header_decode(const uint8_t *in, size_t len, cdro_capture_header_t *out, size_t *consumed);
 
 /* Encodes one record into out. Returns its size, or 0 if out_cap is too small or data_len too large. */
 size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *out, size_t out_cap);
@@ -111,8 +110,7 @@ size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *
  * CDRO_ERR_LENGTH if the length field is impossible; CDRO_ERR_CRC if corrupt. After an error
  * other than CDRO_PENDING, a reader skips one byte and tries again (resynchronisation).
  */
-cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out,
-                                         size_t *consumed);
+cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_capture_record_t *out, size_t *consumed);
 
 /*
  * The reading policy, shared by every reader: finds the next good record in in[0, len),
@@ -123,8 +121,8 @@ cdro_result_t cdro_capture_record_decode(const uint8_t *in, size_t len, cdro_cap
  * A record whose length field claims more bytes than remain is only taken for a truncated
  * tail if no good record follows it.
  */
-cdro_result_t cdro_capture_next_record(const uint8_t *in, size_t len, cdro_capture_record_t *out,
-                                       size_t *skipped, size_t *consumed);
+cdro_result_t cdro_capture_next_record(const uint8_t *in, size_t len, cdro_capture_record_t *out, size_t *skipped,
+                                       size_t *consumed);
 
 #ifdef __cplusplus
 }

@@ -28,13 +28,13 @@ typedef uint16_t cdro_q16_t;
 cdro_mm_t cdro_fixed_mm_from_m(double metres);
 double cdro_fixed_mm_to_m(cdro_mm_t millimetres);
 
-cdro_um_t cdro_fixed_um_from_m(double metres);  /* negative input gives 0 */
+cdro_um_t cdro_fixed_um_from_m(double metres); /* negative input gives 0 */
 double cdro_fixed_um_to_m(cdro_um_t micrometres);
 
-cdro_q15_t cdro_fixed_q15_from(double value);   /* clamps to [-1, 1] */
+cdro_q15_t cdro_fixed_q15_from(double value); /* clamps to [-1, 1] */
 double cdro_fixed_q15_to(cdro_q15_t q15);
 
-cdro_q16_t cdro_fixed_q16_from(double value);   /* clamps to [0, 1] */
+cdro_q16_t cdro_fixed_q16_from(double value); /* clamps to [0, 1] */
 double cdro_fixed_q16_to(cdro_q16_t q16);
 
 /* A 2x2 covariance (m^2) to (std_x, std_y, correlation) and back. Non-finite or negative
@@ -46,8 +46,7 @@ typedef struct cdro_fixed_covariance {
 } cdro_fixed_covariance_t;
 
 cdro_fixed_covariance_t cdro_fixed_covariance_from(double var_x_m2, double cov_xy_m2, double var_y_m2);
-void cdro_fixed_covariance_to(cdro_fixed_covariance_t fixed, double *var_x_m2, double *cov_xy_m2,
-                              double *var_y_m2);
+void cdro_fixed_covariance_to(cdro_fixed_covariance_t fixed, double *var_x_m2, double *cov_xy_m2, double *var_y_m2);
 
 #ifdef __cplusplus
 }

@@ -35,9 +35,7 @@ extern "C" {
 
 #define CDRO_X_TYPE_ENUM(NAME, name, id, doc) CDRO_FRAME_##NAME = id,
 typedef enum cdro_frame_type {
-    CDRO_FRAME_LIST(CDRO_X_TYPE_ENUM)
-    CDRO_EMPTY_FRAME_LIST(CDRO_X_TYPE_ENUM)
-    CDRO_FRAME_TYPE_NONE = 0
+    CDRO_FRAME_LIST(CDRO_X_TYPE_ENUM) CDRO_EMPTY_FRAME_LIST(CDRO_X_TYPE_ENUM) CDRO_FRAME_TYPE_NONE = 0
 } cdro_frame_type_t;
 #undef CDRO_X_TYPE_ENUM
 
@@ -61,7 +59,7 @@ typedef struct cdro_frame {
     uint16_t sequence; /* per sender, wrapping */
     union {
         CDRO_FRAME_LIST(CDRO_X_UNION_MEMBER)
-    } as;              /* the member named after `type`; unused for empty frames */
+    } as; /* the member named after `type`; unused for empty frames */
 } cdro_frame_t;
 #undef CDRO_X_UNION_MEMBER
 
@@ -94,7 +92,7 @@ cdro_result_t cdro_frame_validate(const cdro_frame_t *frame);
 /* ---- streaming decoder with resynchronisation ----------------------------------------- */
 
 typedef struct cdro_decoder_counters {
-    uint32_t frames_ok;       /* decoded and validated */
+    uint32_t frames_ok; /* decoded and validated */
     uint32_t cobs_errors;
     uint32_t short_errors;
     uint32_t crc_errors;

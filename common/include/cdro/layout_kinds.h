@@ -29,9 +29,11 @@
 /* typedef struct cdro_<name> { fields } cdro_<name>_t; arrays carry <field>_count. */
 #define CDRO_X_MEMBER(KIND, field, unit, doc) CDRO_CTYPE_##KIND field;
 #define CDRO_X_RANGED_MEMBER(KIND, field, unit, lo, hi, doc) CDRO_X_MEMBER(KIND, field, unit, doc)
-#define CDRO_X_ARRAY_MEMBER(KIND, field, max, unit, lo, hi, doc) uint8_t field##_count; CDRO_CTYPE_##KIND field[max];
-#define CDRO_X_STRUCT(NAME, name, id, doc) \
-    typedef struct cdro_##name { \
+#define CDRO_X_ARRAY_MEMBER(KIND, field, max, unit, lo, hi, doc) \
+    uint8_t field##_count;                                       \
+    CDRO_CTYPE_##KIND field[max];
+#define CDRO_X_STRUCT(NAME, name, id, doc)                                           \
+    typedef struct cdro_##name {                                                     \
         CDRO_FIELDS_##NAME(CDRO_X_MEMBER, CDRO_X_RANGED_MEMBER, CDRO_X_ARRAY_MEMBER) \
     } cdro_##name##_t;
 

@@ -55,15 +55,14 @@ cdro_result_t cdro_sog_write_header(cdro_sog_writer_t *writer, const cdro_sog_he
 cdro_result_t cdro_sog_write_node(cdro_sog_writer_t *writer, const cdro_sog_node_t *node);
 cdro_result_t cdro_sog_write_pair(cdro_sog_writer_t *writer, const cdro_sog_pair_t *pair);
 cdro_result_t cdro_sog_write_component(cdro_sog_writer_t *writer, const cdro_sog_component_t *component);
-cdro_result_t cdro_sog_write_extension(cdro_sog_writer_t *writer, uint16_t tag, const uint8_t *bytes,
-                                       uint32_t len);
+cdro_result_t cdro_sog_write_extension(cdro_sog_writer_t *writer, uint16_t tag, const uint8_t *bytes, uint32_t len);
 cdro_result_t cdro_sog_write_end(cdro_sog_writer_t *writer); /* end tag and CRC-32 */
 
 /* ---- reading ----------------------------------------------------------------------------- */
 
 typedef struct cdro_sog_reader {
     const uint8_t *data;
-    size_t len;        /* bytes before the CRC trailer */
+    size_t len; /* bytes before the CRC trailer */
     size_t position;
 } cdro_sog_reader_t;
 
@@ -82,8 +81,7 @@ cdro_result_t cdro_sog_read_component(cdro_sog_reader_t *reader, cdro_sog_compon
 
 /* Reads the next extension: CDRO_OK with *tag != 0 and its bytes, or CDRO_OK with *tag == 0 at
  * the end marker (then the snapshot has been read completely). */
-cdro_result_t cdro_sog_read_extension(cdro_sog_reader_t *reader, uint16_t *tag, const uint8_t **bytes,
-                                      uint32_t *len);
+cdro_result_t cdro_sog_read_extension(cdro_sog_reader_t *reader, uint16_t *tag, const uint8_t **bytes, uint32_t *len);
 
 #ifdef __cplusplus
 }

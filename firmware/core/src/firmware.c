@@ -20,25 +20,16 @@ CDRO_FW_STATIC_ASSERT(CDRO_FW_MAX_REMOTE_NODES < NO_POLL_ROUND, poll_cursor_fits
 /* ---- time ------------------------------------------------------------------------------ */
 
 /* 1 when device time `now` has reached `at` (wrap-safe for spans below 24 days). */
-static uint8_t reached(uint32_t now_ms, uint32_t at_ms)
-{
-    return (uint8_t)((uint32_t)(now_ms - at_ms) < 0x80000000UL);
-}
+static uint8_t reached(uint32_t now_ms, uint32_t at_ms) { return (uint8_t)((uint32_t)(now_ms - at_ms) < 0x80000000UL); }
 
 static uint32_t earlier(uint32_t now_ms, uint32_t a_ms, uint32_t b_ms)
 {
     return (uint32_t)(a_ms - now_ms) <= (uint32_t)(b_ms - now_ms) ? a_ms : b_ms;
 }
 
-static uint32_t clock_ms(const cdro_fw_t *fw)
-{
-    return fw->pozyx.ops->now_ms(fw->pozyx.user);
-}
+static uint32_t clock_ms(const cdro_fw_t *fw) { return fw->pozyx.ops->now_ms(fw->pozyx.user); }
 
-static uint32_t clock_us(const cdro_fw_t *fw)
-{
-    return fw->pozyx.ops->now_us(fw->pozyx.user);
-}
+static uint32_t clock_us(const cdro_fw_t *fw) { return fw->pozyx.ops->now_us(fw->pozyx.user); }
 
 /* ---- frames out ------------------------------------------------------------------------ */
 
@@ -238,17 +229,19 @@ static void identify(cdro_fw_t *fw, uint32_t now_ms)
             error_code = CDRO_DEVICE_ERROR_SELF_TEST;
             error_detail = info.self_test;
         }
-        fw->capabilities = fw->pozyx_state != CDRO_FW_POZYX_FIRMWARE
-                               ? (uint8_t)(CDRO_CAP_DIRECT_RANGING | CDRO_CAP_REMOTE_RANGING | CDRO_CAP_REMOTE_ACCEL |
-                                           CDRO_CAP_DISCOVERY | CDRO_CAP_POZYX_SETUP | (tag ? CDRO_CAP_LOCAL_ACCEL : 0U))
-                               : 0U;
+        fw->capabilities =
+            fw->pozyx_state != CDRO_FW_POZYX_FIRMWARE
+                ? (uint8_t)(CDRO_CAP_DIRECT_RANGING | CDRO_CAP_REMOTE_RANGING | CDRO_CAP_REMOTE_ACCEL |
+                            CDRO_CAP_DISCOVERY | CDRO_CAP_POZYX_SETUP | (tag ? CDRO_CAP_LOCAL_ACCEL : 0U))
+                : 0U;
     } else {
         /* Silent, wrong WHO_AM_I, or no network id: HELLO says node 0xFFFF, Pozyx firmware 0. */
         const uint8_t shift = fw->pozyx_tries < 5U ? (uint8_t)(fw->pozyx_tries - 1U) : 4U;
         const uint32_t wait_ms = (uint32_t)CDRO_FW_IDENTIFY_RETRY_MS << shift;
         error_code = CDRO_DEVICE_ERROR_POZYX_ABSENT;
         error_detail = status == CDRO_POZYX_ERR_BUS ? 0U : info.who_am_i;
-        fw->next_identify_ms = now_ms + (wait_ms < CDRO_FW_IDENTIFY_RETRY_MAX_MS ? wait_ms : CDRO_FW_IDENTIFY_RETRY_MAX_MS);
+        fw->next_identify_ms =
+            now_ms + (wait_ms < CDRO_FW_IDENTIFY_RETRY_MAX_MS ? wait_ms : CDRO_FW_IDENTIFY_RETRY_MAX_MS);
     }
     if (fw->pozyx_tries == 1U) {
         cdro_link_send_delimiter(&fw->link);
@@ -292,8 +285,7 @@ static void discovery(cdro_fw_t *fw)
     uint16_t ids[CDRO_FW_MAX_REMOTE_NODES];
     uint8_t found = 0;
     uint8_t listed = 0;
-    const cdro_pozyx_status_t status =
-        cdro_pozyx_discover(&fw->pozyx, ids, CDRO_FW_MAX_REMOTE_NODES, &found, &listed);
+    const cdro_pozyx_status_t status = cdro_pozyx_discover(&fw->pozyx, ids, CDRO_FW_MAX_REMOTE_NODES, &found, &listed);
     ++fw->discovery_attempts;
     if (status == CDRO_POZYX_OK) {
         const uint8_t wanted = listed < CDRO_FW_MAX_REMOTE_NODES ? listed : (uint8_t)CDRO_FW_MAX_REMOTE_NODES;
@@ -308,8 +300,8 @@ static void discovery(cdro_fw_t *fw)
         fw->state = CDRO_FW_STATE_READY;
         start_round(fw, CDRO_FW_ROUND_NODE_INFO);
     } else if (fw->discovery_attempts >= CDRO_FW_DISCOVERY_ATTEMPTS) {
-        send_error(fw, CDRO_DEVICE_ERROR_DISCOVERY,
-                   status == CDRO_POZYX_ERR_DEVICE ? fw->pozyx.last_error_code : 0U, 0);
+        send_error(fw, CDRO_DEVICE_ERROR_DISCOVERY, status == CDRO_POZYX_ERR_DEVICE ? fw->pozyx.last_error_code : 0U,
+                   0);
         fw->state = CDRO_FW_STATE_READY;
         start_round(fw, CDRO_FW_ROUND_NODE_INFO); /* at least the own node's settings */
     }
@@ -360,12 +352,8 @@ static void command_set_schedule(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t
 static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_ms)
 {
     switch (in->type) {
-    case CDRO_FRAME_SET_NODES:
-        command_set_nodes(fw, in);
-        break;
-    case CDRO_FRAME_SET_SCHEDULE:
-        command_set_schedule(fw, in, now_ms);
-        break;
+    case CDRO_FRAME_SET_NODES: command_set_nodes(fw, in); break;
+    case CDRO_FRAME_SET_SCHEDULE: command_set_schedule(fw, in, now_ms); break;
     case CDRO_FRAME_START:
         if (fw->pozyx_state != CDRO_FW_POZYX_OK || fw->node_count == 0U) {
             send_nack(fw, in->type, in->sequence, CDRO_NACK_WRONG_STATE);
@@ -385,9 +373,7 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
         fw->poll_cursor = NO_POLL_ROUND;
         send_ack(fw, in->type, in->sequence, 0);
         break;
-    case CDRO_FRAME_PING:
-        send_ack(fw, in->type, in->sequence, in->as.ping.nonce);
-        break;
+    case CDRO_FRAME_PING: send_ack(fw, in->type, in->sequence, in->as.ping.nonce); break;
     case CDRO_FRAME_SET_UWB:
     case CDRO_FRAME_DIAGNOSE:
         /* Only while stopped, with a working Pozyx, and no other round under way: they take
@@ -429,25 +415,17 @@ static void handle_command(cdro_fw_t *fw, const cdro_frame_t *in, uint32_t now_m
     case CDRO_FRAME_NODE_INFO:
     case CDRO_FRAME_DIAG:
     case CDRO_FRAME_TYPE_NONE:
-    default:
-        send_nack(fw, in->type, in->sequence, CDRO_NACK_UNKNOWN_TYPE);
-        break;
+    default: send_nack(fw, in->type, in->sequence, CDRO_NACK_UNKNOWN_TYPE); break;
     }
 }
 
 static void handle_chunk(cdro_fw_t *fw, const cdro_frame_t *in, cdro_result_t result, uint32_t now_ms)
 {
     switch (result) {
-    case CDRO_OK:
-        handle_command(fw, in, now_ms);
-        break;
+    case CDRO_OK: handle_command(fw, in, now_ms); break;
     case CDRO_ERR_VERSION:
-    case CDRO_ERR_LENGTH:
-        send_nack(fw, in->type, in->sequence, CDRO_NACK_MALFORMED);
-        break;
-    case CDRO_ERR_TYPE:
-        send_nack(fw, in->type, in->sequence, CDRO_NACK_UNKNOWN_TYPE);
-        break;
+    case CDRO_ERR_LENGTH: send_nack(fw, in->type, in->sequence, CDRO_NACK_MALFORMED); break;
+    case CDRO_ERR_TYPE: send_nack(fw, in->type, in->sequence, CDRO_NACK_UNKNOWN_TYPE); break;
     case CDRO_ERR_VALUE:
         /* A device-to-host type is refused for its type, whatever its values. */
         send_nack(fw, in->type, in->sequence,
@@ -525,8 +503,8 @@ static uint8_t fresh_range(cdro_fw_t *fw, cdro_fw_node_t *node, uint32_t timesta
             node->last_range_timestamp_ms = timestamp_ms;
             stale = 0;
         }
-        node->flags = (uint8_t)((node->flags & (uint8_t)~CDRO_FW_NODE_STALE_MASK) |
-                                (uint8_t)(stale << CDRO_FW_NODE_STALE_SHIFT));
+        node->flags =
+            (uint8_t)((node->flags & (uint8_t)~CDRO_FW_NODE_STALE_MASK) | (uint8_t)(stale << CDRO_FW_NODE_STALE_SHIFT));
         ++fw->counters.stale_results;
         return 0;
     }
@@ -572,9 +550,9 @@ static uint8_t range_attempt(cdro_fw_t *fw, uint32_t now_ms)
         frame.as.range.to_id = to->id;
         frame.as.range.distance_mm = range.distance_mm;
         frame.as.range.rss_dbm = range.rss_dbm;
-        frame.as.range.flags = (uint8_t)((slot.from != 0U ? CDRO_RANGE_FLAG_REMOTE : 0U) |
-                                         (slot.is_retry ? CDRO_RANGE_FLAG_RETRY : 0U) |
-                                         (((mask >> slot.from) | (mask >> slot.to)) & 1UL ? CDRO_RANGE_FLAG_MOVING : 0U));
+        frame.as.range.flags =
+            (uint8_t)((slot.from != 0U ? CDRO_RANGE_FLAG_REMOTE : 0U) | (slot.is_retry ? CDRO_RANGE_FLAG_RETRY : 0U) |
+                      (((mask >> slot.from) | (mask >> slot.to)) & 1UL ? CDRO_RANGE_FLAG_MOVING : 0U));
         (void)cdro_link_send(&fw->link, &frame);
         if (slot.from == 0U) {
             ++fw->counters.ranges_ok_direct;
@@ -727,7 +705,7 @@ static void operate(cdro_fw_t *fw, uint32_t now_ms)
 static void node_info_step(cdro_fw_t *fw, uint8_t index)
 {
     cdro_fw_node_t *node = &fw->nodes[index];
-    uint8_t versions[2] = {0, 0}; /* FIRMWARE_VER, HARDWARE_VER */
+    uint8_t versions[2] = {0, 0};        /* FIRMWARE_VER, HARDWARE_VER */
     uint8_t uwb[6] = {0, 0, 0, 0, 0, 0}; /* UWB_CHANNEL .. RANGE_PROTOCOL (XTALTRIM at [4] skipped) */
     cdro_pozyx_status_t status;
     cdro_frame_t frame;
@@ -794,8 +772,8 @@ static void set_uwb_local(cdro_fw_t *fw)
     }
 }
 
-static void send_diag(cdro_fw_t *fw, uint8_t item, cdro_pozyx_status_t status, uint16_t node_id, uint32_t a,
-                      uint32_t b, uint32_t c)
+static void send_diag(cdro_fw_t *fw, uint8_t item, cdro_pozyx_status_t status, uint16_t node_id, uint32_t a, uint32_t b,
+                      uint32_t c)
 {
     cdro_frame_t frame;
     frame_init(&frame, CDRO_FRAME_DIAG);
@@ -946,8 +924,7 @@ static void round_step(cdro_fw_t *fw)
             return;
         }
         break;
-    default:
-        break;
+    default: break;
     }
     fw->round = CDRO_FW_ROUND_NONE;
 }

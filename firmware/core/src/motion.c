@@ -42,10 +42,7 @@ uint16_t cdro_accel_norm_mg(const cdro_accel_t *accel)
     return isqrt_rounded(square(accel->x_mg) + square(accel->y_mg) + square(accel->z_mg));
 }
 
-void cdro_motion_detector_init(cdro_motion_detector_t *motion)
-{
-    memset(motion, 0, sizeof(*motion));
-}
+void cdro_motion_detector_init(cdro_motion_detector_t *motion) { memset(motion, 0, sizeof(*motion)); }
 
 uint8_t cdro_motion_detector_update(cdro_motion_detector_t *motion, const cdro_accel_t *accel)
 {

@@ -328,8 +328,7 @@ static cdro_pozyx_status_t read_rx_buffer(cdro_pozyx_t *dev, uint8_t *data, uint
     return call_checked(dev, POZYX_FN_RX_DATA, params, sizeof params, data, length);
 }
 
-cdro_pozyx_status_t cdro_pozyx_remote_read(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, uint8_t *data,
-                                           uint8_t length)
+cdro_pozyx_status_t cdro_pozyx_remote_read(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, uint8_t *data, uint8_t length)
 {
     uint8_t request[2];
     cdro_pozyx_status_t status;
@@ -446,7 +445,8 @@ static cdro_pozyx_status_t wait_result_message(cdro_pozyx_t *dev, uint16_t from,
     }
 }
 
-cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to, cdro_pozyx_range_result_t *out)
+cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to,
+                                            cdro_pozyx_range_result_t *out)
 {
     cdro_pozyx_trace_t *const trace = dev->trace;
     uint8_t id[2];

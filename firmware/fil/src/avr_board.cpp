@@ -170,10 +170,7 @@ AvrBoard::~AvrBoard()
     }
 }
 
-uint64_t AvrBoard::cycles() const
-{
-    return cycle_base_ + avr_->cycle;
-}
+uint64_t AvrBoard::cycles() const { return cycle_base_ + avr_->cycle; }
 
 uint64_t AvrBoard::cyclesForUs(uint64_t us) const
 {
@@ -331,8 +328,8 @@ AvrBoard::State AvrBoard::runUntil(uint64_t until_cycles)
             onLoopEntry();
         } else if (avr_->pc == 0 && cycles() > 0) {
             ++resets_;
-            feeding_ = false;       // a reset cancels every cycle timer, ours included
-            loop_entered_ = false;  // setup() runs again before the next iteration
+            feeding_ = false;      // a reset cancels every cycle timer, ours included
+            loop_entered_ = false; // setup() runs again before the next iteration
             armFeed();
         }
         if (cycles() >= next_advance_) {

@@ -21,7 +21,7 @@ namespace cdro::fil {
 class World;
 
 class BoardError : public std::runtime_error {
-  public:
+public:
     using std::runtime_error::runtime_error;
 };
 
@@ -37,7 +37,7 @@ struct BoardOptions {
 uint32_t elfSymbolAddress(const std::string &elf_path, const std::string &symbol, bool any_type = false);
 
 class AvrBoard {
-  public:
+public:
     AvrBoard(const BoardOptions &options, World &world);
     ~AvrBoard();
     AvrBoard(const AvrBoard &) = delete;
@@ -73,7 +73,7 @@ class AvrBoard {
 
     void report(nlohmann::ordered_json &out) const;
 
-  private:
+private:
     static void twiHook(avr_irq_t *irq, uint32_t value, void *param);
     static void uartOutHook(avr_irq_t *irq, uint32_t value, void *param);
     static void uartXonHook(avr_irq_t *irq, uint32_t value, void *param);
@@ -91,8 +91,8 @@ class AvrBoard {
     avr_irq_t *uart_in_ = nullptr;
 
     // time
-    uint64_t cycle_base_ = 0;  // cycles before the last reset
-    uint64_t last_cycle_ = 0;  // avr->cycle seen last
+    uint64_t cycle_base_ = 0;   // cycles before the last reset
+    uint64_t last_cycle_ = 0;   // avr->cycle seen last
     uint64_t next_advance_ = 0; // when the network is brought up to date next (cycles)
 
     // UART
@@ -116,7 +116,7 @@ class AvrBoard {
     std::string loop_symbol_;
 
     // stack: the lowest stack pointer after any instruction, against the end of the static data
-    uint16_t static_end_ = 0;   // first byte after .data/.bss/.noinit (the linker's _end)
+    uint16_t static_end_ = 0; // first byte after .data/.bss/.noinit (the linker's _end)
     uint16_t lowest_sp_ = 0xFFFF;
 };
 

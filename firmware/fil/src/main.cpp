@@ -31,18 +31,15 @@ namespace {
 
 volatile sig_atomic_t g_stop_signal = 0;
 
-void onSignal(int signal_number)
-{
-    g_stop_signal = signal_number;
-}
+void onSignal(int signal_number) { g_stop_signal = signal_number; }
 
 struct Options {
     std::string elf;
     std::string scenario;
-    int64_t seed = -1;          // -1: the scenario's
-    double duration_s = -1.0;   // s; -1: the scenario's; 0: until a signal
+    int64_t seed = -1;        // -1: the scenario's
+    double duration_s = -1.0; // s; -1: the scenario's; 0: until a signal
     std::string link;
-    std::string summary;        // "" = stdout
+    std::string summary; // "" = stdout
     std::string truth_csv;
     uint32_t truth_period_ms = 100;
     std::string ranges_csv;
@@ -52,7 +49,7 @@ struct Options {
 };
 
 class File {
-  public:
+public:
     File() = default;
     File(const std::string &path, const char *what)
     {
@@ -77,14 +74,11 @@ class File {
     }
     std::FILE *get() const { return file_; }
 
-  private:
+private:
     std::FILE *file_ = nullptr;
 };
 
-void traceLine(void *, const char *line)
-{
-    std::fprintf(stderr, "pozyx: %s\n", line);
-}
+void traceLine(void *, const char *line) { std::fprintf(stderr, "pozyx: %s\n", line); }
 
 // Writes the summary whole: to a temporary file renamed over the path (a reader never sees
 // half of it), or to the saved stdout.
@@ -175,8 +169,7 @@ int run(const Options &options, int stdout_fd)
             exit_reason = "signal";
             stop_us = std::min(stop_us, board.nowUs());
         }
-        if (board.nowUs() >= stop_us &&
-            (board.txAtFrameBoundary() || board.nowUs() >= stop_us + finish_limit_us)) {
+        if (board.nowUs() >= stop_us && (board.txAtFrameBoundary() || board.nowUs() >= stop_us + finish_limit_us)) {
             break;
         }
         const uint64_t limit_us = board.nowUs() < stop_us ? stop_us : stop_us + finish_limit_us;
@@ -200,8 +193,8 @@ int run(const Options &options, int stdout_fd)
                 break; // ending: the last few milliseconds need not wait for the clock
             }
             const uint64_t wait_us = target_us - wall_us;
-            pollfd p = {pty.masterFd(), board.receivePending() < sizeof host_bytes ? static_cast<short>(POLLIN) : short{0},
-                        0};
+            pollfd p = {pty.masterFd(),
+                        board.receivePending() < sizeof host_bytes ? static_cast<short>(POLLIN) : short{0}, 0};
             const timespec timeout = {static_cast<time_t>(wait_us / 1000000u),
                                       static_cast<long>(wait_us % 1000000u * 1000u)};
             if (ppoll(&p, 1, &timeout, nullptr) > 0 && (p.revents & POLLHUP) != 0) {
@@ -244,9 +237,9 @@ int run(const Options &options, int stdout_fd)
         {"rx_bytes", board.rxBytes()},
         {"tx_bytes_per_s", simulated_s > 0.0 ? static_cast<double>(board.txBytes()) / simulated_s : 0.0},
         {"rx_bytes_per_s", simulated_s > 0.0 ? static_cast<double>(board.rxBytes()) / simulated_s : 0.0},
-        {"tx_link_share",
-         simulated_s > 0.0 && link_bytes_per_s > 0.0 ? static_cast<double>(board.txBytes()) / simulated_s / link_bytes_per_s
-                                                     : 0.0},
+        {"tx_link_share", simulated_s > 0.0 && link_bytes_per_s > 0.0
+                              ? static_cast<double>(board.txBytes()) / simulated_s / link_bytes_per_s
+                              : 0.0},
         {"rx_pending_bytes", board.receivePending()},
         {"tx_dropped_bytes", pty.droppedBytes()},
         {"tx_unsent_bytes", pty.pendingBytes()},
@@ -257,8 +250,7 @@ int run(const Options &options, int stdout_fd)
     std::fprintf(stderr,
                  "cdro-fil: %s after %.3f simulated s (%.3f s wall): %llu + %llu ranges, worst loop %llu cycles, "
                  "%.0f B/s to the host\n",
-                 exit_reason.c_str(), simulated_s, wall_s,
-                 static_cast<unsigned long long>(world.rangingsDirect()),
+                 exit_reason.c_str(), simulated_s, wall_s, static_cast<unsigned long long>(world.rangingsDirect()),
                  static_cast<unsigned long long>(world.rangingsRemote()),
                  static_cast<unsigned long long>(summary["loop"]["worst_cycles"].get<uint64_t>()),
                  summary["uart"]["tx_bytes_per_s"].get<double>());

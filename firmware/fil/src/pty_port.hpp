@@ -13,12 +13,12 @@
 namespace cdro::fil {
 
 class PtyError : public std::runtime_error {
-  public:
+public:
     using std::runtime_error::runtime_error;
 };
 
 class PtyPort {
-  public:
+public:
     // Opens the pseudo-terminal (raw, 8N1) and, if link_path is not empty, creates the symlink
     // (replacing an old symlink there, never a file).
     explicit PtyPort(const std::string &link_path);
@@ -45,7 +45,7 @@ class PtyPort {
 
     static constexpr size_t kMaxPendingBytes = 65536;
 
-  private:
+private:
     int master_ = -1;
     std::string slave_path_;
     std::string link_path_;

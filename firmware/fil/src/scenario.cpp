@@ -16,9 +16,10 @@ namespace cdro::fil {
 
 namespace {
 
-const char *const kFaultNames[kFaultKindCount] = {
-    "nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
-    "stale_range",  "drop_remote_reply", "refuse_function", "late_reply", "power_off"};
+const char *const kFaultNames[kFaultKindCount] = {"nack_address",      "nack_write",      "no_completion",
+                                                  "error_completion",  "garbage_range",   "stale_range",
+                                                  "drop_remote_reply", "refuse_function", "late_reply",
+                                                  "power_off"};
 
 std::string where(const YAML::Node &node, const std::string &origin)
 {
@@ -34,13 +35,12 @@ std::string text(const YAML::Node &node)
 // A YAML map read key by key; finish() rejects the keys nobody asked for, so that a typo is an
 // error instead of a silent default.
 class Map {
-  public:
+public:
     Map(const YAML::Node &node, std::string path, const std::string &origin)
         : node_(node), path_(std::move(path)), origin_(origin)
     {
         if (!node_.IsMap()) {
-            throw ScenarioError(where(node_, origin_) + ": " + path_ + ": expected a map of keys, got " +
-                                text(node_));
+            throw ScenarioError(where(node_, origin_) + ": " + path_ + ": expected a map of keys, got " + text(node_));
         }
     }
 
@@ -155,7 +155,7 @@ class Map {
     const YAML::Node &node() const { return node_; }
     const std::string &path() const { return path_; }
 
-  private:
+private:
     YAML::Node node_;
     std::string path_;
     const std::string &origin_;
@@ -209,10 +209,7 @@ double pathLength(const Vec3 &from, const std::vector<Vec3> &points)
 
 } // namespace
 
-const char *faultKindName(FaultKind kind)
-{
-    return kFaultNames[static_cast<int>(kind)];
-}
+const char *faultKindName(FaultKind kind) { return kFaultNames[static_cast<int>(kind)]; }
 
 const NodeSpec *Scenario::node(uint16_t id) const
 {
@@ -249,8 +246,8 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
         top.fail(nodes ? nodes : root, "nodes", "expected a list of at least 2 nodes (the shield's and remote ones)");
     }
     if (nodes.size() > POZYX_SIM_MAX_NODES) {
-        top.fail(nodes, "nodes", "at most " + std::to_string(POZYX_SIM_MAX_NODES) + " nodes, got " +
-                                     std::to_string(nodes.size()));
+        top.fail(nodes, "nodes",
+                 "at most " + std::to_string(POZYX_SIM_MAX_NODES) + " nodes, got " + std::to_string(nodes.size()));
     }
     for (size_t i = 0; i < nodes.size(); ++i) {
         Map n(nodes[i], "nodes[" + std::to_string(i) + "]", origin);
@@ -303,9 +300,9 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
             double free_s = 0.0;
             for (const MotionSpec *m : mine) {
                 if (m->start_s < free_s) {
-                    throw ScenarioError(origin + ": motion: node " + std::to_string(node.id) +
-                                        " starts a stretch at " + std::to_string(m->start_s) +
-                                        " s before its previous one ends at " + std::to_string(free_s) + " s");
+                    throw ScenarioError(origin + ": motion: node " + std::to_string(node.id) + " starts a stretch at " +
+                                        std::to_string(m->start_s) + " s before its previous one ends at " +
+                                        std::to_string(free_s) + " s");
                 }
                 free_s = m->start_s + pathLength(at, m->waypoints) / m->speed_mps;
                 at = m->waypoints.back();
@@ -365,9 +362,8 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                 const FaultSpec &b = s.faults[j];
                 if (a.kind == FaultKind::PowerOff && b.kind == FaultKind::PowerOff && a.node == b.node &&
                     a.at_s < b.at_s + b.duration_s && b.at_s < a.at_s + a.duration_s) {
-                    throw ScenarioError(origin + ": faults[" + std::to_string(i) + "] and faults[" +
-                                        std::to_string(j) + "]: overlapping power_off of node " +
-                                        std::to_string(a.node));
+                    throw ScenarioError(origin + ": faults[" + std::to_string(i) + "] and faults[" + std::to_string(j) +
+                                        "]: overlapping power_off of node " + std::to_string(a.node));
                 }
             }
         }
@@ -379,7 +375,8 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     if (top.has("pozyx")) {
         Map p(top.get("pozyx"), "pozyx", origin);
         s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i", s.pozyx_who_am_i, 0, 255));
-        s.pozyx_firmware_version = static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
+        s.pozyx_firmware_version =
+            static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
         const std::string model = p.string("model", "realistic");
         if (model != "realistic" && model != "ideal") {
             p.fail(p.get("model"), "model", "'" + model + "' is not one of: realistic, ideal");

@@ -13,7 +13,7 @@
 namespace cdro::fil {
 
 class ScenarioError : public std::runtime_error {
-  public:
+public:
     using std::runtime_error::runtime_error;
 };
 
@@ -58,31 +58,31 @@ const char *faultKindName(FaultKind kind);
 struct FaultSpec {
     FaultKind kind = FaultKind::NackAddress;
     double at_s = 0.0;
-    uint32_t count = 1;          // counted faults
-    uint8_t error_code = 0x11;   // error_completion: the Pozyx ERRORCODE (POZYX_ERROR_RANGING)
-    uint16_t node = 0;           // power_off
-    double duration_s = 0.0;     // power_off
+    uint32_t count = 1;        // counted faults
+    uint8_t error_code = 0x11; // error_completion: the Pozyx ERRORCODE (POZYX_ERROR_RANGING)
+    uint16_t node = 0;         // power_off
+    double duration_s = 0.0;   // power_off
 };
 
 // The timings default to those of the Pozyx model in use (pozyx.model): realistic 40000 /
 // 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
 struct UwbSpec {
-    double noise_std_mm = 30.0;      // Gaussian noise of each distance
-    double bias_mm = 0.0;            // added to every distance
-    double max_range_m = 50.0;       // longer links fail
-    uint32_t ranging_us = 40000;     // one two-way ranging exchange
-    uint32_t message_us = 3500;      // one UWB message on air, turnaround included
-    uint32_t processing_us = 1000;   // a remote node's handling of a request
+    double noise_std_mm = 30.0;    // Gaussian noise of each distance
+    double bias_mm = 0.0;          // added to every distance
+    double max_range_m = 50.0;     // longer links fail
+    uint32_t ranging_us = 40000;   // one two-way ranging exchange
+    uint32_t message_us = 3500;    // one UWB message on air, turnaround included
+    uint32_t processing_us = 1000; // a remote node's handling of a request
 };
 
 struct AccelSpec {
-    double noise_std_mg = 5.0;         // per axis
+    double noise_std_mg = 5.0;          // per axis
     double moving_amplitude_mg = 250.0; // vertical bounce of a carried node (walking)
     double moving_frequency_hz = 1.8;   // step frequency
 };
 
 struct Scenario {
-    std::string source;      // file it came from, for messages
+    std::string source; // file it came from, for messages
     std::string name;
     std::string description;
     uint64_t seed = 1;
@@ -93,7 +93,7 @@ struct Scenario {
     std::vector<FaultSpec> faults;
     UwbSpec uwb;
     AccelSpec accel;
-    uint8_t pozyx_who_am_i = 0x43;       // another value: the firmware reports POZYX_ABSENT
+    uint8_t pozyx_who_am_i = 0x43; // another value: the firmware reports POZYX_ABSENT
     uint8_t pozyx_firmware_version = 0x11;
     // The real device's behaviour (pozyx_sim_config_realistic: replies that raise RX_DATA with
     // FUNC, busy nodes, collisions, boot time, the real timings) or the ideal model.

@@ -15,10 +15,7 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kOneGMg = 1000.0; // mg
 
-uint64_t toUs(double t_s)
-{
-    return static_cast<uint64_t>(std::llround(t_s * 1e6));
-}
+uint64_t toUs(double t_s) { return static_cast<uint64_t>(std::llround(t_s * 1e6)); }
 
 double distanceM(const Vec3 &a, const Vec3 &b)
 {
@@ -302,7 +299,8 @@ void World::accountRangings(uint64_t now_us, uint32_t rangings_before)
                 ++(r.remote ? rangings_remote_ : rangings_direct_);
                 ++per_pair_[{r.from_id, r.to_id}];
                 worst_range_error_m_ =
-                    std::max(worst_range_error_m_, std::fabs(static_cast<double>(r.distance_mm) * 1e-3 - r.true_distance_m));
+                    std::max(worst_range_error_m_,
+                             std::fabs(static_cast<double>(r.distance_mm) * 1e-3 - r.true_distance_m));
             }
             if (ranges_csv_ != nullptr) {
                 std::fprintf(ranges_csv_, "%.6f,%s,%u,%u,%" PRIu32 ",%.1f,%s\n", static_cast<double>(now_us) / 1e6,

@@ -27,7 +27,7 @@ namespace cdro::fil {
 
 // A node's position over time: piecewise linear along its carried stretches.
 class Track {
-  public:
+public:
     struct Leg {
         double t0_s, t1_s; // s: leaves `from` at t0, reaches `to` at t1
         Vec3 from, to;
@@ -47,7 +47,7 @@ class Track {
     static pozyx_sim_vec3_t positionFn(void *context, double t_s);
     static pozyx_sim_vec3_t accelFn(void *context, double t_s);
 
-  private:
+private:
     Vec3 start_;
     std::vector<Leg> legs_;
     AccelSpec accel_;
@@ -64,7 +64,7 @@ struct RangingRecord {
 };
 
 class World {
-  public:
+public:
     explicit World(const Scenario &scenario);
     ~World();
     World(const World &) = delete;
@@ -98,7 +98,7 @@ class World {
     uint64_t rangingsStale() const { return rangings_stale_; }
     uint64_t injected(FaultKind kind) const { return injected_[static_cast<size_t>(kind)]; }
 
-  private:
+private:
     struct FaultState {
         FaultSpec spec;
         bool armed = false;
@@ -120,8 +120,8 @@ class World {
     std::vector<std::vector<pozyx_sim_range_entry_t>> shadow_;
 
     std::vector<FaultState> faults_;
-    size_t next_fault_ = 0;                                  // into faults_ (sorted by at_s)
-    std::vector<std::pair<uint64_t, size_t>> power_on_due_;  // (time, fault index)
+    size_t next_fault_ = 0;                                   // into faults_ (sorted by at_s)
+    std::vector<std::pair<uint64_t, size_t>> power_on_due_;   // (time, fault index)
     std::array<std::deque<size_t>, kFaultKindCount> pending_; // armed counted faults, FIFO
     std::array<uint32_t, kFaultKindCount> last_counter_{};    // sim->faults counters seen last
     std::array<uint64_t, kFaultKindCount> injected_{};
@@ -129,7 +129,7 @@ class World {
 
     uint64_t rangings_direct_ = 0, rangings_remote_ = 0, rangings_garbage_ = 0, rangings_stale_ = 0;
     std::map<std::pair<uint16_t, uint16_t>, uint64_t> per_pair_;
-    double worst_range_error_m_ = 0.0;     // |measured - true| over the non-garbage rangings
+    double worst_range_error_m_ = 0.0; // |measured - true| over the non-garbage rangings
 
     std::FILE *truth_ = nullptr;
     uint64_t truth_period_us_ = 0;

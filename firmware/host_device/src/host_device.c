@@ -35,9 +35,9 @@ struct cdro_hd {
     cdro_pozyx_ops_t pozyx_ops;
     cdro_serial_ops_t serial_ops;
     hd_node_t nodes[POZYX_SIM_MAX_NODES];
-    uint64_t now_ns;       /* simulated time */
-    uint64_t boot_ns;      /* simulated time of the last power-on or reset */
-    uint64_t next_due_ns;  /* what the last step asked for */
+    uint64_t now_ns;      /* simulated time */
+    uint64_t boot_ns;     /* simulated time of the last power-on or reset */
+    uint64_t next_due_ns; /* what the last step asked for */
     uint8_t powered;
     /* UART transmit side: bytes still to go out, drained at the baud rate */
     uint32_t tx_pending;
@@ -62,10 +62,7 @@ static void advance_ns(cdro_hd_t *hd, uint64_t ns)
     pozyx_sim_advance(&hd->sim, hd->now_ns / 1000U);
 }
 
-static void advance_us(cdro_hd_t *hd, uint64_t us)
-{
-    advance_ns(hd, us * 1000U);
-}
+static void advance_us(cdro_hd_t *hd, uint64_t us) { advance_ns(hd, us * 1000U); }
 
 /* The address byte and `bytes` data bytes, 9 clocks each, start and stop, Wire's overhead. */
 static void byte_time(cdro_hd_t *hd, uint32_t bytes)
@@ -138,10 +135,7 @@ static cdro_i2c_result_t i2c_read(void *user, uint8_t address, uint8_t *data, ui
     return CDRO_I2C_OK;
 }
 
-static void delay_ms(void *user, uint16_t duration_ms)
-{
-    advance_us((cdro_hd_t *)user, (uint64_t)duration_ms * 1000U);
-}
+static void delay_ms(void *user, uint16_t duration_ms) { advance_us((cdro_hd_t *)user, (uint64_t)duration_ms * 1000U); }
 
 static uint32_t now_ms(void *user)
 {
@@ -155,10 +149,7 @@ static uint32_t now_us(void *user)
     return (uint32_t)((hd->now_ns - hd->boot_ns) / 1000U);
 }
 
-static void bus_recover(void *user)
-{
-    advance_us((cdro_hd_t *)user, HD_BUS_RECOVERY_US);
-}
+static void bus_recover(void *user) { advance_us((cdro_hd_t *)user, HD_BUS_RECOVERY_US); }
 
 /* ---- serial ops: HardwareSerial ---------------------------------------------------------- */
 
@@ -194,10 +185,7 @@ uint16_t cdro_hd_tx_free(cdro_hd_t *hd)
     return free_bytes;
 }
 
-static uint16_t tx_free(void *user)
-{
-    return cdro_hd_tx_free((cdro_hd_t *)user);
-}
+static uint16_t tx_free(void *user) { return cdro_hd_tx_free((cdro_hd_t *)user); }
 
 static void tx_write(void *user, const uint8_t *data, uint8_t length)
 {
@@ -209,10 +197,7 @@ static void tx_write(void *user, const uint8_t *data, uint8_t length)
     }
 }
 
-static uint64_t ns_per_serial_byte(void)
-{
-    return 10ULL * 1000000000ULL / CDRO_FW_SERIAL_BAUD; /* 8N1 */
-}
+static uint64_t ns_per_serial_byte(void) { return 10ULL * 1000000000ULL / CDRO_FW_SERIAL_BAUD; /* 8N1 */ }
 
 /* Bytes that have arrived by now into the receive buffer; those that find it full are lost
  * (nothing read the buffer since the last call: every read calls this first). */
@@ -246,10 +231,7 @@ static int16_t rx_read(void *user)
     return byte;
 }
 
-static uint16_t free_ram_bytes(void *user)
-{
-    return ((const cdro_hd_t *)user)->config.free_ram_bytes;
-}
+static uint16_t free_ram_bytes(void *user) { return ((const cdro_hd_t *)user)->config.free_ram_bytes; }
 
 /* ---- the world ----------------------------------------------------------------------------- */
 
@@ -279,7 +261,8 @@ static pozyx_sim_vec3_t node_accel(void *context, double t_s)
 static void node_range(void *context, uint16_t ranger, uint16_t partner, double t_s, pozyx_sim_range_outcome_t *out)
 {
     const cdro_hd_t *hd = (const cdro_hd_t *)context;
-    out->error_code = hd->callbacks.range(hd->callbacks.context, ranger, partner, t_s, &out->distance_mm, &out->rss_dbm);
+    out->error_code =
+        hd->callbacks.range(hd->callbacks.context, ranger, partner, t_s, &out->distance_mm, &out->rss_dbm);
 }
 
 /* ---- the device ------------------------------------------------------------------------------ */
@@ -313,10 +296,7 @@ cdro_hd_t *cdro_hd_create(const cdro_hd_config_t *config, const cdro_hd_callback
     return hd;
 }
 
-void cdro_hd_destroy(cdro_hd_t *hd)
-{
-    free(hd);
-}
+void cdro_hd_destroy(cdro_hd_t *hd) { free(hd); }
 
 int cdro_hd_add_node(cdro_hd_t *hd, uint16_t id, uint8_t is_tag)
 {
@@ -362,15 +342,9 @@ void cdro_hd_power_on(cdro_hd_t *hd, uint8_t reset_cause)
     cdro_fw_init(&hd->fw, &config);
 }
 
-uint64_t cdro_hd_now_us(const cdro_hd_t *hd)
-{
-    return hd->now_ns / 1000U;
-}
+uint64_t cdro_hd_now_us(const cdro_hd_t *hd) { return hd->now_ns / 1000U; }
 
-uint64_t cdro_hd_boot_us(const cdro_hd_t *hd)
-{
-    return hd->boot_ns / 1000U;
-}
+uint64_t cdro_hd_boot_us(const cdro_hd_t *hd) { return hd->boot_ns / 1000U; }
 
 void cdro_hd_idle_to(cdro_hd_t *hd, uint64_t t_us)
 {
@@ -437,15 +411,9 @@ void cdro_hd_read_counters(const cdro_hd_t *hd, cdro_hd_counters_t *out)
     out->boots = hd->boots;
 }
 
-uint8_t cdro_hd_running(const cdro_hd_t *hd)
-{
-    return hd->fw.running;
-}
+uint8_t cdro_hd_running(const cdro_hd_t *hd) { return hd->fw.running; }
 
-uint8_t cdro_hd_state(const cdro_hd_t *hd)
-{
-    return hd->fw.state;
-}
+uint8_t cdro_hd_state(const cdro_hd_t *hd) { return hd->fw.state; }
 
 uint8_t cdro_hd_moving(const cdro_hd_t *hd, uint16_t id)
 {
@@ -458,10 +426,7 @@ uint8_t cdro_hd_moving(const cdro_hd_t *hd, uint16_t id)
     return 0;
 }
 
-uint16_t cdro_hd_next_sequence(const cdro_hd_t *hd)
-{
-    return hd->fw.link.sequence;
-}
+uint16_t cdro_hd_next_sequence(const cdro_hd_t *hd) { return hd->fw.link.sequence; }
 
 void cdro_hd_injected_frame(cdro_hd_t *hd, uint8_t sent)
 {
@@ -535,7 +500,10 @@ typedef struct hd_layout {
     size_t bytes;
 } hd_layout_t;
 
-#define HD_FIELD(type, field) {#type "." #field, offsetof(type, field)}
+#define HD_FIELD(type, field)                   \
+    {                                           \
+#type "." #field, offsetof(type, field) \
+    }
 
 static const hd_layout_t kLayouts[] = {
     {"cdro_hd_config_t", sizeof(cdro_hd_config_t)},

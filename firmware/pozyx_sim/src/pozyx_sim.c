@@ -14,12 +14,12 @@
 /* Bus phases. */
 enum {
     PHASE_IDLE = 0,
-    PHASE_WRITE_FIRST,  /* address+W seen: the next byte is a register or function address */
-    PHASE_POINTER_SET,  /* a register address was written; a repeated start may follow */
-    PHASE_PARAMS,       /* a function address was written: parameters follow */
-    PHASE_WRITE_DATA,   /* documented register write: data after the repeated start */
-    PHASE_READ,         /* address+R */
-    PHASE_REFUSED       /* the rest of this address phase is NACKed */
+    PHASE_WRITE_FIRST, /* address+W seen: the next byte is a register or function address */
+    PHASE_POINTER_SET, /* a register address was written; a repeated start may follow */
+    PHASE_PARAMS,      /* a function address was written: parameters follow */
+    PHASE_WRITE_DATA,  /* documented register write: data after the repeated start */
+    PHASE_READ,        /* address+R */
+    PHASE_REFUSED      /* the rest of this address phase is NACKed */
 };
 
 /* Event kinds. */
@@ -87,10 +87,7 @@ static double rng_normal(pozyx_sim_t *sim)
     return sqrt(-2.0 * log(u)) * cos(2.0 * SIM_PI * v);
 }
 
-static uint16_t get_u16(const uint8_t *p)
-{
-    return (uint16_t)(p[0] | (p[1] << 8));
-}
+static uint16_t get_u16(const uint8_t *p) { return (uint16_t)(p[0] | (p[1] << 8)); }
 
 static void put_u16(uint8_t *p, uint16_t v)
 {
@@ -104,20 +101,14 @@ static void put_u32(uint8_t *p, uint32_t v)
     put_u16(p + 2, (uint16_t)(v >> 16));
 }
 
-static double seconds(const pozyx_sim_t *sim)
-{
-    return (double)sim->now_us / 1e6;
-}
+static double seconds(const pozyx_sim_t *sim) { return (double)sim->now_us / 1e6; }
 
 static uint32_t node_clock_ms(const pozyx_sim_t *sim, const pozyx_sim_node_t *node)
 {
     return (uint32_t)(node->config.clock_offset_ms + (uint32_t)(sim->now_us / 1000U));
 }
 
-static pozyx_sim_node_t *local(pozyx_sim_t *sim)
-{
-    return sim->node_count > 0 ? &sim->nodes[0] : NULL;
-}
+static pozyx_sim_node_t *local(pozyx_sim_t *sim) { return sim->node_count > 0 ? &sim->nodes[0] : NULL; }
 
 /* Sees power-ups since the last look: a node powered again boots for config.boot_us. */
 static void track_power(pozyx_sim_t *sim)
@@ -523,9 +514,9 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
             pozyx_sim_node_t *node = &sim->nodes[i];
             uint8_t j;
             uint8_t known = 0;
-            const uint8_t wanted = (uint8_t)(event->a == POZYX_DISCOVER_ALL ||
-                                             (event->a == POZYX_DISCOVER_TAGS && node->config.is_tag) ||
-                                             (event->a == POZYX_DISCOVER_ANCHORS && !node->config.is_tag));
+            const uint8_t wanted =
+                (uint8_t)(event->a == POZYX_DISCOVER_ALL || (event->a == POZYX_DISCOVER_TAGS && node->config.is_tag) ||
+                          (event->a == POZYX_DISCOVER_ANCHORS && !node->config.is_tag));
             if (!wanted || !link_ok(sim, self, node)) {
                 continue;
             }
@@ -556,9 +547,7 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
             deliver(sim, event->a, event->data, event->length, POZYX_INT_RX_DATA);
         }
         break;
-    case EVENT_LOCAL_ERROR:
-        raise_error(sim, event->data[0]);
-        break;
+    case EVENT_LOCAL_ERROR: raise_error(sim, event->data[0]); break;
     case EVENT_REMOTE_RANGING: {
         pozyx_sim_node_t *ranger = pozyx_sim_find(sim, event->a);
         pozyx_sim_node_t *partner = pozyx_sim_find(sim, event->b);
@@ -595,8 +584,7 @@ static void run_event(pozyx_sim_t *sim, pozyx_sim_event_t *event)
         }
         break;
     }
-    default:
-        break;
+    default: break;
     }
 }
 
@@ -680,7 +668,8 @@ static uint8_t read_register(pozyx_sim_t *sim, pozyx_sim_node_t *node, uint8_t r
     case POZYX_REG_WHO_AM_I: return sim->config.who_am_i;
     case POZYX_REG_FIRMWARE_VER: return sim->config.firmware_version;
     case POZYX_REG_HARDWARE_VER:
-        return (uint8_t)(((node->config.is_tag ? POZYX_HW_TYPE_TAG : POZYX_HW_TYPE_ANCHOR) << POZYX_HW_TYPE_SHIFT) | 0x03);
+        return (uint8_t)(((node->config.is_tag ? POZYX_HW_TYPE_TAG : POZYX_HW_TYPE_ANCHOR) << POZYX_HW_TYPE_SHIFT) |
+                         0x03);
     case POZYX_REG_ST_RESULT: return healthy_self_test(node);
     case POZYX_REG_ERRORCODE:
         if (!is_local) {
@@ -700,8 +689,7 @@ static uint8_t read_register(pozyx_sim_t *sim, pozyx_sim_node_t *node, uint8_t r
     case POZYX_REG_RX_NETWORK_ID: return is_local ? (uint8_t)(sim->rx_sender & 0xFFU) : 0U;
     case POZYX_REG_RX_NETWORK_ID + 1: return is_local ? (uint8_t)(sim->rx_sender >> 8) : 0U;
     case POZYX_REG_RX_DATA_LEN: return is_local ? sim->rx_length : 0U;
-    default:
-        break;
+    default: break;
     }
     if (reg >= POZYX_REG_ACCEL_X && reg < POZYX_REG_ACCEL_X + 6U) {
         const uint8_t offset = (uint8_t)(reg - POZYX_REG_ACCEL_X);
@@ -792,8 +780,7 @@ static uint8_t remote_handle(pozyx_sim_t *sim, pozyx_sim_node_t *node, uint8_t o
         *length = 1;
         return 1;
     }
-    default:
-        return 0;
+    default: return 0;
     }
 }
 
@@ -812,8 +799,7 @@ static void call_tx_send(pozyx_sim_t *sim)
     }
     dest = get_u16(sim->params);
     op = sim->params[2];
-    if (op != POZYX_REMOTE_READ && op != POZYX_REMOTE_WRITE && op != POZYX_REMOTE_DATA &&
-        op != POZYX_REMOTE_FUNCTION) {
+    if (op != POZYX_REMOTE_READ && op != POZYX_REMOTE_WRITE && op != POZYX_REMOTE_DATA && op != POZYX_REMOTE_FUNCTION) {
         return;
     }
     if (dest == 0U && op != POZYX_REMOTE_DATA) {
@@ -934,9 +920,7 @@ static void execute(pozyx_sim_t *sim)
             sim->result[0] = 1;
         }
         break;
-    case POZYX_FN_TX_SEND:
-        call_tx_send(sim);
-        break;
+    case POZYX_FN_TX_SEND: call_tx_send(sim); break;
     case POZYX_FN_RX_DATA:
         if (n == 2U && (unsigned)params[0] + params[1] <= POZYX_SIM_BUFFER_SIZE) {
             sim->result[0] = 1;
@@ -944,12 +928,8 @@ static void execute(pozyx_sim_t *sim)
             sim->result_length = (uint8_t)(1U + params[1]);
         }
         break;
-    case POZYX_FN_DO_RANGING:
-        call_do_ranging(sim);
-        break;
-    case POZYX_FN_DEVICES_DISCOVER:
-        call_discover(sim);
-        break;
+    case POZYX_FN_DO_RANGING: call_do_ranging(sim); break;
+    case POZYX_FN_DEVICES_DISCOVER: call_discover(sim); break;
     case POZYX_FN_DEVICES_CLEAR:
         sim->device_list_size = 0;
         sim->result[0] = 1;
@@ -1010,8 +990,7 @@ static void execute(pozyx_sim_t *sim)
         sim->busy = 0;
         sim->event_count = 0;
         break;
-    default:
-        break; /* unknown function: return byte 0 */
+    default: break; /* unknown function: return byte 0 */
     }
 }
 
@@ -1045,8 +1024,7 @@ pozyx_sim_bus_t pozyx_sim_i2c_start(pozyx_sim_t *sim, uint8_t address, uint8_t r
     sim->in_transaction = 1;
     sim->stretch_us = 0;
     track_power(sim);
-    if (address == sim->config.i2c_address && sim->node_count > 0U && sim->nodes[0].config.powered &&
-        !local_up(sim)) {
+    if (address == sim->config.i2c_address && sim->node_count > 0U && sim->nodes[0].config.powered && !local_up(sim)) {
         ++sim->stats.boot_refusals; /* powered, still booting */
     }
     if (address != sim->config.i2c_address || !local_up(sim) || take(sim, &sim->faults.nack_address)) {
@@ -1129,9 +1107,7 @@ pozyx_sim_bus_t pozyx_sim_i2c_write(pozyx_sim_t *sim, uint8_t byte)
     case PHASE_IDLE:
     case PHASE_READ:
     case PHASE_REFUSED:
-    default:
-        ++sim->stats.protocol_violations;
-        return POZYX_SIM_NACK;
+    default: ++sim->stats.protocol_violations; return POZYX_SIM_NACK;
     }
 }
 

@@ -38,7 +38,10 @@ int hexDigit(char c)
     return (c >= 'a' && c <= 'f') ? c - 'a' + 10 : c - 'A' + 10;
 }
 
-bool hasHexPrefix(std::string_view text) { return text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X'); }
+bool hasHexPrefix(std::string_view text)
+{
+    return text.size() > 2 && text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
+}
 
 // text: NUL-terminated at text[size].
 bool parseFinite(const char *text, size_t size, double *value)
@@ -122,8 +125,8 @@ public:
             const char *start = buffer_.data() + begin_;
             const size_t available = end_ - begin_;
             const void *newline = std::memchr(start, '\n', available);
-            const size_t take = newline != nullptr ? static_cast<size_t>(static_cast<const char *>(newline) - start)
-                                                   : available;
+            const size_t take =
+                newline != nullptr ? static_cast<size_t>(static_cast<const char *>(newline) - start) : available;
             if (std::memchr(start, '\0', take) != nullptr) {
                 throw Error(path_ + ":" + std::to_string(number_ + 1) + ": a 0x00 byte: not a CSV file");
             }

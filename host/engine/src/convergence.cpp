@@ -119,7 +119,8 @@ void Convergence::assess(MapState &map)
             const std::vector<RangeConstraint> constraints = placedConstraints(map, node);
             if (constraints.size() >= 3) {
                 const double here = robustCost(constraints, state.position_m, likelihood_, solver_.range_sigma_m);
-                for (const PlacementCandidate &candidate : placementCandidates(constraints, likelihood_, solver_, placement_)) {
+                for (const PlacementCandidate &candidate :
+                     placementCandidates(constraints, likelihood_, solver_, placement_)) {
                     if ((candidate.position_m - state.position_m).norm() > placement_.distinct_m &&
                         candidate.cost < here + placement_.ambiguity_gap_nats / 4.0) {
                         doubt = NodeDoubt::Ambiguous;
@@ -130,7 +131,8 @@ void Convergence::assess(MapState &map)
         }
         if (doubt == NodeDoubt::None && solve.solved) {
             // The largest 2-sigma semi-axis of the map's covariance.
-            const double largest_m = 2.0 * std::sqrt(std::max(solve.covariance_m2.trace() - minEigenvalue(solve.covariance_m2), 0.0));
+            const double largest_m =
+                2.0 * std::sqrt(std::max(solve.covariance_m2.trace() - minEigenvalue(solve.covariance_m2), 0.0));
             // Baarda's bound is a worst case (an error just too small to be noticed, all of it on
             // the weakest link): a node is flexible when even that bound is well beyond the promise.
             if (!solve.main_part || !(solve.reliability_m < kReliabilityMargin * reliable) || !(largest_m < reliable)) {

@@ -27,7 +27,8 @@ uint32_t Engine::nodeIndex(NodeId id)
 void Engine::setHeight(NodeId id, double height_m)
 {
     if (flights_.tracks(id) || flights_.anchorsSet()) {
-        throw std::logic_error("node " + std::to_string(id) + ": a height is known before the first range of a node "
+        throw std::logic_error("node " + std::to_string(id) +
+                               ": a height is known before the first range of a node "
                                "tracked in 3D, and never for such a node");
     }
     map_.nodes[nodeIndex(id)].height_m = height_m;
@@ -36,7 +37,8 @@ void Engine::setHeight(NodeId id, double height_m)
 void Engine::setFixed(NodeId id, const Vector2 &position_m)
 {
     if (flights_.tracks(id) || flights_.anchorsSet()) {
-        throw std::logic_error("node " + std::to_string(id) + ": fixed nodes are set before the first range of a node "
+        throw std::logic_error("node " + std::to_string(id) +
+                               ": fixed nodes are set before the first range of a node "
                                "tracked in 3D, and such a node is never fixed");
     }
     frame_.setFixed(id, position_m);
@@ -487,8 +489,8 @@ std::vector<NodeOutput> Engine::estimates() const
         node.link_count = static_cast<uint32_t>(state.links.size());
         if (state.placed()) {
             // A moving node is where its track says it is now, not at its last range.
-            const bool predicted = state.moving() && state.track && std::isfinite(map_.last_time_s) &&
-                                   motion_.trackIsEstimate(state);
+            const bool predicted =
+                state.moving() && state.track && std::isfinite(map_.last_time_s) && motion_.trackIsEstimate(state);
             node.position_m = transform.apply(predicted ? state.track->positionAt(map_.last_time_s) : state.position_m);
             const auto &single = frame_.singleFixed();
             if (single && single->first == state.id) {
@@ -497,9 +499,9 @@ std::vector<NodeOutput> Engine::estimates() const
             }
             // The map's covariance (correlations across it included) where the solve has one,
             // else the local one of the refinement.
-            const bool from_solve =
-                state.solve.solved && state.free() && state.anchor() && params_.refinement.enabled;
-            node.covariance_m2 = transform.applyToCovariance(from_solve ? state.solve.covariance_m2 : state.covariance_m2);
+            const bool from_solve = state.solve.solved && state.free() && state.anchor() && params_.refinement.enabled;
+            node.covariance_m2 =
+                transform.applyToCovariance(from_solve ? state.solve.covariance_m2 : state.covariance_m2);
         }
         out.push_back(node);
     }
@@ -531,9 +533,8 @@ std::vector<LinkOutput> Engine::links() const
         link.inlier_probability = state.inlier_probability;
         out.push_back(link);
     }
-    std::sort(out.begin(), out.end(), [](const LinkOutput &x, const LinkOutput &y) {
-        return x.a != y.a ? x.a < y.a : x.b < y.b;
-    });
+    std::sort(out.begin(), out.end(),
+              [](const LinkOutput &x, const LinkOutput &y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
     return out;
 }
 

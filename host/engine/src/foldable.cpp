@@ -188,8 +188,8 @@ Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t,
         inside[first] = 0;
         for (uint32_t second : articulationPoints(adjacency, inside)) {
             inside[second] = 0;
-            markAllButLargest(components(adjacency, inside), anchor,
-                              {std::min(first, second), std::max(first, second)}, out);
+            markAllButLargest(components(adjacency, inside), anchor, {std::min(first, second), std::max(first, second)},
+                              out);
             inside[second] = 1;
         }
         inside[first] = 1;

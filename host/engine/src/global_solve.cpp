@@ -146,7 +146,8 @@ void forEachIndex(size_t count, uint32_t threads, const std::function<void(size_
 }
 
 // The largest discrepancy per node between two maps, after the rigid fit of one onto the other.
-std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference, const std::vector<uint32_t> &part)
+std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference,
+                                 const std::vector<uint32_t> &part)
 {
     std::vector<Vector2> source;
     std::vector<Vector2> target;
@@ -194,9 +195,10 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     auto finish = [&](MapHypothesis hypothesis, bool lifted_mds, GlobalSolveCounters &counters) {
         ++counters.starts;
         anchorToFixed(problem, hypothesis.estimate);
-        MapRefineResult refined = params.lift || lifted_mds
-                                      ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
-                                      : refineMap(problem, hypothesis.estimate, likelihood, params.refine);
+        MapRefineResult refined =
+            params.lift || lifted_mds
+                ? liftedRefine(problem, hypothesis.estimate, likelihood, params.lifting, lifted_mds)
+                : refineMap(problem, hypothesis.estimate, likelihood, params.refine);
         counters.refine_iterations += refined.iterations;
         if (params.lift || lifted_mds) {
             // The lifted refinement ends in the plane at the nominal noise, in the basin its own
@@ -210,8 +212,8 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             }
         }
         for (uint32_t round = 0; round < params.escape_rounds; ++round) {
-            const uint32_t moved = escapeNodeMinima(problem, hypothesis.estimate, likelihood, params.growth,
-                                                    params.escape_gap_nats);
+            const uint32_t moved =
+                escapeNodeMinima(problem, hypothesis.estimate, likelihood, params.growth, params.escape_gap_nats);
             counters.escapes += moved;
             if (moved == 0) {
                 break;
@@ -313,9 +315,8 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         return h.cost + unexplained * static_cast<double>(open);
     };
     auto rank = [&]() {
-        std::stable_sort(hypotheses.begin(), hypotheses.end(), [&](const MapHypothesis &x, const MapHypothesis &y) {
-            return comparable(x) < comparable(y);
-        });
+        std::stable_sort(hypotheses.begin(), hypotheses.end(),
+                         [&](const MapHypothesis &x, const MapHypothesis &y) { return comparable(x) < comparable(y); });
     };
     rank();
     // Each map is judged under the NLOS model that suits it best (a profile likelihood): a map

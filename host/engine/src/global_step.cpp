@@ -35,7 +35,8 @@ bool linksChanged(const MapState &map, double sigma_m)
 {
     size_t changed = 0;
     for (const LinkState &link : map.links) {
-        changed += link.solved_range_m > 0.0 && std::abs(link.representative_m - link.solved_range_m) > sigma_m ? 1U : 0U;
+        changed +=
+            link.solved_range_m > 0.0 && std::abs(link.representative_m - link.solved_range_m) > sigma_m ? 1U : 0U;
     }
     return static_cast<double>(changed) >= kChangedLinkShare * static_cast<double>(map.links.size());
 }
@@ -152,7 +153,8 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
 GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
 {
     solve_.range_offsets = params.solve.range_offsets;
-    solve_.threads = params.solve.threads > 0 ? params.solve.threads : std::max(std::thread::hardware_concurrency(), 1U);
+    solve_.threads =
+        params.solve.threads > 0 ? params.solve.threads : std::max(std::thread::hardware_concurrency(), 1U);
 }
 
 bool GlobalStep::enabled() const { return params_.solve.enabled; }
@@ -221,8 +223,8 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     job->built = mapProblemOf(map, params_, ranges_received);
     const MapProblem &problem = job->built.problem;
     job->settling = settling;
-    job->refresh = !settling && problem.links.size() == schedule_.links_at_full &&
-                   problem.nodeCount() == schedule_.nodes_at_full;
+    job->refresh =
+        !settling && problem.links.size() == schedule_.links_at_full && problem.nodeCount() == schedule_.nodes_at_full;
     if (job->refresh) {
         ++counters_.solve_refreshes;
     } else {
@@ -251,11 +253,10 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     MapModelError model_error;
     model_error.common_excess_m = params_.convergence.common_excess_m;
     model_error.height_spread_m = params_.range.unknown_height_spread_m;
-    job->result = std::async(background ? std::launch::async : std::launch::deferred,
-                             [owned, likelihood, solve, min_gain_nats, model_error]() {
-                                 return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error);
-                             })
-                      .share();
+    job->result = std::async(background ? std::launch::async : std::launch::deferred, [owned, likelihood, solve,
+                                                                                       min_gain_nats, model_error]() {
+                      return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error);
+                  }).share();
     pending_ = std::move(job);
 }
 
@@ -389,9 +390,10 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
     }
     if (trace) {
         trace("global solve on " + std::to_string(problem.links.size()) + " links: " + chosen->origin + ", cost " +
-              std::to_string(chosen->cost) + " nats (NLOS share " + std::to_string(chosen->nlos_fraction) + ", mean excess " +
-              std::to_string(chosen->nlos_mean_excess_m) + " m), " + std::to_string(outcome.placed.size()) + " placed, " +
-              std::to_string(outcome.shifted.size()) + " moved, " + std::to_string(solved.rivals.size()) + " rival maps");
+              std::to_string(chosen->cost) + " nats (NLOS share " + std::to_string(chosen->nlos_fraction) +
+              ", mean excess " + std::to_string(chosen->nlos_mean_excess_m) + " m), " +
+              std::to_string(outcome.placed.size()) + " placed, " + std::to_string(outcome.shifted.size()) +
+              " moved, " + std::to_string(solved.rivals.size()) + " rival maps");
     }
     return outcome;
 }

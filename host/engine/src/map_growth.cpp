@@ -60,9 +60,9 @@ std::vector<uint32_t> hopsFrom(const MapProblem &problem, const std::vector<uint
 struct Decision {
     bool valid = false;
     uint32_t placed_neighbours = 0;
-    double gap = 0.0;              // nats, rival cost - best cost (infinite with one candidate)
+    double gap = 0.0; // nats, rival cost - best cost (infinite with one candidate)
     Vector2 position_m = Vector2::Zero();
-    bool usable = false;           // a candidate exists
+    bool usable = false; // a candidate exists
 };
 
 } // namespace
@@ -96,12 +96,13 @@ std::vector<std::array<uint32_t, 3>> seedTriangles(const MapProblem &problem, co
             if (height < params.min_triangle_height_m) {
                 continue;
             }
-            const double degrees = static_cast<double>(problem.node_links[ab.a].size() + problem.node_links[ab.b].size() +
-                                                       problem.node_links[c].size());
+            const double degrees = static_cast<double>(problem.node_links[ab.a].size() +
+                                                       problem.node_links[ab.b].size() + problem.node_links[c].size());
             triangles.push_back({{ab.a, ab.b, c}, std::min(height, 5.0) * degrees});
         }
     }
-    std::stable_sort(triangles.begin(), triangles.end(), [](const Scored &x, const Scored &y) { return x.score > y.score; });
+    std::stable_sort(triangles.begin(), triangles.end(),
+                     [](const Scored &x, const Scored &y) { return x.score > y.score; });
     std::vector<std::array<uint32_t, 3>> seeds;
     std::vector<uint32_t> used;
     while (seeds.size() < count && !triangles.empty()) {
@@ -209,8 +210,8 @@ MapEstimate growMap(const MapProblem &problem, const std::vector<uint32_t> &part
                          [](const PlacementCandidate &a, const PlacementCandidate &b) { return a.cost < b.cost; });
         decision.usable = true;
         decision.position_m = candidates.front().position_m;
-        decision.gap = candidates.size() > 1 ? candidates[1].cost - candidates[0].cost
-                                             : std::numeric_limits<double>::infinity();
+        decision.gap =
+            candidates.size() > 1 ? candidates[1].cost - candidates[0].cost : std::numeric_limits<double>::infinity();
     };
     for (;;) {
         // The next node: decisive with the most placed neighbours, else the least ambiguous.
@@ -275,7 +276,8 @@ MapEstimate growMap(const MapProblem &problem, const std::vector<uint32_t> &part
                 decisions[node].valid = false;
             }
         }
-        if (placed_count >= 6 && static_cast<double>(placed_count) >= params.refine_growth * static_cast<double>(refined_at)) {
+        if (placed_count >= 6 &&
+            static_cast<double>(placed_count) >= params.refine_growth * static_cast<double>(refined_at)) {
             refineMap(problem, estimate, likelihood, quick);
             ++counted.refinements;
             refined_at = placed_count;

@@ -84,12 +84,12 @@ MapRefineResult liftedRefine(const MapProblem &problem, MapEstimate &estimate, c
         result.refused += part_result.refused;
     };
     if (!fixed_frame) {
-        add(refineEmbedding(problem, estimate.placed, positions, likelihood, params.stages,
-                            params.iterations_per_stage, 0.0, refine));
+        add(refineEmbedding(problem, estimate.placed, positions, likelihood, params.stages, params.iterations_per_stage,
+                            0.0, refine));
         for (double squeeze : params.squeeze) {
             principalAxes(estimate.placed, positions);
-            add(refineEmbedding(problem, estimate.placed, positions, likelihood, {RefineStage{}}, params.iterations_per_stage,
-                                squeeze, refine));
+            add(refineEmbedding(problem, estimate.placed, positions, likelihood, {RefineStage{}},
+                                params.iterations_per_stage, squeeze, refine));
         }
         principalAxes(estimate.placed, positions);
     }

@@ -84,7 +84,8 @@ std::optional<Eigen::MatrixXd> mdsEmbedding(const MapProblem &problem, const std
         for (Eigen::Index i = 0; i < count; ++i) {
             const double t = static_cast<double>(i) / static_cast<double>(count);
             for (Eigen::Index k = 0; k < width; ++k) {
-                basis(i, k) = std::cos(3.14159265358979 * static_cast<double>(k + 1) * t + 0.3 * static_cast<double>(k));
+                basis(i, k) =
+                    std::cos(3.14159265358979 * static_cast<double>(k + 1) * t + 0.3 * static_cast<double>(k));
             }
         }
         const double shift = gram.cwiseAbs().rowwise().sum().maxCoeff() * 0.5;

@@ -28,7 +28,8 @@ MapProblem subProblem(const MapProblem &problem, const std::vector<uint32_t> &no
     }
     for (const MapLink &link : problem.links) {
         if (local[link.a] >= 0 && local[link.b] >= 0) {
-            sub.links.push_back(MapLink{static_cast<uint32_t>(local[link.a]), static_cast<uint32_t>(local[link.b]), link.range_m});
+            sub.links.push_back(
+                MapLink{static_cast<uint32_t>(local[link.a]), static_cast<uint32_t>(local[link.b]), link.range_m});
         }
     }
     sub.finish();
@@ -38,8 +39,8 @@ MapProblem subProblem(const MapProblem &problem, const std::vector<uint32_t> &no
 namespace {
 
 struct Patch {
-    std::vector<uint32_t> nodes;        // problem node numbers
-    std::vector<Vector2> position_m;    // local frame, same order
+    std::vector<uint32_t> nodes;     // problem node numbers
+    std::vector<Vector2> position_m; // local frame, same order
     std::vector<uint8_t> placed;
     double cost_per_link = 0.0;
     bool merged = false;
@@ -121,7 +122,8 @@ MapEstimate patchMap(const MapProblem &problem, const std::vector<uint32_t> &par
                     extra.emplace_back(into, other);
                 }
             }
-            std::stable_sort(extra.begin(), extra.end(), [](const auto &x, const auto &y) { return x.first > y.first; });
+            std::stable_sort(extra.begin(), extra.end(),
+                             [](const auto &x, const auto &y) { return x.first > y.first; });
             for (const auto &[into, other] : extra) {
                 if (nodes.size() >= params.min_patch_nodes) {
                     break;
@@ -185,8 +187,8 @@ MapEstimate patchMap(const MapProblem &problem, const std::vector<uint32_t> &par
                 continue;
             }
             if (shared >= params.min_shared &&
-                (shared > best_shared ||
-                 (shared == best_shared && best < patches.size() && patch.cost_per_link < patches[best].cost_per_link))) {
+                (shared > best_shared || (shared == best_shared && best < patches.size() &&
+                                          patch.cost_per_link < patches[best].cost_per_link))) {
                 best = i;
                 best_shared = shared;
             }

@@ -69,7 +69,8 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
         uint32_t node;
     };
     auto before = [](const Member &p, const Member &q) {
-        return p.cell_x != q.cell_x ? p.cell_x < q.cell_x : (p.cell_y != q.cell_y ? p.cell_y < q.cell_y : p.node < q.node);
+        return p.cell_x != q.cell_x ? p.cell_x < q.cell_x
+                                    : (p.cell_y != q.cell_y ? p.cell_y < q.cell_y : p.node < q.node);
     };
     std::vector<Member> members;
     members.reserve(problem.nodeCount());
@@ -96,7 +97,8 @@ void forEachCloseUnheardPair(const MapProblem &problem, const std::vector<uint8_
                 auto other = std::lower_bound(members.begin(), members.end(), key, before);
                 for (size_t i = first; i < end; ++i) {
                     const uint32_t a = members[i].node;
-                    for (auto it = other; it != members.end() && it->cell_x == key.cell_x && it->cell_y == key.cell_y; ++it) {
+                    for (auto it = other; it != members.end() && it->cell_x == key.cell_x && it->cell_y == key.cell_y;
+                         ++it) {
                         const uint32_t b = it->node;
                         if (b <= a) {
                             continue;
@@ -216,8 +218,7 @@ std::vector<std::vector<uint32_t>> mapComponents(const MapProblem &problem)
         std::sort(part.begin(), part.end());
         parts.push_back(std::move(part));
     }
-    std::stable_sort(parts.begin(), parts.end(),
-                     [](const auto &x, const auto &y) { return x.size() > y.size(); });
+    std::stable_sort(parts.begin(), parts.end(), [](const auto &x, const auto &y) { return x.size() > y.size(); });
     return parts;
 }
 

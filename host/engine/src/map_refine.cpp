@@ -254,8 +254,8 @@ public:
                     const auto first = static_cast<size_t>(column_start_[static_cast<size_t>(low * dims + j)] +
                                                            (dims - j) + index * dims);
                     for (Eigen::Index i = 0; i < dims; ++i) {
-                        values_[first + static_cast<size_t>(i)] += -(term.weight * term.u[static_cast<size_t>(i)] *
-                                                                    term.u[static_cast<size_t>(j)]);
+                        values_[first + static_cast<size_t>(i)] +=
+                            -(term.weight * term.u[static_cast<size_t>(i)] * term.u[static_cast<size_t>(j)]);
                     }
                 }
             }
@@ -504,8 +504,9 @@ MapRefineResult refineMap(const MapProblem &problem, MapEstimate &estimate, cons
     MapRefineResult result;
     for (size_t stage = 0; stage < params.stages.size(); ++stage) {
         const bool last = stage + 1 == params.stages.size();
-        const MapRefineResult part = refineEmbedding(problem, estimate.placed, positions, likelihood, {params.stages[stage]},
-                                                     params.iterations_per_stage * (last ? 3U : 1U), 0.0, params);
+        const MapRefineResult part =
+            refineEmbedding(problem, estimate.placed, positions, likelihood, {params.stages[stage]},
+                            params.iterations_per_stage * (last ? 3U : 1U), 0.0, params);
         result.iterations += part.iterations;
         result.refused += part.refused;
     }
@@ -663,8 +664,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     if (out.gauge_free) {
         Eigen::HouseholderQR<Eigen::MatrixXd> qr(gauge);
         const Eigen::MatrixXd basis = qr.householderQ() * Eigen::MatrixXd::Identity(size, 3);
-        const Eigen::MatrixXd xg = inverse * basis;           // X G
-        const Eigen::Matrix3d gxg = basis.transpose() * xg;   // G^T X G
+        const Eigen::MatrixXd xg = inverse * basis;         // X G
+        const Eigen::Matrix3d gxg = basis.transpose() * xg; // G^T X G
         inverse = inverse - basis * xg.transpose() - xg * basis.transpose() + basis * gxg * basis.transpose();
     }
     inverse = 0.5 * (inverse + inverse.transpose());
@@ -778,7 +779,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             for (size_t k = 0; k < unknown_nodes.size(); ++k) {
                 column[unknown_nodes[k]] = static_cast<int>(k);
             }
-            Eigen::MatrixXd spread_effect = Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
+            Eigen::MatrixXd spread_effect =
+                Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
             for (uint32_t index = 0; index < problem.links.size(); ++index) {
                 const LinkJacobian &j = jacobians[index];
                 const MapLink &link = problem.links[index];
@@ -795,8 +797,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             }
             const double spread_m2 = model_error.height_spread_m * model_error.height_spread_m;
             // A model error in m^2, not scaled by the variance factor the covariance gets below.
-            sandwich.noalias() += spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0) * spread_effect *
-                                  spread_effect.transpose();
+            sandwich.noalias() +=
+                spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0) * spread_effect * spread_effect.transpose();
         }
     }
     // The main part: the largest group of nodes joined by links that other links check (and
@@ -827,8 +829,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             }
         }
     }
-    const auto main_group = static_cast<uint32_t>(
-        std::max_element(group_size.begin(), group_size.end()) - group_size.begin());
+    const auto main_group =
+        static_cast<uint32_t>(std::max_element(group_size.begin(), group_size.end()) - group_size.begin());
     out.main_part.assign(problem.nodeCount(), 0);
     for (uint32_t node : free_nodes) {
         out.main_part[node] = group[node] == main_group ? 1 : 0;

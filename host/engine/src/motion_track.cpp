@@ -48,8 +48,9 @@ bool MotionTrack::updateRange(const Vector2 &anchor_m, const Matrix2 &anchor_cov
     Eigen::RowVector4d h = Eigen::RowVector4d::Zero();
     h(0) = prediction.jacobian_point(0);
     h(1) = prediction.jacobian_point(1);
-    const double noise = sigma_m * sigma_m + (prediction.jacobian_point * anchor_covariance_m2 *
-                                              prediction.jacobian_point.transpose()).value();
+    const double noise =
+        sigma_m * sigma_m +
+        (prediction.jacobian_point * anchor_covariance_m2 * prediction.jacobian_point.transpose()).value();
     const Eigen::Vector4d ph = covariance_ * h.transpose();
     const double variance = (h * ph).value() + noise;
     const double innovation = range_m - prediction.range_m;

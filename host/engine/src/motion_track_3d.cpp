@@ -303,7 +303,8 @@ void FlightTracks::keepInside(uint32_t node)
         const auto [mean_t, variance_t] = truncatedMoments(state_(i), sigma, room_lo_m_(axis), room_hi_m_(axis));
         const Eigen::VectorXd column = covariance_.col(i);
         state_ += column * ((mean_t - state_(i)) / variance);
-        covariance_ -= (column * column.transpose()) * ((variance - std::min(variance_t, variance)) / (variance * variance));
+        covariance_ -=
+            (column * column.transpose()) * ((variance - std::min(variance_t, variance)) / (variance * variance));
         covariance_ = 0.5 * (covariance_ + covariance_.transpose());
         touched = true;
     }

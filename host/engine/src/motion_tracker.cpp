@@ -68,7 +68,8 @@ bool MotionTracker::change(MapState &map, SogBank &sogs, uint32_t node, bool mov
     return true;
 }
 
-bool MotionTracker::watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m, const Trace &trace)
+bool MotionTracker::watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m,
+                          const Trace &trace)
 {
     // The fallback detector: a node without motion reports moves when several of its recent
     // ranges, on different links, read far from the map (one NLOS link reads far on one link).
@@ -122,7 +123,8 @@ void MotionTracker::track(MapState &map, uint32_t moving_node, uint32_t anchor_n
     // At rest (settling) only a little jitter is allowed, not walking.
     state.track->predict(t_s, state.settling() ? 0.05 : params_.track_accel_sigma_mps2);
     const Matrix2 anchor_covariance = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
-    if (state.track->updateRange(anchor.position_m, anchor_covariance, range_m, range_sigma_m_, likelihood_, gate_sigma_)) {
+    if (state.track->updateRange(anchor.position_m, anchor_covariance, range_m, range_sigma_m_, likelihood_,
+                                 gate_sigma_)) {
         state.track->limitSpeed(params_.track_max_speed_mps);
         ++counters_.track_updates;
     } else {

@@ -121,7 +121,10 @@ const RobotFilter &MovementStage::best() const
     return hypotheses_[index].filter;
 }
 
-RobotFilter &MovementStage::best() { return const_cast<RobotFilter &>(static_cast<const MovementStage *>(this)->best()); }
+RobotFilter &MovementStage::best()
+{
+    return const_cast<RobotFilter &>(static_cast<const MovementStage *>(this)->best());
+}
 
 void MovementStage::addOdometry(double t_s, const OdometryStep &step)
 {
@@ -290,7 +293,8 @@ void MovementStage::normaliseHypotheses()
             // Closer than their own uncertainty (or the fixed thresholds): the same hypothesis.
             const Eigen::Matrix3d &p = hypotheses_[i].filter.poseCovariance();
             const Matrix2 position_covariance = p.topLeftCorner<2, 2>();
-            const double position_sigma = std::sqrt(std::max(position_covariance.trace() - minEigenvalue(position_covariance), 0.0));
+            const double position_sigma =
+                std::sqrt(std::max(position_covariance.trace() - minEigenvalue(position_covariance), 0.0));
             const double heading_sigma = std::sqrt(std::max(p(2, 2), 0.0));
             if (hypotheses_[i].filter.mirrored() == hypotheses_[j].filter.mirrored() &&
                 std::hypot(a.x_m - b.x_m, a.y_m - b.y_m) < std::max(params_.heading_merge_m, 3.0 * position_sigma) &&
@@ -326,8 +330,9 @@ void MovementStage::normaliseHypotheses()
         const bool decided = kept.size() == 1 && hypotheses_.size() > 1;
         hypotheses_ = std::move(kept);
         if (decided) {
-            trace(std::string("robot heading decided: ") + std::to_string(hypotheses_.front().filter.pose().heading_rad) +
-                  " rad" + (hypotheses_.front().filter.mirrored() ? ", the map is the world's mirror image" : ""));
+            trace(std::string("robot heading decided: ") +
+                  std::to_string(hypotheses_.front().filter.pose().heading_rad) + " rad" +
+                  (hypotheses_.front().filter.mirrored() ? ", the map is the world's mirror image" : ""));
         }
     }
     if (hypotheses_.size() == 1) {
@@ -335,8 +340,9 @@ void MovementStage::normaliseHypotheses()
     }
 }
 
-void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2,
-                                    bool from_robot, double range_m, double height_difference_m)
+void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &centre_m,
+                                    const Matrix2 &centre_covariance_m2, bool from_robot, double range_m,
+                                    double height_difference_m)
 {
     const RobotFilter &filter = best();
     const double scale = filter.scale();
@@ -348,9 +354,8 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &ce
             return; // rings start around the robot; the map's nodes then help decide between them
         }
         // A ring around the robot, of the range corrected by the current calibration.
-        const double radius = std::sqrt(std::max(std::pow((range_m - offset) / scale, 2.0) -
-                                                     height_difference_m * height_difference_m,
-                                                 0.0));
+        const double radius = std::sqrt(
+            std::max(std::pow((range_m - offset) / scale, 2.0) - height_difference_m * height_difference_m, 0.0));
         const uint32_t count = std::max<uint32_t>(
             params_.beacon_min_components,
             static_cast<uint32_t>(std::floor(kTwoPi * radius / std::max(params_.beacon_arc_spacing_m, 0.05))) + 1U);
@@ -413,8 +418,8 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &ce
     (void)id;
 }
 
-void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2, bool from_robot,
-                                 double range_m, double height_difference_m)
+void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2,
+                                 bool from_robot, double range_m, double height_difference_m)
 {
     BeaconSog &sog = beacons_[id];
     updateBeaconSog(id, sog, centre_m, centre_covariance_m2, from_robot, range_m, height_difference_m);
@@ -479,8 +484,8 @@ RangeVerdict MovementStage::addRange(NodeId from, NodeId to, double range_m, dou
             }
             const RobotFilter &filter = best();
             const Pose2 pose = filter.pose();
-            updateBeacon(other, Vector2(pose.x_m, pose.y_m), filter.poseCovariance().topLeftCorner<2, 2>(), true, range_m,
-                         dz);
+            updateBeacon(other, Vector2(pose.x_m, pose.y_m), filter.poseCovariance().topLeftCorner<2, 2>(), true,
+                         range_m, dz);
             return verdict;
         }
         if (hypotheses_.size() == 1 &&
@@ -607,10 +612,7 @@ void MovementStage::restore(const Saved &saved)
     revision_ = saved.revision;
 }
 
-const char *robotFrameName(RobotFrame frame)
-{
-    return frame == RobotFrame::Map ? "map" : "odometry";
-}
+const char *robotFrameName(RobotFrame frame) { return frame == RobotFrame::Map ? "map" : "odometry"; }
 
 std::optional<RobotOutput> MovementStage::robot() const
 {

@@ -7,8 +7,8 @@
 namespace cdro::engine {
 
 std::vector<PlacementCandidate> placementCandidates(const std::vector<RangeConstraint> &constraints,
-                                                    const RangeLikelihood &likelihood,
-                                                    const PointSolverParams &solver, const PlacementParams &params)
+                                                    const RangeLikelihood &likelihood, const PointSolverParams &solver,
+                                                    const PlacementParams &params)
 {
     std::vector<PlacementCandidate> solutions;
     const size_t count = constraints.size();
@@ -150,7 +150,8 @@ std::optional<FrameTriangle> chooseFrameTriangle(const MapState &network, const 
             // The longest side is the baseline p0-p1; p0 is its better-connected end.
             std::array<std::array<uint32_t, 3>, 3> orders{{{a, b, c}, {a, c, b}, {b, c, a}}};
             const std::array<double, 3> lengths{ab.representative_m, ac, bc};
-            const size_t longest = static_cast<size_t>(std::max_element(lengths.begin(), lengths.end()) - lengths.begin());
+            const size_t longest =
+                static_cast<size_t>(std::max_element(lengths.begin(), lengths.end()) - lengths.begin());
             auto [p0, p1, p2] = orders[longest];
             if (network.nodes[p1].links.size() > network.nodes[p0].links.size()) {
                 std::swap(p0, p1);

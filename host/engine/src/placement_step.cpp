@@ -114,7 +114,8 @@ bool PlacementStep::placeByHandedness(MapState &map, const std::vector<uint32_t>
         if (constraints.size() < 2) {
             continue;
         }
-        for (const PlacementCandidate &candidate : placementCandidates(constraints, likelihood_, solver_, params_.placement)) {
+        for (const PlacementCandidate &candidate :
+             placementCandidates(constraints, likelihood_, solver_, params_.placement)) {
             const Vector2 offset = candidate.position_m - fixed[0];
             if (axis.x() * offset.y() - axis.y() * offset.x() > 0.0) {
                 if (trace) {

@@ -21,7 +21,8 @@ double logErfc(double x)
         return std::log(std::erfc(x));
     }
     const double inv2 = 1.0 / (x * x);
-    return -x * x - std::log(x) - kLogSqrtPi + std::log1p(-0.5 * inv2 + 0.75 * inv2 * inv2 - 1.875 * inv2 * inv2 * inv2);
+    return -x * x - std::log(x) - kLogSqrtPi +
+           std::log1p(-0.5 * inv2 + 0.75 * inv2 * inv2 - 1.875 * inv2 * inv2 * inv2);
 }
 
 // log EMG(e; S, rate): the density of X + n, X ~ Exp(rate), n ~ N(0, S).
@@ -140,7 +141,7 @@ RangeLikelihood::Terms RangeLikelihood::terms(double e, double variance) const
 ResidualEvaluation RangeLikelihood::evaluate(double residual_m, double variance_m2) const
 {
     const double variance = variance_m2 > 1e-12 ? variance_m2 : 1e-12; // also for NaN
-    const double e = std::clamp(residual_m, -1e150, 1e150); // e^2 stays finite
+    const double e = std::clamp(residual_m, -1e150, 1e150);            // e^2 stays finite
     ResidualEvaluation result;
     if (!params_.robust) {
         result.log_density = -0.5 * e * e / variance - 0.5 * std::log(variance) - kLogSqrtTwoPi;

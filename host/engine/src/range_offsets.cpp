@@ -12,12 +12,12 @@ namespace cdro::engine {
 
 namespace {
 
-constexpr double kCommonMinM = -0.3;    // m, the common part searched (radios read long, rarely short)
-constexpr double kCommonMaxM = 1.5;     // m
-constexpr uint32_t kGoldenSteps = 8;    // the common part to (1.8 m) 0.618^8 = 0.04 m
-constexpr uint32_t kRounds = 6;         // map and offsets in turn, per common part
+constexpr double kCommonMinM = -0.3;      // m, the common part searched (radios read long, rarely short)
+constexpr double kCommonMaxM = 1.5;       // m
+constexpr uint32_t kGoldenSteps = 8;      // the common part to (1.8 m) 0.618^8 = 0.04 m
+constexpr uint32_t kRounds = 6;           // map and offsets in turn, per common part
 constexpr uint32_t kOffsetIterations = 3; // IRLS steps of the offsets per round
-constexpr double kNatsPerOffset = 2.0;  // nats an offset must earn to be adopted
+constexpr double kNatsPerOffset = 2.0;    // nats an offset must earn to be adopted
 constexpr double kGoldenRatio = 0.6180339887498949;
 
 struct Trial {
@@ -103,7 +103,8 @@ Trial tryCommon(const MapProblem &problem, const MapEstimate &start, const Range
     double prior_nats = 0.0;
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (start.placed[node] != 0) {
-            prior_nats += 0.5 * deviation[node] * deviation[node] / (kRangeOffsetSpreadSigmaM * kRangeOffsetSpreadSigmaM);
+            prior_nats +=
+                0.5 * deviation[node] * deviation[node] / (kRangeOffsetSpreadSigmaM * kRangeOffsetSpreadSigmaM);
         }
     }
     trial.cost_nats = mapCost(withRangeOffsets(problem, trial.offset_m), trial.estimate, likelihood) + prior_nats;
@@ -121,7 +122,8 @@ MapProblem withRangeOffsets(const MapProblem &problem, const std::vector<double>
     return corrected;
 }
 
-RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate &start, const RangeLikelihood &likelihood)
+RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate &start,
+                                   const RangeLikelihood &likelihood)
 {
     RangeOffsets out;
     out.estimate = start;

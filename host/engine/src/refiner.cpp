@@ -42,7 +42,8 @@ Refinement Refiner::refine(MapState &map, uint32_t node, const Gaussian2 &merged
     // The SoG may hold a better hypothesis than the current basin (a flip): try it.
     if (ring_count > 0 && (merged.mean_m - state.position_m).norm() > params_.hypothesis_switch_m) {
         std::vector<double> alternative_inliers;
-        const PointSolution alternative = solvePoint(constraints, merged.mean_m, likelihood_, solver_, &alternative_inliers);
+        const PointSolution alternative =
+            solvePoint(constraints, merged.mean_m, likelihood_, solver_, &alternative_inliers);
         if (alternative.well_posed && alternative.cost + params_.switch_gap_nats < solution.cost) {
             solution = alternative;
             inliers = alternative_inliers;
@@ -64,9 +65,10 @@ Refinement Refiner::refine(MapState &map, uint32_t node, const Gaussian2 &merged
         const double residual = constraints[i].range_m - (out.position_m - constraints[i].anchor_m).norm();
         inconsistent += std::abs(residual) > inconsistent_m ? 1U : 0U;
     }
-    out.inconsistent = !tracked && inconsistent >= 2 &&
-                       static_cast<double>(inconsistent) > params_.inconsistent_fraction * static_cast<double>(constraints.size()) &&
-                       state.placements < params_.max_placements;
+    out.inconsistent =
+        !tracked && inconsistent >= 2 &&
+        static_cast<double>(inconsistent) > params_.inconsistent_fraction * static_cast<double>(constraints.size()) &&
+        state.placements < params_.max_placements;
     return out;
 }
 

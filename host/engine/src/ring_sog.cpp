@@ -71,9 +71,8 @@ void RingSog::collectActive(bool full)
     }
 }
 
-RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix2 &center_covariance_m2,
-                                           double range_m, double range_sigma_m, double gate_sigma,
-                                           double process_noise_m2, bool full)
+RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix2 &center_covariance_m2, double range_m,
+                                           double range_sigma_m, double gate_sigma, double process_noise_m2, bool full)
 {
     RangeUpdateResult result;
     const double noise_variance = range_sigma_m * range_sigma_m;
@@ -109,9 +108,8 @@ RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix
     return result;
 }
 
-WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witnesses,
-                                          const RangeLikelihood &likelihood, double range_sigma_m, bool full,
-                                          bool allow_reset)
+WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witnesses, const RangeLikelihood &likelihood,
+                                          double range_sigma_m, bool full, bool allow_reset)
 {
     WeightUpdateResult result;
     if (witnesses.empty() || components_.empty()) {
@@ -240,10 +238,7 @@ void RingSog::applyRigid(const Matrix2 &rotation, const Vector2 &translation_m)
     refreshMoments();
 }
 
-void RingSog::refreshMoments()
-{
-    moments_stale_ = true;
-}
+void RingSog::refreshMoments() { moments_stale_ = true; }
 
 void RingSog::computeMoments() const
 {
@@ -267,8 +262,8 @@ void RingSog::accumulateMoments(Vector2 *first_m, Matrix2 *second_m2, double *to
     }
     // Shift the cached moments (relative to the offset) to absolute: m = r + o.
     *first_m += first_moment_m_ + offset_m_;
-    *second_m2 += second_moment_m2_ + first_moment_m_ * offset_m_.transpose() + offset_m_ * first_moment_m_.transpose() +
-                  offset_m_ * offset_m_.transpose();
+    *second_m2 += second_moment_m2_ + first_moment_m_ * offset_m_.transpose() +
+                  offset_m_ * first_moment_m_.transpose() + offset_m_ * offset_m_.transpose();
     *total += 1.0;
 }
 

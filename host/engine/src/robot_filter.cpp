@@ -75,7 +75,8 @@ void RobotFilter::predict(const OdometryStep &odometry, double dt_s, const Robot
     covariance_.topRows<3>() = pose_rows;
     const Eigen::MatrixXd pose_cols = covariance_.leftCols<3>() * f.transpose();
     covariance_.leftCols<3>() = pose_cols;
-    covariance_.topLeftCorner<3, 3>() += prediction.jacobian_step * step_covariance * prediction.jacobian_step.transpose();
+    covariance_.topLeftCorner<3, 3>() +=
+        prediction.jacobian_step * step_covariance * prediction.jacobian_step.transpose();
     if (!scale_fixed_) {
         covariance_(kScale, kScale) += noise.scale_walk_per_sqrt_s * noise.scale_walk_per_sqrt_s * dt;
     }
@@ -162,7 +163,8 @@ RangeUpdateOutcome RobotFilter::scalarUpdate(const Eigen::VectorXd &h, double in
     const ResidualEvaluation evaluation = likelihood.evaluate(innovation, outcome.variance_m2);
     outcome.log_likelihood = evaluation.log_density;
     outcome.inlier_probability = evaluation.inlier_probability;
-    if (innovation * innovation > gate_sigma * gate_sigma * outcome.variance_m2 && evaluation.inlier_probability < 0.01) {
+    if (innovation * innovation > gate_sigma * gate_sigma * outcome.variance_m2 &&
+        evaluation.inlier_probability < 0.01) {
         outcome.gated = true;
         return outcome;
     }
@@ -202,8 +204,7 @@ RangeUpdateOutcome RobotFilter::updateRobotRange(NodeId node, double range_m, do
     // Element by element: gcc 12 sees a possible null in fixed-size views of a dynamic vector.
     const Vector2 robot(state_(kPose), state_(kPose + 1));
     const Vector2 target(state_(slot), state_(slot + 1));
-    const ScaledRangePrediction prediction =
-        predictScaledRange(robot, target, height_difference_m, scale(), offset());
+    const ScaledRangePrediction prediction = predictScaledRange(robot, target, height_difference_m, scale(), offset());
     if (prediction.singular) {
         return {};
     }

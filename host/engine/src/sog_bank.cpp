@@ -39,8 +39,8 @@ void SogBank::ensureRings(MapState &map, uint32_t node)
                 continue;
             }
             const uint32_t slot = newSlot(map);
-            map.rings[slot] = RingSog::generate(map.nodes[center].id, map.nodes[target].id, map.nodes[center].position_m,
-                                                map.links[link].representative_m, ring_);
+            map.rings[slot] = RingSog::generate(map.nodes[center].id, map.nodes[target].id,
+                                                map.nodes[center].position_m, map.links[link].representative_m, ring_);
             map.ringSlot(link, center) = slot;
             reweight(map, link, center, map.links[link].representative_m, true);
         }
@@ -108,8 +108,7 @@ void SogBank::update(MapState &map, uint32_t link, uint32_t center_node, double 
     // re-weighting was half of the per-range time at PLANT's size (docs/bench.md), for weights
     // that no longer move; a young ring (a new link, or one generated again after its node moved)
     // takes every range.
-    if (ring.updateCount() >= kSettledRingUpdates && !full &&
-        ring.updateCount() % kSettledReweightEvery != 0) {
+    if (ring.updateCount() >= kSettledRingUpdates && !full && ring.updateCount() % kSettledReweightEvery != 0) {
         ++counters_.weight_updates_deferred;
         return;
     }
@@ -136,7 +135,8 @@ void SogBank::reweight(MapState &map, uint32_t link, uint32_t center_node, doubl
             if (other == center_node || !witness.placed() || witness.moving()) {
                 continue;
             }
-            witnesses.push_back(RangeWitness{witness.position_m, witness.fixed() ? Matrix2::Zero() : witness.covariance_m2,
+            witnesses.push_back(RangeWitness{witness.position_m,
+                                             witness.fixed() ? Matrix2::Zero() : witness.covariance_m2,
                                              map.links[other_link].representative_m});
         }
     } else {
@@ -148,7 +148,8 @@ void SogBank::reweight(MapState &map, uint32_t link, uint32_t center_node, doubl
         return;
     }
     RingSog &ring = map.rings[slot];
-    const WeightUpdateResult weights = ring.updateWeights(witnesses, likelihood_, range_sigma_m_, full, sog_.collapse_reset);
+    const WeightUpdateResult weights =
+        ring.updateWeights(witnesses, likelihood_, range_sigma_m_, full, sog_.collapse_reset);
     counters_.weight_terms += witnesses.size();
     counters_.weight_terms_downweighted += weights.downweighted;
     counters_.weight_collapses += weights.collapsed ? 1U : 0U;

@@ -39,8 +39,9 @@ bool makeRange(const csv::Row &fields, RangeRow &row)
 
 const csv::Format &rangesFormat()
 {
-    static const csv::Format format{
-        {"from", "to", "range_m"}, {"t"}, {{"from", "to", "range_m"}, {"t", "from", "to", "range_m"}}};
+    static const csv::Format format{{"from", "to", "range_m"},
+                                    {"t"},
+                                    {{"from", "to", "range_m"}, {"t", "from", "to", "range_m"}}};
     return format;
 }
 

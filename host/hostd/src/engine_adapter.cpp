@@ -35,8 +35,7 @@ private:
 
 class ByteReader {
 public:
-    explicit ByteReader(const std::vector<uint8_t> &bytes, const char *block = "engine")
-        : bytes_(bytes), block_(block)
+    explicit ByteReader(const std::vector<uint8_t> &bytes, const char *block = "engine") : bytes_(bytes), block_(block)
     {
     }
     uint8_t u8() { return static_cast<uint8_t>(get(1)); }
@@ -76,17 +75,44 @@ uint16_t saturate16(uint64_t value) { return value > 0xFFFFU ? 0xFFFFU : static_
 // The counters, in one fixed order (append only).
 std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
 {
-    return {&c.intake.ranges_received, &c.ranges_used, &c.ranges_stored, &c.intake.rejected_self,
-            &c.intake.rejected_value, &c.intake.projection_clamped, &c.sogs.ekf_component_updates, &c.sogs.ekf_gated,
-            &c.sogs.weight_terms, &c.sogs.weight_terms_downweighted, &c.sogs.weight_collapses,
-            &c.sogs.weight_transfers, &c.sogs.motion_resets, &c.placement.placements,
-            &c.placement.placement_ambiguous, &c.placement.placements_forced, &c.placement.replacements,
-            &c.refinement.refinements, &c.refinement.links_downweighted, &c.refinement.hypothesis_switches,
-            &c.node_updates, &c.relaxations, &c.solve.solves, &c.solve.solves_adopted, &c.solve.solve_starts,
-            &c.solve.solve_escapes, &c.solve.solve_placed, &c.convergence.assessments,
-            &c.convergence.ambiguous_nodes, &c.convergence.foldable_nodes, &c.convergence.flexible_nodes,
-            &c.motion.motion_starts, &c.motion.motion_stops, &c.motion.motion_inferred, &c.motion.track_updates,
-            &c.motion.track_refused, &c.solve.solve_refreshes, &c.solve.offsets_adopted,
+    return {&c.intake.ranges_received,
+            &c.ranges_used,
+            &c.ranges_stored,
+            &c.intake.rejected_self,
+            &c.intake.rejected_value,
+            &c.intake.projection_clamped,
+            &c.sogs.ekf_component_updates,
+            &c.sogs.ekf_gated,
+            &c.sogs.weight_terms,
+            &c.sogs.weight_terms_downweighted,
+            &c.sogs.weight_collapses,
+            &c.sogs.weight_transfers,
+            &c.sogs.motion_resets,
+            &c.placement.placements,
+            &c.placement.placement_ambiguous,
+            &c.placement.placements_forced,
+            &c.placement.replacements,
+            &c.refinement.refinements,
+            &c.refinement.links_downweighted,
+            &c.refinement.hypothesis_switches,
+            &c.node_updates,
+            &c.relaxations,
+            &c.solve.solves,
+            &c.solve.solves_adopted,
+            &c.solve.solve_starts,
+            &c.solve.solve_escapes,
+            &c.solve.solve_placed,
+            &c.convergence.assessments,
+            &c.convergence.ambiguous_nodes,
+            &c.convergence.foldable_nodes,
+            &c.convergence.flexible_nodes,
+            &c.motion.motion_starts,
+            &c.motion.motion_stops,
+            &c.motion.motion_inferred,
+            &c.motion.track_updates,
+            &c.motion.track_refused,
+            &c.solve.solve_refreshes,
+            &c.solve.offsets_adopted,
             &c.sogs.weight_updates_deferred};
 }
 
@@ -170,7 +196,8 @@ void EngineAdapter::onOdometry(const service::OdometryMessage &message)
 void EngineAdapter::fill(service::MapState &map) const
 {
     map.nodes.clear();
-    const std::vector<engine::NodeOutput> estimates = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
+    const std::vector<engine::NodeOutput> estimates =
+        movement_ != nullptr ? movement_->estimates() : engine_.estimates();
     for (const engine::NodeOutput &node : estimates) {
         if (node.link_count == 0 && !node.fixed()) {
             continue;
@@ -329,9 +356,9 @@ Eigen::VectorXd vectorFrom(const std::vector<double> &values)
 // The movement counters, in one fixed order (append only).
 std::vector<uint64_t *> movementCounterFields(engine::MovementCounters &c)
 {
-    return {&c.odometry_steps, &c.robot_ranges,  &c.ekf_updates,       &c.ekf_gated,
-            &c.nodes_inserted, &c.nodes_removed, &c.beacon_sogs,       &c.hypotheses_pruned,
-            &c.nlos_link_ranges_skipped};
+    return {&c.odometry_steps, &c.robot_ranges,      &c.ekf_updates,
+            &c.ekf_gated,      &c.nodes_inserted,    &c.nodes_removed,
+            &c.beacon_sogs,    &c.hypotheses_pruned, &c.nlos_link_ranges_skipped};
 }
 
 } // namespace
@@ -555,16 +582,15 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
     for (const engine::NodeState &node : network.nodes) {
         cdro_sog_node_t out{};
         out.id = node.id;
-        out.flags = static_cast<uint8_t>((node.placed() ? CDRO_SOG_NODE_PLACED : 0) |
-                                         (node.converged() ? CDRO_SOG_NODE_CONVERGED : 0) |
-                                         (node.moving() ? CDRO_SOG_NODE_MOVING : 0) |
-                                         (node.fixed() ? CDRO_SOG_NODE_FIXED : 0) |
-                                         (node.height_m ? CDRO_SOG_NODE_HEIGHT_KNOWN : 0));
+        out.flags = static_cast<uint8_t>(
+            (node.placed() ? CDRO_SOG_NODE_PLACED : 0) | (node.converged() ? CDRO_SOG_NODE_CONVERGED : 0) |
+            (node.moving() ? CDRO_SOG_NODE_MOVING : 0) | (node.fixed() ? CDRO_SOG_NODE_FIXED : 0) |
+            (node.height_m ? CDRO_SOG_NODE_HEIGHT_KNOWN : 0));
         out.x_mm = cdro_fixed_mm_from_m(node.position_m.x());
         out.y_mm = cdro_fixed_mm_from_m(node.position_m.y());
         out.z_mm = cdro_fixed_mm_from_m(node.height_m.value_or(0.0));
-        const cdro_fixed_covariance_t covariance = cdro_fixed_covariance_from(
-            node.covariance_m2(0, 0), node.covariance_m2(0, 1), node.covariance_m2(1, 1));
+        const cdro_fixed_covariance_t covariance =
+            cdro_fixed_covariance_from(node.covariance_m2(0, 0), node.covariance_m2(0, 1), node.covariance_m2(1, 1));
         out.std_x_um = covariance.std_x_um;
         out.std_y_um = covariance.std_y_um;
         out.correlation_q15 = covariance.correlation_q15;
@@ -598,7 +624,8 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.u8(static_cast<uint8_t>((node.motion.reports ? 1U : 0U) | (node.motion.reported_moving ? 2U : 0U) |
                                       (node.motion.inferred ? 4U : 0U)));
         const engine::NodeSolveView &solve = node.solve;
-        block.u8(static_cast<uint8_t>((solve.solved ? 1U : 0U) | (solve.disputed ? 2U : 0U) | (solve.main_part ? 4U : 0U)));
+        block.u8(
+            static_cast<uint8_t>((solve.solved ? 1U : 0U) | (solve.disputed ? 2U : 0U) | (solve.main_part ? 4U : 0U)));
         block.u64(bitsOf(solve.position_m.x()));
         block.u64(bitsOf(solve.position_m.y()));
         block.u64(bitsOf(solve.covariance_m2(0, 0)));
@@ -642,8 +669,9 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
             cdro_sog_component_t out{};
             out.x_mm = cdro_fixed_mm_from_m(component.mean_m.x());
             out.y_mm = cdro_fixed_mm_from_m(component.mean_m.y());
-            const cdro_fixed_covariance_t covariance = cdro_fixed_covariance_from(
-                component.covariance_m2(0, 0), component.covariance_m2(0, 1), component.covariance_m2(1, 1));
+            const cdro_fixed_covariance_t covariance =
+                cdro_fixed_covariance_from(component.covariance_m2(0, 0), component.covariance_m2(0, 1),
+                                           component.covariance_m2(1, 1));
             out.std_x_um = covariance.std_x_um;
             out.std_y_um = covariance.std_y_um;
             out.correlation_q15 = covariance.correlation_q15;
@@ -708,7 +736,8 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         node.update_count = block.u32();
         node.role = enumOf<engine::NodeRole>(block.u8(), static_cast<uint8_t>(engine::NodeRole::Pinned), "role");
         node.lifecycle =
-            enumOf<engine::NodeLifecycle>(block.u8(), static_cast<uint8_t>(engine::NodeLifecycle::Settling), "lifecycle");
+            enumOf<engine::NodeLifecycle>(block.u8(), static_cast<uint8_t>(engine::NodeLifecycle::Settling),
+                                          "lifecycle");
         node.doubt = enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt");
         state.structural_doubts.push_back(
             enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt"));

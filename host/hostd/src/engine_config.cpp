@@ -33,14 +33,26 @@ template <typename Params> struct Key {
     uint16_t *(*id)(Params &);
 };
 
-#define CDRO_REAL(G, N, MIN, MAX, FIELD) \
-    Key<P>{G, N, Key<P>::Kind::Real, MIN, MAX, [](P &p) { return &p.FIELD; }, nullptr, nullptr, nullptr}
-#define CDRO_COUNT(G, N, MIN, MAX, FIELD) \
-    Key<P>{G, N, Key<P>::Kind::Count, MIN, MAX, nullptr, [](P &p) { return &p.FIELD; }, nullptr, nullptr}
-#define CDRO_FLAG(G, N, FIELD) \
-    Key<P>{G, N, Key<P>::Kind::Flag, 0, 1, nullptr, nullptr, [](P &p) { return &p.FIELD; }, nullptr}
-#define CDRO_ID(G, N, FIELD) \
-    Key<P>{G, N, Key<P>::Kind::Id, 0, 65535, nullptr, nullptr, nullptr, [](P &p) { return &p.FIELD; }}
+#define CDRO_REAL(G, N, MIN, MAX, FIELD)                                                             \
+    Key<P>                                                                                           \
+    {                                                                                                \
+        G, N, Key<P>::Kind::Real, MIN, MAX, [](P &p) { return &p.FIELD; }, nullptr, nullptr, nullptr \
+    }
+#define CDRO_COUNT(G, N, MIN, MAX, FIELD)                                                             \
+    Key<P>                                                                                            \
+    {                                                                                                 \
+        G, N, Key<P>::Kind::Count, MIN, MAX, nullptr, [](P &p) { return &p.FIELD; }, nullptr, nullptr \
+    }
+#define CDRO_FLAG(G, N, FIELD)                                                                   \
+    Key<P>                                                                                       \
+    {                                                                                            \
+        G, N, Key<P>::Kind::Flag, 0, 1, nullptr, nullptr, [](P &p) { return &p.FIELD; }, nullptr \
+    }
+#define CDRO_ID(G, N, FIELD)                                                                       \
+    Key<P>                                                                                         \
+    {                                                                                              \
+        G, N, Key<P>::Kind::Id, 0, 65535, nullptr, nullptr, nullptr, [](P &p) { return &p.FIELD; } \
+    }
 
 const std::vector<Key<engine::EngineParams>> &engineKeys()
 {
@@ -168,8 +180,8 @@ const std::vector<Key<engine::MovementParams>> &movementKeys()
 // Reads every key of `keys` under the top section `top` of root, group by group, rejecting
 // keys (and groups) that are not in the table.
 template <typename Params>
-void parseKeys(const YAML::Node &root, const char *top, const std::string &origin,
-               const std::vector<Key<Params>> &keys, Params &params)
+void parseKeys(const YAML::Node &root, const char *top, const std::string &origin, const std::vector<Key<Params>> &keys,
+               Params &params)
 {
     Section top_section(root[top], top, origin);
     std::vector<std::string> groups;
@@ -195,9 +207,7 @@ void parseKeys(const YAML::Node &root, const char *top, const std::string &origi
                 section.read<uint32_t>(key.name, *key.count(params), static_cast<uint32_t>(key.minimum),
                                        static_cast<uint32_t>(key.maximum));
                 break;
-            case Key<Params>::Kind::Flag:
-                section.readBool(key.name, *key.flag(params));
-                break;
+            case Key<Params>::Kind::Flag: section.readBool(key.name, *key.flag(params)); break;
             case Key<Params>::Kind::Id: {
                 int64_t value = *key.id(params);
                 section.read<int64_t>(key.name, value, 0, 65535);
@@ -292,7 +302,10 @@ engine::MovementParams parseMovementParams(const YAML::Node &root, const std::st
     return params;
 }
 
-std::string movementParamsYaml(const engine::MovementParams &params) { return emitKeys("movement", movementKeys(), params); }
+std::string movementParamsYaml(const engine::MovementParams &params)
+{
+    return emitKeys("movement", movementKeys(), params);
+}
 
 engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string &origin)
 {
@@ -410,14 +423,16 @@ void applySwitches(engine::EngineParams &params, const EngineOverrides &override
 
 void addEngineOptions(CLI::App &app, EngineOverrides &o)
 {
-    app.add_option("--set", o.sets, "set a parameter over the file: SECTION.KEY=VALUE, e.g. engine.range.sigma_m=0.13 "
-                                    "(repeatable; docs/engine.md lists every key)");
+    app.add_option("--set", o.sets,
+                   "set a parameter over the file: SECTION.KEY=VALUE, e.g. engine.range.sigma_m=0.13 "
+                   "(repeatable; docs/engine.md lists every key)");
     app.add_flag("--no-weight-transfer", o.no_weight_transfer, "ablation: no weight transfer (eq. 15)");
     app.add_flag("--no-cooperative", o.no_cooperative,
                  "ablation: SoG weights from the ring's own range only, not the other nodes' ranges");
     app.add_flag("--no-refinement", o.no_refinement,
                  "the paper's filter alone: the merged SoG is the estimate (no robust refinement)");
-    app.add_flag("--no-motion-reset", o.no_motion_reset, "ablation: moving nodes handled as static (no SoG resets, no track)");
+    app.add_flag("--no-motion-reset", o.no_motion_reset,
+                 "ablation: moving nodes handled as static (no SoG resets, no track)");
 }
 
 } // namespace cdro::hostd

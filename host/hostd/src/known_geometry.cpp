@@ -39,7 +39,8 @@ bool KnownRows::operator==(const KnownRows &other) const
         }
     }
     for (size_t i = 0; i < fixed.size(); ++i) {
-        if (fixed[i].id != other.fixed[i].id || fixed[i].x_m != other.fixed[i].x_m || fixed[i].y_m != other.fixed[i].y_m) {
+        if (fixed[i].id != other.fixed[i].id || fixed[i].x_m != other.fixed[i].x_m ||
+            fixed[i].y_m != other.fixed[i].y_m) {
             return false;
         }
     }

@@ -129,8 +129,8 @@ static int runMain(int argc, char **argv)
     cdro::hostd::addEngineOptions(app, engine_overrides);
 
     cdro::hostd::OfflineOptions offline;
-    auto *ranges_option = app.add_option("--ranges-csv", offline.ranges_csv,
-                                         "offline: ranges [t,]from,to,range_m in file order (m)");
+    auto *ranges_option =
+        app.add_option("--ranges-csv", offline.ranges_csv, "offline: ranges [t,]from,to,range_m in file order (m)");
     app.add_option("--heights-csv", offline.heights_csv, "known heights id,z (m) (map.heights_csv)");
     app.add_option("--fixed-csv", offline.fixed_csv, "known coordinates id,x,y (m), fixed (map.fixed_csv)");
     app.add_option("--out-csv", offline.out_csv, "offline: estimates id,x,y,var_x,cov_xy,var_y,converged")
@@ -144,7 +144,8 @@ static int runMain(int argc, char **argv)
     app.add_option("--robot-id", offline.robot_id, "offline movement stage: the robot's node id")->needs(ranges_option);
     app.add_option("--motion-csv", offline.motion_csv, "offline: motion reports t,id,moving")->needs(ranges_option);
     app.add_option("--out-trajectory", offline.out_trajectory,
-                   "offline movement stage: causal robot estimate t,x,y,heading_rad,var_x,cov_xy,var_y,frame (odometry or map); "
+                   "offline movement stage: causal robot estimate t,x,y,heading_rad,var_x,cov_xy,var_y,frame (odometry "
+                   "or map); "
                    "with --moving: the moving nodes' 3D trajectories")
         ->needs(ranges_option);
     app.add_option("--moving", offline.moving,
@@ -157,7 +158,8 @@ static int runMain(int argc, char **argv)
                    "(m) apart (repeatable)")
         ->needs(ranges_option);
     bool no_settle = false;
-    app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")->needs(ranges_option);
+    app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")
+        ->needs(ranges_option);
     app.add_flag("--verbose", offline.verbose, "offline: the engine's decisions (placements, motion, ...) on stderr")
         ->needs(ranges_option);
     bool print_config = false;
@@ -192,8 +194,9 @@ static int runMain(int argc, char **argv)
         if (print_config) {
             // What a run with these arguments would use, as a file --config reads back.
             cdro::service::ServiceConfig config =
-                document.service_text.empty() ? cdro::service::ServiceConfig{}
-                                              : cdro::service::parseServiceConfig(document.service_text, document.origin);
+                document.service_text.empty()
+                    ? cdro::service::ServiceConfig{}
+                    : cdro::service::parseServiceConfig(document.service_text, document.origin);
             cdro::service::applyOverrides(config, service_overrides);
             YAML::Emitter map;
             map << YAML::BeginMap << YAML::Key << "map" << YAML::Value << YAML::BeginMap << YAML::Key << "heights_csv"
@@ -217,9 +220,9 @@ static int runMain(int argc, char **argv)
             return cdro::hostd::runOffline(offline, params, movement, stderr);
         }
 
-        cdro::service::ServiceConfig config = document.service_text.empty()
-                                                  ? cdro::service::ServiceConfig{}
-                                                  : cdro::service::parseServiceConfig(document.service_text, document.origin);
+        cdro::service::ServiceConfig config =
+            document.service_text.empty() ? cdro::service::ServiceConfig{}
+                                          : cdro::service::parseServiceConfig(document.service_text, document.origin);
         cdro::service::applyOverrides(config, service_overrides);
         // A person at a terminal reads the logs and a progress line there; a thousand JSON lines a
         // minute would bury both. Scripts (stdout a pipe or a file) get JSON Lines as ever, and
@@ -238,10 +241,10 @@ static int runMain(int argc, char **argv)
         cdro::hostd::KnownRows rows = cdro::hostd::readKnownGeometry(geometry, 20, stderr);
         if (!service_overrides.run.replay_path.empty()) {
             const bool gave_geometry = !geometry.heights_csv.empty() || !geometry.fixed_csv.empty();
-            const bool gave_settings = (document.root && document.root.IsMap() &&
-                                        (document.root["engine"] || document.root["movement"])) ||
-                                       engine_overrides.no_weight_transfer || engine_overrides.no_cooperative ||
-                                       engine_overrides.no_refinement || engine_overrides.no_motion_reset;
+            const bool gave_settings =
+                (document.root && document.root.IsMap() && (document.root["engine"] || document.root["movement"])) ||
+                engine_overrides.no_weight_transfer || engine_overrides.no_cooperative ||
+                engine_overrides.no_refinement || engine_overrides.no_motion_reset;
             takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows, params, movement);
         }
         cdro::engine::Engine engine(params);

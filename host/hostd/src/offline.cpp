@@ -35,38 +35,45 @@ void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
 {
     const auto id = static_cast<unsigned>(node.id);
     switch (node.doubt) {
-    case engine::NodeDoubt::None:
-        return;
+    case engine::NodeDoubt::None: return;
     case engine::NodeDoubt::TooFewLinks:
-        std::fprintf(log, "cdro-hostd: node 0x%04X has fewer than three links to placed nodes: its ranges cannot "
-                          "fix it (not converged; add a link)\n", id);
+        std::fprintf(log,
+                     "cdro-hostd: node 0x%04X has fewer than three links to placed nodes: its ranges cannot "
+                     "fix it (not converged; add a link)\n",
+                     id);
         return;
     case engine::NodeDoubt::Ambiguous:
-        std::fprintf(log, "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, "
-                          "fits its %u links about as well (not converged; add a link to a node off the line of "
-                          "its neighbours)\n",
+        std::fprintf(log,
+                     "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, "
+                     "fits its %u links about as well (not converged; add a link to a node off the line of "
+                     "its neighbours)\n",
                      id, node.link_count);
         return;
     case engine::NodeDoubt::Foldable:
         if (node.hinge_nodes == 0) {
-            std::fprintf(log, "cdro-hostd: node 0x%04X is not connected to the largest part of the network: its place "
-                              "relative to it is unknown (not converged)\n", id);
+            std::fprintf(log,
+                         "cdro-hostd: node 0x%04X is not connected to the largest part of the network: its place "
+                         "relative to it is unknown (not converged)\n",
+                         id);
         } else {
             std::string hinge = service::nodeIdHex(node.hinge[0]);
             if (node.hinge_nodes == 2) {
                 hinge += " and " + service::nodeIdHex(node.hinge[1]);
             }
-            std::fprintf(log, "cdro-hostd: node 0x%04X hangs on node%s %s: its part of the network can %s without "
-                              "changing a range, so the ranges cannot tell its side (not converged; add a link "
-                              "from it to another node)\n",
+            std::fprintf(log,
+                         "cdro-hostd: node 0x%04X hangs on node%s %s: its part of the network can %s without "
+                         "changing a range, so the ranges cannot tell its side (not converged; add a link "
+                         "from it to another node)\n",
                          id, node.hinge_nodes == 2 ? "s" : "", hinge.c_str(),
                          node.hinge_nodes == 2 ? "fold over them" : "turn about it");
         }
         return;
     case engine::NodeDoubt::Flexible:
-        std::fprintf(log, "cdro-hostd: node 0x%04X is flexible: it hangs on links nothing else checks, so one "
-                          "error in them (or the map's own uncertainty) could move it a metre or more (not "
-                          "converged; add links across its part)\n", id);
+        std::fprintf(log,
+                     "cdro-hostd: node 0x%04X is flexible: it hangs on links nothing else checks, so one "
+                     "error in them (or the map's own uncertainty) could move it a metre or more (not "
+                     "converged; add links across its part)\n",
+                     id);
         return;
     case engine::NodeDoubt::Unsettled:
         std::fprintf(log, "cdro-hostd: node 0x%04X has not settled yet (not converged)\n", id);
@@ -155,8 +162,7 @@ void reportRate(std::FILE *log, const std::string &path, size_t rows, const Rate
 }
 
 // Sorts rows by time (stable) and says how many were out of order.
-template <typename Row>
-void sortByTime(std::vector<Row> &rows, const std::string &path, std::FILE *log)
+template <typename Row> void sortByTime(std::vector<Row> &rows, const std::string &path, std::FILE *log)
 {
     size_t out_of_order = 0;
     for (size_t i = 1; i < rows.size(); ++i) {
@@ -206,7 +212,8 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
 
     engine::MovementStage stage(engine, movement_params);
     if (options.verbose) {
-        stage.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: movement: %s\n", message.c_str()); });
+        stage.setTrace(
+            [log](const std::string &message) { std::fprintf(log, "cdro-hostd: movement: %s\n", message.c_str()); });
     }
     // Merge the three streams by time; at equal times odometry first (it ends its step at t),
     // then motion reports, then ranges.
@@ -229,9 +236,10 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
             const std::optional<engine::RobotOutput> robot = stage.robot();
             if (robot && robot->placed) {
                 if (last_frame && *last_frame != robot->frame) {
-                    std::fprintf(log, "cdro-hostd: trajectory: the rows up to t = %.3f s are in the %s frame, from "
-                                      "t = %.3f s in the %s frame (the map appeared while the robot stood): compare "
-                                      "only rows of one frame\n",
+                    std::fprintf(log,
+                                 "cdro-hostd: trajectory: the rows up to t = %.3f s are in the %s frame, from "
+                                 "t = %.3f s in the %s frame (the map appeared while the robot stood): compare "
+                                 "only rows of one frame\n",
                                  last_row_t_s, engine::robotFrameName(*last_frame), row.t_s,
                                  engine::robotFrameName(robot->frame));
                 }
@@ -268,15 +276,15 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     }
     const engine::MovementCounters &c = stage.counters();
     const std::optional<engine::RobotOutput> robot = stage.robot();
-    std::fprintf(log,
-                 "cdro-hostd: movement stage: %llu odometry steps, %llu ranges (%llu with the robot), %llu EKF updates, "
-                 "%llu gated, %llu nodes taken into the EKF (%llu via a SoG around the robot), %llu taken out moving; "
-                 "%zu nodes placed\n",
-                 static_cast<unsigned long long>(c.odometry_steps), static_cast<unsigned long long>(ranges.size()),
-                 static_cast<unsigned long long>(c.robot_ranges), static_cast<unsigned long long>(c.ekf_updates),
-                 static_cast<unsigned long long>(c.ekf_gated), static_cast<unsigned long long>(c.nodes_inserted),
-                 static_cast<unsigned long long>(c.beacon_sogs), static_cast<unsigned long long>(c.nodes_removed),
-                 placed);
+    std::fprintf(
+        log,
+        "cdro-hostd: movement stage: %llu odometry steps, %llu ranges (%llu with the robot), %llu EKF updates, "
+        "%llu gated, %llu nodes taken into the EKF (%llu via a SoG around the robot), %llu taken out moving; "
+        "%zu nodes placed\n",
+        static_cast<unsigned long long>(c.odometry_steps), static_cast<unsigned long long>(ranges.size()),
+        static_cast<unsigned long long>(c.robot_ranges), static_cast<unsigned long long>(c.ekf_updates),
+        static_cast<unsigned long long>(c.ekf_gated), static_cast<unsigned long long>(c.nodes_inserted),
+        static_cast<unsigned long long>(c.beacon_sogs), static_cast<unsigned long long>(c.nodes_removed), placed);
     if (robot && robot->localized) {
         std::fprintf(log,
                      "cdro-hostd: range calibration: scale %.5f +- %.5f, offset %.3f +- %.3f m; range noise %.3f m; "
@@ -364,7 +372,8 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
         try {
             engine.trackOnOneBody(a, b, separation_m);
         } catch (const std::invalid_argument &error) {
-            std::fprintf(log, "cdro-hostd: --moving-body %s: %s (both must be in --moving)\n", text.c_str(), error.what());
+            std::fprintf(log, "cdro-hostd: --moving-body %s: %s (both must be in --moving)\n", text.c_str(),
+                         error.what());
             return 2;
         }
     }
@@ -426,8 +435,9 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
     for (const engine::NodeId id : moving) {
         const std::optional<engine::FlightEstimate> track = engine.flightEstimate(id);
         if (track && track->status != engine::FlightStatus::Tracking) {
-            std::fprintf(log, "cdro-hostd: moving node %u heard %u distinct anchors: not enough for a 3D track (%u), "
-                              "no rows\n",
+            std::fprintf(log,
+                         "cdro-hostd: moving node %u heard %u distinct anchors: not enough for a 3D track (%u), "
+                         "no rows\n",
                          static_cast<unsigned>(id), track->anchors_heard, engine::FlightTracks::kMinAnchors);
         }
     }
@@ -448,9 +458,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
     try {
         engine::Engine engine(params);
         if (options.verbose) {
-            engine.setTrace([log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
+            engine.setTrace(
+                [log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
-        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows, log);
+        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows,
+                           log);
         if (options.moving.empty() && !options.moving_bodies.empty()) {
             std::fprintf(log, "cdro-hostd: --moving-body needs --moving (its nodes are moving ones)\n");
             return 2;
@@ -488,7 +500,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
             reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
             if (ranges.rows.empty()) {
-                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) + " bad rows skipped)");
+                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) +
+                                      " bad rows skipped)");
             }
             int code = runFlights(options, engine, ranges, out.get(), log);
             if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
@@ -502,7 +515,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         }
         if (movement) {
             if (options.odometry_csv.empty() || options.robot_id < 0 || options.out_trajectory.empty()) {
-                std::fprintf(log, "cdro-hostd: the movement stage needs --odometry-csv, --robot-id and --out-trajectory\n");
+                std::fprintf(log,
+                             "cdro-hostd: the movement stage needs --odometry-csv, --robot-id and --out-trajectory\n");
                 return 2;
             }
             // The stage merges every input by time: the ranges are read whole and sorted.
@@ -511,7 +525,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
             reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
             if (ranges.rows.empty()) {
-                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) + " bad rows skipped)");
+                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) +
+                                      " bad rows skipped)");
             }
             engine::MovementParams stage_params = movement_params;
             stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
@@ -593,7 +608,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             }
         });
         if (untimed_with_motion) {
-            std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n", options.ranges_csv.c_str());
+            std::fprintf(log, "cdro-hostd: %s: --motion-csv needs a t column in the ranges\n",
+                         options.ranges_csv.c_str());
             return 2;
         }
         const size_t bad_rows = reader.summary().bad_rows;
@@ -648,7 +664,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         std::fprintf(log,
                      "cdro-hostd: %zu nodes placed, %zu converged, %zu links; NLOS handling: %llu EKF updates gated, "
                      "%llu weight terms down-weighted, %llu refinement links down-weighted; %llu re-placements, "
-                     "%llu global solves (%llu of them refreshes, %llu maps adopted), %llu settle updates; motion: %llu starts (%llu inferred "
+                     "%llu global solves (%llu of them refreshes, %llu maps adopted), %llu settle updates; motion: "
+                     "%llu starts (%llu inferred "
                      "from ranges), %llu stops\n",
                      placed, converged, engine.map().links.size(), static_cast<unsigned long long>(c.sogs.ekf_gated),
                      static_cast<unsigned long long>(c.sogs.weight_terms_downweighted),
@@ -656,8 +673,8 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
                      static_cast<unsigned long long>(c.placement.replacements),
                      static_cast<unsigned long long>(c.solve.solves),
                      static_cast<unsigned long long>(c.solve.solve_refreshes),
-                     static_cast<unsigned long long>(c.solve.solves_adopted),
-                     static_cast<unsigned long long>(settled), static_cast<unsigned long long>(c.motion.motion_starts),
+                     static_cast<unsigned long long>(c.solve.solves_adopted), static_cast<unsigned long long>(settled),
+                     static_cast<unsigned long long>(c.motion.motion_starts),
                      static_cast<unsigned long long>(c.motion.motion_inferred),
                      static_cast<unsigned long long>(c.motion.motion_stops));
         return 0;

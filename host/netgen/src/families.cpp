@@ -39,9 +39,9 @@ namespace {
 
 // How the radio hears through walls.
 struct Radio {
-    double reach_m = 20.0;            // m, in the open
-    double wall_attenuation = 0.65;   // reach is multiplied by this per wall crossed
-    uint32_t max_walls = 2;           // beyond this many walls nothing is heard
+    double reach_m = 20.0;          // m, in the open
+    double wall_attenuation = 0.65; // reach is multiplied by this per wall crossed
+    uint32_t max_walls = 2;         // beyond this many walls nothing is heard
     double excess_per_wall_min_m = 0.1;
     double excess_per_wall_max_m = 0.6;
     double obstructed_fraction = 0.05; // line-of-sight pairs with furniture or people in the way
@@ -68,8 +68,8 @@ void hearLinks(World &world, const Radio &radio, Random &random)
                 continue;
             }
             const uint32_t walls = wallsCrossed(world.walls, a, b);
-            const double reach_m =
-                radio.reach_m * std::pow(radio.wall_attenuation, static_cast<double>(walls)) * random.uniform(0.85, 1.0);
+            const double reach_m = radio.reach_m * std::pow(radio.wall_attenuation, static_cast<double>(walls)) *
+                                   random.uniform(0.85, 1.0);
             if (walls > radio.max_walls || distance_m > reach_m || distance_m < 0.3) {
                 continue;
             }
@@ -124,7 +124,8 @@ World drawRandom(Random &random, const FamilyOptions &options)
     std::vector<std::pair<double, std::pair<uint32_t, uint32_t>>> pairs;
     for (uint32_t i = 0; i < count; ++i) {
         for (uint32_t j = i + 1; j < count; ++j) {
-            pairs.push_back({(world.nodes[i].position_m.head<2>() - world.nodes[j].position_m.head<2>()).norm(), {i, j}});
+            pairs.push_back(
+                {(world.nodes[i].position_m.head<2>() - world.nodes[j].position_m.head<2>()).norm(), {i, j}});
         }
     }
     const size_t wanted =
@@ -220,12 +221,16 @@ World drawCorridor(Random &random, const FamilyOptions &options)
                 Box room;
                 int door_side = 0;
                 if (horizontal) {
-                    room = side == 0 ? Box{Vector2(along, corridor.high_m.y()), Vector2(along + room_width, corridor.high_m.y() + depth)}
-                                     : Box{Vector2(along, corridor.low_m.y() - depth), Vector2(along + room_width, corridor.low_m.y())};
+                    room = side == 0 ? Box{Vector2(along, corridor.high_m.y()),
+                                           Vector2(along + room_width, corridor.high_m.y() + depth)}
+                                     : Box{Vector2(along, corridor.low_m.y() - depth),
+                                           Vector2(along + room_width, corridor.low_m.y())};
                     door_side = side == 0 ? 0 : 2; // the side on the corridor
                 } else {
-                    room = side == 0 ? Box{Vector2(corridor.high_m.x(), along), Vector2(corridor.high_m.x() + depth, along + room_width)}
-                                     : Box{Vector2(corridor.low_m.x() - depth, along), Vector2(corridor.low_m.x(), along + room_width)};
+                    room = side == 0 ? Box{Vector2(corridor.high_m.x(), along),
+                                           Vector2(corridor.high_m.x() + depth, along + room_width)}
+                                     : Box{Vector2(corridor.low_m.x() - depth, along),
+                                           Vector2(corridor.low_m.x(), along + room_width)};
                     door_side = side == 0 ? 3 : 1;
                 }
                 along += room_width;
@@ -258,7 +263,8 @@ World drawCorridor(Random &random, const FamilyOptions &options)
             const bool first_side = random.chance(0.5);
             const double across = horizontal ? (first_side ? corridor.high_m.y() - 0.15 : corridor.low_m.y() + 0.15)
                                              : (first_side ? corridor.high_m.x() - 0.15 : corridor.low_m.x() + 0.15);
-            places.push_back(horizontal ? Vector3(along, across, heightM(random)) : Vector3(across, along, heightM(random)));
+            places.push_back(horizontal ? Vector3(along, across, heightM(random))
+                                        : Vector3(across, along, heightM(random)));
         }
     }
     const size_t corridor_places = places.size();
@@ -341,7 +347,8 @@ World drawWings(Random &random, const FamilyOptions &options)
                                                  : static_cast<uint32_t>(10 + random.below(13));
         uint32_t tries = 0;
         while (members[w].size() < count && tries++ < 100000) {
-            const Vector2 p(random.uniform(box.low_m.x(), box.high_m.x()), random.uniform(box.low_m.y(), box.high_m.y()));
+            const Vector2 p(random.uniform(box.low_m.x(), box.high_m.x()),
+                            random.uniform(box.low_m.y(), box.high_m.y()));
             bool crowded = false;
             for (uint32_t other : members[w]) {
                 crowded = crowded || (world.nodes[other].position_m.head<2>() - p).norm() < 1.5;
@@ -488,8 +495,9 @@ World drawWalls(Random &random, const FamilyOptions &options)
     hearLinks(world, radio, random);
     world.noise = RangeNoise{0.10, 0.03, 1.2};
     std::ostringstream text;
-    text << count << " nodes on a " << width_m << " m x " << height_m << " m floor, " << (xs.size() - 1) * (ys.size() - 1)
-         << " rooms, " << world.walls.size() << " wall segments, reach " << radio.reach_m << " m";
+    text << count << " nodes on a " << width_m << " m x " << height_m << " m floor, "
+         << (xs.size() - 1) * (ys.size() - 1) << " rooms, " << world.walls.size() << " wall segments, reach "
+         << radio.reach_m << " m";
     world.description = text.str();
     return world;
 }

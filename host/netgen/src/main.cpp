@@ -60,13 +60,15 @@ static int runMain(int argc, char **argv)
     app.add_option("--heights", heights, "known: heights.csv lists every node; unknown: it lists none")
         ->check(CLI::IsMember({"known", "unknown"}))
         ->capture_default_str();
-    app.add_option("--order", order_name, "sweeps, staggered (nodes switched on over --stagger-s) or late (one node last)")
+    app.add_option("--order", order_name,
+                   "sweeps, staggered (nodes switched on over --stagger-s) or late (one node last)")
         ->check(CLI::IsMember({"sweeps", "staggered", "late"}))
         ->capture_default_str();
     app.add_option("--sweeps", stream_options.sweeps, "sweeps over every link")->capture_default_str();
     app.add_option("--stagger-s", stream_options.stagger_s, "staggered: nodes switched on over this long (s)")
         ->capture_default_str();
-    app.add_option("--shuffle", shuffle_seed, "write the same ranges in an order drawn from this seed (0: as generated)")
+    app.add_option("--shuffle", shuffle_seed,
+                   "write the same ranges in an order drawn from this seed (0: as generated)")
         ->capture_default_str();
     app.add_option("--out", out_dir, "directory to write into (created)")->required();
     CLI11_PARSE(app, argc, argv);

@@ -98,7 +98,8 @@ std::vector<GeneratedRange> shuffledStream(const std::vector<GeneratedRange> &ra
     std::vector<GeneratedRange> out = ranges;
     Random random(mixSeed(seed ^ 0x73687566666CULL)); // "shuffl"
     random.shuffle(out);
-    const double dt_s = out.size() > 1 ? (ranges.back().t_s - ranges.front().t_s) / static_cast<double>(out.size() - 1) : 0.0;
+    const double dt_s =
+        out.size() > 1 ? (ranges.back().t_s - ranges.front().t_s) / static_cast<double>(out.size() - 1) : 0.0;
     for (size_t i = 0; i < out.size(); ++i) {
         out[i].t_s = static_cast<double>(i) * dt_s;
     }

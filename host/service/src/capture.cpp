@@ -63,10 +63,7 @@ CaptureWriter::CaptureWriter(const CaptureConfig &config, std::string source, Se
 
 CaptureWriter::~CaptureWriter() { close(); }
 
-std::string CaptureWriter::rotatedName(const std::string &path, uint32_t index)
-{
-    return rotatedFileName(path, index);
-}
+std::string CaptureWriter::rotatedName(const std::string &path, uint32_t index) { return rotatedFileName(path, index); }
 
 void CaptureWriter::open(int64_t created_unix_us)
 {

@@ -216,10 +216,9 @@ void section(const YAML::Node &root, const char *name, const std::string &origin
 
 const std::vector<std::string> &serviceSectionNames()
 {
-    static const std::vector<std::string> names = {"serial", "nodes",    "schedule",  "capture",
-                                                   "output", "jsonl",    "mqtt",      "mqtt_auth",
-                                                   "http",   "checkpoint", "odometry", "logging",
-                                                   "web"};
+    static const std::vector<std::string> names = {"serial",   "nodes",   "schedule",  "capture", "output",
+                                                   "jsonl",    "mqtt",    "mqtt_auth", "http",    "checkpoint",
+                                                   "odometry", "logging", "web"};
     return names;
 }
 
@@ -245,7 +244,8 @@ MqttUrl parseMqttUrl(const std::string &url)
         out.tls = true;
         out.port = 8883;
     } else {
-        throw ConfigError("mqtt.url: '" + url + "' must look like mqtt://host[:port] or, with TLS, mqtts://host[:port]");
+        throw ConfigError("mqtt.url: '" + url +
+                          "' must look like mqtt://host[:port] or, with TLS, mqtts://host[:port]");
     }
     while (!rest.empty() && rest.back() == '/') {
         rest.pop_back();
@@ -282,8 +282,9 @@ void validateServiceConfig(const ServiceConfig &c)
     }
     cdro_frame_t frame{};
     frame.type = CDRO_FRAME_SET_SCHEDULE;
-    frame.as.set_schedule = {c.schedule.slot_period_ms, c.schedule.mode,         c.schedule.motion_poll_ms,
-                             c.schedule.moving_boost,   c.schedule.status_period_ms, c.schedule.max_retries};
+    frame.as.set_schedule = {c.schedule.slot_period_ms,   c.schedule.mode,
+                             c.schedule.motion_poll_ms,   c.schedule.moving_boost,
+                             c.schedule.status_period_ms, c.schedule.max_retries};
     if (cdro_frame_validate(&frame) != CDRO_OK) {
         throw ConfigError("schedule: the values are outside the ranges of SET_SCHEDULE (docs/protocol.md)");
     }
@@ -301,8 +302,7 @@ void validateServiceConfig(const ServiceConfig &c)
     if (auth.cert_file.empty() != auth.key_file.empty()) {
         throw ConfigError("mqtt_auth.cert_file and mqtt_auth.key_file go together: a client certificate needs its key");
     }
-    if (!c.mqtt.url.empty() && !parseMqttUrl(c.mqtt.url).tls &&
-        !(auth.ca_file.empty() && auth.cert_file.empty())) {
+    if (!c.mqtt.url.empty() && !parseMqttUrl(c.mqtt.url).tls && !(auth.ca_file.empty() && auth.cert_file.empty())) {
         throw ConfigError("mqtt_auth: ca_file or cert_file is set, but mqtt.url '" + c.mqtt.url +
                           "' is not TLS; use mqtts://host[:port]");
     }

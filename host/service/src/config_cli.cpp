@@ -28,8 +28,7 @@ void addServiceOptions(CLI::App &app, ServiceOverrides &o)
            "--speed", [&o](const std::string &text) { o.run.replay_speed = parseReplaySpeed(text); },
            "replay pace: a factor of real time (1 = as recorded) or 'max' (default)")
         ->needs("--replay");
-    app.add_option("--resume", o.run.resume_path, "continue from this checkpoint (.cdrosog)")
-        ->check(CLI::ExistingFile);
+    app.add_option("--resume", o.run.resume_path, "continue from this checkpoint (.cdrosog)")->check(CLI::ExistingFile);
     app.add_option("--device", o.device, "serial device path (serial.device)");
     app.add_option("--baud", o.baud, "bit/s (serial.baud)");
     app.add_option("--capture", o.capture_path, "capture file, '' = off (capture.path)");
@@ -49,20 +48,28 @@ void addServiceOptions(CLI::App &app, ServiceOverrides &o)
 
 void applyOverrides(ServiceConfig &c, const ServiceOverrides &o)
 {
-    if (o.device) c.serial.device = *o.device;
-    if (o.baud) c.serial.baud = *o.baud;
-    if (o.capture_path) c.capture.path = *o.capture_path;
-    if (o.jsonl) c.output.jsonl = *o.jsonl;
+    if (o.device)
+        c.serial.device = *o.device;
+    if (o.baud)
+        c.serial.baud = *o.baud;
+    if (o.capture_path)
+        c.capture.path = *o.capture_path;
+    if (o.jsonl)
+        c.output.jsonl = *o.jsonl;
     if (o.output_rate_hz) {
         if (!(*o.output_rate_hz >= 0.0) || *o.output_rate_hz > 1000.0) {
             throw ConfigError("--rate: must be between 0 and 1000 Hz");
         }
         c.output.rate_hz = *o.output_rate_hz;
     }
-    if (o.mqtt_url) c.mqtt.url = *o.mqtt_url;
-    if (o.http_bind) c.http.bind = *o.http_bind;
-    if (o.http_port) c.http.port = *o.http_port;
-    if (o.checkpoint_path) c.checkpoint.path = *o.checkpoint_path;
+    if (o.mqtt_url)
+        c.mqtt.url = *o.mqtt_url;
+    if (o.http_bind)
+        c.http.bind = *o.http_bind;
+    if (o.http_port)
+        c.http.port = *o.http_port;
+    if (o.checkpoint_path)
+        c.checkpoint.path = *o.checkpoint_path;
     if (o.checkpoint_period_s) {
         if (!(*o.checkpoint_period_s >= 0.0)) {
             throw ConfigError("--checkpoint-period: must be >= 0 s");
@@ -78,8 +85,10 @@ void applyOverrides(ServiceConfig &c, const ServiceOverrides &o)
         c.http.port = o.http_port.value_or(0);
         c.mqtt.url = o.mqtt_url.value_or("");
     }
-    if (o.odometry_udp_port) c.odometry.udp_port = *o.odometry_udp_port;
-    if (o.odometry_mqtt_topic) c.odometry.mqtt_topic = *o.odometry_mqtt_topic;
+    if (o.odometry_udp_port)
+        c.odometry.udp_port = *o.odometry_udp_port;
+    if (o.odometry_mqtt_topic)
+        c.odometry.mqtt_topic = *o.odometry_mqtt_topic;
     if (o.log_level) {
         static const char *const levels[] = {"trace", "debug", "info", "warn", "error", "critical", "off"};
         bool known = false;

@@ -147,11 +147,11 @@ std::string trim(const std::string &text)
     return text.substr(first, text.find_last_not_of(" \t") - first + 1);
 }
 
-constexpr int kAcceptBurst = 64;           // connections accepted per wake-up
-constexpr size_t kReadChunk = 4096;        // bytes per read()
+constexpr int kAcceptBurst = 64;            // connections accepted per wake-up
+constexpr size_t kReadChunk = 4096;         // bytes per read()
 constexpr int64_t kSweepPeriodUs = 100'000; // us between deadline checks
-constexpr int64_t kLingerUs = 1'000'000;   // us a refused request's unread body is drained for
-constexpr size_t kLingerBytes = 1 << 20;   // bytes drained at most (discarded as read)
+constexpr int64_t kLingerUs = 1'000'000;    // us a refused request's unread body is drained for
+constexpr size_t kLingerBytes = 1 << 20;    // bytes drained at most (discarded as read)
 constexpr int64_t kAcceptPauseUs = 100'000; // us without accepting when out of descriptors
 constexpr double kLogPerS = 2.0;            // "refused" log lines per second per reason
 
@@ -166,7 +166,8 @@ public:
         Worker *worker = nullptr;
     };
 
-    Worker(HttpServer &owner) : owner_(owner), loop_(owner.clock_), log_limit_(kLogPerS), alive_(std::make_shared<Alive>())
+    Worker(HttpServer &owner)
+        : owner_(owner), loop_(owner.clock_), log_limit_(kLogPerS), alive_(std::make_shared<Alive>())
     {
         alive_->worker = this;
     }
@@ -195,7 +196,8 @@ public:
         addrinfo *found = nullptr;
         const std::string service = std::to_string(port);
         if (::getaddrinfo(address.c_str(), service.c_str(), &hints, &found) != 0 || found == nullptr) {
-            throw ConfigError("http: cannot listen on " + address + ":" + service + " (not an address of this machine)");
+            throw ConfigError("http: cannot listen on " + address + ":" + service +
+                              " (not an address of this machine)");
         }
         std::string error = "no address";
         for (addrinfo *ai = found; ai != nullptr; ai = ai->ai_next) {
@@ -268,16 +270,16 @@ private:
     struct Connection {
         int fd = -1;
         uint64_t id = 0;
-        std::string client;        // the peer's address, without the port
+        std::string client; // the peer's address, without the port
         State state = State::ReadingHead;
-        std::string in;            // the request head so far
-        std::string out;           // bytes not yet written
+        std::string in;  // the request head so far
+        std::string out; // bytes not yet written
         size_t out_offset = 0;
-        bool head_only = false;    // HEAD: headers without the body
+        bool head_only = false; // HEAD: headers without the body
         int64_t opened_us = 0;
-        int64_t deadline_us = 0;   // head deadline, components deadline
+        int64_t deadline_us = 0;      // head deadline, components deadline
         int64_t last_progress_us = 0; // last time the client took bytes (or out became empty)
-        int64_t last_event_us = 0; // event streams: last map or comment sent
+        int64_t last_event_us = 0;    // event streams: last map or comment sent
         uint64_t sent_revision = 0;
         size_t lingered_bytes = 0;
     };
@@ -289,16 +291,16 @@ private:
         for (int i = 0; i < kAcceptBurst; ++i) {
             sockaddr_storage peer{};
             socklen_t len = sizeof peer;
-            const int fd = ::accept4(listen_fd_, reinterpret_cast<sockaddr *>(&peer), &len, SOCK_NONBLOCK | SOCK_CLOEXEC);
+            const int fd =
+                ::accept4(listen_fd_, reinterpret_cast<sockaddr *>(&peer), &len, SOCK_NONBLOCK | SOCK_CLOEXEC);
             if (fd < 0) {
                 if (errno == EMFILE || errno == ENFILE || errno == ENOBUFS || errno == ENOMEM) {
                     // Out of descriptors: the pending connection stays in the backlog; stop
                     // watching the socket for a moment rather than spin on it.
                     refuseLog("descriptors", "out of file descriptors; not accepting for 0.1 s");
                     loop_.unwatchFd(listen_fd_);
-                    loop_.addTimerAfter(kAcceptPauseUs, [this] {
-                        loop_.watchFd(listen_fd_, POLLIN, [this](short) { acceptSome(); });
-                    });
+                    loop_.addTimerAfter(kAcceptPauseUs,
+                                        [this] { loop_.watchFd(listen_fd_, POLLIN, [this](short) { acceptSome(); }); });
                 }
                 return;
             }
@@ -491,8 +493,8 @@ private:
         }
         if (end == std::string::npos || end > owner_.limits_.max_head_bytes) {
             if (c.in.size() > owner_.limits_.max_head_bytes) {
-                refuse(c, 431, "the request head is larger than " + std::to_string(owner_.limits_.max_head_bytes) +
-                                   " bytes");
+                refuse(c, 431,
+                       "the request head is larger than " + std::to_string(owner_.limits_.max_head_bytes) + " bytes");
                 return false;
             }
             return true;
@@ -514,8 +516,9 @@ private:
         }
         const size_t sp1 = request_line.find(' ');
         const size_t sp2 = sp1 == std::string::npos ? std::string::npos : request_line.find(' ', sp1 + 1);
-        if (sp1 == std::string::npos || sp2 == std::string::npos || request_line.find(' ', sp2 + 1) != std::string::npos ||
-            request_line.compare(sp2 + 1, 7, "HTTP/1.") != 0 || request_line.size() != sp2 + 9) {
+        if (sp1 == std::string::npos || sp2 == std::string::npos ||
+            request_line.find(' ', sp2 + 1) != std::string::npos || request_line.compare(sp2 + 1, 7, "HTTP/1.") != 0 ||
+            request_line.size() != sp2 + 9) {
             refuse(c, 400, "not an HTTP/1.x request line");
             return;
         }
@@ -586,8 +589,8 @@ private:
             const MapSnapshotStore::Snapshot snapshot = owner_.store_.latest();
             const auto &json = path == "/api/map" ? snapshot.map_json : snapshot.health_json;
             if (!json) {
-                respond(c, 503, "application/json", errorJson(std::string("no ") + (path == "/api/map" ? "map" : "health") +
-                                                              " published yet"));
+                respond(c, 503, "application/json",
+                        errorJson(std::string("no ") + (path == "/api/map" ? "map" : "health") + " published yet"));
                 return;
             }
             respond(c, 200, "application/json", *json);
@@ -649,7 +652,8 @@ private:
             std::lock_guard<std::mutex> lock(alive->mutex);
             if (alive->worker != nullptr) {
                 Worker *worker = alive->worker;
-                worker->loop_.post([worker, connection, json = std::move(json)] { worker->onComponents(connection, json); });
+                worker->loop_.post(
+                    [worker, connection, json = std::move(json)] { worker->onComponents(connection, json); });
             }
         });
     }
@@ -699,8 +703,8 @@ private:
     // drained and discarded for a moment, so that the client reads the answer instead of a reset.
     void refuse(Connection &c, int status, const std::string &why)
     {
-        refuseLog(std::to_string(status), c.client + ": " + std::to_string(status) + " " + reasonPhrase(status) + " (" +
-                                              why + ")");
+        refuseLog(std::to_string(status),
+                  c.client + ": " + std::to_string(status) + " " + reasonPhrase(status) + " (" + why + ")");
         respond(c, status, "application/json", errorJson(why));
     }
 
@@ -747,8 +751,8 @@ private:
     void writeSome(Connection &c)
     {
         while (c.out_offset < c.out.size()) {
-            const ssize_t n = ::send(c.fd, c.out.data() + c.out_offset, c.out.size() - c.out_offset,
-                                     MSG_NOSIGNAL | MSG_DONTWAIT);
+            const ssize_t n =
+                ::send(c.fd, c.out.data() + c.out_offset, c.out.size() - c.out_offset, MSG_NOSIGNAL | MSG_DONTWAIT);
             if (n < 0 && errno == EINTR) {
                 continue;
             }
@@ -799,8 +803,9 @@ private:
             switch (c.state) {
             case State::ReadingHead:
                 if (t >= c.deadline_us) {
-                    refuse(c, 408, "the request head did not arrive within " +
-                                       std::to_string(owner_.limits_.head_deadline_s) + " s");
+                    refuse(c, 408,
+                           "the request head did not arrive within " + std::to_string(owner_.limits_.head_deadline_s) +
+                               " s");
                 }
                 break;
             case State::AwaitingComponents:

@@ -79,8 +79,8 @@ std::string describeFrame(const cdro_frame_t &f)
                       f.as.node_list.node_ids_count);
         break;
     case CDRO_FRAME_NACK:
-        std::snprintf(detail, sizeof detail, ": %s seq %u, reason %u", cdro_frame_type_name(f.as.nack.nacked_type)
-                      ? cdro_frame_type_name(f.as.nack.nacked_type) : "?",
+        std::snprintf(detail, sizeof detail, ": %s seq %u, reason %u",
+                      cdro_frame_type_name(f.as.nack.nacked_type) ? cdro_frame_type_name(f.as.nack.nacked_type) : "?",
                       f.as.nack.nacked_sequence, f.as.nack.reason);
         break;
     case CDRO_FRAME_ERROR:
@@ -92,8 +92,7 @@ std::string describeFrame(const cdro_frame_t &f)
     return text + detail;
 }
 
-FrameIntake::FrameIntake(const NodesConfig &nodes, double drop_log_per_s, ServiceCounters &counters,
-                         const Clock &clock)
+FrameIntake::FrameIntake(const NodesConfig &nodes, double drop_log_per_s, ServiceCounters &counters, const Clock &clock)
     : counters_(counters), clock_(clock), policy_(nodes.unknown), drop_log_(drop_log_per_s),
       known_nodes_(nodes.ids.begin(), nodes.ids.end()), node_list_known_(!nodes.ids.empty())
 {
@@ -172,8 +171,7 @@ template <typename Message> void FrameIntake::logDrop(const char *key, Message m
     }
 }
 
-void FrameIntake::onRejected(cdro_result_t result, const cdro_frame_t &partial, size_t chunk_len,
-                             int64_t host_unix_us)
+void FrameIntake::onRejected(cdro_result_t result, const cdro_frame_t &partial, size_t chunk_len, int64_t host_unix_us)
 {
     ++counters_.chunks_rejected;
     counters_.bytes_discarded += chunk_len;
@@ -198,27 +196,33 @@ void FrameIntake::onRejected(cdro_result_t result, const cdro_frame_t &partial, 
         logDrop("value", [&] { return describeFrame(partial) + " (a field is out of its documented range)"; });
         break;
     case CDRO_ERR_VERSION:
-        logDrop("version", [&] { return "a " + std::to_string(chunk_len) + "-byte chunk of protocol version " +
-                               std::to_string(partial.version) + " (this host speaks " +
-                               std::to_string(CDRO_PROTOCOL_VERSION) + ")"; });
+        logDrop("version", [&] {
+            return "a " + std::to_string(chunk_len) + "-byte chunk of protocol version " +
+                   std::to_string(partial.version) + " (this host speaks " + std::to_string(CDRO_PROTOCOL_VERSION) +
+                   ")";
+        });
         // One such frame is a corruption the CRC missed; a firmware of another build sends
         // nothing else, so only a run of them, with no good frame between, means that.
         if (++version_errors_in_a_row_ == kVersionErrorsForIncompatible) {
-            markIncompatible("the device sends protocol version " + std::to_string(partial.version) +
-                             " frames (" + std::to_string(version_errors_in_a_row_) +
+            markIncompatible("the device sends protocol version " + std::to_string(partial.version) + " frames (" +
+                             std::to_string(version_errors_in_a_row_) +
                              " in a row); this host speaks protocol version " + std::to_string(CDRO_PROTOCOL_VERSION) +
                              " (layout hash " + hex16(CDRO_LAYOUT_HASH) + ")");
         }
         break;
     case CDRO_ERR_TYPE:
-        logDrop("type", [&] { return "a frame of unknown type " + hex16(partial.type) + ", seq " + std::to_string(partial.sequence); });
+        logDrop("type", [&] {
+            return "a frame of unknown type " + hex16(partial.type) + ", seq " + std::to_string(partial.sequence);
+        });
         break;
     case CDRO_ERR_LENGTH:
         logDrop("length", [&] { return describeFrame(partial) + ": length does not match its layout"; });
         break;
     default:
-        logDrop(reason.c_str(), [&] { return "a " + std::to_string(chunk_len) + "-byte chunk: " + reason +
-                            (result == CDRO_ERR_CRC ? " (corrupted in transit)" : ""); });
+        logDrop(reason.c_str(), [&] {
+            return "a " + std::to_string(chunk_len) + "-byte chunk: " + reason +
+                   (result == CDRO_ERR_CRC ? " (corrupted in transit)" : "");
+        });
         break;
     }
 }
@@ -330,8 +334,8 @@ bool FrameIntake::checkNodes(const cdro_frame_t &f)
     case CDRO_FRAME_ERROR: ids[0] = f.as.error.node_id; break; // 0 = the device itself
     default: return true;
     }
-    const bool unknown = (ids[0] != 0 && known_nodes_.count(ids[0]) == 0) ||
-                         (ids[1] != 0 && known_nodes_.count(ids[1]) == 0);
+    const bool unknown =
+        (ids[0] != 0 && known_nodes_.count(ids[0]) == 0) || (ids[1] != 0 && known_nodes_.count(ids[1]) == 0);
     if (!unknown) {
         return true;
     }

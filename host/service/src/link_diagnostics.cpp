@@ -36,16 +36,22 @@ std::string uwbText(uint8_t channel, uint8_t rates, uint8_t plen, uint8_t gain_h
     }
     char text[160];
     std::snprintf(text, sizeof text, "channel %u, %s, PRF %s, preamble %s, gain %.1f dB, %s", channel,
-                  bitrate < 3 ? kBitrates[bitrate] : "bitrate ?", prf == 1 ? "16 MHz" : prf == 2 ? "64 MHz" : "?",
+                  bitrate < 3 ? kBitrates[bitrate] : "bitrate ?",
+                  prf == 1   ? "16 MHz"
+                  : prf == 2 ? "64 MHz"
+                             : "?",
                   preamble != 0 ? std::to_string(preamble).c_str() : "?", gain_half_db / 2.0,
-                  protocol == 0 ? "precision" : protocol == 1 ? "fast" : "protocol ?");
+                  protocol == 0   ? "precision"
+                  : protocol == 1 ? "fast"
+                                  : "protocol ?");
     return text;
 }
 
 std::string mismatchText(uint8_t mismatch)
 {
-    static const char *const kNames[] = {"channel", "bitrate/PRF", "preamble", "gain", "ranging protocol",
-                                         "Pozyx firmware (one the CDRO firmware cannot drive)"};
+    static const char *const kNames[] = {"channel",          "bitrate/PRF",
+                                         "preamble",         "gain",
+                                         "ranging protocol", "Pozyx firmware (one the CDRO firmware cannot drive)"};
     std::string out;
     for (unsigned i = 0; i < 6; ++i) {
         if ((mismatch & (1U << i)) != 0U) {
@@ -105,8 +111,9 @@ bool LinkDiagnostics::check(int64_t now_us)
     if (printable * 10 >= head_len_ * 9) {
         look = "text \"";
         for (size_t i = 0; i < head_len_; ++i) {
-            look += head_[i] == '\r' ? std::string("\\r") : head_[i] == '\n' ? std::string("\\n")
-                                                                              : std::string(1, static_cast<char>(head_[i]));
+            look += head_[i] == '\r'   ? std::string("\\r")
+                    : head_[i] == '\n' ? std::string("\\n")
+                                       : std::string(1, static_cast<char>(head_[i]));
         }
         look += "\"";
     } else {
@@ -170,14 +177,13 @@ void LinkDiagnostics::onFrame(const cdro_frame_t &frame)
                         hex16(n.node_id));
             return;
         }
-        const std::string settings =
-            uwbText(n.uwb_channel, n.uwb_rates, n.uwb_plen, n.uwb_gain, n.range_protocol);
+        const std::string settings = uwbText(n.uwb_channel, n.uwb_rates, n.uwb_plen, n.uwb_gain, n.range_protocol);
         if (n.mismatch != 0U) {
             log()->warn("serial: node {} (Pozyx firmware {}: {}) differs from the device's own node in: {}",
                         hex16(n.node_id), pozyxFirmwareText(n.pozyx_firmware), settings, mismatchText(n.mismatch));
         } else {
-            log()->info("serial: node {}: Pozyx firmware {}, {}", hex16(n.node_id),
-                        pozyxFirmwareText(n.pozyx_firmware), settings);
+            log()->info("serial: node {}: Pozyx firmware {}, {}", hex16(n.node_id), pozyxFirmwareText(n.pozyx_firmware),
+                        settings);
         }
         return;
     }

@@ -165,8 +165,9 @@ void setupLogging(const LoggingConfig &config)
         if (config.file.empty()) {
             logger = stderrLogger();
         } else {
-            logger = std::make_shared<spdlog::logger>(
-                "cdro", std::make_shared<spdlog::sinks::basic_file_sink_mt>(config.file, false));
+            logger = std::make_shared<spdlog::logger>("cdro",
+                                                      std::make_shared<spdlog::sinks::basic_file_sink_mt>(config.file,
+                                                                                                          false));
             logger->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
         }
     } catch (const spdlog::spdlog_ex &error) {

@@ -70,10 +70,10 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)
 {
-    return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) &&
-           sameBits(a.heading_rad, b.heading_rad) && sameBits(a.var_x_m2, b.var_x_m2) &&
-           sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.frame == b.frame &&
-           sameBits(a.var_heading_rad2, b.var_heading_rad2) && sameBits(a.cov_x_heading_m_rad, b.cov_x_heading_m_rad) &&
+    return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.heading_rad, b.heading_rad) &&
+           sameBits(a.var_x_m2, b.var_x_m2) && sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) &&
+           a.frame == b.frame && sameBits(a.var_heading_rad2, b.var_heading_rad2) &&
+           sameBits(a.cov_x_heading_m_rad, b.cov_x_heading_m_rad) &&
            sameBits(a.cov_y_heading_m_rad, b.cov_y_heading_m_rad) && a.heading_hypotheses == b.heading_hypotheses &&
            sameBits(a.range_scale, b.range_scale) && sameBits(a.range_scale_sigma, b.range_scale_sigma) &&
            sameBits(a.range_offset_m, b.range_offset_m) && sameBits(a.range_offset_sigma_m, b.range_offset_sigma_m);
@@ -143,8 +143,8 @@ nlohmann::ordered_json healthJson(const Health &h, OutputTime time)
     j["rates"] = toJson(h.rates);
     j["device"] = h.device;
     j["device_node_id"] = h.device_node_id;
-    j["device_node_id_hex"] = h.device_node_id != 0 ? nlohmann::ordered_json(nodeIdHex(h.device_node_id))
-                                                    : nlohmann::ordered_json(nullptr);
+    j["device_node_id_hex"] =
+        h.device_node_id != 0 ? nlohmann::ordered_json(nodeIdHex(h.device_node_id)) : nlohmann::ordered_json(nullptr);
     j["device_firmware"] = h.device_firmware;
     j["detail"] = h.detail;
     return j;
@@ -190,7 +190,7 @@ nlohmann::ordered_json mapJson(const MapState &map)
         nlohmann::ordered_json one = nodeJson(node, outputTimeOf(map));
         const auto updated = map.updated_unix_s.find(node.id);
         one["t_updated_unix_s"] = updated != map.updated_unix_s.end() ? nlohmann::ordered_json(updated->second)
-                                                                       : nlohmann::ordered_json(nullptr);
+                                                                      : nlohmann::ordered_json(nullptr);
         j["nodes"].push_back(std::move(one));
         by_id[node.id] = &node;
     }

@@ -98,10 +98,10 @@ std::string prometheusText(const std::shared_ptr<const std::string> &map_json,
     }
 
     const nlohmann::json &counters = objectAt(health, "counters");
-#define CDRO_X_COUNTER_METRIC(name, doc)                                                                   \
-    if (counters.contains(#name)) {                                                                        \
-        family(out, "cdro_" #name "_total", "counter", doc);                                               \
-        out << "cdro_" #name "_total " << number(counters[#name]) << '\n';                                 \
+#define CDRO_X_COUNTER_METRIC(name, doc)                                   \
+    if (counters.contains(#name)) {                                        \
+        family(out, "cdro_" #name "_total", "counter", doc);               \
+        out << "cdro_" #name "_total " << number(counters[#name]) << '\n'; \
     }
     CDRO_SERVICE_COUNTERS(CDRO_X_COUNTER_METRIC)
 #undef CDRO_X_COUNTER_METRIC

@@ -85,8 +85,8 @@ void MqttPublisher::configureSecurity(bool tls)
                                      auth.key_file.empty() ? nullptr : auth.key_file.c_str(), nullptr);
     if (rc != MOSQ_ERR_SUCCESS) {
         throw ConfigError("mqtt_auth: cannot use the TLS files (ca_file '" + auth.ca_file + "', cert_file '" +
-                          auth.cert_file + "', key_file '" + auth.key_file + "'): " +
-                          (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+                          auth.cert_file + "', key_file '" + auth.key_file +
+                          "'): " + (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
     }
     // The broker's certificate must name the host of mqtt.url (never switched off here).
     mosquitto_tls_insecure_set(mosq_, false);
@@ -104,7 +104,8 @@ void MqttPublisher::connect()
                                   : mosquitto_reconnect_async(mosq_);
     first_connect_ = first_connect_ && rc != MOSQ_ERR_SUCCESS;
     if (rc != MOSQ_ERR_SUCCESS) {
-        onLost(std::string("cannot connect: ") + (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
+        onLost(std::string("cannot connect: ") +
+               (rc == MOSQ_ERR_ERRNO ? std::strerror(errno) : mosquitto_strerror(rc)));
         return;
     }
     fd_ = mosquitto_socket(mosq_);

@@ -262,10 +262,11 @@ void OdometryIntake::takeLive(std::string_view text, const std::string &source, 
         // velocities that change linearly between messages).
         message.distance_m = 0.5 * (previous.v_mps + p.v_mps) * gap_s;
         message.dheading_rad = 0.5 * (previous.omega_radps + p.omega_radps) * gap_s;
-        if (std::fabs(message.distance_m) > kOdometryMaxStepM || std::fabs(message.dheading_rad) > kOdometryMaxStepRad) {
+        if (std::fabs(message.distance_m) > kOdometryMaxStepM ||
+            std::fabs(message.dheading_rad) > kOdometryMaxStepRad) {
             reject(OdometryReject::Absurd, source, text,
-                   "the velocities over " + number(gap_s) + " s make a step of " + number(message.distance_m) +
-                       " m, " + number(message.dheading_rad) + " rad (beyond +-10 m, +-pi)");
+                   "the velocities over " + number(gap_s) + " s make a step of " + number(message.distance_m) + " m, " +
+                       number(message.dheading_rad) + " rad (beyond +-10 m, +-pi)");
             return;
         }
     }

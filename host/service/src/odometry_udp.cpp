@@ -104,8 +104,8 @@ void OdometryUdpSource::onReadable(short)
     for (int i = 0; i < kBurstDatagrams && fd_ >= 0; ++i) {
         sockaddr_storage from{};
         socklen_t from_len = sizeof from;
-        const ssize_t n = ::recvfrom(fd_, buffer_.data(), buffer_.size(), 0, reinterpret_cast<sockaddr *>(&from),
-                                     &from_len);
+        const ssize_t n =
+            ::recvfrom(fd_, buffer_.data(), buffer_.size(), 0, reinterpret_cast<sockaddr *>(&from), &from_len);
         if (n < 0) {
             if (errno == EINTR) {
                 continue;

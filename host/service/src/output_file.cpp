@@ -37,7 +37,8 @@ void checkOutputPath(const std::string &path, const std::string &what)
     struct stat st {};
     if (::lstat(path.c_str(), &st) == 0) {
         if (S_ISLNK(st.st_mode)) {
-            throw ConfigError(what + ": '" + path + "' is a symbolic link; refusing to write through it (its target "
+            throw ConfigError(what + ": '" + path +
+                              "' is a symbolic link; refusing to write through it (its target "
                               "could be any file you can write). Remove the link, or give the real path");
         }
         if (S_ISCHR(st.st_mode) || S_ISFIFO(st.st_mode)) {
@@ -52,7 +53,8 @@ void checkOutputPath(const std::string &path, const std::string &what)
     if ((dir.st_mode & S_IWOTH) != 0) {
         throw ConfigError(what + ": the directory '" + directory + "' (mode " + octal(dir.st_mode) +
                           ") can be written by every user, who could plant a link or a file of their own "
-                          "under '" + path + "'; write to a directory only you (or your group) can write");
+                          "under '" +
+                          path + "'; write to a directory only you (or your group) can write");
     }
 }
 

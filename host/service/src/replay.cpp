@@ -51,8 +51,8 @@ bool ReplaySource::nextRecord(CaptureRecord &record)
         counters_.replay_corrupt_bytes += reader_->corruptBytes();
         counters_.replay_truncated_bytes += reader_->truncatedTailBytes();
         if (reader_->corruptBytes() > 0 || reader_->truncatedTailBytes() > 0) {
-            log()->warn("replay: {}: {} corrupt bytes skipped, {} bytes of a cut-short last record", paths_[path_index_],
-                        reader_->corruptBytes(), reader_->truncatedTailBytes());
+            log()->warn("replay: {}: {} corrupt bytes skipped, {} bytes of a cut-short last record",
+                        paths_[path_index_], reader_->corruptBytes(), reader_->truncatedTailBytes());
         }
         reader_.reset();
         if (++path_index_ < paths_.size()) {

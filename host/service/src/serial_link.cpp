@@ -114,19 +114,16 @@ std::string openFailureReason(const std::string &path, const std::string &fallba
     case EPERM:
         return "permission denied (add yourself to the dialout group: sudo usermod -aG dialout $USER, then log in "
                "again; or install config/udev/99-cdro-pozyx.rules)";
-    case ENOENT:
-        return "no such device (is the board plugged in? ls /dev/ttyACM* /dev/ttyUSB*)";
-    case EBUSY:
-        return "device busy (another program has it open?)";
-    default:
-        return std::strerror(errno);
+    case ENOENT: return "no such device (is the board plugged in? ls /dev/ttyACM* /dev/ttyUSB*)";
+    case EBUSY: return "device busy (another program has it open?)";
+    default: return std::strerror(errno);
     }
 }
 
 int configureLibSerialPort(LibSerial::SerialPort &port, uint32_t baud, std::string *error)
 {
-    const BaudEntry *entry = std::find_if(std::begin(kBauds), std::end(kBauds),
-                                          [baud](const BaudEntry &e) { return e.baud == baud; });
+    const BaudEntry *entry =
+        std::find_if(std::begin(kBauds), std::end(kBauds), [baud](const BaudEntry &e) { return e.baud == baud; });
     if (entry == std::end(kBauds)) {
         if (error != nullptr) {
             *error = "unsupported baud " + std::to_string(baud);
@@ -189,10 +186,7 @@ SerialLink::SerialLink(EventLoop &loop, const SerialConfig &config, Listener &li
 
 SerialLink::~SerialLink() { shutdown(); }
 
-std::string SerialLink::description() const
-{
-    return "serial:" + config_.device + "@" + std::to_string(config_.baud);
-}
+std::string SerialLink::description() const { return "serial:" + config_.device + "@" + std::to_string(config_.baud); }
 
 void SerialLink::start()
 {

@@ -73,10 +73,7 @@ Service::Service(const ServiceConfig &config, const RunOptions &run, ServiceHook
     odometry_.setAfterDelivery([this](int64_t event_unix_us) { afterFrame(event_unix_us); });
 }
 
-Service::~Service()
-{
-    shutdown("service destroyed");
-}
+Service::~Service() { shutdown("service destroyed"); }
 
 void Service::start()
 {
@@ -122,9 +119,13 @@ void Service::start()
         run_start_unix_us_ = resumed_run_start_unix_us_ != 0 ? resumed_run_start_unix_us_ : replay_->runStartUnixUs();
         source = replay_->source();
         log()->info("replay: writes JSON Lines to {}, {}, {}, {} (each only when its option is given)",
-                    config_.output.jsonl.empty() ? "nowhere" : config_.output.jsonl == "-" ? "stdout" : config_.output.jsonl,
-                    config_.checkpoint.path.empty() ? "no checkpoint (--checkpoint FILE)" : "a checkpoint to " + config_.checkpoint.path,
-                    config_.http.port == 0 ? "no live map (--http-port N)" : "a live map on port " + std::to_string(config_.http.port),
+                    config_.output.jsonl.empty()  ? "nowhere"
+                    : config_.output.jsonl == "-" ? "stdout"
+                                                  : config_.output.jsonl,
+                    config_.checkpoint.path.empty() ? "no checkpoint (--checkpoint FILE)"
+                                                    : "a checkpoint to " + config_.checkpoint.path,
+                    config_.http.port == 0 ? "no live map (--http-port N)"
+                                           : "a live map on port " + std::to_string(config_.http.port),
                     config_.mqtt.url.empty() ? "no MQTT (--mqtt URL)" : "MQTT to " + config_.mqtt.url);
     } else {
         run_start_unix_us_ = resumed_run_start_unix_us_ != 0 ? resumed_run_start_unix_us_ : clock_.unixUs();
@@ -166,16 +167,18 @@ void Service::start()
     jsonl_.open();
     mqtt_.start();
     if (config_.http.port != 0) {
-        http_ = std::make_unique<HttpServer>(loop_, config_.http, store_, [this](uint16_t id) -> std::optional<std::string> {
-            if (hooks_.map == nullptr) {
-                return std::nullopt;
-            }
-            const std::optional<NodeComponents> components = hooks_.map->components(id);
-            if (!components) {
-                return std::nullopt;
-            }
-            return componentsJson(*components).dump();
-        });
+        http_ = std::make_unique<HttpServer>(loop_, config_.http, store_,
+                                             [this](uint16_t id) -> std::optional<std::string> {
+                                                 if (hooks_.map == nullptr) {
+                                                     return std::nullopt;
+                                                 }
+                                                 const std::optional<NodeComponents> components =
+                                                     hooks_.map->components(id);
+                                                 if (!components) {
+                                                     return std::nullopt;
+                                                 }
+                                                 return componentsJson(*components).dump();
+                                             });
         http_->setFloorPlan(config_.web.floor_plan);
         http_->start();
     }

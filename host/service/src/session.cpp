@@ -119,8 +119,8 @@ void DeviceSession::startConfiguring()
     cdro_frame_t schedule{};
     schedule.type = CDRO_FRAME_SET_SCHEDULE;
     const ScheduleConfig &s = config_.schedule;
-    schedule.as.set_schedule = {s.slot_period_ms, s.mode, s.motion_poll_ms, s.moving_boost, s.status_period_ms,
-                                s.max_retries};
+    schedule.as.set_schedule = {s.slot_period_ms,   s.mode,       s.motion_poll_ms, s.moving_boost,
+                                s.status_period_ms, s.max_retries};
     steps_.push_back(schedule);
     cdro_frame_t start{};
     start.type = CDRO_FRAME_START;
@@ -206,8 +206,7 @@ void DeviceSession::onTick()
     case Phase::AwaitHello:
         if (hello_requests_ >= config_.serial.hello_retries) {
             deadline_us_ = INT64_MAX;
-            const std::string reason =
-                "no HELLO after " + std::to_string(hello_requests_) + " HELLO_REQUESTs";
+            const std::string reason = "no HELLO after " + std::to_string(hello_requests_) + " HELLO_REQUESTs";
             log()->warn("session: {}; reopening the port", reason);
             listener_.onReopenRequested(reason);
             return;
@@ -257,8 +256,8 @@ void DeviceSession::onDeviceFrame(const cdro_frame_t &f, int64_t /*host_unix_us*
         }
         log()->info("session: HELLO from node 0x{:04X}, firmware {}.{}, protocol {}, layout 0x{:04X}, "
                     "max_nodes {}, reset_cause 0x{:02X}",
-                    h.node_id, h.firmware_version >> 8, h.firmware_version & 0xFF, h.protocol_version,
-                    h.layout_hash, h.max_nodes, h.reset_cause);
+                    h.node_id, h.firmware_version >> 8, h.firmware_version & 0xFF, h.protocol_version, h.layout_hash,
+                    h.max_nodes, h.reset_cause);
         startConfiguring();
         return;
     }
@@ -279,7 +278,8 @@ void DeviceSession::onDeviceFrame(const cdro_frame_t &f, int64_t /*host_unix_us*
         ++counters_.nacks;
         log()->error("session: the device NACKed {} seq {}: {}", typeName(n.nacked_type), n.nacked_sequence,
                      nackReasonName(n.reason));
-        if (phase_ != Phase::Configuring || n.nacked_type != steps_[step_].type || n.nacked_sequence != step_sequence_) {
+        if (phase_ != Phase::Configuring || n.nacked_type != steps_[step_].type ||
+            n.nacked_sequence != step_sequence_) {
             return;
         }
         if (n.nacked_type == CDRO_FRAME_START) {

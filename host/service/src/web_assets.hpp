@@ -7,9 +7,9 @@
 namespace cdro::service {
 
 struct WebAsset {
-    const char *path;  // "/index.html"
+    const char *path; // "/index.html"
     const char *data;
-    size_t size;       // bytes
+    size_t size; // bytes
 };
 
 const std::vector<WebAsset> &webAssets();

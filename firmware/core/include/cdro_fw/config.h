@@ -34,8 +34,7 @@
 #define CDRO_FW_MAX_NODES (CDRO_FW_MAX_REMOTE_NODES + 1)
 
 /* Pairs in ALL_PAIRS mode: n direct pairs and n(n-1)/2 remote-to-remote pairs. */
-#define CDRO_FW_MAX_PAIRS \
-    (CDRO_FW_MAX_REMOTE_NODES + (CDRO_FW_MAX_REMOTE_NODES * (CDRO_FW_MAX_REMOTE_NODES - 1)) / 2)
+#define CDRO_FW_MAX_PAIRS (CDRO_FW_MAX_REMOTE_NODES + (CDRO_FW_MAX_REMOTE_NODES * (CDRO_FW_MAX_REMOTE_NODES - 1)) / 2)
 
 /* Host bytes decoded per main-loop step (bounds the step's command-handling time; the rest
  * stays in the serial receive buffer for the next step). */
@@ -151,8 +150,8 @@
 /* Longest single Pozyx operation one step may perform (docs/firmware.md derives the whole
  * step bound from it): a remote-to-remote range, two remote replies and the result message,
  * plus an allowance for the I2C traffic of polling (one INT_STATUS read per poll interval). */
-#define CDRO_FW_LONGEST_OPERATION_MS                                             \
-    (2U * CDRO_FW_REMOTE_REPLY_TIMEOUT_MS + CDRO_FW_REMOTE_RESULT_TIMEOUT_MS +  \
+#define CDRO_FW_LONGEST_OPERATION_MS                                           \
+    (2U * CDRO_FW_REMOTE_REPLY_TIMEOUT_MS + CDRO_FW_REMOTE_RESULT_TIMEOUT_MS + \
      (2U * CDRO_FW_REMOTE_REPLY_TIMEOUT_MS + CDRO_FW_REMOTE_RESULT_TIMEOUT_MS) / 4U)
 
 /* ---- compile-time checks -------------------------------------------------------------- */
@@ -169,7 +168,7 @@ CDRO_FW_STATIC_ASSERT(CDRO_FW_STILL_SAMPLES <= 255, still_count_fits_uint8);
 CDRO_FW_STATIC_ASSERT(CDRO_FW_STALE_REBASE <= 3, stale_count_fits_two_bits);
 CDRO_FW_STATIC_ASSERT(CDRO_FW_LONGEST_OPERATION_MS * 2U <= CDRO_FW_WATCHDOG_MS,
                       one_operation_fits_half_the_watchdog_period);
-CDRO_FW_STATIC_ASSERT(CDRO_FW_DISCOVERY_TIMEOUT_MS * CDRO_FW_DISCOVERY_ATTEMPTS * 2U <= CDRO_FW_WATCHDOG_MS,
+CDRO_FW_STATIC_ASSERT(CDRO_FW_DISCOVERY_TIMEOUT_MS *CDRO_FW_DISCOVERY_ATTEMPTS * 2U <= CDRO_FW_WATCHDOG_MS,
                       discovery_fits_half_the_watchdog_period);
 
 #endif /* CDRO_FW_CONFIG_H */

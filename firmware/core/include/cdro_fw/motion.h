@@ -22,11 +22,11 @@ extern "C" {
 
 typedef struct cdro_motion_detector {
     uint16_t deviation_mg[CDRO_FW_MOTION_WINDOW]; /* mg, |norm - 1 g| of the last samples */
-    uint8_t next;        /* index of the oldest sample in deviation_mg */
-    uint8_t still_count; /* consecutive samples with the deviation below the still threshold */
-    uint8_t moving;      /* 1 = moving */
-    uint16_t norm_mg;    /* mg, norm of the last sample */
-    uint16_t window_deviation_mg; /* mg, the deviation that decided the state */
+    uint8_t next;                                 /* index of the oldest sample in deviation_mg */
+    uint8_t still_count;                          /* consecutive samples with the deviation below the still threshold */
+    uint8_t moving;                               /* 1 = moving */
+    uint16_t norm_mg;                             /* mg, norm of the last sample */
+    uint16_t window_deviation_mg;                 /* mg, the deviation that decided the state */
 } cdro_motion_detector_t;
 
 void cdro_motion_detector_init(cdro_motion_detector_t *motion);

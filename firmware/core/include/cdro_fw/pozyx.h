@@ -52,8 +52,7 @@ typedef enum cdro_i2c_result {
  *              May be NULL.
  */
 typedef struct cdro_pozyx_ops {
-    cdro_i2c_result_t (*i2c_write)(void *user, uint8_t address, const uint8_t *data, uint8_t length,
-                                   uint8_t send_stop);
+    cdro_i2c_result_t (*i2c_write)(void *user, uint8_t address, const uint8_t *data, uint8_t length, uint8_t send_stop);
     cdro_i2c_result_t (*i2c_read)(void *user, uint8_t address, uint8_t *data, uint8_t length);
     void (*delay_ms)(void *user, uint16_t duration_ms);
     uint32_t (*now_ms)(void *user);
@@ -76,26 +75,26 @@ typedef enum cdro_pozyx_status {
 /* What one remote-to-remote range saw, for the bench diagnostics (DIAGNOSE): filled by
  * cdro_pozyx_range_remote when cdro_pozyx_t.trace points at one. Times are the local clock. */
 typedef struct cdro_pozyx_trace {
-    uint8_t flags_to_ack;     /* INT_STATUS bits read from TX_SEND up to the acknowledgement */
-    uint8_t flags_to_result;  /* bits read after it, up to the result message */
-    uint8_t result_length;    /* bytes, RX_DATA_LEN of the last message from the ranging node */
-    uint32_t result_head;     /* the first 4 bytes of the result message, little-endian */
+    uint8_t flags_to_ack;                         /* INT_STATUS bits read from TX_SEND up to the acknowledgement */
+    uint8_t flags_to_result;                      /* bits read after it, up to the result message */
+    uint8_t result_length;                        /* bytes, RX_DATA_LEN of the last message from the ranging node */
+    uint32_t result_head;                         /* the first 4 bytes of the result message, little-endian */
     uint32_t send_ms, ack_ms, result_ms, done_ms; /* ms: TX_SEND, acknowledgement, result, GETRANGEINFO */
 } cdro_pozyx_trace_t;
 
 typedef struct cdro_pozyx {
     const cdro_pozyx_ops_t *ops;
     void *user;
-    uint8_t address;         /* 7-bit I2C address */
-    uint8_t sticky_flags;    /* INT_STATUS bits read but not consumed */
-    uint8_t last_error_code; /* ERRORCODE read after the last ERR, 0 if none */
-    uint8_t last_target;     /* register or function of the last failure of any kind */
-    uint8_t bus_target;      /* register or function of the last bus error (ERROR BUS detail) */
-    uint8_t timeout_target;  /* function of the last timeout (ERROR TIMEOUT detail) */
-    uint8_t seen_flags;      /* every INT_STATUS bit read since the last clear (diagnostics) */
-    uint32_t bus_errors;     /* count of failed I2C transactions */
-    uint32_t timeouts;       /* count of operations that timed out */
-    uint32_t bus_recoveries; /* count of bus clears after a transaction timed out */
+    uint8_t address;           /* 7-bit I2C address */
+    uint8_t sticky_flags;      /* INT_STATUS bits read but not consumed */
+    uint8_t last_error_code;   /* ERRORCODE read after the last ERR, 0 if none */
+    uint8_t last_target;       /* register or function of the last failure of any kind */
+    uint8_t bus_target;        /* register or function of the last bus error (ERROR BUS detail) */
+    uint8_t timeout_target;    /* function of the last timeout (ERROR TIMEOUT detail) */
+    uint8_t seen_flags;        /* every INT_STATUS bit read since the last clear (diagnostics) */
+    uint32_t bus_errors;       /* count of failed I2C transactions */
+    uint32_t timeouts;         /* count of operations that timed out */
+    uint32_t bus_recoveries;   /* count of bus clears after a transaction timed out */
     cdro_pozyx_trace_t *trace; /* NULL, or where cdro_pozyx_range_remote records what it saw */
 } cdro_pozyx_t;
 
@@ -154,8 +153,7 @@ cdro_pozyx_status_t cdro_pozyx_read_accel(cdro_pozyx_t *dev, cdro_accel_t *accel
 cdro_pozyx_status_t cdro_pozyx_range(cdro_pozyx_t *dev, uint16_t to, cdro_pozyx_range_result_t *out);
 
 /* Remote register read of length (<= 31) bytes at reg of node `id` over UWB. */
-cdro_pozyx_status_t cdro_pozyx_remote_read(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, uint8_t *data,
-                                           uint8_t length);
+cdro_pozyx_status_t cdro_pozyx_remote_read(cdro_pozyx_t *dev, uint16_t id, uint8_t reg, uint8_t *data, uint8_t length);
 
 /* Remote function call on node `id`: params <= 28 bytes, result <= 30 bytes after the return
  * byte, which must be 1 (else ERR_REFUSED). */
@@ -176,7 +174,8 @@ cdro_pozyx_status_t cdro_pozyx_remote_read_accel(cdro_pozyx_t *dev, uint16_t id,
  * up to the acknowledgement dropped; its result message (RX_DATA from `from` with
  * CDRO_FW_REMOTE_RESULT_LENGTH bytes; anything else skipped); only then a remote GETRANGEINFO
  * on `from`. out->timestamp_ms is `from`'s clock. */
-cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to, cdro_pozyx_range_result_t *out);
+cdro_pozyx_status_t cdro_pozyx_range_remote(cdro_pozyx_t *dev, uint16_t from, uint16_t to,
+                                            cdro_pozyx_range_result_t *out);
 
 /* Clears the device list, discovers every node (anchors and tags) and reads up to max_ids ids.
  * *found gets the number read (<= max_ids); *listed the size of the Pozyx list. Pages after the

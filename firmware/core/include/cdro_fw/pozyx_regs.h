@@ -38,14 +38,14 @@
 /* ---- functions (call: write F + params, repeated start, read return byte + result) ----- */
 #define POZYX_FN_RESET_SYS 0xB0
 #define POZYX_FN_LED_CTRL 0xB1
-#define POZYX_FN_TX_DATA 0xB2            /* offset, data...: fill the UWB TX buffer */
-#define POZYX_FN_TX_SEND 0xB3            /* dest u16, op: send the TX buffer */
-#define POZYX_FN_RX_DATA 0xB4            /* offset, length -> bytes of the RX buffer */
-#define POZYX_FN_DO_RANGING 0xB5         /* dest u16; completion FUNC or ERR */
-#define POZYX_FN_DEVICES_GETIDS 0xC0     /* offset, count -> count x u16 */
-#define POZYX_FN_DEVICES_DISCOVER 0xC1   /* type, slots, slot_ms; completion FUNC or ERR */
+#define POZYX_FN_TX_DATA 0xB2          /* offset, data...: fill the UWB TX buffer */
+#define POZYX_FN_TX_SEND 0xB3          /* dest u16, op: send the TX buffer */
+#define POZYX_FN_RX_DATA 0xB4          /* offset, length -> bytes of the RX buffer */
+#define POZYX_FN_DO_RANGING 0xB5       /* dest u16; completion FUNC or ERR */
+#define POZYX_FN_DEVICES_GETIDS 0xC0   /* offset, count -> count x u16 */
+#define POZYX_FN_DEVICES_DISCOVER 0xC1 /* type, slots, slot_ms; completion FUNC or ERR */
 #define POZYX_FN_DEVICES_CLEAR 0xC3
-#define POZYX_FN_DEVICE_GETINFO 0xC5     /* id u16 -> id u16, flag u8 */
+#define POZYX_FN_DEVICE_GETINFO 0xC5      /* id u16 -> id u16, flag u8 */
 #define POZYX_FN_DEVICE_GETRANGEINFO 0xC7 /* id u16 -> timestamp u32 ms, distance u32 mm, rss i16 dBm */
 
 #define POZYX_RANGEINFO_SIZE 10 /* bytes of the DEVICE_GETRANGEINFO result */

@@ -86,7 +86,7 @@ uint8_t cdro_sched_report(cdro_sched_t *sched, uint8_t success);
  * shared with the accelerometer polls: after a failure, and at each round start. */
 uint8_t cdro_backoff_failed(uint8_t backoff);
 uint8_t cdro_backoff_round_start(uint8_t backoff);
-#define CDRO_BACKOFF_SITTING_OUT(backoff) (((backoff) & 0x0FU) != 0U)
+#define CDRO_BACKOFF_SITTING_OUT(backoff) (((backoff)&0x0FU) != 0U)
 
 #ifdef __cplusplus
 }

@@ -58,11 +58,11 @@ typedef struct cdro_hd_callbacks {
 } cdro_hd_callbacks_t;
 
 typedef struct cdro_hd_config {
-    uint64_t seed;             /* the Pozyx model's own random draws */
-    double max_range_m;        /* m, longer UWB links fail */
-    uint8_t pozyx_firmware;    /* the Pozyx's FIRMWARE_VER, major << 4 | minor */
-    uint8_t pozyx_present;     /* 0: the shield does not answer on I2C */
-    uint16_t free_ram_bytes;   /* STATUS.free_ram_bytes */
+    uint64_t seed;           /* the Pozyx model's own random draws */
+    double max_range_m;      /* m, longer UWB links fail */
+    uint8_t pozyx_firmware;  /* the Pozyx's FIRMWARE_VER, major << 4 | minor */
+    uint8_t pozyx_present;   /* 0: the shield does not answer on I2C */
+    uint16_t free_ram_bytes; /* STATUS.free_ram_bytes */
 } cdro_hd_config_t;
 
 typedef struct cdro_hd cdro_hd_t;

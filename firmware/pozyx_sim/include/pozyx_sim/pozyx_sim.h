@@ -63,11 +63,11 @@
 extern "C" {
 #endif
 
-#define POZYX_SIM_MAX_NODES 32          /* nodes in the registry, the local device included */
-#define POZYX_SIM_MAX_RANGE_ENTRIES 20  /* stored range results per node (the device list) */
-#define POZYX_SIM_MAX_EVENTS 16         /* pending long operations and messages */
-#define POZYX_SIM_BUFFER_SIZE 100       /* UWB TX / RX buffers */
-#define POZYX_SIM_MAX_PARAMS 128        /* function parameter bytes accepted per call */
+#define POZYX_SIM_MAX_NODES 32                    /* nodes in the registry, the local device included */
+#define POZYX_SIM_MAX_RANGE_ENTRIES 20            /* stored range results per node (the device list) */
+#define POZYX_SIM_MAX_EVENTS 16                   /* pending long operations and messages */
+#define POZYX_SIM_BUFFER_SIZE 100                 /* UWB TX / RX buffers */
+#define POZYX_SIM_MAX_PARAMS 128                  /* function parameter bytes accepted per call */
 #define POZYX_SIM_GARBAGE_DISTANCE_MM 167772160UL /* what a failed ranging can return */
 #define POZYX_SIM_DEFAULT_I2C_ADDRESS 0x4B
 
@@ -100,32 +100,32 @@ typedef void (*pozyx_sim_range_fn)(void *context, uint16_t ranger, uint16_t part
                                    pozyx_sim_range_outcome_t *out);
 
 typedef struct pozyx_sim_node_config {
-    uint16_t id;                    /* network id, non-zero */
-    uint8_t is_tag;                 /* 1 = tag (has an accelerometer), 0 = anchor */
-    uint8_t powered;                /* 0 = silent on UWB (and on I2C for the local device) */
-    pozyx_sim_vec3_t position_m;    /* m, used when position_fn is NULL */
+    uint16_t id;                 /* network id, non-zero */
+    uint8_t is_tag;              /* 1 = tag (has an accelerometer), 0 = anchor */
+    uint8_t powered;             /* 0 = silent on UWB (and on I2C for the local device) */
+    pozyx_sim_vec3_t position_m; /* m, used when position_fn is NULL */
     pozyx_sim_position_fn position_fn;
     void *position_context;
-    pozyx_sim_accel_fn accel_fn;    /* NULL: at rest, (0, 0, 1000) mg */
+    pozyx_sim_accel_fn accel_fn; /* NULL: at rest, (0, 0, 1000) mg */
     void *accel_context;
-    uint32_t clock_offset_ms;       /* ms, the node's uptime at simulated time 0 */
-    uint8_t self_test;              /* ST_RESULT; 0 = the healthy value (tag 0x3F, anchor 0x30) */
+    uint32_t clock_offset_ms; /* ms, the node's uptime at simulated time 0 */
+    uint8_t self_test;        /* ST_RESULT; 0 = the healthy value (tag 0x3F, anchor 0x30) */
 } pozyx_sim_node_config_t;
 
 typedef struct pozyx_sim_config {
-    uint8_t i2c_address;            /* 7-bit, default 0x4B */
-    uint8_t who_am_i;               /* default 0x43 */
-    uint8_t firmware_version;       /* default 0x11 */
-    uint8_t accept_plain_writes;    /* 0 (default): only the documented register-write form */
-    uint8_t imu_flag;               /* 1 (default): INT_STATUS IMU set every 10 ms on a tag */
-    uint64_t seed;                  /* RNG seed for range and accelerometer noise */
-    double range_noise_std_mm;      /* mm, Gaussian noise of each distance (default 30) */
-    double range_bias_mm;           /* mm, added to every distance (default 0) */
-    double accel_noise_std_mg;      /* mg, Gaussian noise of each accelerometer axis (default 5) */
-    double max_range_m;             /* m, longer UWB links fail (default 50) */
-    uint32_t ranging_duration_us;   /* us, one two-way ranging exchange (default 15000) */
-    uint32_t uwb_message_us;        /* us, one UWB message on air incl. turnaround (default 3000) */
-    uint32_t remote_processing_us;  /* us, a remote node's handling of a request (default 1000) */
+    uint8_t i2c_address;           /* 7-bit, default 0x4B */
+    uint8_t who_am_i;              /* default 0x43 */
+    uint8_t firmware_version;      /* default 0x11 */
+    uint8_t accept_plain_writes;   /* 0 (default): only the documented register-write form */
+    uint8_t imu_flag;              /* 1 (default): INT_STATUS IMU set every 10 ms on a tag */
+    uint64_t seed;                 /* RNG seed for range and accelerometer noise */
+    double range_noise_std_mm;     /* mm, Gaussian noise of each distance (default 30) */
+    double range_bias_mm;          /* mm, added to every distance (default 0) */
+    double accel_noise_std_mg;     /* mg, Gaussian noise of each accelerometer axis (default 5) */
+    double max_range_m;            /* m, longer UWB links fail (default 50) */
+    uint32_t ranging_duration_us;  /* us, one two-way ranging exchange (default 15000) */
+    uint32_t uwb_message_us;       /* us, one UWB message on air incl. turnaround (default 3000) */
+    uint32_t remote_processing_us; /* us, a remote node's handling of a request (default 1000) */
     /* Behaviours of the real device (pozyx_sim_config_realistic sets them; docs/firmware.md,
      * "The simulated Pozyx", says where each figure comes from). All off / 0 in the ideal model
      * of pozyx_sim_config_default, which the unit tests of the model and the driver use. */
@@ -178,25 +178,25 @@ typedef struct pozyx_sim_faults {
 } pozyx_sim_faults_t;
 
 typedef struct pozyx_sim_stats {
-    uint32_t transactions;         /* STARTs that were not repeated starts */
-    uint32_t bytes_written;        /* bytes the master wrote (address bytes excluded) */
+    uint32_t transactions;  /* STARTs that were not repeated starts */
+    uint32_t bytes_written; /* bytes the master wrote (address bytes excluded) */
     uint32_t bytes_read;
-    uint32_t longest_write;        /* most bytes written in one address phase */
-    uint32_t longest_read;         /* most bytes read in one address phase */
-    uint32_t function_calls[64];   /* per function 0xB0..0xEF: [fn - 0xB0] */
-    uint32_t register_reads;       /* read phases at a register pointer */
-    uint32_t register_writes;      /* register writes in the documented form */
-    uint32_t protocol_violations;  /* plain-form writes, reads without a pointer, writes to
+    uint32_t longest_write;       /* most bytes written in one address phase */
+    uint32_t longest_read;        /* most bytes read in one address phase */
+    uint32_t function_calls[64];  /* per function 0xB0..0xEF: [fn - 0xB0] */
+    uint32_t register_reads;      /* read phases at a register pointer */
+    uint32_t register_writes;     /* register writes in the documented form */
+    uint32_t protocol_violations; /* plain-form writes, reads without a pointer, writes to
                                       read-only registers, bytes after a read phase, ... */
-    uint32_t rangings;             /* two-way rangings performed (local and remote) */
-    uint32_t remote_requests;      /* TX_SEND of read, write or function */
-    uint32_t messages_delivered;   /* UWB messages that reached the local RX buffer */
+    uint32_t rangings;            /* two-way rangings performed (local and remote) */
+    uint32_t remote_requests;     /* TX_SEND of read, write or function */
+    uint32_t messages_delivered;  /* UWB messages that reached the local RX buffer */
     uint32_t faults_injected;
-    uint32_t collisions;           /* messages lost to overlapping air time (config.collisions) */
-    uint32_t busy_losses;          /* requests lost to a busy node (config.busy_remotes) */
-    uint32_t boot_refusals;        /* I2C address phases NACKed while booting (config.boot_us) */
-    uint32_t list_full_errors;     /* rangings refused for a full device list */
-    uint64_t stretched_us;         /* us of clock stretching in all */
+    uint32_t collisions;       /* messages lost to overlapping air time (config.collisions) */
+    uint32_t busy_losses;      /* requests lost to a busy node (config.busy_remotes) */
+    uint32_t boot_refusals;    /* I2C address phases NACKed while booting (config.boot_us) */
+    uint32_t list_full_errors; /* rangings refused for a full device list */
+    uint64_t stretched_us;     /* us of clock stretching in all */
 } pozyx_sim_stats_t;
 
 typedef struct pozyx_sim_range_entry {
@@ -208,22 +208,22 @@ typedef struct pozyx_sim_range_entry {
 
 typedef struct pozyx_sim_node {
     pozyx_sim_node_config_t config;
-    uint8_t regs[256];                  /* plain register storage (configuration, positions) */
+    uint8_t regs[256]; /* plain register storage (configuration, positions) */
     pozyx_sim_range_entry_t ranges[POZYX_SIM_MAX_RANGE_ENTRIES];
     uint8_t range_count;
-    int64_t accel_sample_index;         /* 10 ms IMU sample held in accel_mg, -1 = none */
+    int64_t accel_sample_index; /* 10 ms IMU sample held in accel_mg, -1 = none */
     int16_t accel_mg[3];
-    uint8_t was_powered;                /* config.powered when last looked at (to see power-ups) */
-    uint64_t ready_at_us;               /* booted from then on (config.boot_us after power-up) */
+    uint8_t was_powered;                  /* config.powered when last looked at (to see power-ups) */
+    uint64_t ready_at_us;                 /* booted from then on (config.boot_us after power-up) */
     uint64_t busy_from_us, busy_until_us; /* in a ranging exchange (config.busy_remotes) */
 } pozyx_sim_node_t;
 
 typedef struct pozyx_sim_event {
     uint64_t at_us;
-    uint8_t kind;       /* internal */
-    uint16_t a, b;      /* node ids involved */
+    uint8_t kind;  /* internal */
+    uint16_t a, b; /* node ids involved */
     uint8_t length;
-    uint8_t collided;   /* a message that overlapped another one on air: lost when due */
+    uint8_t collided; /* a message that overlapped another one on air: lost when due */
     uint8_t data[POZYX_SIM_BUFFER_SIZE];
 } pozyx_sim_event_t;
 
@@ -248,7 +248,7 @@ typedef struct pozyx_sim {
     uint16_t rx_sender;
     uint16_t device_list[POZYX_SIM_MAX_RANGE_ENTRIES];
     uint8_t device_list_size;
-    uint8_t busy;       /* a local long operation (ranging, discovery) is pending */
+    uint8_t busy; /* a local long operation (ranging, discovery) is pending */
     uint64_t last_imu_tick;
     uint64_t local_air_from_us, local_air_until_us; /* the local device sends or ranges then */
     uint64_t last_rx_until_us;                      /* end of the last message received */
@@ -257,9 +257,9 @@ typedef struct pozyx_sim {
                             byte, or times out (the bytes are then not read) */
 
     /* bus state machine */
-    uint8_t phase;      /* internal */
+    uint8_t phase; /* internal */
     uint8_t in_transaction;
-    uint8_t pointer;    /* register or function addressed */
+    uint8_t pointer; /* register or function addressed */
     uint8_t pointer_set;
     uint8_t params[POZYX_SIM_MAX_PARAMS];
     uint8_t params_length;

@@ -171,12 +171,12 @@ private:
     Policy policy_;
     size_t kept_problems_;
     std::unique_ptr<Lines> lines_;
-    std::vector<std::string> declared_;        // required, then optional
-    std::vector<size_t> header_layout_;        // declared column -> field index (npos: none)
+    std::vector<std::string> declared_;         // required, then optional
+    std::vector<size_t> header_layout_;         // declared column -> field index (npos: none)
     std::vector<std::vector<size_t>> by_count_; // headerless: field count -> layout (empty: none)
-    size_t required_fields_ = 0;               // with a header: the fields a row needs
+    size_t required_fields_ = 0;                // with a header: the fields a row needs
     bool header_ = false;
-    bool pending_ = false;                     // a first data line is already in line_
+    bool pending_ = false; // a first data line is already in line_
     bool read_ = false;
     std::string line_;
     size_t line_number_ = 0;

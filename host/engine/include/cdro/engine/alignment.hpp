@@ -13,7 +13,7 @@ struct RigidTransform {
     Matrix2 rotation = Matrix2::Identity(); // orthonormal; determinant -1 when reflected
     Vector2 translation_m = Vector2::Zero();
     bool reflected = false;
-    double rms_error_m = 0.0;                // m, over the fitted points
+    double rms_error_m = 0.0; // m, over the fitted points
 
     Vector2 apply(const Vector2 &point_m) const { return rotation * point_m + translation_m; }
     Matrix2 applyToCovariance(const Matrix2 &covariance_m2) const

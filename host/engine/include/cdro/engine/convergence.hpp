@@ -30,10 +30,10 @@
 namespace cdro::engine {
 
 struct ConvergenceCounters {
-    uint64_t assessments = 0;       // whole-map checks run
-    uint64_t ambiguous_nodes = 0;   // at the last assessment: nodes ambiguous
-    uint64_t foldable_nodes = 0;    // ... foldable
-    uint64_t flexible_nodes = 0;    // ... flexible
+    uint64_t assessments = 0;     // whole-map checks run
+    uint64_t ambiguous_nodes = 0; // at the last assessment: nodes ambiguous
+    uint64_t foldable_nodes = 0;  // ... foldable
+    uint64_t flexible_nodes = 0;  // ... flexible
 };
 
 class Convergence {

@@ -53,10 +53,10 @@ struct EngineCounters {
     GlobalStepCounters solve;
     ConvergenceCounters convergence;
     MotionCounters motion;
-    uint64_t ranges_used = 0;     // both ends placed: the filter took it
-    uint64_t ranges_stored = 0;   // kept; an end not placed yet
-    uint64_t node_updates = 0;    // merges (after a range or as a neighbour)
-    uint64_t relaxations = 0;     // neighbour updates (step 7)
+    uint64_t ranges_used = 0;   // both ends placed: the filter took it
+    uint64_t ranges_stored = 0; // kept; an end not placed yet
+    uint64_t node_updates = 0;  // merges (after a range or as a neighbour)
+    uint64_t relaxations = 0;   // neighbour updates (step 7)
 };
 
 // A node's estimate in the output frame.
@@ -64,14 +64,14 @@ struct NodeOutput {
     NodeId id = 0;
     NodeRole role = NodeRole::Free;
     NodeLifecycle lifecycle = NodeLifecycle::Unplaced;
-    NodeDoubt doubt = NodeDoubt::None;             // why it is not converged
-    std::array<NodeId, 2> hinge{};                 // Foldable: the nodes it hangs on (hinge_nodes of them, by id)
+    NodeDoubt doubt = NodeDoubt::None; // why it is not converged
+    std::array<NodeId, 2> hinge{};     // Foldable: the nodes it hangs on (hinge_nodes of them, by id)
     uint8_t hinge_nodes = 0;
     bool height_known = false;
-    double height_m = 0.0;                         // m
-    uint32_t link_count = 0;                       // links to other nodes
-    Vector2 position_m = Vector2::Zero();          // m
-    Matrix2 covariance_m2 = Matrix2::Zero();       // m^2 (the global solve's where it has one)
+    double height_m = 0.0;                   // m
+    uint32_t link_count = 0;                 // links to other nodes
+    Vector2 position_m = Vector2::Zero();    // m
+    Matrix2 covariance_m2 = Matrix2::Zero(); // m^2 (the global solve's where it has one)
 
     bool placed() const { return lifecycle != NodeLifecycle::Unplaced; }
     bool converged() const { return lifecycle == NodeLifecycle::Converged; }
@@ -80,10 +80,10 @@ struct NodeOutput {
 };
 
 struct LinkOutput {
-    NodeId a = 0;                  // smaller id
+    NodeId a = 0; // smaller id
     NodeId b = 0;
-    double last_range_m = 0.0;     // m, as measured (3D)
-    double range_m = 0.0;          // m, the link's range: median of its window, projected
+    double last_range_m = 0.0; // m, as measured (3D)
+    double range_m = 0.0;      // m, the link's range: median of its window, projected
     uint32_t range_count = 0;
     double inlier_probability = 1.0; // line-of-sight probability at the last refinement
 };
@@ -108,7 +108,8 @@ public:
 
     // One range between two nodes, as measured (3D, m), at time t_s (s; NaN when unknown: the
     // initialization does not need it, tracking a moving node does).
-    RangeVerdict addRange(NodeId from, NodeId to, double range_m, double t_s = std::numeric_limits<double>::quiet_NaN());
+    RangeVerdict addRange(NodeId from, NodeId to, double range_m,
+                          double t_s = std::numeric_limits<double>::quiet_NaN());
 
     // A motion report (MOTION frame, motion CSV): the node is moving or still (params.motion).
     void setMoving(NodeId id, bool moving);
@@ -144,10 +145,10 @@ public:
     uint64_t settle(uint64_t max_updates);
 
     // Outputs, in the output frame (see outputTransform()).
-    std::vector<NodeOutput> estimates() const;                 // every known node, by id
+    std::vector<NodeOutput> estimates() const; // every known node, by id
     std::optional<NodeOutput> estimate(NodeId id) const;
-    std::vector<LinkOutput> links() const;                     // by (a, b)
-    std::vector<RingOutput> ringsDescribing(NodeId id) const;  // SoG_ij for every neighbour i
+    std::vector<LinkOutput> links() const;                    // by (a, b)
+    std::vector<RingOutput> ringsDescribing(NodeId id) const; // SoG_ij for every neighbour i
     RigidTransform outputTransform() const { return frame_.transform(map_); }
 
     // Decisions worth explaining (placements, solves, motion) as one-line messages, for the
@@ -232,7 +233,7 @@ private:
     uint64_t node_updates_ = 0;
     uint64_t relaxations_ = 0;
     uint64_t revision_ = 0;
-    uint64_t assessed_key_ = 0;  // the structure (links, placed set) at the last assessment
+    uint64_t assessed_key_ = 0; // the structure (links, placed set) at the last assessment
     std::function<void(const std::string &)> trace_;
 };
 

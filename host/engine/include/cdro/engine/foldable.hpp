@@ -20,7 +20,7 @@ constexpr uint32_t kNoHinge = 0xFFFFFFFFU;
 struct Foldable {
     // Per node: true when it lies in a part that the removal of at most two other nodes (its
     // hinge) cuts off from the largest part, or outside the largest connected component.
-    std::vector<uint8_t> foldable;  // 0/1 (not vector<bool>: GCC 12 -O3 warns on it here)
+    std::vector<uint8_t> foldable; // 0/1 (not vector<bool>: GCC 12 -O3 warns on it here)
     // Per foldable node: the hinge of the first cut found (node indices; kNoHinge where fewer
     // than two, both kNoHinge for a node outside the largest component).
     std::vector<std::array<uint32_t, 2>> hinge;

@@ -26,20 +26,20 @@
 namespace cdro::engine {
 
 struct GlobalSolveParams {
-    uint32_t growth_seeds = 3;           // maps grown from this many seed triangles
-    bool mds_start = true;               // MDS-MAP as a start too
-    bool patch_start = true;             // local maps merged (map_patches.hpp) as a start too
-    uint32_t escape_rounds = 3;          // rounds of moving single nodes to better local optima
-    double escape_gap_nats = 2.0;        // a node moves when the move is this much cheaper
-    double rival_gap_nats = 4.0;         // a map within this of the best is a rival
-    double disputed_m = 1.0;             // m, a node two rivals place this far apart is disputed
-    uint32_t learn_rounds = 2;           // EM rounds learning the NLOS share and excess from the best map
-    bool lift = true;                    // refine every start through the lifted space (map_lift.hpp)
-    bool lifted_mds_start = true;        // and start from MDS-MAP in D dimensions too
-    bool range_offsets = true;           // estimate each node's range offset with the best map (range_offsets.hpp)
-    bool only_current = false;           // the caller's map the only start (its links were all
-                                         // solved from every start before: a refresh)
-    uint32_t threads = 1;                // starts refined at once (the result is the same for any)
+    uint32_t growth_seeds = 3;    // maps grown from this many seed triangles
+    bool mds_start = true;        // MDS-MAP as a start too
+    bool patch_start = true;      // local maps merged (map_patches.hpp) as a start too
+    uint32_t escape_rounds = 3;   // rounds of moving single nodes to better local optima
+    double escape_gap_nats = 2.0; // a node moves when the move is this much cheaper
+    double rival_gap_nats = 4.0;  // a map within this of the best is a rival
+    double disputed_m = 1.0;      // m, a node two rivals place this far apart is disputed
+    uint32_t learn_rounds = 2;    // EM rounds learning the NLOS share and excess from the best map
+    bool lift = true;             // refine every start through the lifted space (map_lift.hpp)
+    bool lifted_mds_start = true; // and start from MDS-MAP in D dimensions too
+    bool range_offsets = true;    // estimate each node's range offset with the best map (range_offsets.hpp)
+    bool only_current = false;    // the caller's map the only start (its links were all
+                                  // solved from every start before: a refresh)
+    uint32_t threads = 1;         // starts refined at once (the result is the same for any)
     MapLiftParams lifting;
     MapRefineParams refine;
     MapGrowthParams growth;
@@ -47,25 +47,25 @@ struct GlobalSolveParams {
 
 struct MapHypothesis {
     MapEstimate estimate;
-    double cost = 0.0;        // nats (map_problem.hpp)
-    std::string origin;       // "grown from <ids>", "MDS-MAP", "current"
+    double cost = 0.0;                // nats (map_problem.hpp)
+    std::string origin;               // "grown from <ids>", "MDS-MAP", "current"
     double nlos_fraction = -1.0;      // the NLOS model it was judged under (< 0: the prior)
     double nlos_mean_excess_m = -1.0; // m
 };
 
 struct GlobalSolveCounters {
     uint32_t starts = 0;
-    uint32_t escapes = 0;            // single nodes moved to a better local optimum
+    uint32_t escapes = 0; // single nodes moved to a better local optimum
     uint32_t refine_iterations = 0;
     uint32_t offset_evaluations = 0; // maps refined searching the range offsets
 };
 
 struct GlobalSolveResult {
     MapHypothesis best;
-    std::vector<MapHypothesis> rivals;   // distinct maps within rival_gap_nats of the best, best first
-    std::vector<uint8_t> disputed;       // per node: a rival places it disputed_m or more away
-    std::vector<uint32_t> part;          // the nodes solved (the largest connected part)
-    std::vector<MapHypothesis> all;      // every start after refinement, best first (diagnostics)
+    std::vector<MapHypothesis> rivals; // distinct maps within rival_gap_nats of the best, best first
+    std::vector<uint8_t> disputed;     // per node: a rival places it disputed_m or more away
+    std::vector<uint32_t> part;        // the nodes solved (the largest connected part)
+    std::vector<MapHypothesis> all;    // every start after refinement, best first (diagnostics)
     GlobalSolveCounters counters;
     double learnt_nlos_fraction = -1.0;      // the NLOS model learnt (< 0: not learnt)
     double learnt_nlos_mean_excess_m = -1.0; // m

@@ -45,13 +45,13 @@ namespace cdro::engine {
 // Where the schedule stands (kept in checkpoints, so that a resumed engine solves when the
 // uninterrupted one would).
 struct SolveSchedule {
-    uint64_t links_at_last = 0;          // links at the last solve
-    uint64_t ranges_at_last = 0;         // ranges received at the last solve
+    uint64_t links_at_last = 0;  // links at the last solve
+    uint64_t ranges_at_last = 0; // ranges received at the last solve
     uint64_t ranges_since_new_link = 0;
-    uint64_t ranges_at_check = 0;        // ranges received when the links were last checked for change
-    uint64_t links_at_full = 0;          // the problem's links and nodes at the last full solve
+    uint64_t ranges_at_check = 0; // ranges received when the links were last checked for change
+    uint64_t links_at_full = 0;   // the problem's links and nodes at the last full solve
     uint64_t nodes_at_full = 0;
-    uint64_t ranges_at_full = 0;         // ranges received at the last full solve
+    uint64_t ranges_at_full = 0; // ranges received at the last full solve
     bool operator==(const SolveSchedule &other) const
     {
         return links_at_last == other.links_at_last && ranges_at_last == other.ranges_at_last &&
@@ -62,13 +62,14 @@ struct SolveSchedule {
 };
 
 struct GlobalStepCounters {
-    uint64_t solves = 0;            // global solves run (full and refreshes)
-    uint64_t solve_refreshes = 0;   // ... of which refreshes: the same links as the last full solve, the current map refined
-    uint64_t solves_adopted = 0;    // ... whose map replaced the filter's (not its refinement)
-    uint64_t solve_starts = 0;      // starting maps refined, over all solves
-    uint64_t solve_escapes = 0;     // single nodes moved out of a local minimum, over all solves
-    uint64_t solve_placed = 0;      // nodes the solve placed that the filter had not
-    uint64_t offsets_adopted = 0;   // solves whose map came with the nodes' range offsets (range_offsets.hpp)
+    uint64_t solves = 0; // global solves run (full and refreshes)
+    uint64_t solve_refreshes =
+        0; // ... of which refreshes: the same links as the last full solve, the current map refined
+    uint64_t solves_adopted = 0;  // ... whose map replaced the filter's (not its refinement)
+    uint64_t solve_starts = 0;    // starting maps refined, over all solves
+    uint64_t solve_escapes = 0;   // single nodes moved out of a local minimum, over all solves
+    uint64_t solve_placed = 0;    // nodes the solve placed that the filter had not
+    uint64_t offsets_adopted = 0; // solves whose map came with the nodes' range offsets (range_offsets.hpp)
 };
 
 // The problem the solve sees, and which engine node each problem node is.
@@ -96,9 +97,9 @@ public:
     bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;
 
     struct Outcome {
-        std::vector<uint32_t> placed;   // nodes it placed that were not placed
+        std::vector<uint32_t> placed;                      // nodes it placed that were not placed
         std::vector<std::pair<uint32_t, Vector2>> shifted; // placed nodes it moved, and by how much (m)
-        bool adopted = false;           // the solve's map (not the filter's, refined)
+        bool adopted = false;                              // the solve's map (not the filter's, refined)
     };
     using Trace = std::function<void(const std::string &)>;
     // Starts the solve on the map as it stands (on the worker thread, or deferred to adopt() when
@@ -108,10 +109,7 @@ public:
     // A solve started and not adopted yet.
     bool pending() const { return pending_ != nullptr; }
     // One more range taken (refused ranges do not count: they change nothing else either).
-    void countRange()
-    {
-        adopt_in_ranges_ -= pending_ != nullptr && adopt_in_ranges_ > 0 ? 1U : 0U;
-    }
+    void countRange() { adopt_in_ranges_ -= pending_ != nullptr && adopt_in_ranges_ > 0 ? 1U : 0U; }
     // Whether the pending solve's map is due now.
     bool adoptionDue() const { return pending_ != nullptr && adopt_in_ranges_ == 0; }
     // Waits for the pending solve and adopts its map into `map` (positions only: the caller moves
@@ -131,14 +129,14 @@ private:
     struct SolvedMap {
         GlobalSolveResult solved;
         MapHypothesis chosen;
-        bool offsets = false;         // the chosen map comes with the range offsets (the best's)
+        bool offsets = false; // the chosen map comes with the range offsets (the best's)
         MapCovariance confidence;
     };
     struct PendingSolve {
         StateProblem built;
-        MapEstimate current;          // the filter's map at the start
+        MapEstimate current;                 // the filter's map at the start
         std::vector<uint8_t> height_unknown; // per node of the problem, at the start
-        bool refresh = false;         // the same links and nodes as the last full solve
+        bool refresh = false;                // the same links and nodes as the last full solve
         bool settling = false;
         std::shared_future<SolvedMap> result; // last: destroyed first, waiting for the worker
     };
@@ -148,7 +146,7 @@ private:
                                     const GlobalSolveParams &solve, double min_gain_nats, MapModelError model_error);
 
     EngineParams params_;
-    RangeLikelihood likelihood_;   // the engine's model without the floor (map_problem.hpp)
+    RangeLikelihood likelihood_; // the engine's model without the floor (map_problem.hpp)
     GlobalSolveParams solve_;
     SolveSchedule schedule_;
     GlobalStepCounters counters_;

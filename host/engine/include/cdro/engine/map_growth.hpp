@@ -23,17 +23,17 @@
 namespace cdro::engine {
 
 struct MapGrowthParams {
-    double ambiguity_gap_nats = 4.0;   // a decisive candidate beats every distinct rival by this
-    double distinct_m = 1.0;           // candidates closer than this are one
-    double min_baseline_m = 1.0;       // neighbour pairs closer than this give no intersection
+    double ambiguity_gap_nats = 4.0; // a decisive candidate beats every distinct rival by this
+    double distinct_m = 1.0;         // candidates closer than this are one
+    double min_baseline_m = 1.0;     // neighbour pairs closer than this give no intersection
     double min_triangle_height_m = 1.0;
-    double refine_growth = 1.33;       // refine the placed part jointly when it has grown by this
+    double refine_growth = 1.33; // refine the placed part jointly when it has grown by this
 };
 
 struct MapGrowthStats {
-    uint32_t decisive = 0;     // nodes placed with a clear best candidate
-    uint32_t forced = 0;       // nodes placed at the least ambiguous candidate
-    uint32_t two_links = 0;    // nodes placed from two placed neighbours only
+    uint32_t decisive = 0;  // nodes placed with a clear best candidate
+    uint32_t forced = 0;    // nodes placed at the least ambiguous candidate
+    uint32_t two_links = 0; // nodes placed from two placed neighbours only
     uint32_t refinements = 0;
 };
 
@@ -46,8 +46,7 @@ std::vector<std::array<uint32_t, 3>> seedTriangles(const MapProblem &problem, co
 // Grows the map of `part` (node numbers of one connected part) from the seed; nodes it cannot
 // place (fewer than two placed neighbours) stay unplaced. Fixed nodes of the part are placed at
 // their coordinates first and the seed is then ignored if two or more are fixed.
-MapEstimate growMap(const MapProblem &problem, const std::vector<uint32_t> &part,
-                    const std::array<uint32_t, 3> &seed, const RangeLikelihood &likelihood,
-                    const MapGrowthParams &params, MapGrowthStats *stats = nullptr);
+MapEstimate growMap(const MapProblem &problem, const std::vector<uint32_t> &part, const std::array<uint32_t, 3> &seed,
+                    const RangeLikelihood &likelihood, const MapGrowthParams &params, MapGrowthStats *stats = nullptr);
 
 } // namespace cdro::engine

@@ -19,12 +19,12 @@
 namespace cdro::engine {
 
 struct MapLiftParams {
-    uint32_t dimensions = 3;                           // 3 <= D <= kMaxEmbeddingDimensions (map_refine.hpp)
+    uint32_t dimensions = 3; // 3 <= D <= kMaxEmbeddingDimensions (map_refine.hpp)
     std::vector<RefineStage> stages{{8.0, 0.5, 3.0}, {4.0, 0.3, 2.0}, {2.0, -1.0, -1.0}, {1.0, -1.0, -1.0}};
-                                                       // stages at D dimensions, no penalty
+    // stages at D dimensions, no penalty
     std::vector<double> squeeze{1e-2, 1e-1, 1.0, 10.0, 100.0, 1e4}; // penalty stages (1/m^2 per node)
     uint32_t iterations_per_stage = 15;
-    double lift_m = 1.0;                               // m, out-of-plane offsets given to a planar start
+    double lift_m = 1.0; // m, out-of-plane offsets given to a planar start
 };
 
 // Refines `estimate` (its placed nodes; the part must be connected) through the lifted space and

@@ -16,7 +16,8 @@
 namespace cdro::engine {
 
 // The layout of `part` in `dims` dimensions (rows: node numbers; rows outside the part are 0).
-std::optional<Eigen::MatrixXd> mdsEmbedding(const MapProblem &problem, const std::vector<uint32_t> &part, uint32_t dims);
+std::optional<Eigen::MatrixXd> mdsEmbedding(const MapProblem &problem, const std::vector<uint32_t> &part,
+                                            uint32_t dims);
 
 // The layout of `part` (node numbers, connected, >= 3) as an estimate placing those nodes.
 std::optional<MapEstimate> mdsMap(const MapProblem &problem, const std::vector<uint32_t> &part);

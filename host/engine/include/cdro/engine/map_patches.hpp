@@ -16,9 +16,9 @@
 namespace cdro::engine {
 
 struct MapPatchParams {
-    uint32_t min_patch_nodes = 6;   // a node's neighbours, then its neighbours' until this many
-    uint32_t min_shared = 3;        // nodes a patch must share with the map to be merged
-    double refine_growth = 1.25;    // refine the merged map jointly when it has grown by this
+    uint32_t min_patch_nodes = 6; // a node's neighbours, then its neighbours' until this many
+    uint32_t min_shared = 3;      // nodes a patch must share with the map to be merged
+    double refine_growth = 1.25;  // refine the merged map jointly when it has grown by this
 };
 
 MapEstimate patchMap(const MapProblem &problem, const std::vector<uint32_t> &part, const RangeLikelihood &likelihood,

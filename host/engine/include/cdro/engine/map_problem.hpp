@@ -16,23 +16,23 @@
 namespace cdro::engine {
 
 struct MapLink {
-    uint32_t a = 0;           // node numbers (a < b)
+    uint32_t a = 0; // node numbers (a < b)
     uint32_t b = 0;
-    double range_m = 0.0;     // m, the link's range (median of its recent ranges, projected)
+    double range_m = 0.0; // m, the link's range (median of its recent ranges, projected)
 };
 
 struct MapProblem {
-    std::vector<NodeId> ids;             // by node number, ascending
-    std::vector<MapLink> links;          // sorted by (a, b)
-    std::vector<uint8_t> fixed;          // 0/1: known coordinates, never moved
+    std::vector<NodeId> ids;    // by node number, ascending
+    std::vector<MapLink> links; // sorted by (a, b)
+    std::vector<uint8_t> fixed; // 0/1: known coordinates, never moved
     std::vector<Vector2> fixed_position_m;
-    double sigma_m = 0.10;               // m, line-of-sight range noise
+    double sigma_m = 0.10; // m, line-of-sight range noise
     // Pairs that never heard each other, although both listened long enough (`listens`), are
     // rarely close: each such pair closer than unheard_radius_m costs
     // unheard_cost_nats (1 - d / radius)^2 (0 radius: not used).
-    std::vector<uint8_t> listens;        // 0/1 per node
-    double unheard_radius_m = 0.0;       // m
-    double unheard_cost_nats = 3.0;      // nats at distance 0
+    std::vector<uint8_t> listens;   // 0/1 per node
+    double unheard_radius_m = 0.0;  // m
+    double unheard_cost_nats = 3.0; // nats at distance 0
     // Derived by finish(): per node, the indices of its links, and its neighbours sorted.
     std::vector<std::vector<uint32_t>> node_links;
     std::vector<std::vector<uint32_t>> neighbours;
@@ -83,7 +83,8 @@ double nodeCost(const MapProblem &problem, const MapEstimate &estimate, const Ra
                 uint32_t node, const Vector2 &position_m);
 
 // The unheard part alone.
-double unheardNodeCost(const MapProblem &problem, const MapEstimate &estimate, uint32_t node, const Vector2 &position_m);
+double unheardNodeCost(const MapProblem &problem, const MapEstimate &estimate, uint32_t node,
+                       const Vector2 &position_m);
 
 // The likelihood of the global solve: the engine's, without the floor.
 RangeLikelihood mapLikelihood(const RangeLikelihoodParams &params);

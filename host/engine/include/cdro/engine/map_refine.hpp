@@ -22,22 +22,22 @@ namespace cdro::engine {
 // One stage of graduated non-convexity: the noise seen as larger, and the NLOS term as more
 // likely and longer (so that a link reading long pulls the map less than in the end).
 struct RefineStage {
-    double sigma_scale = 1.0;       // multiple of the noise
-    double nlos_fraction = -1.0;    // < 0: the likelihood's own
+    double sigma_scale = 1.0;         // multiple of the noise
+    double nlos_fraction = -1.0;      // < 0: the likelihood's own
     double nlos_mean_excess_m = -1.0; // m; < 0: the likelihood's own
 };
 
 struct MapRefineParams {
     std::vector<RefineStage> stages{{8.0, 0.5, 3.0}, {4.0, 0.3, 2.0}, {2.0, -1.0, -1.0}, {1.0, -1.0, -1.0}};
-    uint32_t iterations_per_stage = 12;   // LM iterations per stage (the last stage: 3x)
-    double initial_damping = 1e-4;        // lambda, relative to the diagonal
-    double step_tolerance_m = 1e-5;       // m, a stage ends when every node moved less
+    uint32_t iterations_per_stage = 12; // LM iterations per stage (the last stage: 3x)
+    double initial_damping = 1e-4;      // lambda, relative to the diagonal
+    double step_tolerance_m = 1e-5;     // m, a stage ends when every node moved less
 };
 
 struct MapRefineResult {
-    double cost = 0.0;        // nats at the nominal noise
-    uint32_t iterations = 0;  // accepted steps
-    uint32_t refused = 0;     // steps that did not lower the cost
+    double cost = 0.0;       // nats at the nominal noise
+    uint32_t iterations = 0; // accepted steps
+    uint32_t refused = 0;    // steps that did not lower the cost
 };
 
 // Moves the placed, not fixed nodes of `estimate` to the robust optimum near where they are.
@@ -65,19 +65,19 @@ constexpr double kCheckedRedundancy = 0.02;
 constexpr double kReliableCoreM = 1.0;
 
 struct MapCovariance {
-    std::vector<Matrix2> covariance_m2;   // per node (zero for unplaced and fixed nodes), m^2
-    std::vector<double> link_redundancy;  // per link, 0..1 (< 0: not evaluated): the share of an
-                                          // error in the link that its residual shows; 0 when no
-                                          // other link checks it
-    std::vector<double> reliability_m;    // per node, m: the most that an error in one link, too
-                                          // small to be noticed there, would move the node
-                                          // (infinite: it hangs on a link nothing checks)
-    std::vector<uint8_t> main_part;       // per node: in the largest part joined by checked,
-                                          // line-of-sight links (the frame of the covariances)
-    double variance_factor = 1.0;         // a-posteriori variance of unit weight (applied)
-    bool gauge_free = true;               // no frame from fixed nodes: the covariance is the map's
-                                          // shape, relative to the map as a whole (rotation and
-                                          // translation projected out)
+    std::vector<Matrix2> covariance_m2;  // per node (zero for unplaced and fixed nodes), m^2
+    std::vector<double> link_redundancy; // per link, 0..1 (< 0: not evaluated): the share of an
+                                         // error in the link that its residual shows; 0 when no
+                                         // other link checks it
+    std::vector<double> reliability_m;   // per node, m: the most that an error in one link, too
+                                         // small to be noticed there, would move the node
+                                         // (infinite: it hangs on a link nothing checks)
+    std::vector<uint8_t> main_part;      // per node: in the largest part joined by checked,
+                                         // line-of-sight links (the frame of the covariances)
+    double variance_factor = 1.0;        // a-posteriori variance of unit weight (applied)
+    bool gauge_free = true;              // no frame from fixed nodes: the covariance is the map's
+                                         // shape, relative to the map as a whole (rotation and
+                                         // translation projected out)
 };
 
 // What the measurement model leaves out and the covariance must not: NLOS and uncalibrated

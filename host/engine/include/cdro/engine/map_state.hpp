@@ -77,21 +77,21 @@ private:
 
 // What the global solve said about a node when its map was last adopted (global_step.hpp).
 struct NodeSolveView {
-    bool solved = false;                          // the solve placed it
-    Vector2 position_m = Vector2::Zero();         // m, engine frame, as adopted
-    Matrix2 covariance_m2 = Matrix2::Zero();      // m^2, the map's (correlations across it included)
-    double reliability_m = 0.0;                   // m, the most one unnoticed link error moves it
-    bool disputed = false;                        // a rival map places it a metre or more away
-    bool main_part = false;                       // in the part joined by checked links
+    bool solved = false;                     // the solve placed it
+    Vector2 position_m = Vector2::Zero();    // m, engine frame, as adopted
+    Matrix2 covariance_m2 = Matrix2::Zero(); // m^2, the map's (correlations across it included)
+    double reliability_m = 0.0;              // m, the most one unnoticed link error moves it
+    bool disputed = false;                   // a rival map places it a metre or more away
+    bool main_part = false;                  // in the part joined by checked links
 };
 
 // The fallback motion detector's memory: the node's last ranges, whether each read far from the
 // map, on which link; and the reports.
 struct MotionMemory {
     static constexpr uint32_t kRecentRanges = 16;
-    bool reports = false;          // the node sends motion reports: the detector leaves it alone
-    bool reported_moving = false;  // the last report said moving (kept while not placed)
-    bool inferred = false;         // the current motion was found by the detector
+    bool reports = false;         // the node sends motion reports: the detector leaves it alone
+    bool reported_moving = false; // the last report said moving (kept while not placed)
+    bool inferred = false;        // the current motion was found by the detector
     std::array<uint32_t, kRecentRanges> recent_links{};
     std::array<uint8_t, kRecentRanges> recent_large{};
     uint32_t recent_count = 0;
@@ -110,13 +110,13 @@ struct NodeState {
     Vector2 position_m = Vector2::Zero();              // m, engine frame
     Matrix2 covariance_m2 = Matrix2::Identity();       // m^2, the local (refinement) covariance
     Vector2 average_m = Vector2::Zero();               // m, convergence moving average (eq. 16)
-    uint32_t still_updates = 0;     // consecutive updates with the average's step under threshold
-    uint32_t update_count = 0;      // merges/refinements since placed (saturating)
-    uint32_t placements = 0;        // times placed (re-placements after an inconsistency count)
-    uint32_t waiting_ranges = 0;    // ranges seen while not placed (placement's patience)
-    uint64_t first_range = 0;       // ranges the engine had received when the node appeared
-    double range_offset_m = 0.0;    // m, its radio reads this much long (range_offsets.hpp; the global solve's)
-    std::vector<uint32_t> links;    // indices into MapState::links, in order of appearance
+    uint32_t still_updates = 0;                        // consecutive updates with the average's step under threshold
+    uint32_t update_count = 0;                         // merges/refinements since placed (saturating)
+    uint32_t placements = 0;                           // times placed (re-placements after an inconsistency count)
+    uint32_t waiting_ranges = 0;                       // ranges seen while not placed (placement's patience)
+    uint64_t first_range = 0;                          // ranges the engine had received when the node appeared
+    double range_offset_m = 0.0; // m, its radio reads this much long (range_offsets.hpp; the global solve's)
+    std::vector<uint32_t> links; // indices into MapState::links, in order of appearance
     MotionMemory motion;
     std::optional<MotionTrack> track; // while moving or settling: the constant-velocity track
     NodeSolveView solve;
@@ -134,13 +134,14 @@ struct NodeState {
 };
 
 struct LinkState {
-    uint32_t node_a = kNoIndex;     // index of the node with the smaller id
+    uint32_t node_a = kNoIndex; // index of the node with the smaller id
     uint32_t node_b = kNoIndex;
-    RangeWindow window;             // recent projected ranges, m
-    uint32_t range_count = 0;       // ranges seen on this link
-    double last_range_m = 0.0;      // m, last measured range (3D, as reported)
-    double representative_m = 0.0; // m, median of the window (projected), less its ends' range offsets: the link's range
-    double solved_range_m = 0.0;    // m, the link's range when the global solve last saw it (0: never)
+    RangeWindow window;        // recent projected ranges, m
+    uint32_t range_count = 0;  // ranges seen on this link
+    double last_range_m = 0.0; // m, last measured range (3D, as reported)
+    double representative_m =
+        0.0;                     // m, median of the window (projected), less its ends' range offsets: the link's range
+    double solved_range_m = 0.0; // m, the link's range when the global solve last saw it (0: never)
     uint32_t ring_from_a = kNoIndex; // SoG centred on node_a describing node_b (index into rings)
     uint32_t ring_from_b = kNoIndex;
     double inlier_probability = 1.0; // line-of-sight probability at the last refinement
@@ -173,9 +174,9 @@ public:
 
     std::vector<NodeState> nodes;
     std::vector<LinkState> links;
-    std::vector<RingSog> rings;          // the SoGs, by slot (sog_bank.hpp owns their life)
-    std::vector<uint32_t> free_rings;    // slots to reuse
-    std::optional<std::array<uint32_t, 3>> frame_nodes; // the frame triangle (node indices)
+    std::vector<RingSog> rings;                                    // the SoGs, by slot (sog_bank.hpp owns their life)
+    std::vector<uint32_t> free_rings;                              // slots to reuse
+    std::optional<std::array<uint32_t, 3>> frame_nodes;            // the frame triangle (node indices)
     double last_time_s = -std::numeric_limits<double>::infinity(); // s, latest range time seen
 
 private:

@@ -71,43 +71,44 @@ enum class FlightStatus : uint8_t {
 
 // What became of one range of a tracked node.
 enum class FlightRangeUse : uint8_t {
-    Used,         // taken (maybe down-weighted as NLOS-looking)
-    Refused,      // beyond the gate, looking NLOS: not used
-    Reset,        // the last of kResetAfterRefused refused in a row: the node's covariance reset, the range used
-    Waiting,      // tag to tag with an end not started yet: not used
-    NoAnchor,     // the other end is static but not a fixed node of known height: not used
+    Used,     // taken (maybe down-weighted as NLOS-looking)
+    Refused,  // beyond the gate, looking NLOS: not used
+    Reset,    // the last of kResetAfterRefused refused in a row: the node's covariance reset, the range used
+    Waiting,  // tag to tag with an end not started yet: not used
+    NoAnchor, // the other end is static but not a fixed node of known height: not used
 };
 
 struct FlightEstimate {
     NodeId id = 0;
     FlightStatus status = FlightStatus::Waiting;
-    Vector3 position_m = Vector3::Zero();       // m
-    Vector3 velocity_mps = Vector3::Zero();     // m/s
-    Matrix3 covariance_m2 = Matrix3::Zero();    // m^2, of the position
-    uint32_t anchors_heard = 0;                 // distinct anchors it has ranged
+    Vector3 position_m = Vector3::Zero();    // m
+    Vector3 velocity_mps = Vector3::Zero();  // m/s
+    Matrix3 covariance_m2 = Matrix3::Zero(); // m^2, of the position
+    uint32_t anchors_heard = 0;              // distinct anchors it has ranged
 };
 
 struct FlightCounters {
-    uint64_t anchor_ranges = 0;   // ranges to anchors taken (Used or Reset)
-    uint64_t tag_ranges = 0;      // ranges between tracked nodes taken
-    uint64_t down_weighted = 0;   // ... of those taken, with P(line of sight) < 0.5
+    uint64_t anchor_ranges = 0; // ranges to anchors taken (Used or Reset)
+    uint64_t tag_ranges = 0;    // ranges between tracked nodes taken
+    uint64_t down_weighted = 0; // ... of those taken, with P(line of sight) < 0.5
     uint64_t refused = 0;
     uint64_t resets = 0;
     uint64_t waiting = 0;
     uint64_t no_anchor = 0;
-    uint64_t mirrored = 0;        // states brought below the anchors' mean height
-    uint64_t truncated = 0;       // updates after which the room changed the state
-    uint64_t body_updates = 0;    // one-body pseudo-measurements applied
+    uint64_t mirrored = 0;     // states brought below the anchors' mean height
+    uint64_t truncated = 0;    // updates after which the room changed the state
+    uint64_t body_updates = 0; // one-body pseudo-measurements applied
 };
 
 class FlightTracks {
 public:
-    static constexpr uint32_t kMinAnchors = 4;           // distinct anchors before a node is reported (a 3D fix's need)
-    static constexpr uint32_t kResetAfterRefused = 4;    // refused anchor ranges in a row that reset a node
-    static constexpr double kRoomMarginM = 1.0;          // m, the room: the anchors' box grown by this
-    static constexpr double kTruncationSigmas = 6.0;     // a room bound farther than this is not applied
+    static constexpr uint32_t kMinAnchors = 4;        // distinct anchors before a node is reported (a 3D fix's need)
+    static constexpr uint32_t kResetAfterRefused = 4; // refused anchor ranges in a row that reset a node
+    static constexpr double kRoomMarginM = 1.0;       // m, the room: the anchors' box grown by this
+    static constexpr double kTruncationSigmas = 6.0;  // a room bound farther than this is not applied
 
-    FlightTracks(const MotionParams &motion, double range_sigma_m, double gate_sigma, const RangeLikelihood &likelihood);
+    FlightTracks(const MotionParams &motion, double range_sigma_m, double gate_sigma,
+                 const RangeLikelihood &likelihood);
 
     // A node tracked in 3D from now on (before its first range; twice is once).
     void add(NodeId id);
@@ -134,7 +135,7 @@ private:
     struct Node {
         NodeId id = 0;
         FlightStatus status = FlightStatus::Waiting;
-        std::vector<NodeId> heard;   // distinct anchors, in the order heard
+        std::vector<NodeId> heard; // distinct anchors, in the order heard
         uint32_t refused_in_a_row = 0;
     };
 
@@ -163,10 +164,10 @@ private:
     AnchorsState anchors_set_ = AnchorsState::Unset;
     Vector3 room_lo_m_ = Vector3::Zero();
     Vector3 room_hi_m_ = Vector3::Zero();
-    double plane_z_m_ = 0.0;      // m, the anchors' mean height
-    Eigen::VectorXd state_;       // 6 per node: x, y, z (m), vx, vy, vz (m/s)
+    double plane_z_m_ = 0.0; // m, the anchors' mean height
+    Eigen::VectorXd state_;  // 6 per node: x, y, z (m), vx, vy, vz (m/s)
     Eigen::MatrixXd covariance_;
-    std::optional<double> t_s_;   // s, the filter's time
+    std::optional<double> t_s_; // s, the filter's time
     FlightCounters counters_;
 };
 

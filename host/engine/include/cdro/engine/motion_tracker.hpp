@@ -20,7 +20,7 @@
 namespace cdro::engine {
 
 struct MotionCounters {
-    uint64_t motion_starts = 0;   // nodes that started moving (reported or inferred)
+    uint64_t motion_starts = 0; // nodes that started moving (reported or inferred)
     uint64_t motion_stops = 0;
     uint64_t motion_inferred = 0; // ... of the starts, found by the range detector
     uint64_t track_updates = 0;   // ranges taken by a moving node's track

@@ -37,38 +37,38 @@
 namespace cdro::engine {
 
 struct MovementParams {
-    NodeId robot_id = 0;                  // the node carried by the robot; 0 = no robot
-    RobotFilterNoise odometry;            // odometry and calibration drift noise
-    double range_sigma_m = 0.0;           // m, noise of the ranges in the EKF; 0 = adaptive: from the
-                                          // spread of the robot's range innovations (robust, over the
-                                          // last adaptive_window of them), never below the engine's
-                                          // range.sigma_m, starting from adaptive_initial_sigma_m
+    NodeId robot_id = 0;                   // the node carried by the robot; 0 = no robot
+    RobotFilterNoise odometry;             // odometry and calibration drift noise
+    double range_sigma_m = 0.0;            // m, noise of the ranges in the EKF; 0 = adaptive: from the
+                                           // spread of the robot's range innovations (robust, over the
+                                           // last adaptive_window of them), never below the engine's
+                                           // range.sigma_m, starting from adaptive_initial_sigma_m
     double adaptive_initial_sigma_m = 1.0; // m
-    uint32_t adaptive_window = 60;        // innovations
-    bool estimate_scale = true;           // range scale s in the state
-    double scale_sigma = 0.1;             // prior std of s around 1
-    bool estimate_offset = true;          // range offset b in the state
-    double offset_sigma_m = 0.3;          // m, prior std of b around 0
-    double gate_sigma = 5.0;              // innovations beyond this many std (and NLOS-looking) are refused
-    double motion_start_m = 0.05;         // m travelled before the robot counts as moving
-    uint32_t heading_hypotheses = 24;     // the heading bank (with a map to start from); 15 deg apart:
-                                          // at 30 deg (12) the corridor path was 0.8 m off while undecided
+    uint32_t adaptive_window = 60;         // innovations
+    bool estimate_scale = true;            // range scale s in the state
+    double scale_sigma = 0.1;              // prior std of s around 1
+    bool estimate_offset = true;           // range offset b in the state
+    double offset_sigma_m = 0.3;           // m, prior std of b around 0
+    double gate_sigma = 5.0;               // innovations beyond this many std (and NLOS-looking) are refused
+    double motion_start_m = 0.05;          // m travelled before the robot counts as moving
+    uint32_t heading_hypotheses = 24;      // the heading bank (with a map to start from); 15 deg apart:
+                                           // at 30 deg (12) the corridor path was 0.8 m off while undecided
     double heading_collapse_weight = 0.99; // one hypothesis with this weight wins
-    double heading_prune_weight = 1e-4;   // hypotheses below this weight are dropped
-    double heading_merge_m = 0.3;         // m, hypotheses this close ...
-    double heading_merge_rad = 0.05;      // rad, ... and this aligned are merged
+    double heading_prune_weight = 1e-4;    // hypotheses below this weight are dropped
+    double heading_merge_m = 0.3;          // m, hypotheses this close ...
+    double heading_merge_rad = 0.05;       // rad, ... and this aligned are merged
     // Beacons first seen by the robot alone (a SoG around the robot):
-    double beacon_arc_spacing_m = 1.0;    // m between the ring's means
+    double beacon_arc_spacing_m = 1.0; // m between the ring's means
     uint32_t beacon_min_components = 36;
-    double beacon_prune_ratio = 1e-3;     // components below this fraction of the best are dropped
-    uint32_t beacon_min_ranges = 10;      // ranges before it may enter the EKF ...
-    double beacon_insert_std_m = 1.5;     // ... and its SoG's largest std must be below this (m)
-    double beacon_min_baseline_m = 3.0;   // m, and the robot must have ranged it from places this far apart
+    double beacon_prune_ratio = 1e-3;   // components below this fraction of the best are dropped
+    uint32_t beacon_min_ranges = 10;    // ranges before it may enter the EKF ...
+    double beacon_insert_std_m = 1.5;   // ... and its SoG's largest std must be below this (m)
+    double beacon_min_baseline_m = 3.0; // m, and the robot must have ranged it from places this far apart
     // A link whose recent innovations sit persistently off (an NLOS link reads long wherever the
     // robot is) is left out of the EKF until they come back: its median innovation over the
     // last nlos_window ranges beyond max(nlos_min_m, nlos_sigmas x the noise).
-    uint32_t nlos_window = 20;            // ranges per link
-    double nlos_min_m = 0.3;              // m
+    uint32_t nlos_window = 20; // ranges per link
+    double nlos_min_m = 0.3;   // m
     double nlos_sigmas = 3.0;
 };
 
@@ -82,19 +82,19 @@ const char *robotFrameName(RobotFrame frame);
 
 struct RobotOutput {
     NodeId id = 0;
-    double t_s = 0.0;                        // s, time of the last input
-    Pose2 pose;                              // output frame
+    double t_s = 0.0;                                     // s, time of the last input
+    Pose2 pose;                                           // output frame
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero(); // (m^2, m^2 rad, rad^2)
-    bool localized = false;                  // the EKF runs (false: dead reckoning before it starts)
-    bool placed = false;                     // has a position: the EKF runs, or the initialization
-                                             // placed the robot's node while it stood (and it is not
-                                             // ambiguous), or no map exists (dead reckoning, Odometry)
-    RobotFrame frame = RobotFrame::Odometry; // the frame `pose` is in (see RobotFrame)
-    uint32_t hypotheses = 0;                 // heading hypotheses alive (1 once decided)
+    bool localized = false;                               // the EKF runs (false: dead reckoning before it starts)
+    bool placed = false;                                  // has a position: the EKF runs, or the initialization
+                                                          // placed the robot's node while it stood (and it is not
+                                                          // ambiguous), or no map exists (dead reckoning, Odometry)
+    RobotFrame frame = RobotFrame::Odometry;              // the frame `pose` is in (see RobotFrame)
+    uint32_t hypotheses = 0;                              // heading hypotheses alive (1 once decided)
     double range_scale = 1.0;
     double range_scale_sigma = 0.0;
-    double range_offset_m = 0.0;             // m
-    double range_offset_sigma_m = 0.0;       // m
+    double range_offset_m = 0.0;       // m
+    double range_offset_sigma_m = 0.0; // m
 };
 
 struct MovementCounters {
@@ -103,8 +103,8 @@ struct MovementCounters {
     uint64_t ekf_updates = 0;
     uint64_t ekf_gated = 0;
     uint64_t nodes_inserted = 0;
-    uint64_t nodes_removed = 0;          // moving nodes taken out of the EKF
-    uint64_t beacon_sogs = 0;            // beacons started as a SoG around the robot
+    uint64_t nodes_removed = 0; // moving nodes taken out of the EKF
+    uint64_t beacon_sogs = 0;   // beacons started as a SoG around the robot
     uint64_t hypotheses_pruned = 0;
     uint64_t nlos_link_ranges_skipped = 0; // ranges on links that read long persistently (not used)
 };
@@ -137,7 +137,7 @@ public:
         std::vector<BeaconComponent> components;
         uint32_t ranges = 0;
         Vector2 first_robot_m = Vector2::Zero(); // m, the robot when the ring started
-        double baseline_m = 0.0; // m, farthest place it was ranged from (robot or map node) from there
+        double baseline_m = 0.0;                 // m, farthest place it was ranged from (robot or map node) from there
     };
     struct Hypothesis {
         RobotFilter filter;
@@ -154,18 +154,18 @@ public:
         bool started = false;
         bool own_frame = false;
         bool waiting_for_fix = false;
-        double moved_m = 0.0;                    // m
-        double last_t_s = 0.0;                   // s
+        double moved_m = 0.0;  // m
+        double last_t_s = 0.0; // s
         bool have_time = false;
         Pose2 dead_reckoning;
         std::vector<Hypothesis> hypotheses;
         std::map<NodeId, BeaconSog> beacons;
         std::map<NodeId, bool> moving;
         std::map<std::pair<NodeId, NodeId>, LinkWatch> links;
-        std::vector<double> innovations_m;       // m, a ring
-        std::vector<double> prior_variances_m2;  // m^2
+        std::vector<double> innovations_m;      // m, a ring
+        std::vector<double> prior_variances_m2; // m^2
         size_t innovation_next = 0;
-        std::optional<double> adaptive_sigma_m;  // m
+        std::optional<double> adaptive_sigma_m; // m
         MovementCounters counters;
         uint64_t revision = 0;
     };
@@ -173,7 +173,6 @@ public:
     void restore(const Saved &saved);
 
 private:
-
     void start(double t_s);
     void insertConvergedNodes();
     bool insertNode(NodeId id);
@@ -196,12 +195,12 @@ private:
     MovementParams params_;
     RangeLikelihood likelihood_;
     bool started_ = false;
-    bool own_frame_ = false;      // the odometry frame (no map to start from)
+    bool own_frame_ = false;       // the odometry frame (no map to start from)
     bool waiting_for_fix_ = false; // a map exists but the robot is not placed in it yet
     double moved_m_ = 0.0;
     double last_t_s_ = 0.0;
     bool have_time_ = false;
-    Pose2 dead_reckoning_;        // before the EKF starts (odometry frame)
+    Pose2 dead_reckoning_; // before the EKF starts (odometry frame)
     std::vector<Hypothesis> hypotheses_;
     std::map<NodeId, BeaconSog> beacons_;
     std::map<NodeId, bool> moving_;

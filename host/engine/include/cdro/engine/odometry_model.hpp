@@ -29,7 +29,7 @@ struct OdometryStep {
 
 struct OdometryPrediction {
     Pose2 pose;
-    Eigen::Matrix3d jacobian_pose = Eigen::Matrix3d::Identity();      // dpose'/dpose
+    Eigen::Matrix3d jacobian_pose = Eigen::Matrix3d::Identity();                     // dpose'/dpose
     Eigen::Matrix<double, 3, 2> jacobian_step = Eigen::Matrix<double, 3, 2>::Zero(); // dpose'/d(d, dh)
 };
 

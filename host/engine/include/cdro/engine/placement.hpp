@@ -31,12 +31,12 @@
 namespace cdro::engine {
 
 struct PlacementParams {
-    double min_triangle_height_m = 1.0;  // m, a frame triangle's smallest height (non-collinear)
-    double min_baseline_m = 1.0;         // m, neighbours closer than this give no intersection
-    double ambiguity_gap_nats = 4.0;     // nats, how much better than any rival the best must be
-    double distinct_m = 1.0;             // m, candidates closer than this are one solution
-    uint32_t patience_ranges = 60;       // a node with 3+ placed neighbours still ambiguous after
-                                         // this many of its ranges is placed at its best candidate
+    double min_triangle_height_m = 1.0; // m, a frame triangle's smallest height (non-collinear)
+    double min_baseline_m = 1.0;        // m, neighbours closer than this give no intersection
+    double ambiguity_gap_nats = 4.0;    // nats, how much better than any rival the best must be
+    double distinct_m = 1.0;            // m, candidates closer than this are one solution
+    uint32_t patience_ranges = 60;      // a node with 3+ placed neighbours still ambiguous after
+                                        // this many of its ranges is placed at its best candidate
 };
 
 struct PlacementCandidate {
@@ -47,8 +47,8 @@ struct PlacementCandidate {
 
 // Distinct local optima of a node's robust cost against its constraints, best first.
 std::vector<PlacementCandidate> placementCandidates(const std::vector<RangeConstraint> &constraints,
-                                                    const RangeLikelihood &likelihood,
-                                                    const PointSolverParams &solver, const PlacementParams &params);
+                                                    const RangeLikelihood &likelihood, const PointSolverParams &solver,
+                                                    const PlacementParams &params);
 
 enum class PlacementDecision { Placed, Ambiguous, NoCandidate };
 

@@ -20,10 +20,10 @@ namespace cdro::engine {
 
 // One constraint on the point: a range to a known position.
 struct RangeConstraint {
-    Vector2 anchor_m = Vector2::Zero();            // m, the neighbour's position
+    Vector2 anchor_m = Vector2::Zero();             // m, the neighbour's position
     Matrix2 anchor_covariance_m2 = Matrix2::Zero(); // m^2
-    double range_m = 0.0;                          // m
-    uint32_t link = kNoIndex;                      // for the caller's bookkeeping
+    double range_m = 0.0;                           // m
+    uint32_t link = kNoIndex;                       // for the caller's bookkeeping
 };
 
 // The links of `node` to placed neighbours that are not moving, as constraints (in the order
@@ -33,21 +33,21 @@ std::vector<RangeConstraint> placedConstraints(const MapState &map, uint32_t nod
 std::vector<RangeConstraint> placedConstraints(const MapProblem &problem, const MapEstimate &estimate, uint32_t node);
 
 struct PointSolution {
-    Vector2 position_m = Vector2::Zero();           // m
-    Matrix2 covariance_m2 = Matrix2::Identity();    // m^2, inverse of the weighted information
-    double cost = 0.0;                              // -sum log p(e), nats
+    Vector2 position_m = Vector2::Zero();        // m
+    Matrix2 covariance_m2 = Matrix2::Identity(); // m^2, inverse of the weighted information
+    double cost = 0.0;                           // -sum log p(e), nats
     uint32_t iterations = 0;
-    uint32_t downweighted = 0;                      // constraints with inlier probability < 0.5
-    bool well_posed = false;                        // the information matrix was invertible
+    uint32_t downweighted = 0; // constraints with inlier probability < 0.5
+    bool well_posed = false;   // the information matrix was invertible
 };
 
 struct PointSolverParams {
-    double range_sigma_m = 0.10;     // m
+    double range_sigma_m = 0.10; // m
     uint32_t max_iterations = 8;
-    double step_tolerance_m = 1e-4;  // m, stop when a step is shorter
-    double max_step_m = 2.0;         // m, longer Gauss-Newton steps are shortened to this (a
-                                     // nearly degenerate geometry must not throw a node away)
-    double min_information = 1e-6;   // 1/m^2, smallest eigenvalue of a well-posed information
+    double step_tolerance_m = 1e-4; // m, stop when a step is shorter
+    double max_step_m = 2.0;        // m, longer Gauss-Newton steps are shortened to this (a
+                                    // nearly degenerate geometry must not throw a node away)
+    double min_information = 1e-6;  // 1/m^2, smallest eigenvalue of a well-posed information
     // Whether the neighbours' uncertainty widens the residuals while solving. Placement: yes
     // (one node against fixed neighbours). Refinement: no. There every node is solved in turn
     // against the others, and a link must weigh the same at both of its ends: with weights

@@ -28,12 +28,12 @@ struct RangeIntakeCounters {
 
 struct TakenRange {
     RangeVerdict verdict = RangeVerdict::Stored; // RejectedSelf / RejectedValue: nothing else is set
-    uint32_t a = kNoIndex;       // node indices of `from` and `to`
+    uint32_t a = kNoIndex;                       // node indices of `from` and `to`
     uint32_t b = kNoIndex;
     uint32_t link = kNoIndex;
     bool new_link = false;
-    double planar_m = 0.0;       // m, the range in the plane
-    double jump_m = 0.0;         // m, how far it is from its link's median before it (0 for a new link)
+    double planar_m = 0.0; // m, the range in the plane
+    double jump_m = 0.0;   // m, how far it is from its link's median before it (0 for a new link)
 };
 
 class RangeIntake {

@@ -29,16 +29,16 @@
 namespace cdro::engine {
 
 struct RangeLikelihoodParams {
-    bool robust = true;                 // false: the paper's Gaussian only
-    double nlos_fraction = 0.1;         // eps, prior probability of an NLOS reading, 0..1
-    double nlos_mean_excess_m = 1.0;    // m, 1/lambda: mean of how much too long NLOS reads
-    double gross_density_per_m = 1e-4;  // 1/m, floor of the density: an unexplained range
+    bool robust = true;                // false: the paper's Gaussian only
+    double nlos_fraction = 0.1;        // eps, prior probability of an NLOS reading, 0..1
+    double nlos_mean_excess_m = 1.0;   // m, 1/lambda: mean of how much too long NLOS reads
+    double gross_density_per_m = 1e-4; // 1/m, floor of the density: an unexplained range
 };
 
 struct ResidualEvaluation {
-    double log_density = 0.0;          // log p(e), log(1/m)
-    double inlier_probability = 1.0;   // P(line of sight | e), 0..1
-    double slope_per_m = 0.0;          // d log p / de (1/m): minus the residual's influence
+    double log_density = 0.0;        // log p(e), log(1/m)
+    double inlier_probability = 1.0; // P(line of sight | e), 0..1
+    double slope_per_m = 0.0;        // d log p / de (1/m): minus the residual's influence
 };
 
 class RangeLikelihood {
@@ -52,7 +52,10 @@ public:
 
     // residual_m = measured - predicted (m); variance_m2 > 0 (m^2).
     ResidualEvaluation evaluate(double residual_m, double variance_m2) const;
-    double logDensity(double residual_m, double variance_m2) const { return evaluate(residual_m, variance_m2).log_density; }
+    double logDensity(double residual_m, double variance_m2) const
+    {
+        return evaluate(residual_m, variance_m2).log_density;
+    }
     // evaluate()'s inlier probability (to rounding), without its logarithm.
     double inlierProbability(double residual_m, double variance_m2) const;
     // p(e) itself (1/m): the weight update multiplies these (clamped at 1e-300).
@@ -76,11 +79,11 @@ private:
     // exponent would overflow (then the log-space evaluation serves).
     struct Terms {
         bool finite = false;
-        double normal = 0.0;    // N(e; 0, S)
-        double los = 0.0;       // (1 - eps - eta) N
-        double nlos = 0.0;      // eps EMG(e; S, lambda)
-        double shortish = 0.0;  // eta EMG(-e; S, mu)
-        double total = 0.0;     // their sum with the floor, at least 1e-300
+        double normal = 0.0;   // N(e; 0, S)
+        double los = 0.0;      // (1 - eps - eta) N
+        double nlos = 0.0;     // eps EMG(e; S, lambda)
+        double shortish = 0.0; // eta EMG(-e; S, mu)
+        double total = 0.0;    // their sum with the floor, at least 1e-300
     };
     Terms terms(double residual_m, double variance_m2) const;
 

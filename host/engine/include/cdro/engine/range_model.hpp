@@ -21,10 +21,10 @@ namespace cdro::engine {
 constexpr double kSingularDistanceM = 1e-9; // m
 
 struct RangePrediction {
-    double range_m = 0.0;                                               // m, h(x, c)
-    Eigen::RowVector2d jacobian_point = Eigen::RowVector2d::Zero();     // dh/dx, 1/1 (m per m)
-    Eigen::RowVector2d jacobian_center = Eigen::RowVector2d::Zero();    // dh/dc
-    bool singular = false;                                              // x and c coincide
+    double range_m = 0.0;                                            // m, h(x, c)
+    Eigen::RowVector2d jacobian_point = Eigen::RowVector2d::Zero();  // dh/dx, 1/1 (m per m)
+    Eigen::RowVector2d jacobian_center = Eigen::RowVector2d::Zero(); // dh/dc
+    bool singular = false;                                           // x and c coincide
 };
 
 RangePrediction predictRange(const Vector2 &point_m, const Vector2 &center_m);

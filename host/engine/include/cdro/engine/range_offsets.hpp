@@ -26,16 +26,17 @@ constexpr double kRangeOffsetSpreadSigmaM = 0.5; // m, how far a node's offset s
 
 struct RangeOffsets {
     bool adopted = false;
-    double common_m = 0.0;             // m, the offset every node shares
-    std::vector<double> offset_m;      // m, per node (problem numbering); zeros when not adopted
-    MapEstimate estimate;              // the map under the corrected ranges (adopted), else the start
-    double cost_nats = 0.0;            // the links' cost under the corrected ranges, with the prior
-    double cost_without_nats = 0.0;    // ... of the start under the ranges as read
-    uint32_t evaluations = 0;          // maps refined in the search
+    double common_m = 0.0;          // m, the offset every node shares
+    std::vector<double> offset_m;   // m, per node (problem numbering); zeros when not adopted
+    MapEstimate estimate;           // the map under the corrected ranges (adopted), else the start
+    double cost_nats = 0.0;         // the links' cost under the corrected ranges, with the prior
+    double cost_without_nats = 0.0; // ... of the start under the ranges as read
+    uint32_t evaluations = 0;       // maps refined in the search
 };
 
 // The offsets that best explain `problem`'s links from the map `start` (placed nodes only).
-RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate &start, const RangeLikelihood &likelihood);
+RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate &start,
+                                   const RangeLikelihood &likelihood);
 
 // The problem with every link's range corrected by its ends' offsets (m).
 MapProblem withRangeOffsets(const MapProblem &problem, const std::vector<double> &offset_m);

@@ -18,7 +18,7 @@ namespace cdro::engine {
 
 struct RefinerCounters {
     uint64_t refinements = 0;
-    uint64_t links_downweighted = 0; // links with inlier probability < 0.5, summed
+    uint64_t links_downweighted = 0;  // links with inlier probability < 0.5, summed
     uint64_t hypothesis_switches = 0; // the merged SoG won over the previous estimate
 };
 

@@ -32,24 +32,24 @@
 namespace cdro::engine {
 
 struct RingSogParams {
-    double arc_spacing_m = 1.0;       // m, largest distance between neighbouring means (MRPT d_max)
-    uint32_t min_components = 30;     // N is at least this (small rings still cover the circle)
-    uint32_t max_components = 720;    // and at most this (bounds memory and time on long links)
-    double tangential_overlap = 2.5;  // c: sigma_t = arc spacing / c, so neighbours overlap
-    double radial_sigma_m = 0.10;     // m, sigma_s of a new component (the range noise)
-    double weight_floor = 1e-6;       // smallest weight a component keeps, 0..1/N
+    double arc_spacing_m = 1.0;      // m, largest distance between neighbouring means (MRPT d_max)
+    uint32_t min_components = 30;    // N is at least this (small rings still cover the circle)
+    uint32_t max_components = 720;   // and at most this (bounds memory and time on long links)
+    double tangential_overlap = 2.5; // c: sigma_t = arc spacing / c, so neighbours overlap
+    double radial_sigma_m = 0.10;    // m, sigma_s of a new component (the range noise)
+    double weight_floor = 1e-6;      // smallest weight a component keeps, 0..1/N
 };
 
 // One Gaussian of the ring.
 struct SogComponentState {
-    Vector2 mean_m = Vector2::Zero();           // m
-    Matrix2 covariance_m2 = Matrix2::Zero();    // m^2
-    double weight = 0.0;                        // normalised within the ring
+    Vector2 mean_m = Vector2::Zero();        // m
+    Matrix2 covariance_m2 = Matrix2::Zero(); // m^2
+    double weight = 0.0;                     // normalised within the ring
 };
 
 struct RangeUpdateResult {
-    uint32_t updated = 0;   // components that took the range
-    uint32_t gated = 0;     // components whose innovation was beyond the gate (not updated)
+    uint32_t updated = 0; // components that took the range
+    uint32_t gated = 0;   // components whose innovation was beyond the gate (not updated)
 };
 
 // Another node that ranged to the ring's target: where it is, how sure, and the range (m).
@@ -60,8 +60,8 @@ struct RangeWitness {
 };
 
 struct WeightUpdateResult {
-    bool collapsed = false;       // reset to the evidence alone
-    uint32_t downweighted = 0;    // witnesses that read NLOS at the ring's best component
+    bool collapsed = false;    // reset to the evidence alone
+    uint32_t downweighted = 0; // witnesses that read NLOS at the ring's best component
 };
 
 class RingSog {
@@ -147,7 +147,7 @@ private:
     Vector2 offset_m_ = Vector2::Zero();        // m, added to every stored mean
     std::vector<SogComponentState> components_; // means relative to offset_m_
     mutable bool moments_stale_ = true;
-    mutable Vector2 first_moment_m_ = Vector2::Zero();  // sum w m (relative)
+    mutable Vector2 first_moment_m_ = Vector2::Zero();   // sum w m (relative)
     mutable Matrix2 second_moment_m2_ = Matrix2::Zero(); // sum w (C + m m^T) (relative)
     std::vector<double> scratch_;
     std::vector<uint32_t> active_;

@@ -25,13 +25,13 @@
 namespace cdro::engine {
 
 struct RobotFilterNoise {
-    double distance_fraction = 0.05;        // sigma_d = fraction |d| + floor
-    double distance_floor_m = 0.001;        // m per step
-    double heading_fraction = 0.05;         // sigma_dh = fraction |dh| + floor + walk sqrt(dt)
-    double heading_floor_rad = 0.0005;      // rad per step
+    double distance_fraction = 0.05;            // sigma_d = fraction |d| + floor
+    double distance_floor_m = 0.001;            // m per step
+    double heading_fraction = 0.05;             // sigma_dh = fraction |dh| + floor + walk sqrt(dt)
+    double heading_floor_rad = 0.0005;          // rad per step
     double heading_walk_rad_per_sqrt_s = 0.005; // rad/sqrt(s): a drifting gyro or wheel slip
-    double scale_walk_per_sqrt_s = 0.0;     // 1/sqrt(s): slow drift of the range scale
-    double offset_walk_m_per_sqrt_s = 0.0;  // m/sqrt(s)
+    double scale_walk_per_sqrt_s = 0.0;         // 1/sqrt(s): slow drift of the range scale
+    double offset_walk_m_per_sqrt_s = 0.0;      // m/sqrt(s)
 };
 
 struct RangeUpdateOutcome {

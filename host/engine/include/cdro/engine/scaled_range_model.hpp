@@ -18,8 +18,8 @@
 namespace cdro::engine {
 
 struct ScaledRangePrediction {
-    double range_m = 0.0;      // m, h
-    double distance_m = 0.0;   // m, d (3D)
+    double range_m = 0.0;    // m, h
+    double distance_m = 0.0; // m, d (3D)
     Eigen::RowVector2d jacobian_a = Eigen::RowVector2d::Zero();
     Eigen::RowVector2d jacobian_b = Eigen::RowVector2d::Zero();
     double jacobian_scale = 0.0;  // dh/ds, m

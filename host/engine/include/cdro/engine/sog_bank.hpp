@@ -22,8 +22,8 @@ struct SogBankCounters {
     uint64_t weight_terms_downweighted = 0; // ... where the ring's best component read NLOS
     uint64_t weight_collapses = 0;          // rings reset to the evidence (all weights at floor)
     uint64_t weight_transfers = 0;
-    uint64_t motion_resets = 0;             // SoGs reset by a range to a moving node (Fig. 4)
-    uint64_t weight_updates_deferred = 0;   // ranges to a converged node whose ring was not re-weighted
+    uint64_t motion_resets = 0;           // SoGs reset by a range to a moving node (Fig. 4)
+    uint64_t weight_updates_deferred = 0; // ranges to a converged node whose ring was not re-weighted
 };
 
 class SogBank {

@@ -21,10 +21,7 @@ struct Gaussian2 {
 
 // The symmetric part of a covariance: products such as (c h) h^T round their two off-diagonal
 // entries differently, and a state saved as three numbers must come back bit for bit.
-inline Matrix2 symmetricPart(const Matrix2 &m)
-{
-    return 0.5 * (m + m.transpose());
-}
+inline Matrix2 symmetricPart(const Matrix2 &m) { return 0.5 * (m + m.transpose()); }
 
 // Smallest eigenvalue of a symmetric 2x2 matrix, in closed form (no iterative solver).
 inline double minEigenvalue(const Matrix2 &m)

@@ -34,7 +34,7 @@ using CsvError = csv::Error;
 struct RangeRow {
     size_t line = 0;
     bool has_time = false;
-    double t_s = 0.0;     // s
+    double t_s = 0.0; // s
     uint16_t from = 0;
     uint16_t to = 0;
     double range_m = 0.0; // m
@@ -43,26 +43,26 @@ struct RangeRow {
 struct HeightRow {
     size_t line = 0;
     uint16_t id = 0;
-    double z_m = 0.0;     // m
+    double z_m = 0.0; // m
 };
 
 struct FixedRow {
     size_t line = 0;
     uint16_t id = 0;
-    double x_m = 0.0;     // m
-    double y_m = 0.0;     // m
+    double x_m = 0.0; // m
+    double y_m = 0.0; // m
 };
 
 struct OdometryRow {
     size_t line = 0;
-    double t_s = 0.0;             // s
-    double distance_m = 0.0;      // m travelled in this step
-    double dheading_rad = 0.0;    // rad, heading change in this step
+    double t_s = 0.0;          // s
+    double distance_m = 0.0;   // m travelled in this step
+    double dheading_rad = 0.0; // rad, heading change in this step
 };
 
 struct MotionRow {
     size_t line = 0;
-    double t_s = 0.0;     // s
+    double t_s = 0.0; // s
     uint16_t id = 0;
     bool moving = false;
 };

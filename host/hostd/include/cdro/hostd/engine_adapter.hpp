@@ -35,7 +35,8 @@ namespace cdro::hostd {
 
 // The tags are defined with every other in common/include/cdro/checkpoint_layout.def.
 constexpr uint16_t kEngineExtensionTag = CDRO_CHECKPOINT_TAG_ENGINE;
-constexpr uint16_t kMovementExtensionTag = CDRO_CHECKPOINT_TAG_MOVEMENT; // the movement stage, when a robot is configured
+constexpr uint16_t kMovementExtensionTag =
+    CDRO_CHECKPOINT_TAG_MOVEMENT; // the movement stage, when a robot is configured
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,

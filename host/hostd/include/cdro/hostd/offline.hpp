@@ -61,20 +61,20 @@ struct OfflineOptions {
     // node id, and the robot's causal trajectory t,x,y,heading_rad,var_x,cov_xy,var_y,frame
     // (frame: odometry or map, RobotFrame in movement.hpp).
     std::string odometry_csv;
-    int robot_id = -1;            // -1 = none
+    int robot_id = -1; // -1 = none
     std::string out_trajectory;
-    std::string motion_csv;       // t,id,moving (optional)
-    std::vector<std::string> moving; // node ids moving from the start, tracked in 3D (--moving)
+    std::string motion_csv;                 // t,id,moving (optional)
+    std::vector<std::string> moving;        // node ids moving from the start, tracked in 3D (--moving)
     std::vector<std::string> moving_bodies; // "A:B:SEPARATION_M": two of them on one rigid body (--moving-body)
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;
-    std::string trace_csv;        // "" = none
-    uint32_t trace_every = 10;    // ranges between trace snapshots
+    std::string trace_csv;     // "" = none
+    uint32_t trace_every = 10; // ranges between trace snapshots
     bool settle = true;
-    uint64_t settle_budget = 0;   // node updates at the end; 0 = 200 per node
+    uint64_t settle_budget = 0;      // node updates at the end; 0 = 200 per node
     uint32_t max_reported_rows = 20; // bad rows printed one by one (all are counted)
-    bool verbose = false;         // the engine's decisions on stderr (--verbose)
+    bool verbose = false;            // the engine's decisions on stderr (--verbose)
 };
 
 // Returns the process exit code: 0, or 2 with a message on stderr when an input cannot be

@@ -38,10 +38,10 @@ std::optional<Family> parseFamily(const std::string &name);
 std::vector<Family> allFamilies();
 
 struct FamilyOptions {
-    uint32_t nodes = 0;            // 0: the family's own draw
-    double nlos_fraction = -1.0;   // share of line-of-sight links with an obstruction; < 0: the family's
-    double degree = 10.0;          // random: mean degree
-    bool heights_known = true;     // false: the engine is told no height
+    uint32_t nodes = 0;          // 0: the family's own draw
+    double nlos_fraction = -1.0; // share of line-of-sight links with an obstruction; < 0: the family's
+    double degree = 10.0;        // random: mean degree
+    bool heights_known = true;   // false: the engine is told no height
 };
 
 // The world of family `family` drawn from `seed`, connected (redrawn until it is).

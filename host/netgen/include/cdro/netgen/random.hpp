@@ -24,9 +24,9 @@ public:
     RandomSource(const RandomSource &) = default;
     RandomSource &operator=(const RandomSource &) = default;
     virtual ~RandomSource() = default;
-    virtual double uniform() = 0;                   // [0, 1)
-    virtual double normal() = 0;                    // standard normal
-    virtual size_t below(size_t count) = 0;         // [0, count), count > 0
+    virtual double uniform() = 0;                                                      // [0, 1)
+    virtual double normal() = 0;                                                       // standard normal
+    virtual size_t below(size_t count) = 0;                                            // [0, count), count > 0
     double uniform(double low, double high) { return low + (high - low) * uniform(); } // [low, high)
     bool chance(double probability) { return uniform() < probability; }
     template <typename T> void shuffle(std::vector<T> &items) // Fisher-Yates
@@ -43,10 +43,10 @@ public:
     explicit Random(uint64_t seed) : state_(seed) {}
     using RandomSource::uniform;
     uint64_t next();
-    double uniform() override;               // [0, 1)
-    double normal() override;                // standard normal
-    double exponential(double mean);         // Exp with this mean (> 0)
-    size_t below(size_t count) override;     // [0, count), count > 0
+    double uniform() override;           // [0, 1)
+    double normal() override;            // standard normal
+    double exponential(double mean);     // Exp with this mean (> 0)
+    size_t below(size_t count) override; // [0, count), count > 0
 
 private:
     uint64_t state_;

@@ -25,10 +25,10 @@ std::optional<StreamOrder> parseStreamOrder(const std::string &name);
 
 struct StreamOptions {
     StreamOrder order = StreamOrder::Sweeps;
-    uint32_t sweeps = 20;          // sweeps with every node on (after the last one is switched on)
-    uint32_t late_sweeps = 20;     // late: sweeps after the late node is switched on
-    double range_rate_hz = 80.0;   // ranges per second, the whole network
-    double stagger_s = 120.0;      // s, staggered: nodes switched on over this long
+    uint32_t sweeps = 20;        // sweeps with every node on (after the last one is switched on)
+    uint32_t late_sweeps = 20;   // late: sweeps after the late node is switched on
+    double range_rate_hz = 80.0; // ranges per second, the whole network
+    double stagger_s = 120.0;    // s, staggered: nodes switched on over this long
     uint64_t seed = 1;
 };
 
@@ -41,7 +41,7 @@ struct GeneratedRange {
 
 struct GeneratedStream {
     std::vector<GeneratedRange> ranges;
-    NodeId late_node = 0;          // late: the node switched on last (0 otherwise)
+    NodeId late_node = 0; // late: the node switched on last (0 otherwise)
 };
 
 GeneratedStream generateStream(const World &world, const StreamOptions &options);

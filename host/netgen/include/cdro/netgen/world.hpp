@@ -39,24 +39,24 @@ struct WorldNode {
 };
 
 struct WorldLink {
-    uint32_t a = 0;                       // node indices
+    uint32_t a = 0; // node indices
     uint32_t b = 0;
-    uint32_t walls = 0;                   // walls the straight path crosses
-    double excess_m = 0.0;                // m, persistent NLOS excess of this link
+    uint32_t walls = 0;    // walls the straight path crosses
+    double excess_m = 0.0; // m, persistent NLOS excess of this link
 };
 
 struct RangeNoise {
-    double sigma_m = 0.10;                // m, line-of-sight noise std
-    double sporadic_probability = 0.0;    // per range
-    double sporadic_mean_m = 1.0;         // m
+    double sigma_m = 0.10;             // m, line-of-sight noise std
+    double sporadic_probability = 0.0; // per range
+    double sporadic_mean_m = 1.0;      // m
 };
 
 struct World {
     std::string family;
     uint64_t seed = 0;
-    std::string description;              // one line: what was drawn
+    std::string description; // one line: what was drawn
     std::vector<WorldNode> nodes;
-    std::vector<WorldLink> links;         // the pairs that hear each other
+    std::vector<WorldLink> links; // the pairs that hear each other
     std::vector<WallSegment> walls;
     RangeNoise noise;
 

@@ -38,8 +38,7 @@ public:
     // what a replay needs to reach the live run's result (the map's heights, fixed nodes and
     // settings: cdro-hostd's JSON), written into every file's header; "" = none. Throws
     // CaptureError if it is longer than CDRO_CAPTURE_MAX_CONTEXT.
-    CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters,
-                  std::string context = "");
+    CaptureWriter(const CaptureConfig &config, std::string source, ServiceCounters &counters, std::string context = "");
     ~CaptureWriter();
     CaptureWriter(const CaptureWriter &) = delete;
     CaptureWriter &operator=(const CaptureWriter &) = delete;
@@ -70,7 +69,7 @@ private:
     ServiceCounters &counters_;
     int fd_ = -1;
     uint64_t file_bytes_ = 0;
-    uint64_t header_bytes_ = 0;   // of the current file
+    uint64_t header_bytes_ = 0; // of the current file
     uint64_t rotate_bytes_ = 0;
     uint64_t lost_in_outage_ = 0; // records not written since the last one that was
     bool reopen_pending_ = false; // a rotation could not start its new file: retried
@@ -78,10 +77,10 @@ private:
 };
 
 struct CaptureRecord {
-    uint8_t flags = 0;          // CDRO_CAPTURE_FLAG_*
-    int64_t host_time_us = 0;   // us since the Unix epoch
-    std::vector<uint8_t> data;  // one chunk as on the wire, without the delimiter (odometry:
-                                // the message as normalised JSON)
+    uint8_t flags = 0;         // CDRO_CAPTURE_FLAG_*
+    int64_t host_time_us = 0;  // us since the Unix epoch
+    std::vector<uint8_t> data; // one chunk as on the wire, without the delimiter (odometry:
+                               // the message as normalised JSON)
     bool toDevice() const { return (flags & CDRO_CAPTURE_FLAG_TO_DEVICE) != 0; }
     bool odometry() const { return (flags & CDRO_CAPTURE_FLAG_ODOMETRY) != 0; }
 };

@@ -34,14 +34,14 @@ public:
 
 struct SogSnapshot {
     struct Pair {
-        cdro_sog_pair_t pair{};                      // component_count is set on encode
+        cdro_sog_pair_t pair{}; // component_count is set on encode
         std::vector<cdro_sog_component_t> components;
     };
     struct Extension {
-        uint16_t tag = 0;                            // != 0
+        uint16_t tag = 0; // != 0
         std::vector<uint8_t> bytes;
     };
-    cdro_sog_header_t header{};                      // counts, layout version/hash set on encode
+    cdro_sog_header_t header{}; // counts, layout version/hash set on encode
     std::vector<cdro_sog_node_t> nodes;
     std::vector<Pair> pairs;
     std::vector<Extension> extensions;
@@ -53,9 +53,9 @@ struct SogSnapshot {
 // continue a run (informative on resume).
 constexpr uint16_t kServiceExtensionTag = CDRO_CHECKPOINT_TAG_SERVICE;
 struct ServiceCheckpointInfo {
-    int64_t run_start_unix_us = 0;   // us, the run's t_s origin
-    int64_t last_event_unix_us = 0;  // us, event time of the last frame before the checkpoint
-    uint64_t frames_delivered = 0;   // frames the consumer had seen
+    int64_t run_start_unix_us = 0;  // us, the run's t_s origin
+    int64_t last_event_unix_us = 0; // us, event time of the last frame before the checkpoint
+    uint64_t frames_delivered = 0;  // frames the consumer had seen
 };
 std::vector<uint8_t> encodeServiceInfo(const ServiceCheckpointInfo &info);
 bool decodeServiceInfo(const std::vector<uint8_t> &bytes, ServiceCheckpointInfo *info);
@@ -69,10 +69,10 @@ public:
     virtual void restore(const SogSnapshot &snapshot) = 0;
 };
 
-std::vector<uint8_t> encodeSnapshot(const SogSnapshot &snapshot); // throws CheckpointError
+std::vector<uint8_t> encodeSnapshot(const SogSnapshot &snapshot);                        // throws CheckpointError
 SogSnapshot decodeSnapshot(const uint8_t *bytes, size_t len, const std::string &origin); // throws
 
 void writeCheckpointFile(const std::string &path, const SogSnapshot &snapshot); // atomic; throws
-SogSnapshot loadCheckpointFile(const std::string &path);                       // throws
+SogSnapshot loadCheckpointFile(const std::string &path);                        // throws
 
 } // namespace cdro::service

@@ -32,7 +32,9 @@ public:
 class ManualClock final : public Clock {
 public:
     explicit ManualClock(int64_t monotonic_us = 1'000'000, int64_t unix_us = 1'700'000'000'000'000)
-        : monotonic_us_(monotonic_us), unix_us_(unix_us) {}
+        : monotonic_us_(monotonic_us), unix_us_(unix_us)
+    {
+    }
     int64_t monotonicUs() const override { return monotonic_us_.load(); }
     int64_t unixUs() const override { return unix_us_.load(); }
     void advanceUs(int64_t delta_us)

@@ -27,26 +27,26 @@ class App;
 namespace cdro::service {
 
 struct RunOptions {
-    std::string replay_path;    // --replay FILE: feed this capture instead of the serial port
-    double replay_speed = 0.0;  // --speed X|max: 0 = as fast as possible, else X times real time
-    std::string resume_path;    // --resume FILE: start from this checkpoint
+    std::string replay_path;   // --replay FILE: feed this capture instead of the serial port
+    double replay_speed = 0.0; // --speed X|max: 0 = as fast as possible, else X times real time
+    std::string resume_path;   // --resume FILE: start from this checkpoint
 };
 
 struct ServiceOverrides {
-    std::string config_path;    // --config FILE
+    std::string config_path; // --config FILE
     RunOptions run;
-    std::optional<std::string> device;          // --device PATH
-    std::optional<uint32_t> baud;               // --baud N
-    std::optional<std::string> capture_path;    // --capture FILE ("" = off)
-    std::optional<std::string> jsonl;           // --jsonl FILE|-
-    std::optional<double> output_rate_hz;       // --rate HZ
-    std::optional<std::string> mqtt_url;        // --mqtt URL
-    std::optional<std::string> http_bind;       // --http-bind ADDR
-    std::optional<uint16_t> http_port;          // --http-port N (0 = off)
-    std::optional<std::string> checkpoint_path; // --checkpoint FILE
-    std::optional<double> checkpoint_period_s;  // --checkpoint-period S
-    std::optional<std::string> log_level;       // --log-level LEVEL
-    std::optional<uint16_t> odometry_udp_port;  // --odometry-udp-port N (0 = off)
+    std::optional<std::string> device;              // --device PATH
+    std::optional<uint32_t> baud;                   // --baud N
+    std::optional<std::string> capture_path;        // --capture FILE ("" = off)
+    std::optional<std::string> jsonl;               // --jsonl FILE|-
+    std::optional<double> output_rate_hz;           // --rate HZ
+    std::optional<std::string> mqtt_url;            // --mqtt URL
+    std::optional<std::string> http_bind;           // --http-bind ADDR
+    std::optional<uint16_t> http_port;              // --http-port N (0 = off)
+    std::optional<std::string> checkpoint_path;     // --checkpoint FILE
+    std::optional<double> checkpoint_period_s;      // --checkpoint-period S
+    std::optional<std::string> log_level;           // --log-level LEVEL
+    std::optional<uint16_t> odometry_udp_port;      // --odometry-udp-port N (0 = off)
     std::optional<std::string> odometry_mqtt_topic; // --odometry-mqtt-topic TOPIC ("" = none)
 };
 

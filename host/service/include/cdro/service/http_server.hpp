@@ -59,7 +59,7 @@ namespace cdro::service {
 class MapSnapshotStore {
 public:
     struct Snapshot {
-        uint64_t revision = 0;          // 0 = nothing published yet
+        uint64_t revision = 0; // 0 = nothing published yet
         std::shared_ptr<const std::string> map_json;
         std::shared_ptr<const std::string> health_json;
     };
@@ -69,7 +69,7 @@ public:
     // Waits until a snapshot newer than `revision` exists, close() is called, or timeout_ms
     // passes; returns the latest snapshot either way.
     Snapshot waitNewer(uint64_t revision, int timeout_ms) const;
-    void close();           // wakes every waiter; later waits return at once
+    void close(); // wakes every waiter; later waits return at once
     bool closed() const;
     // Called (on the publishing thread) after every publish; empty = none. The call is made
     // under a lock that setOnPublish also takes, so that once it returns no call is running.
@@ -86,8 +86,8 @@ private:
 
 // What the server refused and answered, for the health line (thread-safe reads).
 struct HttpStats {
-    uint64_t requests = 0;  // requests answered with 200, 404 or a component lookup's answer
-    uint64_t refused = 0;   // requests or connections refused: 400, 405, 408, 413, 431, 503, closed to make room
+    uint64_t requests = 0; // requests answered with 200, 404 or a component lookup's answer
+    uint64_t refused = 0;  // requests or connections refused: 400, 405, 408, 413, 431, 503, closed to make room
 };
 
 // Bounds no user needs to set (documented in docs/service.md, "Security model"); tests
@@ -137,13 +137,13 @@ private:
     MapSnapshotStore &store_;
     ComponentsFetcher fetcher_;
     Limits limits_;
-    SystemClock clock_;                 // the HTTP thread's deadlines are wall-clock matters
+    SystemClock clock_; // the HTTP thread's deadlines are wall-clock matters
     std::unique_ptr<Worker> worker_;
     std::thread thread_;
     std::atomic<size_t> open_connections_{0};
     int port_ = 0;
-    std::string floor_plan_png_;        // empty = no floor plan
-    std::string floor_plan_json_;       // /api/floor-plan
+    std::string floor_plan_png_;  // empty = no floor plan
+    std::string floor_plan_json_; // /api/floor-plan
 };
 
 } // namespace cdro::service

@@ -111,8 +111,8 @@ private:
     RateLimiter drop_log_;
 
     cdro_decoder_t decoder_{};
-    std::vector<uint8_t> chunk_;   // the current chunk for the capture (up to its max data)
-    size_t chunk_len_ = 0;         // its full length in bytes
+    std::vector<uint8_t> chunk_; // the current chunk for the capture (up to its max data)
+    size_t chunk_len_ = 0;       // its full length in bytes
 
     bool have_sequence_ = false;
     uint16_t last_sequence_ = 0;

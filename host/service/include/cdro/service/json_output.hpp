@@ -44,7 +44,7 @@ public:
     JsonLinesWriter(const JsonLinesWriter &) = delete;
     JsonLinesWriter &operator=(const JsonLinesWriter &) = delete;
 
-    void open();                 // "-" = stdout, "" = disabled; throws ConfigError if unwritable
+    void open(); // "-" = stdout, "" = disabled; throws ConfigError if unwritable
     bool enabled() const { return fd_ >= 0; }
 
     // After an update at event time event_us (map.t_s is already set).
@@ -63,8 +63,8 @@ private:
     void append(const std::string &text);
     void writeAll(const MapState &map);
     void writeChanged(const MapState &map, int64_t event_us, bool limited);
-    bool writable();      // the file is open, or could be started again after a failed rotation
-    void startNewFile();                      // rotates the current file away (if open), opens a new one
+    bool writable();                              // the file is open, or could be started again after a failed rotation
+    void startNewFile();                          // rotates the current file away (if open), opens a new one
     size_t wholeLinesThatFit(size_t start) const; // end of the pending lines from start that fit the file
     bool writeRange(size_t start, size_t end);
 
@@ -74,20 +74,20 @@ private:
     bool owns_fd_ = false;
     bool error_logged_ = false;
     std::string pending_;
-    std::map<uint16_t, NodeEstimate> last_node_;  // id -> the estimate last written
+    std::map<uint16_t, NodeEstimate> last_node_; // id -> the estimate last written
     std::optional<RobotPose> last_robot_;
     int64_t period_us_ = 0;
     int64_t next_due_us_ = INT64_MIN;
     bool dirty_ = false;
-    int64_t node_interval_us_ = 0;                // 1/max_node_rate_hz; 0 = no limit
-    std::map<uint16_t, int64_t> last_node_us_;    // id -> event time of its last line
+    int64_t node_interval_us_ = 0;             // 1/max_node_rate_hz; 0 = no limit
+    std::map<uint16_t, int64_t> last_node_us_; // id -> event time of its last line
     int64_t last_robot_us_ = INT64_MIN;
-    std::optional<MapState> held_map_;            // the last update, when it held something back
+    std::optional<MapState> held_map_; // the last update, when it held something back
     int64_t held_event_us_ = 0;
-    uint64_t file_bytes_ = 0;                     // bytes in the current file
+    uint64_t file_bytes_ = 0; // bytes in the current file
     uint64_t rotate_bytes_ = 0;
-    bool reopen_pending_ = false;                 // a rotation could not start its new file
-    bool rotating_ = false;                       // a regular file of ours: rotated by size
+    bool reopen_pending_ = false; // a rotation could not start its new file
+    bool rotating_ = false;       // a regular file of ours: rotated by size
 };
 
 } // namespace cdro::service

@@ -46,7 +46,7 @@ private:
     cdro_decoder_t decoder_{};
     uint64_t bytes_ = 0;
     int64_t first_byte_us_ = 0;
-    uint8_t head_[40] = {};   // the first bytes of the connection, for the message
+    uint8_t head_[40] = {}; // the first bytes of the connection, for the message
     size_t head_len_ = 0;
     bool foreign_reported_ = false;
     std::string foreign_message_;

@@ -33,31 +33,31 @@ constexpr int kOutputSchemaVersion = 2;
 std::string nodeIdHex(uint16_t id);
 
 struct NodeEstimate {
-    uint16_t id = 0;          // Pozyx network id
-    double x_m = 0.0;         // m; written as null while the node is not placed
-    double y_m = 0.0;         // m; likewise
-    double var_x_m2 = 0.0;    // m^2
-    double cov_xy_m2 = 0.0;   // m^2
-    double var_y_m2 = 0.0;    // m^2
+    uint16_t id = 0;        // Pozyx network id
+    double x_m = 0.0;       // m; written as null while the node is not placed
+    double y_m = 0.0;       // m; likewise
+    double var_x_m2 = 0.0;  // m^2
+    double cov_xy_m2 = 0.0; // m^2
+    double var_y_m2 = 0.0;  // m^2
     bool converged = false;
     bool moving = false;
-    bool placed = false;      // has an estimate at all; x/y are meaningless otherwise
-    bool foldable = false;    // placed in a part that hangs on one or two nodes: its side is undecided
-    std::string status;       // unplaced, placed, converged, moving, settling (the engine's lifecycle)
-    std::string reason;       // why placed but not converged: "too few links", "ambiguous", "foldable",
-                              // "flexible", "unsettled"; empty otherwise
+    bool placed = false;         // has an estimate at all; x/y are meaningless otherwise
+    bool foldable = false;       // placed in a part that hangs on one or two nodes: its side is undecided
+    std::string status;          // unplaced, placed, converged, moving, settling (the engine's lifecycle)
+    std::string reason;          // why placed but not converged: "too few links", "ambiguous", "foldable",
+                                 // "flexible", "unsettled"; empty otherwise
     std::vector<uint16_t> hinge; // foldable: the one or two nodes its part hangs on
     std::optional<double> z_m;   // m, the node's height where it is known (heights CSV, config)
 };
 
 struct RobotPose {
-    uint16_t id = 0;          // the node carried by the robot
-    double x_m = 0.0;         // m
-    double y_m = 0.0;         // m
-    double heading_rad = 0.0; // rad, counter-clockwise from +x
-    double var_x_m2 = 0.0;    // m^2
-    double cov_xy_m2 = 0.0;   // m^2
-    double var_y_m2 = 0.0;    // m^2
+    uint16_t id = 0;                  // the node carried by the robot
+    double x_m = 0.0;                 // m
+    double y_m = 0.0;                 // m
+    double heading_rad = 0.0;         // rad, counter-clockwise from +x
+    double var_x_m2 = 0.0;            // m^2
+    double cov_xy_m2 = 0.0;           // m^2
+    double var_y_m2 = 0.0;            // m^2
     std::string frame = "odometry";   // the frame of the pose: "odometry" or "map" (docs/engine.md, "Stage 2")
     double var_heading_rad2 = 0.0;    // rad^2
     double cov_x_heading_m_rad = 0.0; // m rad
@@ -85,17 +85,17 @@ struct LinkEstimate {
 
 // One Gaussian of a node's sum of Gaussians (the ring SoG_ij centred on node i).
 struct SogComponent {
-    uint16_t center_id = 0;   // node i whose ring this component belongs to
-    double x_m = 0.0;         // m, mean
-    double y_m = 0.0;         // m
-    double var_x_m2 = 0.0;    // m^2
-    double cov_xy_m2 = 0.0;   // m^2
-    double var_y_m2 = 0.0;    // m^2
-    double weight = 0.0;      // normalised within its SoG, [0, 1]
+    uint16_t center_id = 0; // node i whose ring this component belongs to
+    double x_m = 0.0;       // m, mean
+    double y_m = 0.0;       // m
+    double var_x_m2 = 0.0;  // m^2
+    double cov_xy_m2 = 0.0; // m^2
+    double var_y_m2 = 0.0;  // m^2
+    double weight = 0.0;    // normalised within its SoG, [0, 1]
 };
 
 struct NodeComponents {
-    uint16_t id = 0;                       // the node j these SoGs describe
+    uint16_t id = 0; // the node j these SoGs describe
     std::vector<SogComponent> components;
 };
 
@@ -110,11 +110,11 @@ struct Health {
 };
 
 struct MapState {
-    double t_s = 0.0;             // s, event time since the run started
-    double t_unix_s = 0.0;        // s since the Unix epoch: the same event time, absolute
-    std::vector<NodeEstimate> nodes;   // sorted by id
+    double t_s = 0.0;                // s, event time since the run started
+    double t_unix_s = 0.0;           // s since the Unix epoch: the same event time, absolute
+    std::vector<NodeEstimate> nodes; // sorted by id
     std::optional<RobotPose> robot;
-    std::vector<LinkEstimate> links;   // sorted by (a, b)
+    std::vector<LinkEstimate> links; // sorted by (a, b)
     Health health;
     // Per node id: s since the Unix epoch, the event time at which its estimate last changed in
     // this run (the service keeps it, for the live map's `t_updated_unix_s`)

@@ -53,8 +53,8 @@ public:
     MqttPublisher(const MqttPublisher &) = delete;
     MqttPublisher &operator=(const MqttPublisher &) = delete;
 
-    void start();      // throws ConfigError for a bad URL; connecting itself never throws
-    void shutdown();   // "offline", clean disconnect (bounded wait), release
+    void start();    // throws ConfigError for a bad URL; connecting itself never throws
+    void shutdown(); // "offline", clean disconnect (bounded wait), release
     bool connected() const { return connected_; }
     // Connected, and fewer than kMaxInFlight messages handed to libmosquitto are still waiting
     // to go out: a replay feeds more input only then, so that publishing keeps up with it.
@@ -114,17 +114,17 @@ private:
     int64_t backoff_us_ = 0;
     EventLoop::TimerId retry_timer_ = 0;
     EventLoop::TimerId misc_timer_ = 0;
-    std::map<std::string, std::string> retained_;       // topic -> latest payload
-    std::map<uint16_t, NodeEstimate> last_node_;        // id -> the estimate last published
-    std::map<uint16_t, int64_t> next_due_us_;           // id -> event time of the next publish
+    std::map<std::string, std::string> retained_; // topic -> latest payload
+    std::map<uint16_t, NodeEstimate> last_node_;  // id -> the estimate last published
+    std::map<uint16_t, int64_t> next_due_us_;     // id -> event time of the next publish
     std::optional<RobotPose> last_robot_;
     std::map<std::string, MessageHandler> subscriptions_; // topic -> handler
     std::map<int, std::string> pending_subscriptions_;    // message id -> topic, until the SUBACK
     uint64_t subscriptions_acknowledged_ = 0;
     bool retained_warned_ = false;
     uint64_t connect_attempts_ = 0;
-    uint64_t in_flight_ = 0;      // published, not yet written to the socket (QoS 0) or acknowledged
-    std::string last_loss_;       // why messages were last dropped, for the summary at the end
+    uint64_t in_flight_ = 0; // published, not yet written to the socket (QoS 0) or acknowledged
+    std::string last_loss_;  // why messages were last dropped, for the summary at the end
 };
 
 } // namespace cdro::service

@@ -35,14 +35,14 @@ namespace cdro::service {
 class CaptureWriter;
 
 // Bounds of a plausible message (documented in docs/service.md); beyond them: rejected, absurd.
-constexpr double kOdometryMaxStepM = 10.0;              // m per message, |distance_m|
+constexpr double kOdometryMaxStepM = 10.0;                     // m per message, |distance_m|
 constexpr double kOdometryMaxStepRad = 3.14159265358979323846; // rad per message, |dheading_rad|
-constexpr double kOdometryMaxSpeedMps = 20.0;           // m/s, |v_mps|
-constexpr double kOdometryMaxTurnRadps = 10.0;          // rad/s, |omega_radps|
-constexpr double kOdometryMinT = 946684800.0;           // s since the epoch, 2000-01-01T00:00Z
-constexpr double kOdometryMaxT = 4102444800.0;          // s since the epoch, 2100-01-01T00:00Z
-constexpr double kOdometryBackstepS = 1.0;              // s; further back is a clock step
-constexpr size_t kOdometryMaxMessageBytes = 1024;       // bytes of one message (one line)
+constexpr double kOdometryMaxSpeedMps = 20.0;                  // m/s, |v_mps|
+constexpr double kOdometryMaxTurnRadps = 10.0;                 // rad/s, |omega_radps|
+constexpr double kOdometryMinT = 946684800.0;                  // s since the epoch, 2000-01-01T00:00Z
+constexpr double kOdometryMaxT = 4102444800.0;                 // s since the epoch, 2100-01-01T00:00Z
+constexpr double kOdometryBackstepS = 1.0;                     // s; further back is a clock step
+constexpr size_t kOdometryMaxMessageBytes = 1024;              // bytes of one message (one line)
 
 enum class OdometryReject { NotJson, NotObject, Field, BothForms, Absurd, OutOfOrder, TooLong };
 const char *odometryRejectName(OdometryReject reason); // "not_json", ... as in the counter names
@@ -70,8 +70,7 @@ std::string normaliseOdometry(const OdometryMessage &message, const std::string 
 class OdometryIntake {
 public:
     // clock: only for rate-limiting log lines (never for anything the consumer sees).
-    OdometryIntake(const OdometryConfig &config, double drop_log_per_s, ServiceCounters &counters,
-                   const Clock &clock);
+    OdometryIntake(const OdometryConfig &config, double drop_log_per_s, ServiceCounters &counters, const Clock &clock);
 
     void setConsumer(OdometryConsumer *consumer) { consumer_ = consumer; }
     void setCapture(CaptureWriter *capture) { capture_ = capture; }
@@ -109,7 +108,7 @@ private:
     std::function<void(int64_t)> after_delivery_;
 
     bool have_last_ = false;
-    double last_t_s_ = 0.0;              // t of the last message taken (delivered or clock start)
+    double last_t_s_ = 0.0;                       // t of the last message taken (delivered or clock start)
     std::map<std::string, VelocityClock> clocks_; // by source
     int64_t last_event_unix_us_ = 0;
 };

@@ -46,7 +46,7 @@ public:
     void stop();
 
     int64_t runStartUnixUs() const { return run_start_unix_us_; } // the first header's creation time
-    std::string source() const;                                     // "replay:<first path>"
+    std::string source() const;                                   // "replay:<first path>"
     bool finished() const { return finished_; }
 
     static constexpr size_t kBatchRecords = 2048;

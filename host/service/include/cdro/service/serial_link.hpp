@@ -77,8 +77,8 @@ public:
     SerialLink(const SerialLink &) = delete;
     SerialLink &operator=(const SerialLink &) = delete;
 
-    void start();                 // first open attempt now; retries on its own after that
-    void shutdown();              // closes and stops retrying
+    void start();    // first open attempt now; retries on its own after that
+    void shutdown(); // closes and stops retrying
     bool isOpen() const { return fd_ >= 0; }
 
     // Queues bytes for the device; false (counted in write_errors) if the port is closed or

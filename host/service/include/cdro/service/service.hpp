@@ -79,17 +79,17 @@ public:
     // Opens everything (capture, outputs, HTTP, MQTT, the port or the replay file, --resume).
     // Throws ConfigError, CaptureError or CheckpointError with a message for the user.
     void start();
-    int run();             // until stopped; returns the exit code (0)
+    int run(); // until stopped; returns the exit code (0)
     // What a replay of this run's capture needs to reach the same result (cdro-hostd: the map's
     // heights, fixed nodes and settings, as JSON), written into every capture file's header.
     // Call before start().
     void setCaptureContext(std::string context) { capture_context_ = std::move(context); }
-    void requestStop();    // thread-safe
+    void requestStop(); // thread-safe
 
     bool replaying() const { return replay_ != nullptr; }
     LinkState linkState() const;
     const ServiceCounters &counters() const { return counters_; }
-    std::string liveMapUrl() const;  // "" when http.port is 0
+    std::string liveMapUrl() const; // "" when http.port is 0
     int httpPort() const;
     int64_t runStartUnixUs() const { return run_start_unix_us_; }
     EventLoop &loop() { return loop_; }
@@ -163,7 +163,7 @@ private:
     EventLoop::TimerId session_timer_ = 0;
     int64_t session_timer_deadline_us_ = INT64_MAX;
     bool checkpoint_warned_ = false;
-    int64_t broker_wait_since_us_ = 0; // monotonic us when a replay began to wait for MQTT (0 = not)
+    int64_t broker_wait_since_us_ = 0;  // monotonic us when a replay began to wait for MQTT (0 = not)
     uint64_t broker_wait_attempts_ = 0; // MQTT connection attempts when that wait began
     bool broker_gave_up_logged_ = false;
     bool shut_down_ = false;

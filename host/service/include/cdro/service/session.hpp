@@ -93,13 +93,13 @@ private:
     Phase phase_ = Phase::Disconnected;
     std::string detail_;
     int64_t deadline_us_ = INT64_MAX;
-    uint32_t hello_requests_ = 0;      // in this wait for HELLO
+    uint32_t hello_requests_ = 0;         // in this wait for HELLO
     int64_t incompatible_backoff_us_ = 0; // us until the next HELLO_REQUEST while incompatible
 
-    std::vector<cdro_frame_t> steps_;  // the configuration commands, in order
+    std::vector<cdro_frame_t> steps_; // the configuration commands, in order
     size_t step_ = 0;
     uint32_t step_attempts_ = 0;
-    uint16_t step_sequence_ = 0;       // sequence of the command awaiting its answer
+    uint16_t step_sequence_ = 0; // sequence of the command awaiting its answer
 
     bool ping_outstanding_ = false;
     uint32_t ping_nonce_ = 0;

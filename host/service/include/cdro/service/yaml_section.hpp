@@ -53,8 +53,9 @@ public:
         try {
             parsed = item.as<Wide>();
         } catch (const YAML::Exception &) {
-            fail(item, key, std::string("expected ") + (std::is_floating_point_v<T> ? "a number" : "an integer") +
-                                ", got '" + scalarText(item) + "'");
+            fail(item, key,
+                 std::string("expected ") + (std::is_floating_point_v<T> ? "a number" : "an integer") + ", got '" +
+                     scalarText(item) + "'");
         }
         if constexpr (std::is_floating_point_v<T>) {
             if (!std::isfinite(parsed)) {
@@ -134,8 +135,8 @@ public:
             ids.push_back(static_cast<uint16_t>(id));
         }
         if (ids.size() > CDRO_MAX_NODES) {
-            fail(item, key, std::to_string(ids.size()) + " ids, the protocol carries at most " +
-                                std::to_string(CDRO_MAX_NODES));
+            fail(item, key,
+                 std::to_string(ids.size()) + " ids, the protocol carries at most " + std::to_string(CDRO_MAX_NODES));
         }
     }
 
@@ -173,8 +174,8 @@ public:
                 for (const std::string &name : known_) {
                     allowed += (allowed.empty() ? "" : ", ") + name;
                 }
-                throw ConfigError(where(entry.first, origin_) + ": unknown key '" + key + "' in section '" +
-                                  name_ + "' (known keys: " + allowed + ")");
+                throw ConfigError(where(entry.first, origin_) + ": unknown key '" + key + "' in section '" + name_ +
+                                  "' (known keys: " + allowed + ")");
             }
         }
     }
@@ -231,8 +232,8 @@ inline void rejectUnknownSections(const YAML::Node &root, const std::string &ori
             for (const std::string &section : sections) {
                 allowed += (allowed.empty() ? "" : ", ") + section;
             }
-            throw ConfigError(where(entry.first, origin) + ": unknown section '" + name + "' (known sections: " +
-                              allowed + ")");
+            throw ConfigError(where(entry.first, origin) + ": unknown section '" + name +
+                              "' (known sections: " + allowed + ")");
         }
     }
 }
