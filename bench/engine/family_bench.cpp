@@ -31,10 +31,7 @@ namespace {
 using namespace cdro;
 using engine::Vector2;
 
-double seconds()
-{
-    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
+double seconds() { return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count(); }
 
 struct Fit {
     double rmse_m = std::numeric_limits<double>::quiet_NaN();
@@ -132,7 +129,8 @@ static int runMain(int argc, char **argv)
     app.add_option("--heights", heights);
     app.add_flag("--engine", run_engine, "also run the streaming engine");
     std::string dump_dir;
-    app.add_option("--dump", dump_dir, "write truth.csv, links.csv, solve.csv, reference.csv per draw under this folder");
+    app.add_option("--dump", dump_dir,
+                   "write truth.csv, links.csv, solve.csv, reference.csv per draw under this folder");
     CLI11_PARSE(app, argc, argv);
     options.heights_known = heights == "known";
     const auto family = netgen::parseFamily(family_name);
@@ -281,7 +279,10 @@ static int runMain(int argc, char **argv)
                 for (int lifted = 0; lifted < 2; ++lifted) {
                     engine::MapEstimate jittered = reference;
                     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-                        jittered.position_m[node] = truth[node] + amplitude * Vector2(jitter.normal(), jitter.normal());
+                        // y drawn before x, as GCC evaluated the two-argument form (the same draws).
+                        const double dy = jitter.normal();
+                        const double dx = jitter.normal();
+                        jittered.position_m[node] = truth[node] + amplitude * Vector2(dx, dy);
                     }
                     if (lifted != 0) {
                         engine::liftedRefine(problem, jittered, likelihood, engine::MapLiftParams{}, false);
@@ -296,8 +297,9 @@ static int runMain(int argc, char **argv)
                             bt.push_back(truth[node]);
                         }
                     }
-                    std::printf("      basin %4.1f m %s: cost %8.1f rmse %7.3f\n", amplitude, lifted ? "lifted" : "planar",
-                                engine::mapCost(problem, jittered, likelihood), fitToTruth(be, bt).rmse_m);
+                    std::printf("      basin %4.1f m %s: cost %8.1f rmse %7.3f\n", amplitude,
+                                lifted ? "lifted" : "planar", engine::mapCost(problem, jittered, likelihood),
+                                fitToTruth(be, bt).rmse_m);
                 }
             }
         }
@@ -311,7 +313,9 @@ static int runMain(int argc, char **argv)
                 engine::MapEstimate jittered = reference;
                 const double side = std::sqrt(static_cast<double>(problem.nodeCount()) * 60.0);
                 for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-                    jittered.position_m[node] = Vector2(side * jitter.uniform(), side * jitter.uniform());
+                    const double y_m = side * jitter.uniform(); // y first, as above
+                    const double x_m = side * jitter.uniform();
+                    jittered.position_m[node] = Vector2(x_m, y_m);
                 }
                 engine::MapLiftParams lift;
                 lift.dimensions = 3 + static_cast<uint32_t>(r % 4);
@@ -334,8 +338,8 @@ static int runMain(int argc, char **argv)
                     best_rmse = fitToTruth(be, bt).rmse_m;
                 }
             }
-            std::printf("      random starts %d: best cost %8.1f rmse %7.3f; %d within 1 nat of the reference\n", starts,
-                        best_cost, best_rmse, below_ref);
+            std::printf("      random starts %d: best cost %8.1f rmse %7.3f; %d within 1 nat of the reference\n",
+                        starts, best_cost, best_rmse, below_ref);
         }
         // Honesty: which nodes the solve would call converged, and are they right?
         {
@@ -370,13 +374,15 @@ static int runMain(int argc, char **argv)
                     const engine::RigidTransform back = engine::fitRigid(src, dst, false);
                     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
                         if (solved.best.estimate.placed[node] != 0) {
-                            model_spread[node] = std::max(model_spread[node],
+                            model_spread[node] = std::max(
+                                model_spread[node],
                                 (back.apply(again.position_m[node]) - solved.best.estimate.position_m[node]).norm());
                         }
                     }
                 }
                 for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-                    confidence.covariance_m2[node] += 0.25 * model_spread[node] * model_spread[node] * engine::Matrix2::Identity();
+                    confidence.covariance_m2[node] +=
+                        0.25 * model_spread[node] * model_spread[node] * engine::Matrix2::Identity();
                 }
             }
             std::vector<std::pair<uint32_t, uint32_t>> edges;
@@ -385,12 +391,14 @@ static int runMain(int argc, char **argv)
             }
             const engine::Foldable folds = engine::findFoldable(problem.nodeCount(), edges, solved.best.estimate.placed,
                                                                 std::vector<uint8_t>(problem.nodeCount(), 0));
-            const double threshold = std::getenv("CDRO_BENCH_RELIABLE") ? std::atof(std::getenv("CDRO_BENCH_RELIABLE")) : 1.0;
+            const double threshold =
+                std::getenv("CDRO_BENCH_RELIABLE") ? std::atof(std::getenv("CDRO_BENCH_RELIABLE")) : 1.0;
             // Resampling: drop a share of the links, refine from the best map, see what moves.
             std::vector<double> spread(problem.nodeCount(), 0.0);
             {
                 netgen::Random pick(draw_seed * 31 + 7);
-                const int resamples = std::getenv("CDRO_BENCH_RESAMPLES") ? std::atoi(std::getenv("CDRO_BENCH_RESAMPLES")) : 12;
+                const int resamples =
+                    std::getenv("CDRO_BENCH_RESAMPLES") ? std::atoi(std::getenv("CDRO_BENCH_RESAMPLES")) : 12;
                 const double drop = std::getenv("CDRO_BENCH_DROP") ? std::atof(std::getenv("CDRO_BENCH_DROP")) : 0.15;
                 for (int r = 0; r < resamples; ++r) {
                     engine::MapProblem thinned = problem;
@@ -416,7 +424,8 @@ static int runMain(int argc, char **argv)
                     const engine::RigidTransform back = engine::fitRigid(src, dst, false);
                     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
                         if (solved.best.estimate.placed[node] != 0) {
-                            const double d = (back.apply(again.position_m[node]) - solved.best.estimate.position_m[node]).norm();
+                            const double d =
+                                (back.apply(again.position_m[node]) - solved.best.estimate.position_m[node]).norm();
                             spread[node] += d * d / resamples;
                         }
                     }
@@ -425,7 +434,8 @@ static int runMain(int argc, char **argv)
                     v = std::sqrt(v);
                 }
             }
-            const double spread_limit = std::getenv("CDRO_BENCH_SPREAD") ? std::atof(std::getenv("CDRO_BENCH_SPREAD")) : 0.3;
+            const double spread_limit =
+                std::getenv("CDRO_BENCH_SPREAD") ? std::atof(std::getenv("CDRO_BENCH_SPREAD")) : 0.3;
             uint32_t why_spread = 0;
             std::vector<uint32_t> converged;
             uint32_t why_reliability = 0, why_disputed = 0, why_fold = 0, why_links = 0;
@@ -437,9 +447,10 @@ static int runMain(int argc, char **argv)
                 const bool fold_ok = folds.foldable[node] == 0;
                 const bool dispute_ok = solved.disputed[node] == 0;
                 const double big = 2.0 * std::sqrt(std::max(confidence.covariance_m2[node].trace() -
-                                                                engine::minEigenvalue(confidence.covariance_m2[node]), 0.0));
-                const bool reliable = confidence.reliability_m[node] < threshold && confidence.main_part[node] != 0 &&
-                                      big < 1.0;
+                                                                engine::minEigenvalue(confidence.covariance_m2[node]),
+                                                            0.0));
+                const bool reliable =
+                    confidence.reliability_m[node] < threshold && confidence.main_part[node] != 0 && big < 1.0;
                 why_links += links_ok ? 0U : 1U;
                 why_fold += fold_ok ? 0U : 1U;
                 why_disputed += dispute_ok ? 0U : 1U;
@@ -452,9 +463,10 @@ static int runMain(int argc, char **argv)
             }
             if (std::getenv("CDRO_BENCH_NODES") != nullptr) {
                 for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-                    std::printf("        node %5u links %2zu reliability %8.3f sd %6.3f disputed %u fold %u\n", problem.ids[node],
-                                problem.node_links[node].size(), confidence.reliability_m[node],
-                                std::sqrt(confidence.covariance_m2[node].trace()), solved.disputed[node], folds.foldable[node]);
+                    std::printf("        node %5u links %2zu reliability %8.3f sd %6.3f disputed %u fold %u\n",
+                                problem.ids[node], problem.node_links[node].size(), confidence.reliability_m[node],
+                                std::sqrt(confidence.covariance_m2[node].trace()), solved.disputed[node],
+                                folds.foldable[node]);
                 }
                 for (size_t l = 0; l < problem.links.size(); ++l) {
                     if (confidence.link_redundancy[l] < 0.1) {
@@ -509,7 +521,8 @@ static int runMain(int argc, char **argv)
                 }
                 std::printf("      scale-free rmse %.3f at scale %.4f\n", best_scaled, best_factor);
             }
-            std::printf("      converged %zu/%u rmse %.3f wrong %u | 2-sigma %u 95%% %u | not: links %u fold %u disputed %u unreliable %u spread %u | vf %.2f\n",
+            std::printf("      converged %zu/%u rmse %.3f wrong %u | 2-sigma %u 95%% %u | not: links %u fold %u "
+                        "disputed %u unreliable %u spread %u | vf %.2f\n",
                         converged.size(), problem.nodeCount(), crmse, wrong, covered2, covered95, why_links, why_fold,
                         why_disputed, why_reliability, why_spread, confidence.variance_factor);
         }
@@ -543,11 +556,15 @@ static int runMain(int argc, char **argv)
             engine_rmse = fitToTruth(e, t).rmse_m;
             engine_converged_wrong = fitToTruth(ce, ct).over_1m;
         }
-        std::printf("%-10s %5llu %5u %6zu | %8.3f %8.3f %4u %5u %6.2f | %8.3f %7.1f | %8.3f %5u | %s (%.1f nats, %zu rivals)\n",
-                    family_name.c_str(), static_cast<unsigned long long>(draw_seed), problem.nodeCount(),
-                    problem.links.size(), fit.rmse_m, fit.worst_m, fit.over_1m, disputed, elapsed, ref_fit.rmse_m, reference_cost,
-                    engine_rmse, engine_converged_wrong, (solved.best.origin + " eps " + std::to_string(solved.learnt_nlos_fraction).substr(0, 4) + " excess " + std::to_string(solved.learnt_nlos_mean_excess_m).substr(0, 4)).c_str(), solved.best.cost,
-                    solved.rivals.size());
+        std::printf(
+            "%-10s %5llu %5u %6zu | %8.3f %8.3f %4u %5u %6.2f | %8.3f %7.1f | %8.3f %5u | %s (%.1f nats, %zu rivals)\n",
+            family_name.c_str(), static_cast<unsigned long long>(draw_seed), problem.nodeCount(), problem.links.size(),
+            fit.rmse_m, fit.worst_m, fit.over_1m, disputed, elapsed, ref_fit.rmse_m, reference_cost, engine_rmse,
+            engine_converged_wrong,
+            (solved.best.origin + " eps " + std::to_string(solved.learnt_nlos_fraction).substr(0, 4) + " excess " +
+             std::to_string(solved.learnt_nlos_mean_excess_m).substr(0, 4))
+                .c_str(),
+            solved.best.cost, solved.rivals.size());
         if (std::getenv("CDRO_BENCH_STARTS") != nullptr) {
             for (const engine::MapHypothesis &h : solved.all) {
                 std::vector<Vector2> he;

@@ -61,6 +61,20 @@ double Random::normal()
 
 size_t Random::below(size_t count) { return static_cast<size_t>(uniform() * static_cast<double>(count)); }
 
+Vector2 uniformPoint(netgen::RandomSource &random, double low_m, double high_m)
+{
+    const double y_m = random.uniform(low_m, high_m);
+    const double x_m = random.uniform(low_m, high_m);
+    return Vector2(x_m, y_m);
+}
+
+Vector2 normalPoint(netgen::RandomSource &random)
+{
+    const double y = random.normal();
+    const double x = random.normal();
+    return Vector2(x, y);
+}
+
 double TestNetwork::trueRange(size_t link) const
 {
     const auto [a, b] = links[link];
@@ -197,9 +211,9 @@ bool identical(const std::vector<engine::NodeOutput> &a, const std::vector<engin
         const engine::NodeOutput &y = b[i];
         if (x.id != y.id || x.role != y.role || x.lifecycle != y.lifecycle || x.doubt != y.doubt ||
             x.hinge != y.hinge || x.hinge_nodes != y.hinge_nodes || x.height_known != y.height_known ||
-            !sameBytes(x.height_m, y.height_m) ||
-            x.link_count != y.link_count || !sameBytes(x.position_m.x(), y.position_m.x()) ||
-            !sameBytes(x.position_m.y(), y.position_m.y()) || !sameBytes(x.covariance_m2, y.covariance_m2)) {
+            !sameBytes(x.height_m, y.height_m) || x.link_count != y.link_count ||
+            !sameBytes(x.position_m.x(), y.position_m.x()) || !sameBytes(x.position_m.y(), y.position_m.y()) ||
+            !sameBytes(x.covariance_m2, y.covariance_m2)) {
             return false;
         }
     }

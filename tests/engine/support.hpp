@@ -29,12 +29,12 @@ constexpr bool kSanitizedBuild = true;
 #else
 constexpr bool kSanitizedBuild = false;
 #endif
-#define CDRO_SKIP_WHEN_SANITIZED()                                                                     \
-    do {                                                                                               \
-        if (::cdro::enginetest::kSanitizedBuild) {                                                     \
+#define CDRO_SKIP_WHEN_SANITIZED()                                                                         \
+    do {                                                                                                   \
+        if (::cdro::enginetest::kSanitizedBuild) {                                                         \
             GTEST_SKIP() << "sanitized build: the engine runs ~10-80x slower here; this test runs in the " \
-                            "native build";                                                            \
-        }                                                                                              \
+                            "native build";                                                                \
+        }                                                                                                  \
     } while (false)
 
 // The seeds a randomised test runs with: CDRO_TEST_SEED alone when set, else `defaults`.
@@ -51,20 +51,27 @@ public:
     explicit Random(uint64_t seed) : state_(seed) {}
     using netgen::RandomSource::uniform;
     uint64_t next();
-    double uniform() override;                  // [0, 1)
-    double normal() override;                   // standard normal (Box-Muller)
-    size_t below(size_t count) override;        // [0, count)
+    double uniform() override;           // [0, 1)
+    double normal() override;            // standard normal (Box-Muller)
+    size_t below(size_t count) override; // [0, count)
 
 private:
     uint64_t state_;
 };
 
+// A point with both coordinates uniform in [low_m, high_m), and one with both standard normal.
+// y is drawn before x: the order GCC evaluated `Vector2(random.uniform(..), random.uniform(..))`
+// in, which these tests were written with; as two statements the order no longer depends on the
+// compiler, and every seeded case draws what it drew.
+Vector2 uniformPoint(netgen::RandomSource &random, double low_m, double high_m);
+Vector2 normalPoint(netgen::RandomSource &random);
+
 struct TestNetwork {
     std::vector<NodeId> ids;
-    std::vector<Vector2> truth_m;            // m
-    std::vector<double> height_m;            // m, empty when the network is planar
+    std::vector<Vector2> truth_m;                 // m
+    std::vector<double> height_m;                 // m, empty when the network is planar
     std::vector<std::pair<size_t, size_t>> links; // indices into ids
-    double trueRange(size_t link) const;     // m, 3D when heights are set
+    double trueRange(size_t link) const;          // m, 3D when heights are set
 };
 
 // netgen's geometric network (cdro/netgen/geometric.hpp) with the tests' options: nodes uniformly
@@ -92,8 +99,7 @@ struct TestRange {
 std::vector<TestRange> roundRobin(const TestNetwork &network, Random &random, uint32_t sweeps, double noise_sigma_m);
 
 // Feeds the network's heights and the ranges to the engine, then settles it.
-void feed(engine::Engine &engine, const TestNetwork &network, const std::vector<TestRange> &ranges,
-          bool settle = true);
+void feed(engine::Engine &engine, const TestNetwork &network, const std::vector<TestRange> &ranges, bool settle = true);
 
 // Aligned RMSE (rigid fit with reflection, no scale) of the placed estimates against the truth
 // of the same ids. Returns nullopt if fewer than 2 nodes are placed; *placed counts them.
@@ -102,7 +108,7 @@ struct AlignedError {
     double max_m = 0.0;
     size_t placed = 0;
     size_t converged = 0;
-    size_t nodes = 0;   // nodes with at least one link
+    size_t nodes = 0; // nodes with at least one link
 };
 AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, const std::vector<NodeId> &ids,
                           const std::vector<Vector2> &truth_m);
@@ -113,10 +119,10 @@ bool identical(const std::vector<engine::NodeOutput> &a, const std::vector<engin
 // The PLANT data (shared/data/README.md): $CDRO_DATA_DIR/plant, else ../shared/data/plant from
 // the repository root. nullopt when it is not there; `where` says where it was looked for.
 struct PlantData {
-    std::vector<TestRange> ranges;                 // file order
-    std::vector<NodeId> ids;                       // every surveyed node
-    std::vector<Vector2> truth_m;                  // m
-    std::vector<double> height_m;                  // m
+    std::vector<TestRange> ranges; // file order
+    std::vector<NodeId> ids;       // every surveyed node
+    std::vector<Vector2> truth_m;  // m
+    std::vector<double> height_m;  // m
 };
 std::optional<PlantData> loadPlant(std::string *where);
 

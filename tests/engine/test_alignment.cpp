@@ -31,7 +31,7 @@ std::vector<Vector2> randomPoints(Random &random, size_t count)
 {
     std::vector<Vector2> points;
     for (size_t i = 0; i < count; ++i) {
-        points.emplace_back(random.uniform(-40.0, 40.0), random.uniform(-40.0, 40.0));
+        points.push_back(uniformPoint(random, -40.0, 40.0));
     }
     return points;
 }
@@ -53,7 +53,7 @@ TEST(Alignment, RecoversARandomRotationAndTranslation)
     for (int trial = 0; trial < 50; ++trial) {
         const std::vector<Vector2> source = randomPoints(random, 2 + random.below(30));
         const Matrix2 rotation = rotationOf(random.uniform(0.0, kTwoPi));
-        const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
+        const Vector2 translation_m = uniformPoint(random, -100.0, 100.0);
         std::vector<Vector2> target;
         target.reserve(source.size());
         for (const Vector2 &p : source) {
@@ -79,7 +79,7 @@ TEST(Alignment, RecoversAReflectionWhenAllowed)
         const std::vector<Vector2> source = randomPoints(random, 3 + random.below(30));
         Matrix2 mirror = rotationOf(random.uniform(0.0, kTwoPi));
         mirror.col(1) *= -1.0; // determinant -1
-        const Vector2 translation_m(random.uniform(-100.0, 100.0), random.uniform(-100.0, 100.0));
+        const Vector2 translation_m = uniformPoint(random, -100.0, 100.0);
         std::vector<Vector2> target;
         target.reserve(source.size());
         for (const Vector2 &p : source) {
@@ -109,12 +109,12 @@ TEST(Alignment, RmsErrorOfNoisyPointsIsThatOfTheReturnedTransform)
     for (int trial = 0; trial < 20; ++trial) {
         const std::vector<Vector2> source = randomPoints(random, 40);
         const Matrix2 rotation = rotationOf(random.uniform(0.0, kTwoPi));
-        const Vector2 translation_m(random.uniform(-10.0, 10.0), random.uniform(-10.0, 10.0));
+        const Vector2 translation_m = uniformPoint(random, -10.0, 10.0);
         const double noise_m = 0.05;
         std::vector<Vector2> target;
         target.reserve(source.size());
         for (const Vector2 &p : source) {
-            target.push_back(rotation * p + translation_m + noise_m * Vector2(random.normal(), random.normal()));
+            target.push_back(rotation * p + translation_m + noise_m * normalPoint(random));
         }
         const RigidTransform fit = fitRigid(source, target, true);
         EXPECT_FALSE(fit.reflected);

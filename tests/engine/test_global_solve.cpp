@@ -26,6 +26,7 @@
 namespace cdro::engine {
 namespace {
 
+using enginetest::normalPoint;
 using enginetest::seedTrace;
 using enginetest::testSeeds;
 
@@ -124,7 +125,7 @@ TEST(MapRefine, RecoversAnExactMapFromNearby)
         MapEstimate start = truthEstimate(exact);
         netgen::Random jitter(seed);
         for (Vector2 &p : start.position_m) {
-            p += 0.3 * Vector2(jitter.normal(), jitter.normal());
+            p += 0.3 * normalPoint(jitter);
         }
         refineMap(exact.problem, start, likelihood());
         EXPECT_LT(alignedRmse(start, exact.truth_m), kExactM);
@@ -415,8 +416,9 @@ UnheardFixture unheardFixture()
 std::map<std::pair<uint32_t, uint32_t>, double> unheardPairs(const UnheardFixture &f)
 {
     std::map<std::pair<uint32_t, uint32_t>, double> found;
-    forEachCloseUnheardPair(f.exact.problem, f.estimate.placed, f.positions,
-                            [&](uint32_t a, uint32_t b, double d) { found[{a, b}] = d; });
+    forEachCloseUnheardPair(f.exact.problem, f.estimate.placed, f.positions, [&](uint32_t a, uint32_t b, double d) {
+        found[{a, b}] = d;
+    });
     return found;
 }
 

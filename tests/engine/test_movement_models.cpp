@@ -21,6 +21,7 @@
 namespace cdro::enginetest {
 namespace {
 
+using engine::Matrix2;
 using engine::OdometryStep;
 using engine::Pose2;
 using engine::predictOdometry;
@@ -28,7 +29,6 @@ using engine::predictScaledRange;
 using engine::RangeLikelihood;
 using engine::RobotFilter;
 using engine::RobotFilterNoise;
-using engine::Matrix2;
 using engine::wrapAngle;
 
 constexpr double kPi = 3.14159265358979323846;
@@ -95,7 +95,7 @@ TEST(ScaledRangeModel, JacobiansMatchCentralDifferences)
     double worst = 0.0;
     for (int trial = 0; trial < 300; ++trial) {
         RangeArguments at;
-        at.b_m = Vector2(random.uniform(-40.0, 40.0), random.uniform(-40.0, 40.0));
+        at.b_m = uniformPoint(random, -40.0, 40.0);
         const double planar_m = std::pow(10.0, random.uniform(-1.0, 1.6)); // 0.1 .. 40 m
         const double angle_rad = random.uniform(0.0, 2.0 * kPi);
         at.a_m = at.b_m + planar_m * Vector2(std::cos(angle_rad), std::sin(angle_rad));
@@ -108,7 +108,7 @@ TEST(ScaledRangeModel, JacobiansMatchCentralDifferences)
         ASSERT_FALSE(prediction.singular);
         const double distance_m = std::sqrt(planar_m * planar_m + at.dz_m * at.dz_m);
         EXPECT_NEAR(prediction.distance_m, distance_m, 1e-12 * (1.0 + distance_m));
-        const double analytic[6] = {prediction.jacobian_a(0), prediction.jacobian_a(1), prediction.jacobian_b(0),
+        const double analytic[6] = {prediction.jacobian_a(0), prediction.jacobian_a(1),  prediction.jacobian_b(0),
                                     prediction.jacobian_b(1), prediction.jacobian_scale, prediction.jacobian_offset};
         for (int which = 0; which < 6; ++which) {
             const double error = std::abs(analytic[which] - numericalRangeDerivative(at, which));
@@ -358,7 +358,7 @@ TEST(RobotFilter, ARobotNodeRangeReducesTheInnovationAndTheCovariance)
     EXPECT_NEAR(outcome.variance_m2, 1.0 + 0.01 + sigma_m * sigma_m, 1e-12);
     const double innovation_after_m = filter.robotRangeInnovation(3, range_m, 0.0);
     EXPECT_LT(std::abs(innovation_after_m), 0.1 * std::abs(innovation_before_m));
-    EXPECT_GT(filter.pose().x_m, 0.8); // moved most of the way to the truth
+    EXPECT_GT(filter.pose().x_m, 0.8);          // moved most of the way to the truth
     EXPECT_NEAR(filter.pose().y_m, 0.0, 1e-12); // a range along x says nothing about y
     // The covariance shrinks: P_before - P_after is positive semi-definite (rank one) and the
     // variance along the line of sight drops from 1 m^2 to about that of the node and noise.
@@ -428,8 +428,7 @@ CalibrationRun driveWithLongRanges(uint64_t seed, bool estimate)
         truth = predictOdometry(truth, step).pose;
         run.filter.predict(step, 0.1, noise);
         const size_t i = static_cast<size_t>(k) % nodes_m.size();
-        const double distance_m =
-            std::sqrt((Vector2(truth.x_m, truth.y_m) - nodes_m[i]).squaredNorm() + dz_m * dz_m);
+        const double distance_m = std::sqrt((Vector2(truth.x_m, truth.y_m) - nodes_m[i]).squaredNorm() + dz_m * dz_m);
         const double range_m = true_scale * distance_m + noise_m * random.normal();
         run.filter.updateRobotRange(static_cast<NodeId>(10 + i), range_m, dz_m, noise_m, 5.0, likelihood);
         const double error_m = std::hypot(run.filter.pose().x_m - truth.x_m, run.filter.pose().y_m - truth.y_m);
@@ -480,8 +479,8 @@ TEST(RobotFilter, InsertingAndMarginalisingNodesKeepsTheCovarianceSymmetricPosit
     const RangeLikelihood likelihood;
     std::vector<Vector2> truth_m;
     for (NodeId id = 1; id <= 6; ++id) {
-        truth_m.emplace_back(random.uniform(-15.0, 15.0), random.uniform(-15.0, 15.0));
-        const Vector2 guess_m = truth_m.back() + Vector2(random.normal(), random.normal()) * 0.3;
+        truth_m.push_back(uniformPoint(random, -15.0, 15.0));
+        const Vector2 guess_m = truth_m.back() + normalPoint(random) * 0.3;
         ASSERT_TRUE(filter.insertNode(id, guess_m, Matrix2::Identity() * 0.09));
         EXPECT_EQ(filter.state().size(), 5 + 2 * static_cast<Eigen::Index>(id));
     }
@@ -551,8 +550,8 @@ TEST(RobotFilter, RefusesNodesBeyondItsCapacity)
 {
     RobotFilter filter(Pose2{}, poseCovariance(0.1, 0.1), 1.0, 0.0, 0.0, 0.0);
     for (size_t i = 0; i < RobotFilter::kMaxNodes; ++i) {
-        ASSERT_TRUE(filter.insertNode(static_cast<NodeId>(100 + i), Vector2(static_cast<double>(i), 1.0),
-                                      Matrix2::Identity()));
+        ASSERT_TRUE(
+            filter.insertNode(static_cast<NodeId>(100 + i), Vector2(static_cast<double>(i), 1.0), Matrix2::Identity()));
     }
     EXPECT_TRUE(filter.full());
     const Eigen::Index size = filter.state().size();
@@ -561,8 +560,8 @@ TEST(RobotFilter, RefusesNodesBeyondItsCapacity)
     EXPECT_EQ(filter.state().size(), size);
     // A range still updates a full filter (its scratch Jacobian is sized for it).
     const NodeId last = static_cast<NodeId>(100 + RobotFilter::kMaxNodes - 1);
-    const auto outcome = filter.updateRobotRange(last, filter.nodePosition(last).norm() + 0.1, 0.0, 0.1, 5.0,
-                                                 RangeLikelihood());
+    const auto outcome =
+        filter.updateRobotRange(last, filter.nodePosition(last).norm() + 0.1, 0.0, 0.1, 5.0, RangeLikelihood());
     EXPECT_TRUE(outcome.used);
 }
 

@@ -53,10 +53,10 @@ TEST(PointSolver, RecoversThePointExactlyFromExactRanges)
         const RangeLikelihood likelihood = robust ? RangeLikelihood() : gaussianLikelihood();
         for (size_t count : {3U, 4U, 7U}) {
             for (int trial = 0; trial < 10; ++trial) {
-                const Vector2 truth_m(random.uniform(-30.0, 30.0), random.uniform(-30.0, 30.0));
+                const Vector2 truth_m = uniformPoint(random, -30.0, 30.0);
                 const auto constraints = ringOfAnchors(truth_m, count, random.uniform(3.0, 15.0), random);
                 // Started up to 1 m away: inside the basin of the true solution.
-                const Vector2 start_m = truth_m + Vector2(random.uniform(-0.7, 0.7), random.uniform(-0.7, 0.7));
+                const Vector2 start_m = truth_m + uniformPoint(random, -0.7, 0.7);
                 std::vector<double> inliers;
                 const auto solution = solvePoint(constraints, start_m, likelihood, PointSolverParams{}, &inliers);
                 EXPECT_TRUE(solution.well_posed);
@@ -69,7 +69,8 @@ TEST(PointSolver, RecoversThePointExactlyFromExactRanges)
                     EXPECT_GT(p, 0.95);
                 }
                 // The reported cost is the robust cost at the solution.
-                EXPECT_NEAR(solution.cost, engine::robustCost(constraints, solution.position_m, likelihood, 0.10), 1e-9);
+                EXPECT_NEAR(solution.cost, engine::robustCost(constraints, solution.position_m, likelihood, 0.10),
+                            1e-9);
             }
         }
     }
@@ -81,7 +82,7 @@ TEST(PointSolver, WritesOffOneLongNlosConstraint)
     SCOPED_TRACE(seedTrace(seed));
     Random random(seed);
     for (int trial = 0; trial < 10; ++trial) {
-        const Vector2 truth_m(random.uniform(-10.0, 10.0), random.uniform(-10.0, 10.0));
+        const Vector2 truth_m = uniformPoint(random, -10.0, 10.0);
         auto constraints = ringOfAnchors(truth_m, 5, 8.0, random);
         const size_t corrupted = random.below(constraints.size());
         constraints[corrupted].range_m += random.uniform(1.0, 3.0); // NLOS: reads long

@@ -47,7 +47,7 @@ TEST(RangeModel, JacobiansMatchCentralDifferences)
     double worst = 0.0;
     for (int trial = 0; trial < 200; ++trial) {
         // Distances from 1 cm to about 100 m, in every direction.
-        const Vector2 center_m(random.uniform(-50.0, 50.0), random.uniform(-50.0, 50.0));
+        const Vector2 center_m = uniformPoint(random, -50.0, 50.0);
         const double distance_m = std::pow(10.0, random.uniform(-2.0, 2.0));
         const double angle_rad = random.uniform(0.0, 6.283185307179586);
         const Vector2 point_m = center_m + distance_m * Vector2(std::cos(angle_rad), std::sin(angle_rad));
@@ -55,10 +55,10 @@ TEST(RangeModel, JacobiansMatchCentralDifferences)
         ASSERT_FALSE(prediction.singular);
         EXPECT_NEAR(prediction.range_m, distance_m, 1e-12 * (1.0 + distance_m));
         for (int axis = 0; axis < 2; ++axis) {
-            const double point_error = std::abs(prediction.jacobian_point(axis) -
-                                                numericalDerivative(point_m, center_m, true, axis));
-            const double center_error = std::abs(prediction.jacobian_center(axis) -
-                                                 numericalDerivative(point_m, center_m, false, axis));
+            const double point_error =
+                std::abs(prediction.jacobian_point(axis) - numericalDerivative(point_m, center_m, true, axis));
+            const double center_error =
+                std::abs(prediction.jacobian_center(axis) - numericalDerivative(point_m, center_m, false, axis));
             worst = std::max({worst, point_error, center_error});
             EXPECT_LT(point_error, 1e-8) << "trial " << trial << " axis " << axis;
             EXPECT_LT(center_error, 1e-8) << "trial " << trial << " axis " << axis;

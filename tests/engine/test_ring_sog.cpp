@@ -82,14 +82,14 @@ TEST(RingSog, ComponentCountFollowsTheArcSpacingWithinItsClamp)
     const auto count = [&](double range_m, const RingSogParams &p) {
         return RingSog::generate(1, 2, Vector2::Zero(), range_m, p).size();
     };
-    EXPECT_EQ(count(10.0, params), 63U);    // floor(2 pi 10 / 1) + 1
-    EXPECT_EQ(count(20.0, params), 126U);   // floor(125.66) + 1
-    EXPECT_EQ(count(4.0, params), 30U);     // 26 wanted: the minimum
+    EXPECT_EQ(count(10.0, params), 63U);  // floor(2 pi 10 / 1) + 1
+    EXPECT_EQ(count(20.0, params), 126U); // floor(125.66) + 1
+    EXPECT_EQ(count(4.0, params), 30U);   // 26 wanted: the minimum
     EXPECT_EQ(count(0.0, params), 30U);
-    EXPECT_EQ(count(200.0, params), 720U);  // 1257 wanted: the maximum
+    EXPECT_EQ(count(200.0, params), 720U); // 1257 wanted: the maximum
     RingSogParams fine = params;
     fine.arc_spacing_m = 0.5;
-    EXPECT_EQ(count(10.0, fine), 126U);     // floor(125.66) + 1
+    EXPECT_EQ(count(10.0, fine), 126U); // floor(125.66) + 1
     fine.min_components = 200;
     EXPECT_EQ(count(10.0, fine), 200U);
 }
@@ -192,7 +192,7 @@ TEST(RingSog, TheCentresUncertaintyAndPositionAreUsed)
     RingSog unsure = sure;
     sure.updateWithRange(Vector2::Zero(), Matrix2::Zero(), 5.2, 0.1, 4.0, 0.0);
     unsure.updateWithRange(Vector2::Zero(), 0.04 * Matrix2::Identity(), 5.2, 0.1, 4.0, 0.0);
-    EXPECT_NEAR(sure.component(0).mean_m.norm(), 5.1, 1e-9);           // gain 0.01 / (0.01 + 0.01)
+    EXPECT_NEAR(sure.component(0).mean_m.norm(), 5.1, 1e-9);               // gain 0.01 / (0.01 + 0.01)
     EXPECT_NEAR(unsure.component(0).mean_m.norm(), 5.0 + 0.2 / 6.0, 1e-9); // 0.01 / (0.01 + 0.04 + 0.01)
 }
 
@@ -384,7 +384,7 @@ TEST(RingSog, TranslateAndRigidMotionMoveMeansAndMomentsConsistently)
         if (mirror) {
             rotation.col(1) *= -1.0;
         }
-        const Vector2 translation_m(random.uniform(-20.0, 20.0), random.uniform(-20.0, 20.0));
+        const Vector2 translation_m = uniformPoint(random, -20.0, 20.0);
         ring.applyRigid(rotation, translation_m);
         after = ring.components();
         for (size_t k = 0; k < start.size(); ++k) {
@@ -428,7 +428,7 @@ TEST(RingSog, WitnessesAtKnownGeometryMakeTheNearestComponentTheHeaviest)
     Random random(seed);
     const RangeLikelihood likelihood;
     for (int trial = 0; trial < 20; ++trial) {
-        const Vector2 center_m(random.uniform(-5.0, 5.0), random.uniform(-5.0, 5.0));
+        const Vector2 center_m = uniformPoint(random, -5.0, 5.0);
         const double range_m = random.uniform(3.0, 20.0);
         RingSog ring = RingSog::generate(1, 2, center_m, range_m, RingSogParams{});
         // The truth on a component's bearing, so that "nearest" is not a matter of millimetres.
