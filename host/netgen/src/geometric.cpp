@@ -51,25 +51,7 @@ bool acceptable(uint32_t nodes, const std::vector<GeometricLink> &links, uint32_
             return false;
         }
     }
-    if (!connected) {
-        return true;
-    }
-    std::vector<bool> seen(nodes, false);
-    std::vector<uint32_t> stack{0};
-    seen[0] = true;
-    uint32_t reached = 1;
-    while (!stack.empty()) {
-        const uint32_t node = stack.back();
-        stack.pop_back();
-        for (uint32_t other : adjacent[node]) {
-            if (!seen[other]) {
-                seen[other] = true;
-                ++reached;
-                stack.push_back(other);
-            }
-        }
-    }
-    return reached == nodes;
+    return !connected || connectedGraph(adjacent);
 }
 
 } // namespace

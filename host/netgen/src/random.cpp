@@ -4,6 +4,36 @@
 
 namespace cdro::netgen {
 
+namespace {
+
+// Box-Muller: two uniforms give two normals, the second kept for the next call.
+template <typename Uniform> double pairedNormal(bool &has_spare, double &spare, Uniform uniform)
+{
+    if (has_spare) {
+        has_spare = false;
+        return spare;
+    }
+    const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
+    const double angle = 6.283185307179586476925 * uniform();
+    spare = radius * std::sin(angle);
+    has_spare = true;
+    return radius * std::cos(angle);
+}
+
+// [0, count) from 64 random bits, by rejection: no modulo bias.
+template <typename Bits> size_t unbiasedBelow(size_t count, Bits bits)
+{
+    const uint64_t n = count;
+    const uint64_t limit = UINT64_MAX - UINT64_MAX % n;
+    uint64_t x = bits();
+    while (x >= limit) {
+        x = bits();
+    }
+    return static_cast<size_t>(x % n);
+}
+
+} // namespace
+
 uint64_t mixSeed(uint64_t x)
 {
     x += 0x9E3779B97F4A7C15ULL;
@@ -25,54 +55,26 @@ double Random::uniform() { return static_cast<double>(next() >> 11U) * 0x1.0p-53
 
 double Random::normal()
 {
-    if (has_spare_) {
-        has_spare_ = false;
-        return spare_;
-    }
-    const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
-    const double angle = 6.283185307179586476925 * uniform();
-    spare_ = radius * std::sin(angle);
-    has_spare_ = true;
-    return radius * std::cos(angle);
+    return pairedNormal(has_spare_, spare_, [this] { return uniform(); });
 }
 
 double Random::exponential(double mean) { return -mean * std::log(1.0 - uniform()); }
 
 size_t Random::below(size_t count)
 {
-    const uint64_t n = count;
-    const uint64_t limit = UINT64_MAX - UINT64_MAX % n; // rejection: no modulo bias
-    uint64_t x = next();
-    while (x >= limit) {
-        x = next();
-    }
-    return static_cast<size_t>(x % n);
+    return unbiasedBelow(count, [this] { return next(); });
 }
 
 double MersenneRandom::uniform() { return static_cast<double>(engine_() >> 11U) * 0x1.0p-53; }
 
 double MersenneRandom::normal()
 {
-    if (has_spare_) {
-        has_spare_ = false;
-        return spare_;
-    }
-    const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
-    const double angle = 6.283185307179586476925 * uniform();
-    spare_ = radius * std::sin(angle);
-    has_spare_ = true;
-    return radius * std::cos(angle);
+    return pairedNormal(has_spare_, spare_, [this] { return uniform(); });
 }
 
 size_t MersenneRandom::below(size_t count)
 {
-    const uint64_t n = count;
-    const uint64_t limit = UINT64_MAX - UINT64_MAX % n; // rejection: no modulo bias
-    uint64_t x = engine_();
-    while (x >= limit) {
-        x = engine_();
-    }
-    return static_cast<size_t>(x % n);
+    return unbiasedBelow(count, [this] { return engine_(); });
 }
 
 } // namespace cdro::netgen

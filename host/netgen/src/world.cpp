@@ -30,17 +30,12 @@ double World::measureM(const WorldLink &link, Random &random) const
     return std::max(range_m, 0.01);
 }
 
-bool World::connected() const
+bool connectedGraph(const std::vector<std::vector<uint32_t>> &adjacent)
 {
-    if (nodes.empty()) {
+    if (adjacent.empty()) {
         return true;
     }
-    std::vector<std::vector<uint32_t>> adjacent(nodes.size());
-    for (const WorldLink &link : links) {
-        adjacent[link.a].push_back(link.b);
-        adjacent[link.b].push_back(link.a);
-    }
-    std::vector<bool> seen(nodes.size(), false);
+    std::vector<bool> seen(adjacent.size(), false);
     std::vector<uint32_t> stack{0};
     seen[0] = true;
     size_t reached = 1;
@@ -55,7 +50,17 @@ bool World::connected() const
             }
         }
     }
-    return reached == nodes.size();
+    return reached == adjacent.size();
+}
+
+bool World::connected() const
+{
+    std::vector<std::vector<uint32_t>> adjacent(nodes.size());
+    for (const WorldLink &link : links) {
+        adjacent[link.a].push_back(link.b);
+        adjacent[link.b].push_back(link.a);
+    }
+    return connectedGraph(adjacent);
 }
 
 uint32_t World::degree(uint32_t node) const

@@ -71,6 +71,10 @@ struct World {
     uint32_t degree(uint32_t node) const;
 };
 
+// Whether every node of the graph (each node's neighbours) reaches node 0 through its edges
+// (an empty graph is connected).
+bool connectedGraph(const std::vector<std::vector<uint32_t>> &adjacent);
+
 // How many walls the segment between two points crosses (touching an end counts).
 uint32_t wallsCrossed(const std::vector<WallSegment> &walls, const Vector2 &from_m, const Vector2 &to_m);
 
