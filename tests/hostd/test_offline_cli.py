@@ -6,31 +6,19 @@ The binary is the native build's (CDRO_BUILD_DIR, as scripts/test.sh sets it; de
 Randomised inputs print their seed; CDRO_TEST_SEED replays one."""
 import csv
 import math
-import os
 import random
 import re
-import subprocess
 
 import pytest
 import yaml
 from cdro_tools.evaluation.alignment import align
+from offline_run import run, seed_of
 
-GUARD_S = 60
 HEADER = "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
 TRACE_HEADER = "ranges,id,x,y,var_x,cov_xy,var_y,converged,status,reason,t"
 
 # Six nodes (m) that all range to each other: every one of them can be placed.
 NODES = {1: (0.0, 0.0), 2: (8.0, 1.0), 3: (3.0, 7.0), 4: (10.0, 9.0), 5: (-2.0, 5.0), 6: (6.0, -4.0)}
-
-
-def run(hostd, *args):
-    return subprocess.run([str(hostd), *map(str, args)], capture_output=True, text=True, timeout=GUARD_S)
-
-
-def seed_of(default):
-    seed = int(os.environ.get("CDRO_TEST_SEED", str(default)), 0)
-    print(f"seed {seed} (set CDRO_TEST_SEED={seed} to replay)")
-    return seed
 
 
 def exact_rows(rounds=3):

@@ -18,28 +18,16 @@ The binary is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO
 replays one."""
 import csv
 import math
-import os
 import random
-import subprocess
 
 import numpy as np
 import pytest
+from offline_run import run, seed_of
 
-GUARD_S = 60
 TRAJECTORY_HEADER = "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz"
 ANCHORS = {1: (0.0, 0.0, 1.60), 2: (4.0, 0.0, 1.90), 3: (4.0, 4.0, 1.70), 4: (0.0, 4.0, 1.85),
            5: (2.0, -0.2, 1.75), 6: (2.0, 4.2, 1.65)}
 TAGS = (10, 20)
-
-
-def run(hostd, *args):
-    return subprocess.run([str(hostd), *map(str, args)], capture_output=True, text=True, timeout=GUARD_S)
-
-
-def seed_of(default):
-    seed = int(os.environ.get("CDRO_TEST_SEED", str(default)), 0)
-    print(f"seed {seed} (set CDRO_TEST_SEED={seed} to replay)")
-    return seed
 
 
 def truth(k, t_s):

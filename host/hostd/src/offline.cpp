@@ -485,6 +485,17 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             removeOutputs(options);
             return 2;
         };
+        // The 3D tracks and the movement stage merge every input by time: the ranges are read
+        // whole. Returns the exit status (2: nothing to map).
+        const auto readWholeRanges = [&](CsvTable<RangeRow> &ranges) {
+            const RateClock clock;
+            ranges = readRangesCsv(options.ranges_csv, options.max_reported_rows);
+            reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
+            reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
+            return ranges.rows.empty() ? nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) +
+                                                        " bad rows skipped)")
+                                       : 0;
+        };
         File trace;
         if (!options.trace_csv.empty()) {
             trace = openForWriting(options.trace_csv, log);
@@ -495,13 +506,9 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
         }
 
         if (flights) {
-            const RateClock clock;
-            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv, options.max_reported_rows);
-            reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
-            reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
-            if (ranges.rows.empty()) {
-                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) +
-                                      " bad rows skipped)");
+            CsvTable<RangeRow> ranges;
+            if (const int code = readWholeRanges(ranges); code != 0) {
+                return code;
             }
             int code = runFlights(options, engine, ranges, out.get(), log);
             if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
@@ -520,13 +527,9 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
                 return 2;
             }
             // The stage merges every input by time: the ranges are read whole and sorted.
-            const RateClock clock;
-            const CsvTable<RangeRow> ranges = readRangesCsv(options.ranges_csv, options.max_reported_rows);
-            reportCsvProblems(options.ranges_csv, ranges.summary, options.max_reported_rows, log);
-            reportRate(log, options.ranges_csv, ranges.summary.data_rows, clock);
-            if (ranges.rows.empty()) {
-                return nothing_to_map("no usable row (" + std::to_string(ranges.summary.bad_rows) +
-                                      " bad rows skipped)");
+            CsvTable<RangeRow> ranges;
+            if (const int code = readWholeRanges(ranges); code != 0) {
+                return code;
             }
             engine::MovementParams stage_params = movement_params;
             stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
