@@ -412,6 +412,8 @@ def test_that_set_takes_effect_over_the_file(hostd, tmp_path):
     ("engine=0.13", "expected SECTION.KEY=VALUE"),
     ("engine.range.sigma_m=-1", "must be between"),
     ("engine.range.sigma=0.13", "unknown key 'sigma' in section 'engine.range'"),
+    # A section name without its layer (engine.solve...) is a misspelt section, not a new one.
+    ("solve.adopt_after_sweeps=1", "unknown section 'solve'"),
 ])
 def test_that_a_malformed_set_is_an_error(hostd, tmp_path, setting, message):
     # Fixture

@@ -58,14 +58,15 @@ ConfigDocument loadDocument(const std::string &path, const std::vector<std::stri
         } catch (const YAML::Exception &error) {
             throw ConfigError(path + ": not valid YAML: " + error.what());
         }
-        // Each layer rejects unknown keys inside its sections; a misspelt section name is caught
-        // here, where every layer's sections are known.
-        std::vector<std::string> sections = cdro::service::serviceSectionNames();
-        sections.insert(sections.end(), {"engine", "movement", "map"});
-        cdro::service::rejectUnknownSections(document.root, path, sections);
     }
+    // Each layer rejects unknown keys inside its sections; a misspelt section name, in the file or
+    // in a --set, is caught here, where every layer's sections are known.
+    std::vector<std::string> sections = cdro::service::serviceSectionNames();
+    sections.insert(sections.end(), {"engine", "movement", "map"});
+    cdro::service::rejectUnknownSections(document.root, document.origin, sections);
     if (!sets.empty()) {
         cdro::hostd::applySettings(document.root, sets);
+        cdro::service::rejectUnknownSections(document.root, "--set", sections);
         YAML::Emitter out;
         out << document.root;
         document.service_text = out.c_str();
