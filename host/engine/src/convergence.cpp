@@ -12,12 +12,9 @@ constexpr double kReliabilityMargin = 2.5;
 } // namespace
 
 Convergence::Convergence(const EngineParams &params, const RangeLikelihood &likelihood)
-    : params_(params.convergence), placement_(params.placement), likelihood_(likelihood),
+    : params_(params.convergence), check_(params, likelihood),
       solve_enabled_(params.solve.enabled && params.refinement.enabled)
 {
-    solver_.range_sigma_m = params.range.sigma_m;
-    solver_.max_iterations = std::max<uint32_t>(params.refinement.max_iterations, 1U);
-    solver_.anchor_uncertainty_in_solve = false;
 }
 
 void Convergence::restart(NodeState &state)
@@ -77,51 +74,59 @@ void Convergence::afterUpdate(MapState &map, uint32_t node)
     decide(map, node);
 }
 
-void Convergence::assess(MapState &map)
+StructureCheck::StructureCheck(const EngineParams &params, const RangeLikelihood &likelihood)
+    : params_(params.convergence), placement_(params.placement), likelihood_(likelihood)
 {
-    ++counters_.assessments;
-    const auto count = static_cast<uint32_t>(map.nodes.size());
-    structural_.assign(count, NodeDoubt::None);
-    // Foldable parts of the link graph of the placed, still nodes (fixed ones anchor a part).
-    std::vector<uint8_t> active(count, 0);
+    solver_.range_sigma_m = params.range.sigma_m;
+    solver_.max_iterations = std::max<uint32_t>(params.refinement.max_iterations, 1U);
+    solver_.anchor_uncertainty_in_solve = false;
+}
+
+StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimate &estimate,
+                                     const std::vector<StructureNode> &nodes) const
+{
+    const uint32_t count = problem.nodeCount();
+    StructureVerdict verdict;
+    verdict.doubt.assign(count, NodeDoubt::None);
+    verdict.hinge.assign(count, {kNoHinge, kNoHinge});
+    // Foldable parts of the link graph of the placed nodes (fixed ones anchor a part).
     std::vector<uint8_t> anchored(count, 0);
     for (uint32_t node = 0; node < count; ++node) {
-        active[node] = map.nodes[node].anchor() ? 1 : 0;
-        anchored[node] = map.nodes[node].fixed() ? 1 : 0;
+        anchored[node] = nodes[node].anchored ? 1 : 0;
     }
     std::vector<std::pair<uint32_t, uint32_t>> edges;
-    edges.reserve(map.links.size());
-    for (const LinkState &link : map.links) {
-        edges.emplace_back(link.node_a, link.node_b);
+    edges.reserve(problem.links.size());
+    for (const MapLink &link : problem.links) {
+        edges.emplace_back(link.a, link.b);
     }
-    const Foldable folds = findFoldable(count, edges, active, anchored);
-    uint64_t ambiguous = 0;
-    uint64_t foldable = 0;
-    uint64_t flexible = 0;
+    const Foldable folds = findFoldable(count, edges, estimate.placed, anchored);
     const double reliable = params_.reliable_m;
     for (uint32_t node = 0; node < count; ++node) {
-        NodeState &state = map.nodes[node];
-        state.hinge = {kNoIndex, kNoIndex};
-        if (!state.placed() || !state.free() || !state.anchor()) {
+        if (estimate.placed[node] == 0 || !nodes[node].free) {
             continue;
         }
         NodeDoubt doubt = NodeDoubt::None;
         if (folds.foldable[node] != 0) {
             doubt = NodeDoubt::Foldable;
-            state.hinge = folds.hinge[node];
+            verdict.hinge[node] = folds.hinge[node];
         }
-        const NodeSolveView &solve = state.solve;
+        const NodeSolveView &solve = nodes[node].solve;
         if (doubt == NodeDoubt::None && solve.solved && solve.disputed) {
             doubt = NodeDoubt::Ambiguous;
         }
         if (doubt == NodeDoubt::None) {
             // A distinct position that explains its links about as well as where it is.
-            const std::vector<RangeConstraint> constraints = placedConstraints(map, node);
+            std::vector<RangeConstraint> constraints = placedConstraints(problem, estimate, node);
+            for (RangeConstraint &constraint : constraints) {
+                const StructureNode &other = nodes[problem.other(constraint.link, node)];
+                constraint.anchor_covariance_m2 = other.anchored ? Matrix2::Zero() : other.covariance_m2;
+            }
             if (constraints.size() >= 3) {
-                const double here = robustCost(constraints, state.position_m, likelihood_, solver_.range_sigma_m);
+                const Vector2 &position_m = estimate.position_m[node];
+                const double here = robustCost(constraints, position_m, likelihood_, solver_.range_sigma_m);
                 for (const PlacementCandidate &candidate :
                      placementCandidates(constraints, likelihood_, solver_, placement_)) {
-                    if ((candidate.position_m - state.position_m).norm() > placement_.distinct_m &&
+                    if ((candidate.position_m - position_m).norm() > placement_.distinct_m &&
                         candidate.cost < here + placement_.ambiguity_gap_nats / 4.0) {
                         doubt = NodeDoubt::Ambiguous;
                         break;
@@ -139,14 +144,69 @@ void Convergence::assess(MapState &map)
                 doubt = NodeDoubt::Flexible;
             }
         }
-        structural_[node] = doubt;
-        ambiguous += doubt == NodeDoubt::Ambiguous ? 1U : 0U;
-        foldable += doubt == NodeDoubt::Foldable ? 1U : 0U;
-        flexible += doubt == NodeDoubt::Flexible ? 1U : 0U;
+        verdict.doubt[node] = doubt;
     }
-    counters_.ambiguous_nodes = ambiguous;
-    counters_.foldable_nodes = foldable;
-    counters_.flexible_nodes = flexible;
+    return verdict;
+}
+
+void Convergence::assess(MapState &map)
+{
+    // The map as it stands, as a problem over every node (numbered by index) and the links between
+    // still, placed nodes, at the ranges the filter uses.
+    const auto count = static_cast<uint32_t>(map.nodes.size());
+    MapProblem problem;
+    MapEstimate estimate = MapEstimate::unplaced(count);
+    std::vector<StructureNode> nodes(count);
+    std::vector<uint32_t> node_of(count);
+    for (uint32_t node = 0; node < count; ++node) {
+        const NodeState &state = map.nodes[node];
+        problem.ids.push_back(state.id);
+        node_of[node] = node;
+        estimate.placed[node] = state.anchor() ? 1 : 0;
+        estimate.position_m[node] = state.position_m;
+        nodes[node].free = state.free();
+        nodes[node].anchored = state.fixed();
+        nodes[node].covariance_m2 = state.covariance_m2;
+        nodes[node].solve = state.solve;
+    }
+    for (const LinkState &link : map.links) {
+        if (estimate.placed[link.node_a] != 0 && estimate.placed[link.node_b] != 0) {
+            problem.links.push_back(MapLink{link.node_a, link.node_b, link.representative_m});
+        }
+    }
+    problem.finish();
+    adoptStructure(map, check_.run(problem, estimate, nodes), node_of);
+}
+
+void Convergence::adoptStructure(MapState &map, const StructureVerdict &verdict, const std::vector<uint32_t> &node_of)
+{
+    ++counters_.assessments;
+    const auto count = static_cast<uint32_t>(map.nodes.size());
+    structural_.assign(count, NodeDoubt::None);
+    for (NodeState &state : map.nodes) {
+        state.hinge = {kNoIndex, kNoIndex};
+    }
+    ConvergenceCounters &c = counters_;
+    c.ambiguous_nodes = 0;
+    c.foldable_nodes = 0;
+    c.flexible_nodes = 0;
+    for (uint32_t i = 0; i < verdict.doubt.size(); ++i) {
+        const uint32_t node = node_of[i];
+        NodeState &state = map.nodes[node];
+        // A node that started moving, or was let go, since the verdict's map: nothing to say.
+        if (!state.anchor() || !state.free()) {
+            continue;
+        }
+        const NodeDoubt doubt = verdict.doubt[i];
+        structural_[node] = doubt;
+        for (size_t end = 0; end < 2; ++end) {
+            const uint32_t hinge = verdict.hinge[i][end];
+            state.hinge[end] = hinge == kNoHinge ? kNoIndex : node_of[hinge];
+        }
+        c.ambiguous_nodes += doubt == NodeDoubt::Ambiguous ? 1U : 0U;
+        c.foldable_nodes += doubt == NodeDoubt::Foldable ? 1U : 0U;
+        c.flexible_nodes += doubt == NodeDoubt::Flexible ? 1U : 0U;
+    }
     for (uint32_t node = 0; node < count; ++node) {
         decide(map, node);
     }

@@ -8,8 +8,8 @@ namespace cdro::engine {
 
 Engine::Engine(const EngineParams &params)
     : params_(params), likelihood_(params.likelihood), intake_(params.range), sogs_(params, likelihood_),
-      placement_(params, likelihood_), refiner_(params, likelihood_), global_(params),
-      convergence_(params, likelihood_), motion_(params, likelihood_),
+      placement_(params, likelihood_), refiner_(params, likelihood_), convergence_(params, likelihood_),
+      global_(params, convergence_.structureCheck()), motion_(params, likelihood_),
       flights_(params.motion, params.range.sigma_m, params.sog.gate_sigma, likelihood_), frame_(params.frame)
 {
 }
@@ -264,7 +264,11 @@ void Engine::adoptGlobalSolve()
     adoptPlaced(outcome.placed);
     frame_.ensureFrameNodes(map_, params_.placement);
     ++revision_;
-    assess();
+    if (outcome.structure.doubt.empty()) {
+        assess();
+    } else {
+        convergence_.adoptStructure(map_, outcome.structure, outcome.structure_nodes);
+    }
     // Every node updated once as a neighbour would update it: SoGs, covariances and eq. 16
     // catch up with the map solved at once.
     for (uint32_t node = 0; node < map_.nodes.size(); ++node) {

@@ -110,7 +110,7 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
 
 GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const RangeLikelihood &likelihood,
                                                  const GlobalSolveParams &solve, double min_gain_nats,
-                                                 MapModelError model_error)
+                                                 MapModelError model_error, const StructureCheck &check)
 {
     SolvedMap out;
     out.solved = solveGlobally(job.built.problem, likelihood, solve, &job.current);
@@ -146,11 +146,35 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
     const MapProblem corrected = out.offsets ? withRangeOffsets(problem, solved.offsets.offset_m) : MapProblem{};
     model_error.range_offset_spread_sigma_m = out.offsets ? kRangeOffsetSpreadSigmaM : 0.0;
     model_error.height_unknown = job.height_unknown;
-    out.confidence = mapCovariance(out.offsets ? corrected : problem, out.chosen.estimate, likelihood, model_error);
+    const MapProblem &solved_problem = out.offsets ? corrected : problem;
+    const MapCovariance confidence = mapCovariance(solved_problem, out.chosen.estimate, likelihood, model_error);
+    // What the solve says of each node it places. A refresh tried no other start: what the full
+    // solve found disputed stays disputed.
+    out.views.assign(problem.nodeCount(), NodeSolveView{});
+    for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+        if (out.chosen.estimate.placed[i] == 0) {
+            continue;
+        }
+        NodeSolveView &view = out.views[i];
+        view.solved = true;
+        view.position_m = out.chosen.estimate.position_m[i];
+        view.covariance_m2 = confidence.covariance_m2[i];
+        view.reliability_m = confidence.reliability_m[i];
+        view.disputed = solved.disputed[i] != 0 || (job.refresh && job.was_disputed[i] != 0);
+        view.main_part = confidence.main_part[i] != 0;
+    }
+    if (job.check_structure) {
+        std::vector<StructureNode> nodes = job.nodes;
+        for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+            nodes[i].solve = out.views[i];
+        }
+        out.structure = check.run(solved_problem, out.chosen.estimate, nodes);
+    }
     return out;
 }
 
-GlobalStep::GlobalStep(const EngineParams &params) : params_(params), likelihood_(mapLikelihood(params.likelihood))
+GlobalStep::GlobalStep(const EngineParams &params, const StructureCheck &check)
+    : params_(params), likelihood_(mapLikelihood(params.likelihood)), check_(check)
 {
     solve_.range_offsets = params.solve.range_offsets;
     solve_.threads =
@@ -244,19 +268,29 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     // forever. The job outlives the worker: `result` is its last member, destroyed first, and that
     // waits for the worker to finish.
     job->height_unknown.resize(problem.nodeCount());
+    job->was_disputed.resize(problem.nodeCount());
+    job->nodes.resize(problem.nodeCount());
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
-        job->height_unknown[i] = map.nodes[job->built.node_of[i]].height_m ? 0 : 1;
+        const NodeState &state = map.nodes[job->built.node_of[i]];
+        job->height_unknown[i] = state.height_m ? 0 : 1;
+        job->was_disputed[i] = state.solve.solved && state.solve.disputed ? 1 : 0;
+        job->nodes[i].free = state.free();
+        job->nodes[i].anchored = state.fixed();
+        job->nodes[i].covariance_m2 = state.covariance_m2;
     }
+    job->check_structure = params_.refinement.enabled;
     const PendingSolve *owned = job.get();
     const RangeLikelihood likelihood = likelihood_;
     const double min_gain_nats = params_.solve.min_gain_nats;
     MapModelError model_error;
     model_error.common_excess_m = params_.convergence.common_excess_m;
     model_error.height_spread_m = params_.range.unknown_height_spread_m;
-    job->result = std::async(background ? std::launch::async : std::launch::deferred, [owned, likelihood, solve,
-                                                                                       min_gain_nats, model_error]() {
-                      return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error);
-                  }).share();
+    const StructureCheck check = check_;
+    job->result =
+        std::async(background ? std::launch::async : std::launch::deferred, [owned, likelihood, solve, min_gain_nats,
+                                                                             model_error, check]() {
+            return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error, check);
+        }).share();
     pending_ = std::move(job);
 }
 
@@ -269,7 +303,6 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
     const GlobalSolveResult &solved = result.solved;
     const StateProblem &built = job->built;
     const MapProblem &problem = built.problem;
-    const bool refresh = job->refresh;
     // The filter's map now (the solve started from `job->current`; ranges may have moved it since).
     MapEstimate current = filterMapOf(map, built);
     counters_.solve_starts += solved.counters.starts;
@@ -331,7 +364,6 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
         }
     }
     const bool offsets = result.offsets;
-    const MapCovariance &confidence = result.confidence;
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         map.nodes[built.node_of[i]].range_offset_m = offsets ? solved.offsets.offset_m[i] : 0.0;
     }
@@ -343,19 +375,13 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
             continue; // it started moving after the solve started: its track is its estimate
         }
         NodeSolveView &view = state.solve;
-        // A refresh tried no other start: what the full solve found disputed stays disputed.
-        const bool was_disputed = refresh && view.solved && view.disputed;
-        view = NodeSolveView{};
-        if (map_estimate.placed[i] == 0) {
+        view = result.views[i];
+        if (!view.solved) {
             continue;
         }
-        const Vector2 position = transform.apply(map_estimate.position_m[i]);
-        view.solved = true;
+        const Vector2 position = transform.apply(view.position_m);
         view.position_m = position;
-        view.covariance_m2 = transform.applyToCovariance(confidence.covariance_m2[i]);
-        view.reliability_m = confidence.reliability_m[i];
-        view.disputed = solved.disputed[i] != 0 || was_disputed;
-        view.main_part = confidence.main_part[i] != 0;
+        view.covariance_m2 = transform.applyToCovariance(view.covariance_m2);
         if (!state.free()) {
             view.position_m = state.position_m;
             continue;
@@ -387,6 +413,10 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
             outcome.shifted.emplace_back(node, delta);
         }
         state.position_m = position;
+    }
+    if (job->check_structure) {
+        outcome.structure = result.structure;
+        outcome.structure_nodes = built.node_of;
     }
     if (trace) {
         trace("global solve on " + std::to_string(problem.links.size()) + " links: " + chosen->origin + ", cost " +

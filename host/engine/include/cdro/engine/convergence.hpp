@@ -14,14 +14,17 @@
 //   unsettled      the global solve has not placed it yet, or the filter has since moved it half of
 //                  `reliable_m` from where the solve put it (without the solve, or without
 //                  refinement, the checks that need it are left out).
-// The checks that need the whole map run when its structure or the solve changed (assess()); the
-// per-node part after every update (afterUpdate()).
+// The checks that need the whole map (StructureCheck) run with the global solve, on its thread,
+// on the map it found (the adopted verdict: adoptStructure()), or on the engine's map at settle()
+// and where no solve runs (assess()); the per-node part after every update (afterUpdate()).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
 #include "cdro/engine/foldable.hpp"
+#include "cdro/engine/map_problem.hpp"
 #include "cdro/engine/map_state.hpp"
 #include "cdro/engine/params.hpp"
 #include "cdro/engine/point_solver.hpp"
@@ -36,6 +39,38 @@ struct ConvergenceCounters {
     uint64_t flexible_nodes = 0;  // ... flexible
 };
 
+// What the structure check needs of each node of the map it looks at.
+struct StructureNode {
+    bool free = false;                       // neither fixed nor pinned: the only nodes checked
+    bool anchored = false;                   // fixed: a part that holds one cannot fold
+    Matrix2 covariance_m2 = Matrix2::Zero(); // m^2, its own estimate's, as a neighbour's in the checks
+    NodeSolveView solve;                     // what the global solve says of it
+};
+
+// The whole-map doubts of one map, per node of its problem (hinges in the problem's numbers,
+// kNoHinge where none).
+struct StructureVerdict {
+    std::vector<NodeDoubt> doubt;
+    std::vector<std::array<uint32_t, 2>> hinge;
+};
+
+// The checks over the whole map: foldable parts of its link graph, a disputed node, a distinct
+// position that explains a node's links about as well, a node the solve's confidence calls
+// flexible. A plain value that reads nothing but its arguments: the global solve's worker runs a
+// copy of it on the map it found, with the problem's ranges (corrected by the range offsets).
+class StructureCheck {
+public:
+    StructureCheck(const EngineParams &params, const RangeLikelihood &likelihood);
+    StructureVerdict run(const MapProblem &problem, const MapEstimate &estimate,
+                         const std::vector<StructureNode> &nodes) const;
+
+private:
+    ConvergenceParams params_;
+    PlacementParams placement_;
+    RangeLikelihood likelihood_;
+    PointSolverParams solver_;
+};
+
 class Convergence {
 public:
     Convergence(const EngineParams &params, const RangeLikelihood &likelihood);
@@ -44,8 +79,12 @@ public:
     void afterUpdate(MapState &map, uint32_t node);
     // Restarts eq. 16 at the node's current estimate (a map adopted at once, a quiet map).
     static void restart(NodeState &state);
-    // The checks over the whole map; each placed free node's doubt and lifecycle follow.
+    // The checks over the whole map as it stands; each placed free node's doubt and lifecycle follow.
     void assess(MapState &map);
+    // The same from a verdict on another copy of the map (the global solve's, whose problem node i
+    // is map node node_of[i]; nodes not in it have no whole-map doubt).
+    void adoptStructure(MapState &map, const StructureVerdict &verdict, const std::vector<uint32_t> &node_of);
+    const StructureCheck &structureCheck() const { return check_; }
     // The node's doubt now (the whole-map part from the last assess()).
     NodeDoubt doubtOf(const MapState &map, uint32_t node) const;
 
@@ -59,9 +98,7 @@ private:
     void decide(MapState &map, uint32_t node);
 
     ConvergenceParams params_;
-    PlacementParams placement_;
-    RangeLikelihood likelihood_;
-    PointSolverParams solver_;
+    StructureCheck check_;
     bool solve_enabled_;                // the solve's checks apply (else eq. 16 and the local ones)
     std::vector<NodeDoubt> structural_; // per node: the whole-map doubt of the last assessment
     ConvergenceCounters counters_;

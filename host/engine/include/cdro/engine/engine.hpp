@@ -219,8 +219,8 @@ private:
     SogBank sogs_;
     PlacementStep placement_;
     Refiner refiner_;
-    GlobalStep global_;
     Convergence convergence_;
+    GlobalStep global_; // after convergence_: it keeps a copy of its whole-map checks
     MotionTracker motion_;
     FlightTracks flights_;
     OutputFrame frame_;

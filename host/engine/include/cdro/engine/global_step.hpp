@@ -24,7 +24,9 @@
 // within `min_gain_nats` as well and is the same map (no jump for nothing); nodes the solve places and the filter had
 // not are placed; what the solve says about each node (its covariance with the correlations of
 // the whole map, its reliability, whether a rival map disputes it) is kept in NodeSolveView for
-// the convergence checks and the outputs.
+// the convergence checks and the outputs, and the convergence step's whole-map checks
+// (convergence.hpp, StructureCheck) run on the chosen map with the solve, on its thread: at the
+// adoption only their verdict is taken.
 #pragma once
 
 #include <cstdint>
@@ -35,6 +37,7 @@
 #include <utility>
 #include <vector>
 
+#include "cdro/engine/convergence.hpp"
 #include "cdro/engine/global_solve.hpp"
 #include "cdro/engine/map_problem.hpp"
 #include "cdro/engine/map_state.hpp"
@@ -82,7 +85,8 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
 
 class GlobalStep {
 public:
-    explicit GlobalStep(const EngineParams &params);
+    // `check`: the convergence step's whole-map checks, run on each solve's map (a copy is kept).
+    GlobalStep(const EngineParams &params, const StructureCheck &check);
 
     // solve.enabled. Without refinement (the paper's filter: the merged SoG is the estimate) the
     // solve only places the nodes the filter could not place; it moves none.
@@ -100,6 +104,10 @@ public:
         std::vector<uint32_t> placed;                      // nodes it placed that were not placed
         std::vector<std::pair<uint32_t, Vector2>> shifted; // placed nodes it moved, and by how much (m)
         bool adopted = false;                              // the solve's map (not the filter's, refined)
+        // The whole-map checks on the chosen map (empty when the solve placed too little), and
+        // which map node each of its entries is.
+        StructureVerdict structure;
+        std::vector<uint32_t> structure_nodes;
     };
     using Trace = std::function<void(const std::string &)>;
     // Starts the solve on the map as it stands (on the worker thread, or deferred to adopt() when
@@ -129,24 +137,30 @@ private:
     struct SolvedMap {
         GlobalSolveResult solved;
         MapHypothesis chosen;
-        bool offsets = false; // the chosen map comes with the range offsets (the best's)
-        MapCovariance confidence;
+        bool offsets = false;             // the chosen map comes with the range offsets (the best's)
+        std::vector<NodeSolveView> views; // per problem node, in the solve's frame
+        StructureVerdict structure;       // the whole-map checks on the chosen map
     };
     struct PendingSolve {
         StateProblem built;
         MapEstimate current;                 // the filter's map at the start
         std::vector<uint8_t> height_unknown; // per node of the problem, at the start
+        std::vector<uint8_t> was_disputed;   // per node of the problem: disputed by the last solve
+        std::vector<StructureNode> nodes;    // per node of the problem, at the start (for the checks)
         bool refresh = false;                // the same links and nodes as the last full solve
         bool settling = false;
+        bool check_structure = false;         // run the whole-map checks (refinement on)
         std::shared_future<SolvedMap> result; // last: destroyed first, waiting for the worker
     };
-    // The solve, the choice and the confidence, from what the job owns and copies of the
-    // settings: run on the worker thread, nothing of the engine's is read.
+    // The solve, the choice, the confidence and the whole-map checks, from what the job owns and
+    // copies of the settings: run on the worker thread, nothing of the engine's is read.
     static SolvedMap solveAndAssess(const PendingSolve &job, const RangeLikelihood &likelihood,
-                                    const GlobalSolveParams &solve, double min_gain_nats, MapModelError model_error);
+                                    const GlobalSolveParams &solve, double min_gain_nats, MapModelError model_error,
+                                    const StructureCheck &check);
 
     EngineParams params_;
     RangeLikelihood likelihood_; // the engine's model without the floor (map_problem.hpp)
+    StructureCheck check_;
     GlobalSolveParams solve_;
     SolveSchedule schedule_;
     GlobalStepCounters counters_;
