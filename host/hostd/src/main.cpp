@@ -150,7 +150,9 @@ static int runMain(int argc, char **argv)
         ->needs(ranges_option);
     app.add_option("--moving", offline.moving,
                    "offline: node ids (comma separated) that move from the start, tracked in 3D against the fixed "
-                   "nodes of known height; with --out-trajectory: t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
+                   "nodes of known height (without --fixed-csv: the static nodes they range are calibrated from "
+                   "their ranges first, heights from --heights-csv held); with --out-trajectory: "
+                   "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
         ->delimiter(',')
         ->needs(ranges_option);
     app.add_option("--moving-body", offline.moving_bodies,
