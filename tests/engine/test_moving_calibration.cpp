@@ -80,8 +80,8 @@ std::vector<NodeId> tags() { return {kTags.begin(), kTags.end()}; }
 TEST(MovingCalibration, AnchorsComeBackFromADenseSimulatedFlight)
 {
     // Stated bound: the anchors' horizontal RMSE after a rigid fit (rotation, translation,
-    // reflection) at most 0.15 m, the tags' 3D RMSE under the same fit at most 0.35 m. Observed:
-    // printed.
+    // reflection) at most 0.15 m, the tags' 3D RMSE under the same fit at most 0.35 m. Observed on
+    // seeds 1-3: anchors 0.079-0.097 m, tags 0.222-0.301 m (printed).
     for (uint64_t seed : testSeeds({1, 2, 3})) {
         SCOPED_TRACE(seedTrace(seed));
         MovingCalibration calibration(MovingCalibrationParams{}, MotionParams{});
