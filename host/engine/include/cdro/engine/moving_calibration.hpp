@@ -39,8 +39,8 @@ namespace cdro::engine {
 
 struct MovingCalibrationParams {
     // s, a tag's ranges within one window: one virtual static node. Chosen on the simulated flights
-    // of scripts/flights_sim.py (seeds 1-5, the anchors' aligned RMSE on the sparse schedule: 1 s
-    // 0.74 m, 2 s 0.41 m, 4 s 0.38 m, 6 s 0.39 m; on the dense one 0.075 m with any of them).
+    // of scripts/flights_sim.py (seeds 1-5, 1000 iterations; the anchors' aligned RMSE on the sparse
+    // schedule: 1 s 0.74 m, 2 s 0.41 m, 4 s 0.38 m, 6 s 0.39 m; on the dense one 0.075 m with any).
     double window_s = 4.0;
     double range_sigma_m = 0.10;         // m, the ranges' noise in the least squares
     double huber_sigmas = 2.0;           // the loss is quadratic within this many sigmas, linear beyond
