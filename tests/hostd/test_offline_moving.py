@@ -14,7 +14,7 @@
 - --moving-body A:B:SEPARATION_M ties two moving nodes to one body; a malformed one, or one whose
   nodes are not in --moving, is refused;
 - without --fixed-csv (the anchors' heights given) the anchors are calibrated from the tags' ranges
-  (written to the log), then the tags tracked: both near the truth after a rigid fit, the same
+  (written to the log and --out-anchors), then the tags tracked: both near the truth after a rigid fit, the same
   input giving the same trajectory; without the heights either, in 3D; with fewer than 4 anchors
   it is refused by name;
 - the per-anchor NLOS lines are in the log.
@@ -207,8 +207,9 @@ def test_that_without_fixed_anchors_they_are_calibrated_then_the_tags_tracked(ho
     folder = write_flight(tmp_path, seed_of(7), duration_s=60.0)
     args = [a for a in moving_args(folder) if a not in ("--fixed-csv", folder / "anchors.csv")]
 
-    result = run(hostd, *args)
+    result = run(hostd, *args, "--out-anchors", folder / "anchors-out.csv")
     again = run(hostd, *args[:-1], folder / "again.csv")
+    given = run(hostd, *moving_args(folder, trajectory="given.csv"), "--out-anchors", folder / "given-anchors.csv")
 
     assert result.returncode == 0 and again.returncode == 0, result.stderr + again.stderr
     assert (folder / "trajectory.csv").read_bytes() == (folder / "again.csv").read_bytes()
@@ -217,6 +218,13 @@ def test_that_without_fixed_anchors_they_are_calibrated_then_the_tags_tracked(ho
     assert "(height given)" in result.stderr and "anchors calibrated from the moving nodes' ranges" in result.stderr
     for i, p in anchors.items():
         assert p[2] == pytest.approx(ANCHORS[i][2], abs=1e-6)  # the heights given are held
+    written = {int(r["id"]): r for r in csv.DictReader((folder / "anchors-out.csv").read_text().splitlines())}
+    assert sorted(written) == sorted(anchors)
+    for i, r in written.items():
+        assert np.allclose([float(r["x"]), float(r["y"]), float(r["z"])], anchors[i], atol=1e-5)
+        assert r["height_given"] == "1"
+    assert given.returncode == 2 and "--out-anchors is written when the anchors are calibrated" in given.stderr
+    assert not (folder / "given-anchors.csv").exists()
     ids = sorted(anchors)
     estimate, truth_m = np.array([anchors[i] for i in ids]), np.array([ANCHORS[i] for i in ids])
     rotation, translation = rigid_fit(estimate, truth_m, dim=3)

@@ -159,6 +159,10 @@ static int runMain(int argc, char **argv)
                    "offline, with --moving: A:B:SEPARATION_M, moving nodes A and B on one rigid body SEPARATION_M "
                    "(m) apart (repeatable)")
         ->needs(ranges_option);
+    app.add_option("--out-anchors", offline.out_anchors,
+                   "offline, with --moving and no --fixed-csv: the anchors calibrated from the moving nodes' ranges, "
+                   "id,x,y,z,height_given (m, the calibration's own frame)")
+        ->needs(ranges_option);
     bool no_settle = false;
     app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")
         ->needs(ranges_option);

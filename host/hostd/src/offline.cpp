@@ -303,8 +303,8 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
 // heights of --heights-csv held), then fixed in the engine at their estimates, in the solution's
 // own frame, and the moving nodes tracked from them. Returns 2 with a message when the ranges do
 // not allow it.
-int calibrateAnchors(engine::Engine &engine, const engine::EngineParams &params, const std::vector<RangeRow> &ranges,
-                     const std::vector<engine::NodeId> &moving, std::FILE *log)
+int calibrateAnchors(const OfflineOptions &options, engine::Engine &engine, const engine::EngineParams &params,
+                     const std::vector<RangeRow> &ranges, const std::vector<engine::NodeId> &moving, std::FILE *log)
 {
     std::vector<engine::CalibrationRange> input;
     input.reserve(ranges.size());
@@ -336,6 +336,22 @@ int calibrateAnchors(engine::Engine &engine, const engine::EngineParams &params,
         std::fprintf(log, "cdro-hostd: anchor %u self-calibrated at %.6f, %.6f, %.6f m (height %s)\n",
                      static_cast<unsigned>(anchor.id), anchor.position_m.x(), anchor.position_m.y(),
                      anchor.position_m.z(), anchor.height_given ? "given" : "estimated");
+    }
+    if (!options.out_anchors.empty()) {
+        File file = openForWriting(options.out_anchors, log);
+        if (!file) {
+            return 2;
+        }
+        std::fputs("id,x,y,z,height_given\n", file.get());
+        for (const engine::CalibratedAnchor &anchor : anchors) {
+            std::fprintf(file.get(), "%u,%.17g,%.17g,%.17g,%d\n", static_cast<unsigned>(anchor.id),
+                         anchor.position_m.x(), anchor.position_m.y(), anchor.position_m.z(),
+                         anchor.height_given ? 1 : 0);
+        }
+        if (std::fflush(file.get()) != 0 || std::ferror(file.get())) {
+            std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_anchors.c_str(), std::strerror(errno));
+            return 2;
+        }
     }
     const engine::MovingCalibrationCounters &c = calibration.counters();
     std::fprintf(log,
@@ -432,9 +448,13 @@ int runFlights(const OfflineOptions &options, const engine::EngineParams &params
     }
     sortByTime(ranges, options.ranges_csv, log);
     if (options.fixed_csv.empty()) {
-        if (const int code = calibrateAnchors(engine, params, ranges, moving, log); code != 0) {
+        if (const int code = calibrateAnchors(options, engine, params, ranges, moving, log); code != 0) {
             return code;
         }
+    } else if (!options.out_anchors.empty()) {
+        std::fprintf(log, "cdro-hostd: --out-anchors is written when the anchors are calibrated (--moving without "
+                          "--fixed-csv); with --fixed-csv they are given\n");
+        return 2;
     }
     File trajectory = openForWriting(options.out_trajectory, log);
     if (!trajectory) {
@@ -543,6 +563,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             return 2;
         }
         const bool flights = !options.moving.empty();
+        if (!flights && !options.out_anchors.empty()) {
+            std::fprintf(log, "cdro-hostd: --out-anchors needs --moving (the anchors are calibrated from moving "
+                              "nodes' ranges)\n");
+            return 2;
+        }
         const bool movement =
             !flights && (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty());
 
