@@ -280,3 +280,7 @@ def test_that_calibration_with_three_anchors_is_refused_by_name(hostd, tmp_path)
     assert result.returncode == 2
     assert "--moving without --fixed-csv: calibrating anchors from moving nodes needs at least 4" in result.stderr
     assert not (folder / "trajectory.csv").exists()
+    no_moving = run(hostd, "--ranges-csv", folder / "ranges.csv", "--out-csv", folder / "x.csv",
+                    "--out-anchors", folder / "a.csv")
+    assert no_moving.returncode == 2 and "--out-anchors needs --moving" in no_moving.stderr
+    assert not (folder / "a.csv").exists()
