@@ -100,10 +100,42 @@ def renumber(ranges: tb.TimedRanges) -> tb.TimedRanges:
                           np.where(ranges.to_ids == 0, ZERO_AS, ranges.to_ids), ranges.range_m, ranges.lines)
 
 
+def calibration_rows(hostd, scratch: pathlib.Path, seeds, extra: list[str]) -> None:
+    """(d): the same flights with only the anchors' heights given (cdro-hostd --moving without
+    --fixed-csv: moving_calibration.hpp calibrates the anchors first). Prints, per scenario, the
+    mean over the seeds (and the worst) of the anchors' 3D RMSE after their own rigid fit, and the
+    tags' 3D RMSE after one rigid fit of the trajectory (cdro-eval-motion --align)."""
+    anchors = {(ZERO_AS if i == 0 else i): np.array(p) for i, p in sim.sparse_anchors().items()}
+    print("\n| scenario, anchors not given (d) | anchors' aligned RMSE 3D, mean (worst) | tags' aligned RMSE 3D, "
+          "mean (worst) |")
+    print("|---|---|---|")
+    flights = {title: (lambda seed, o=options: sim.simulate_sparse(seed, **o)) for title, options in SCENARIOS.items()}
+    flights["two tags a body (sparse)"] = lambda seed: simulate_bodies(seed)[:2]
+    for title, flight in flights.items():
+        anchor_rmse, tag_rmse = [], []
+        for seed in seeds:
+            ranges, truth = flight(seed)
+            miluv.write_ranges(scratch / "ranges.csv", renumber(ranges))
+            log: list[str] = []
+            rows, _ = miluv.run_engine(hostd, scratch / "ranges.csv", anchors, sorted(truth), scratch, f"d{seed}",
+                                       extra, calibrate=True, log=log)
+            anchor_rmse.append(miluv.anchors_aligned(miluv.calibrated_anchors(log), anchors)["rmse_3d_m"])
+            estimates = {}
+            for tag in truth:
+                mine = [r for r in rows if r[1] == tag]
+                estimates[tag] = sim.tracking.NodeTrack(np.array([r[0] for r in mine]),
+                                                        np.array([r[2] for r in mine]).reshape(-1, 3),
+                                                        np.array([r[3] for r in mine]).reshape(-1, 3, 3))
+            tag_rmse.append(sim.tracking.evaluate_tracking(estimates, truth, align=True)["overall"]["rmse_3d_m"])
+        print(f"| {title} | {np.mean(anchor_rmse):.3f} ({np.max(anchor_rmse):.3f}) | {np.mean(tag_rmse):.3f} "
+              f"({np.max(tag_rmse):.3f}) |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", default="1-5")
     parser.add_argument("--set", action="append", default=[], help="engine setting K=V for cdro-hostd")
+    parser.add_argument("--only-calibration", action="store_true", help="only (d), the anchors not given")
     args = parser.parse_args()
     lo, _, hi = args.seeds.partition("-")
     seeds = range(int(lo), int(hi or lo) + 1)
@@ -116,6 +148,9 @@ def main() -> int:
     print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(prefix="flights-") as scratch_dir:
         scratch = pathlib.Path(scratch_dir)
+        if args.only_calibration:
+            calibration_rows(hostd, scratch, seeds, extra)
+            return 0
         for title, options in SCENARIOS.items():
             sums = {k: [] for k in ("ekf", "coop", "engine", "engine_b", "coop_b", "engine_in", "coop_in")}
             for seed in seeds:
@@ -160,7 +195,8 @@ def main() -> int:
               f"(c) {m['engine']:.3f} "
               f"({m['engine_in']:.0%} inside), (c) with --moving-body {m['body']:.3f} ({m['body_in']:.0%} inside); "
               f"at (b)'s rows (c) {m['engine_b']:.3f}, with --moving-body {m['body_b']:.3f}")
-    print("Cells: mean over the seeds of the 3D RMSE (m); inside: errors inside the 95 % region (3D).")
+        print("Cells: mean over the seeds of the 3D RMSE (m); inside: errors inside the 95 % region (3D).")
+        calibration_rows(hostd, scratch, seeds, extra)
     return 0
 
 

@@ -17,6 +17,10 @@ horizontal RMSE / 3D p95 (m) and its number of estimates:
   ranges (docs/engine.md, "Nodes that never stop"); anchor 0 is given as 100 (below); and the same
   with --moving-body A:B:SEPARATION_M for each robot's two tags (the distance between their lever
   arms in tags.csv: the robot's calibration);
+- (d) the same without the anchors' x, y (--heights-csv only): cdro-hostd calibrates the anchors
+  from the tags' ranges first (moving_calibration.hpp), then tracks; scored after one rigid fit of
+  the trajectory to the truth (rotation, translation, reflection: cdro-eval-motion --align), and
+  the calibrated anchors after one rigid fit of their own to the surveyed ones;
 - "room centre": a constant at the anchors' centroid 1 m below them, at every tag-anchor range,
   i.e. what an estimate that learns nothing scores;
 - "replica": the same baselines on the same schedule with every range recomputed from the truth
@@ -25,8 +29,9 @@ horizontal RMSE / 3D p95 (m) and its number of estimates:
 Then the share of the EKFs' and the engine's errors inside their 95 % regions (3D), (c-ref) and
 (c) scored at (b)'s rows only (after each tag-anchor range: the same times), and per anchor the residuals of its ranges
 against the truth-derived range (ranges_detail's gt_range_m): mean, median, IQR, next to its
-anchor_obstructed label, and how many of its ranges the gates of (b) and (c-ref) down-weighted
-(of those they tested); a row for the tag-to-tag ranges.
+anchor_obstructed label, how many of its ranges the gates of (b) and (c-ref) down-weighted
+(of those they tested), and how many the engine's NLOS model down-weighted or refused in (c)
+(cdro-hostd's "NLOS ranges" log lines); a row for the tag-to-tag ranges.
 
 --out DIR writes every trajectory (<experiment>-<baseline>.csv, the format cdro-eval-motion
 --tag-trajectory reads) and miluv.json (every figure); with --trace also, per EKF,
@@ -44,6 +49,7 @@ import csv
 import json
 import os
 import pathlib
+import re
 import shutil
 import statistics
 import subprocess
@@ -56,6 +62,7 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tools"))     # this checkout's cdro_tools, not an installed one
 
 from cdro_tools.evaluation import tracking  # noqa: E402 (after the path)
+from cdro_tools.evaluation.alignment import rigid_fit  # noqa: E402 (after the path)
 from cdro_tools.evaluation import tracking_baselines as tb  # noqa: E402 (after the path)
 from cdro_tools.evaluation.inputs import Format, Policy, Row, read_rows  # noqa: E402 (after the path)
 
@@ -72,7 +79,8 @@ RENUMBERED_FILES = ("ranges.csv", "ranges_detail.csv", "nodes.csv", "tag_truth.c
 DETAIL_FORMAT = Format(("from", "to", "range_m", "gt_range_m", "anchor_obstructed"))
 TITLES = {"trilateration": "(a) trilateration", "ekf": "(b) EKF per tag", "coop-ekf": "(c-ref) cooperative EKF",
           "engine": "(c) the engine's 3D tracker", "engine-body": "(c) + two tags a body (--moving-body)",
-          "room-centre": "room centre (learns nothing)"}
+          "room-centre": "room centre (learns nothing)",
+          "self-calibrated": "(d) anchors not given, aligned"}
 
 
 def centre_rows(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray]) -> list:
@@ -99,7 +107,7 @@ def replica(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray], truth: dict[
     return tb.TimedRanges(ranges.t_s, ranges.from_ids, ranges.to_ids, np.array(values), ranges.lines)
 
 
-def score(rows: list, truth: dict[int, tracking.NodeTrack]) -> dict:
+def score(rows: list, truth: dict[int, tracking.NodeTrack], align: bool = False) -> dict:
     estimates: dict[int, list] = {}
     for t, node, p, cov in rows:
         estimates.setdefault(node, []).append((t, p, cov))
@@ -109,7 +117,7 @@ def score(rows: list, truth: dict[int, tracking.NodeTrack]) -> dict:
         covs = [np.full((3, 3), np.nan) if v[2] is None else v[2] for v in values]
         tracks[node] = tracking.NodeTrack(np.array([v[0] for v in values]), np.array([v[1] for v in values]),
                                           np.array(covs))
-    return tracking.evaluate_tracking(tracks, truth)
+    return tracking.evaluate_tracking(tracks, truth, align=align)
 
 
 def run_baselines(ranges, anchors, args) -> dict[str, tb.TrackingResult]:
@@ -124,16 +132,20 @@ def hostd_binary() -> pathlib.Path:
 
 
 def run_engine(hostd: pathlib.Path, ranges_csv: pathlib.Path, anchors: dict[int, np.ndarray], tags: list[int],
-               scratch: pathlib.Path, name: str, extra: list[str] | None = None) -> tuple[list, str]:
+               scratch: pathlib.Path, name: str, extra: list[str] | None = None, calibrate: bool = False,
+               log: list[str] | None = None) -> tuple[list, str]:
     """(c): cdro-hostd --moving, the tags tracked in 3D by the engine (motion_track_3d.hpp) against
     the anchors given as fixed (x, y) with their heights (z), with the tag-to-tag ranges; its
-    defaults. Returns the trajectory's rows (t_s, id, p_m, cov_m2) and cdro-hostd's summary line."""
+    defaults. calibrate: (d), only the heights given (no --fixed-csv): the engine calibrates the
+    anchors from the tags' ranges first (moving_calibration.hpp). Returns the trajectory's rows
+    (t_s, id, p_m, cov_m2) and cdro-hostd's summary line; `log` gets every line it wrote."""
     scratch.mkdir(parents=True, exist_ok=True)
     fixed, heights = scratch / f"{name}-anchors.csv", scratch / f"{name}-heights.csv"
     fixed.write_text("id,x,y\n" + "".join(f"{i},{float(p[0])!r},{float(p[1])!r}\n" for i, p in sorted(anchors.items())))
     heights.write_text("id,z\n" + "".join(f"{i},{float(p[2])!r}\n" for i, p in sorted(anchors.items())))
     trajectory = scratch / f"{name}-engine.csv"
-    result = subprocess.run([str(hostd), "--ranges-csv", str(ranges_csv), "--fixed-csv", str(fixed),
+    given = [] if calibrate else ["--fixed-csv", str(fixed)]
+    result = subprocess.run([str(hostd), "--ranges-csv", str(ranges_csv), *given,
                              "--heights-csv", str(heights), "--moving", ",".join(map(str, tags)),
                              "--out-csv", str(scratch / f"{name}-engine-nodes.csv"),
                              "--out-trajectory", str(trajectory), *(extra or [])],
@@ -148,7 +160,44 @@ def run_engine(hostd: pathlib.Path, ranges_csv: pathlib.Path, anchors: dict[int,
             for node, track in tracks.items() for k, t in enumerate(track.t_s)]
     rows.sort(key=lambda row: row[0])   # stable: the file's order at equal times
     summary = next((line for line in result.stderr.splitlines() if "moving nodes tracked in 3D" in line), "")
+    if log is not None:
+        log.extend(result.stderr.splitlines())
     return rows, summary
+
+
+NLOS_LINE = re.compile(r"NLOS ranges (to anchor (\d+)|between moving nodes): (\d+) taken, (\d+) of them "
+                       r"down-weighted, (\d+) refused")
+ANCHOR_LINE = re.compile(r"anchor (\d+) self-calibrated at (\S+), (\S+), (\S+) m")
+
+
+def nlos_counts(log: list[str]) -> dict:
+    """cdro-hostd's per-anchor NLOS lines (docs/engine.md): key anchor id (as the data set numbers
+    it) or "tag-tag" -> taken, down_weighted, refused."""
+    out: dict = {}
+    for line in log:
+        m = NLOS_LINE.search(line)
+        if m:
+            key = dataset_id(int(m.group(2))) if m.group(2) else "tag-tag"
+            out[key] = {"taken": int(m.group(3)), "down_weighted": int(m.group(4)), "refused": int(m.group(5))}
+    return out
+
+
+def calibrated_anchors(log: list[str]) -> dict[int, np.ndarray]:
+    """The anchors cdro-hostd calibrated (its "self-calibrated at" lines), by node id."""
+    return {int(m.group(1)): np.array([float(m.group(k)) for k in (2, 3, 4)])
+            for m in map(ANCHOR_LINE.search, log) if m}
+
+
+def anchors_aligned(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> dict:
+    """The calibrated anchors against the surveyed ones after one rigid fit of their own (3D,
+    reflection allowed): RMSE 3D and horizontal, and each anchor's 3D error (m)."""
+    ids = sorted(estimate)
+    e, g = np.array([estimate[i] for i in ids]), np.array([truth[i] for i in ids])
+    rotation, translation = rigid_fit(e, g, dim=3)
+    d = e @ rotation.T + translation - g
+    return {"rmse_3d_m": float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))),
+            "rmse_h_m": float(np.sqrt(np.mean(np.sum(d[:, :2] ** 2, axis=1)))),
+            "errors_m": {str(dataset_id(i)): float(np.linalg.norm(x)) for i, x in zip(ids, d)}}
 
 
 def body_arguments(tags_csv: pathlib.Path) -> list[str]:
@@ -258,7 +307,7 @@ def print_experiment(name: str, summary: dict) -> None:
     s = summary["ranges"]
     print(f"\n### {name}: {len(summary['tags'])} tags, {s['tag_anchor']} tag-anchor and {s['tag_tag']} tag-tag ranges, "
           f"{s['duration_s']:.0f} s\n")
-    columns = ["trilateration", "ekf", "coop-ekf", "engine", "engine-body", "room-centre"]
+    columns = ["trilateration", "ekf", "coop-ekf", "engine", "engine-body", "self-calibrated", "room-centre"]
     print("| tag | " + " | ".join(TITLES[c] for c in columns) + " |")
     print("|---" * (len(columns) + 1) + "|")
     for tag in summary["tags"]:
@@ -267,7 +316,13 @@ def print_experiment(name: str, summary: dict) -> None:
     print(f"| replica, all (truth ranges + N(0, {REPLICA_NOISE_M} m)) | "
           + " | ".join(cell(summary["replica"][c]["overall"]) if c in summary["replica"] else "-" for c in columns)
           + " |")
-    print("\nCells: 3D RMSE / horizontal RMSE / 3D p95 (m) (estimates).")
+    print("\nCells: 3D RMSE / horizontal RMSE / 3D p95 (m) (estimates); (d) after one rigid fit of its trajectory "
+          "to the truth (cdro-eval-motion --align), the others in the surveyed anchors' frame.")
+    d = summary["calibration"]
+    print(f"(d): anchors' RMSE after their own rigid fit {d['anchors']['rmse_3d_m']:.2f} m 3D, "
+          f"{d['anchors']['rmse_h_m']:.2f} m horizontal (per anchor: "
+          + ", ".join(f"{k} {v:.2f}" for k, v in d["anchors"]["errors_m"].items())
+          + f"); replica {d['replica_anchors']['rmse_3d_m']:.2f} m. {d['summary']}")
     notes = []
     for c in ("trilateration", "ekf", "coop-ekf"):
         counts = summary["counts"][c]
@@ -287,13 +342,16 @@ def print_experiment(name: str, summary: dict) -> None:
           f"{ekf['rmse_3d_m']:.2f} / {ekf['rmse_h_m']:.2f} m.")
     print(f"(c): {summary['engine_summary']}")
     print("\n| anchor | obstructed (label) | ranges | residual mean / median / IQR (m) | (b) beyond the gate | "
-          "(c-ref) beyond the gate |")
-    print("|---|---|---|---|---|---|")
+          "(c-ref) beyond the gate | (c) down-weighted + refused, of decided |")
+    print("|---|---|---|---|---|---|---|")
     for a in summary["anchors"]:
         label = "-" if a["obstructed"] is None else ("yes" if a["obstructed"] else "no")
         ekf = f"{a['ekf_rejected']} of {a['ekf_tested']}" if a["ekf_tested"] else "-"
+        n = summary["nlos"].get(a["anchor"])
+        engine = "-" if not n else (f"{n['down_weighted']} + {n['refused']} of {n['taken'] + n['refused']} "
+                                    f"({(n['down_weighted'] + n['refused']) / max(n['taken'] + n['refused'], 1):.0%})")
         print(f"| {a['anchor']} | {label} | {a['ranges']} | {a['mean_m']:+.3f} / {a['median_m']:+.3f} / "
-              f"{a['iqr_m']:.3f} | {ekf} | {a['coop-ekf_rejected']} of {a['coop-ekf_tested']} |")
+              f"{a['iqr_m']:.3f} | {ekf} | {a['coop-ekf_rejected']} of {a['coop-ekf_tested']} | {engine} |")
 
 
 def main() -> int:
@@ -341,12 +399,18 @@ def main() -> int:
         rows = {n: r.rows for n, r in results.items()}
         tags = sorted({int(t) for t in truth})
         scratch = pathlib.Path(copies.name) / "engine"
-        rows["engine"], engine_summary = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, name)
+        engine_log: list[str] = []
+        rows["engine"], engine_summary = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, name,
+                                                    log=engine_log)
+        # (d): only the heights given; the anchors calibrated from the tags' ranges, scored after fits.
+        calibration_log: list[str] = []
+        rows["self-calibrated"], _ = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, f"{name}-d",
+                                                calibrate=True, log=calibration_log)
         bodies = body_arguments(data / name / "tags.csv")
         rows["engine-body"], _ = run_engine(hostd, folder / "ranges.csv", anchors, tags, scratch, f"{name}-body",
                                             bodies)
         rows["room-centre"] = centre_rows(ranges, anchors)
-        scores = {n: score(r, truth) for n, r in rows.items()}
+        scores = {n: score(r, truth, align=n == "self-calibrated") for n, r in rows.items()}
         replica_ranges = replica(ranges, anchors, truth, REPLICA_SEED)
         replica_scores = {n: score(r.rows, truth) for n, r in run_baselines(replica_ranges, anchors, args).items()}
         write_ranges(scratch / f"{name}-replica-ranges.csv", replica_ranges)
@@ -356,6 +420,15 @@ def main() -> int:
         replica_body, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
                                      f"{name}-replica-body", bodies)
         replica_scores["engine-body"] = score(replica_body, truth)
+        replica_log: list[str] = []
+        replica_d, _ = run_engine(hostd, scratch / f"{name}-replica-ranges.csv", anchors, tags, scratch,
+                                  f"{name}-replica-d", calibrate=True, log=replica_log)
+        replica_scores["self-calibrated"] = score(replica_d, truth, align=True)
+        calibration = {"anchors": anchors_aligned(calibrated_anchors(calibration_log), anchors),
+                       "replica_anchors": anchors_aligned(calibrated_anchors(replica_log), anchors),
+                       "summary": next((line for line in calibration_log if "anchors calibrated from" in line), ""),
+                       "estimates": {str(dataset_id(i)): p.tolist()
+                                     for i, p in calibrated_anchors(calibration_log).items()}}
         ekf_rows = {(t, node) for t, node, _, _ in results["ekf"].rows}
         coop_at_ekf_rows = score([r for r in results["coop-ekf"].rows if (r[0], r[1]) in ekf_rows], truth)["overall"]
         engine_at_ekf_rows = score([r for r in rows["engine"] if (r[0], r[1]) in ekf_rows], truth)["overall"]
@@ -367,7 +440,7 @@ def main() -> int:
                        "duration_s": float(ranges.t_s[-1] - ranges.t_s[0]), "bad_rows": len(bad)},
             "scores": scores, "replica": replica_scores, "coop_at_ekf_rows": coop_at_ekf_rows,
             "engine_at_ekf_rows": engine_at_ekf_rows, "engine_summary": engine_summary,
-            "body_at_ekf_rows": body_at_ekf_rows,
+            "body_at_ekf_rows": body_at_ekf_rows, "calibration": calibration, "nlos": nlos_counts(engine_log),
             "counts": {n: r.counts() for n, r in results.items()},
             "notes": {n: r.notes for n, r in results.items()},
             "anchors": anchor_report(folder / "ranges_detail.csv", ranges, anchors, results)}
@@ -380,10 +453,13 @@ def main() -> int:
                         "replica": {n: s["overall"] for n, s in replica_scores.items()},
                         "coop_at_ekf_rows": coop_at_ekf_rows,
                         "ranges": summary["ranges"], "counts": summary["counts"], "notes": summary["notes"],
-                        "anchors": summary["anchors"]}
+                        "anchors": summary["anchors"], "self_calibrated": scores["self-calibrated"],
+                        "calibration": calibration,
+                        "nlos": {str(k): v for k, v in summary["nlos"].items()}}
         if out:
             shutil.copyfile(scratch / f"{name}-engine.csv", out / f"{name}-engine.csv")
             shutil.copyfile(scratch / f"{name}-body-engine.csv", out / f"{name}-engine-body.csv")
+            shutil.copyfile(scratch / f"{name}-d-engine.csv", out / f"{name}-self-calibrated.csv")
             if args.trace:
                 write_trace(out / f"{name}-engine-trace.csv", rows["engine"], truth)
             for n, r in results.items():

@@ -12,7 +12,12 @@
   with the movement stage or with --trace-csv;
 - the same input gives the same trajectory, byte for byte;
 - --moving-body A:B:SEPARATION_M ties two moving nodes to one body; a malformed one, or one whose
-  nodes are not in --moving, is refused.
+  nodes are not in --moving, is refused;
+- without --fixed-csv (the anchors' heights given) the anchors are calibrated from the tags' ranges
+  (written to the log and --out-anchors), then the tags tracked: both near the truth after a rigid fit, the same
+  input giving the same trajectory; without the heights either, in 3D; with fewer than 4 anchors
+  it is refused by name;
+- the per-anchor NLOS lines are in the log.
 
 The binary is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO_TEST_SEED
 replays one."""
@@ -181,3 +186,101 @@ def test_that_moving_body_ties_two_moving_nodes_and_refuses_bad_input(hostd, tmp
     assert not_moving.returncode == 2 and "both must be in --moving" in not_moving.stderr, not_moving.stderr
     assert no_moving.returncode == 2 and "--moving-body needs --moving" in no_moving.stderr
     assert not (folder / "m.csv").exists() and not (folder / "n.csv").exists()
+
+
+def calibrated_anchors(log):
+    """The anchors cdro-hostd calibrated ("anchor N self-calibrated at x, y, z m (height ...)")."""
+    out = {}
+    for line in log.splitlines():
+        if " self-calibrated at " in line:
+            head, tail = line.split(" self-calibrated at ")
+            out[int(head.split()[-1])] = np.array([float(v) for v in tail.split(" m ")[0].split(", ")])
+    return out
+
+
+def test_that_without_fixed_anchors_they_are_calibrated_then_the_tags_tracked(hostd, tmp_path):
+    # Stated bounds (loose; the engine's test_moving_calibration.cpp states the calibration's own):
+    # the anchors within 0.3 m RMSE after a rigid fit, the tracked tags within 0.6 m after one.
+    from cdro_tools.evaluation import tracking
+    from cdro_tools.evaluation.alignment import rigid_fit
+
+    folder = write_flight(tmp_path, seed_of(7), duration_s=60.0)
+    args = [a for a in moving_args(folder) if a not in ("--fixed-csv", folder / "anchors.csv")]
+
+    result = run(hostd, *args, "--out-anchors", folder / "anchors-out.csv")
+    again = run(hostd, *args[:-1], folder / "again.csv")
+    given = run(hostd, *moving_args(folder, trajectory="given.csv"), "--out-anchors", folder / "given-anchors.csv")
+
+    assert result.returncode == 0 and again.returncode == 0, result.stderr + again.stderr
+    assert (folder / "trajectory.csv").read_bytes() == (folder / "again.csv").read_bytes()
+    anchors = calibrated_anchors(result.stderr)
+    assert sorted(anchors) == sorted(ANCHORS)
+    assert "(height given)" in result.stderr and "anchors calibrated from the moving nodes' ranges" in result.stderr
+    for i, p in anchors.items():
+        assert p[2] == pytest.approx(ANCHORS[i][2], abs=1e-6)  # the heights given are held
+    written = {int(r["id"]): r for r in csv.DictReader((folder / "anchors-out.csv").read_text().splitlines())}
+    assert sorted(written) == sorted(anchors)
+    for i, r in written.items():
+        assert np.allclose([float(r["x"]), float(r["y"]), float(r["z"])], anchors[i], atol=1e-5)
+        assert r["height_given"] == "1"
+    assert given.returncode == 2 and "--out-anchors is written when the anchors are calibrated" in given.stderr
+    assert not (folder / "given-anchors.csv").exists()
+    ids = sorted(anchors)
+    estimate, truth_m = np.array([anchors[i] for i in ids]), np.array([ANCHORS[i] for i in ids])
+    rotation, translation = rigid_fit(estimate, truth_m, dim=3)
+    anchor_rmse = float(np.sqrt(np.mean(np.sum((estimate @ rotation.T + translation - truth_m) ** 2, axis=1))))
+    rows = list(csv.DictReader((folder / "trajectory.csv").read_text().splitlines()))
+    tracks, truths = {}, {}
+    for k, tag in enumerate(TAGS):
+        mine = [r for r in rows if int(r["id"]) == tag]
+        tracks[tag] = tracking.NodeTrack(np.array([float(r["t"]) for r in mine]),
+                                         np.array([[float(r[c]) for c in "xyz"] for r in mine]))
+        grid = np.arange(0.0, 60.0, 0.05)
+        truths[tag] = tracking.NodeTrack(grid, np.array([truth(k, t) for t in grid]))
+    tag_rmse = tracking.evaluate_tracking(tracks, truths, align=True)["overall"]["rmse_3d_m"]
+    print(f"anchors' aligned RMSE {anchor_rmse:.3f} m, tags' aligned RMSE 3D {tag_rmse:.3f} m ({len(rows)} rows)")
+    assert anchor_rmse < 0.3
+    assert tag_rmse < 0.6
+    for i in ANCHORS:
+        assert f"NLOS ranges to anchor {i}: " in result.stderr
+    assert "NLOS ranges between moving nodes: " in result.stderr
+
+
+def test_that_without_heights_either_the_anchors_are_calibrated_in_3d(hostd, tmp_path):
+    # No --fixed-csv, no --heights-csv: the anchors' heights are estimated too (their plane put
+    # at 1.8 m). Stated: the anchors within 0.4 m 3D RMSE after a rigid fit (loose).
+    from cdro_tools.evaluation.alignment import rigid_fit
+
+    folder = write_flight(tmp_path, seed_of(9), duration_s=60.0)
+    result = run(hostd, "--ranges-csv", folder / "ranges.csv", "--moving", "10,20", "--out-csv", folder / "n.csv",
+                 "--out-trajectory", folder / "trajectory.csv")
+
+    assert result.returncode == 0, result.stderr
+    assert "(height estimated)" in result.stderr and "(height given)" not in result.stderr
+    anchors = calibrated_anchors(result.stderr)
+    ids = sorted(anchors)
+    assert ids == sorted(ANCHORS)
+    estimate, truth_m = np.array([anchors[i] for i in ids]), np.array([ANCHORS[i] for i in ids])
+    rotation, translation = rigid_fit(estimate, truth_m, dim=3)
+    rmse = float(np.sqrt(np.mean(np.sum((estimate @ rotation.T + translation - truth_m) ** 2, axis=1))))
+    print(f"anchors' aligned RMSE 3D without heights {rmse:.3f} m")
+    assert rmse < 0.4
+    assert len((folder / "trajectory.csv").read_text().splitlines()) > 100
+
+
+def test_that_calibration_with_three_anchors_is_refused_by_name(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(8), duration_s=10.0)
+    lines = (folder / "ranges.csv").read_text().splitlines()
+    kept = [line for line in lines[1:] if line.split(",")[2] in ("1", "2", "3", "20")]
+    (folder / "ranges.csv").write_text(lines[0] + "\n" + "\n".join(kept) + "\n")
+    args = [a for a in moving_args(folder) if a not in ("--fixed-csv", folder / "anchors.csv")]
+
+    result = run(hostd, *args)
+
+    assert result.returncode == 2
+    assert "--moving without --fixed-csv: calibrating anchors from moving nodes needs at least 4" in result.stderr
+    assert not (folder / "trajectory.csv").exists()
+    no_moving = run(hostd, "--ranges-csv", folder / "ranges.csv", "--out-csv", folder / "x.csv",
+                    "--out-anchors", folder / "a.csv")
+    assert no_moving.returncode == 2 and "--out-anchors needs --moving" in no_moving.stderr
+    assert not (folder / "a.csv").exists()

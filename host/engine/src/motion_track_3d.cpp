@@ -167,6 +167,11 @@ void FlightTracks::setAnchors(const std::vector<std::pair<NodeId, Vector3>> &anc
 {
     anchors_ = anchors;
     anchors_set_ = AnchorsState::Set;
+    nlos_.clear();
+    for (const auto &[id, position] : anchors_) {
+        nlos_.push_back({id, 0, 0, 0});
+    }
+    nlos_.push_back({0, 0, 0, 0}); // the ranges between tracked nodes
     if (anchors_.empty()) {
         return;
     }
@@ -311,8 +316,20 @@ void FlightTracks::keepInside(uint32_t node)
     counters_.truncated += touched ? 1U : 0U;
 }
 
+void FlightTracks::countNlos(size_t entry, FlightRangeUse use, uint64_t down_weighted_before)
+{
+    FlightNlosCount &count = nlos_[entry];
+    if (use == FlightRangeUse::Refused) {
+        ++count.refused;
+        return;
+    }
+    ++count.taken;
+    count.down_weighted += counters_.down_weighted - down_weighted_before;
+}
+
 FlightRangeUse FlightTracks::addRange(NodeId a, NodeId b, double range_m, double t_s)
 {
+    const uint64_t down_weighted_before = counters_.down_weighted;
     uint32_t ta = find(a);
     uint32_t tb = find(b);
     if (ta == kNone) {
@@ -356,6 +373,11 @@ FlightRangeUse FlightTracks::addRange(NodeId a, NodeId b, double range_m, double
         if (use != FlightRangeUse::Refused) {
             ++counters_.anchor_ranges;
         }
+        size_t entry = 0;
+        while (anchors_[entry].first != b) {
+            ++entry; // found: anchor(b) is not null
+        }
+        countNlos(entry, use, down_weighted_before);
         keepInside(ta);
         return use;
     }
@@ -371,6 +393,7 @@ FlightRangeUse FlightTracks::addRange(NodeId a, NodeId b, double range_m, double
     } else {
         ++counters_.tag_ranges;
     }
+    countNlos(nlos_.size() - 1, use, down_weighted_before);
     keepInside(ta);
     keepInside(tb);
     return use;

@@ -151,12 +151,18 @@ static int runMain(int argc, char **argv)
         ->needs(ranges_option);
     app.add_option("--moving", offline.moving,
                    "offline: node ids (comma separated) that move from the start, tracked in 3D against the fixed "
-                   "nodes of known height; with --out-trajectory: t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
+                   "nodes of known height (without --fixed-csv: the static nodes they range are calibrated from "
+                   "their ranges first, heights from --heights-csv held); with --out-trajectory: "
+                   "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
         ->delimiter(',')
         ->needs(ranges_option);
     app.add_option("--moving-body", offline.moving_bodies,
                    "offline, with --moving: A:B:SEPARATION_M, moving nodes A and B on one rigid body SEPARATION_M "
                    "(m) apart (repeatable)")
+        ->needs(ranges_option);
+    app.add_option("--out-anchors", offline.out_anchors,
+                   "offline, with --moving and no --fixed-csv: the anchors calibrated from the moving nodes' ranges, "
+                   "id,x,y,z,height_given (m, the calibration's own frame)")
         ->needs(ranges_option);
     bool no_settle = false;
     app.add_flag("--no-settle", no_settle, "offline: do not settle the map at the end of the file")

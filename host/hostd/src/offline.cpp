@@ -11,6 +11,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <fcntl.h>
@@ -19,6 +20,7 @@
 #include "cdro/csv/reader.hpp"
 #include "cdro/engine/engine.hpp"
 #include "cdro/engine/movement.hpp"
+#include "cdro/engine/moving_calibration.hpp"
 #include "cdro/hostd/csv_input.hpp"
 #include "cdro/hostd/known_geometry.hpp"
 #include "cdro/hostd/estimates_csv.hpp"
@@ -296,10 +298,77 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
     return 0;
 }
 
+// --moving without --fixed-csv: no anchor's position is given. The anchors (every static node a
+// moving one ranges) are calibrated from the moving nodes' ranges (moving_calibration.hpp; the
+// heights of --heights-csv held), then fixed in the engine at their estimates, in the solution's
+// own frame, and the moving nodes tracked from them. Returns 2 with a message when the ranges do
+// not allow it.
+int calibrateAnchors(const OfflineOptions &options, engine::Engine &engine, const engine::EngineParams &params,
+                     const std::vector<RangeRow> &ranges, const std::vector<engine::NodeId> &moving, std::FILE *log)
+{
+    std::vector<engine::CalibrationRange> input;
+    input.reserve(ranges.size());
+    for (const RangeRow &row : ranges) {
+        input.push_back({row.t_s, row.from, row.to, row.range_m});
+    }
+    std::vector<std::pair<engine::NodeId, double>> heights;
+    for (const engine::NodeState &node : engine.map().nodes) {
+        if (node.height_m) {
+            heights.emplace_back(node.id, *node.height_m);
+        }
+    }
+    engine::MovingCalibrationParams calibration_params;
+    calibration_params.range_sigma_m = params.range.sigma_m;
+    engine::MovingCalibration calibration(calibration_params, params.motion);
+    std::vector<engine::CalibratedAnchor> anchors;
+    try {
+        anchors = calibration.solve(input, moving, heights);
+    } catch (const std::invalid_argument &error) {
+        std::fprintf(log, "cdro-hostd: --moving without --fixed-csv: %s\n", error.what());
+        return 2;
+    }
+    for (const engine::CalibratedAnchor &anchor : anchors) {
+        engine.setFixed(anchor.id, anchor.position_m.head<2>());
+        if (!anchor.height_given) {
+            engine.setHeight(anchor.id, anchor.position_m.z());
+        }
+        // scripts/miluv.py reads these lines.
+        std::fprintf(log, "cdro-hostd: anchor %u self-calibrated at %.6f, %.6f, %.6f m (height %s)\n",
+                     static_cast<unsigned>(anchor.id), anchor.position_m.x(), anchor.position_m.y(),
+                     anchor.position_m.z(), anchor.height_given ? "given" : "estimated");
+    }
+    if (!options.out_anchors.empty()) {
+        File file = openForWriting(options.out_anchors, log);
+        if (!file) {
+            return 2;
+        }
+        std::fputs("id,x,y,z,height_given\n", file.get());
+        for (const engine::CalibratedAnchor &anchor : anchors) {
+            std::fprintf(file.get(), "%u,%.17g,%.17g,%.17g,%d\n", static_cast<unsigned>(anchor.id),
+                         anchor.position_m.x(), anchor.position_m.y(), anchor.position_m.z(),
+                         anchor.height_given ? 1 : 0);
+        }
+        if (std::fflush(file.get()) != 0 || std::ferror(file.get())) {
+            std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_anchors.c_str(), std::strerror(errno));
+            return 2;
+        }
+    }
+    const engine::MovingCalibrationCounters &c = calibration.counters();
+    std::fprintf(log,
+                 "cdro-hostd: anchors calibrated from the moving nodes' ranges: %zu anchors, %llu ranges (%llu "
+                 "ignored), %llu windows (%llu placed by the MDS), %llu epochs; %u + %u iterations; range residual "
+                 "RMS %.3f m, %llu beyond the Huber bound\n",
+                 anchors.size(), static_cast<unsigned long long>(c.ranges), static_cast<unsigned long long>(c.ignored),
+                 static_cast<unsigned long long>(c.windows), static_cast<unsigned long long>(c.windows_placed),
+                 static_cast<unsigned long long>(c.epochs), c.static_iterations, c.batch_iterations, c.rms_residual_m,
+                 static_cast<unsigned long long>(c.outliers));
+    return 0;
+}
+
 // --moving: the nodes tracked in 3D. Returns 2 with a message on `log` when the options or the
 // ranges do not allow it (nothing written then but NODES, which the caller removes).
-int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvTable<RangeRow> &ranges_table,
-               std::FILE *out, std::FILE *log)
+int runFlights(const OfflineOptions &options, const engine::EngineParams &params, engine::Engine &engine,
+               const CsvTable<RangeRow> &ranges_table, std::FILE *out, std::FILE *log)
 {
     if (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.motion_csv.empty()) {
         std::fprintf(log, "cdro-hostd: --moving is not for the movement stage or motion reports (no --odometry-csv, "
@@ -378,6 +447,15 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
         }
     }
     sortByTime(ranges, options.ranges_csv, log);
+    if (options.fixed_csv.empty()) {
+        if (const int code = calibrateAnchors(options, engine, params, ranges, moving, log); code != 0) {
+            return code;
+        }
+    } else if (!options.out_anchors.empty()) {
+        std::fprintf(log, "cdro-hostd: --out-anchors is written when the anchors are calibrated (--moving without "
+                          "--fixed-csv); with --fixed-csv they are given\n");
+        return 2;
+    }
     File trajectory = openForWriting(options.out_trajectory, log);
     if (!trajectory) {
         return 2;
@@ -432,6 +510,23 @@ int runFlights(const OfflineOptions &options, engine::Engine &engine, const CsvT
                  static_cast<unsigned long long>(c.resets), static_cast<unsigned long long>(c.waiting),
                  static_cast<unsigned long long>(c.no_anchor), static_cast<unsigned long long>(c.mirrored),
                  static_cast<unsigned long long>(c.truncated), static_cast<unsigned long long>(c.body_updates));
+    // The NLOS model's verdicts per anchor and for the tag-to-tag ranges (scripts/miluv.py reads
+    // these lines: docs/engine.md, "Nodes that never stop").
+    for (const engine::FlightNlosCount &count : engine.flightNlosCounts()) {
+        const std::string link =
+            count.anchor == 0 ? std::string("between moving nodes") : "to anchor " + std::to_string(count.anchor);
+        const uint64_t decided = count.taken + count.refused;
+        std::fprintf(log,
+                     "cdro-hostd: NLOS ranges %s: %llu taken, %llu of them down-weighted, %llu refused; %.3f of "
+                     "%llu down-weighted or refused\n",
+                     link.c_str(), static_cast<unsigned long long>(count.taken),
+                     static_cast<unsigned long long>(count.down_weighted),
+                     static_cast<unsigned long long>(count.refused),
+                     decided > 0
+                         ? static_cast<double>(count.down_weighted + count.refused) / static_cast<double>(decided)
+                         : 0.0,
+                     static_cast<unsigned long long>(decided));
+    }
     for (const engine::NodeId id : moving) {
         const std::optional<engine::FlightEstimate> track = engine.flightEstimate(id);
         if (track && track->status != engine::FlightStatus::Tracking) {
@@ -468,6 +563,11 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             return 2;
         }
         const bool flights = !options.moving.empty();
+        if (!flights && !options.out_anchors.empty()) {
+            std::fprintf(log, "cdro-hostd: --out-anchors needs --moving (the anchors are calibrated from moving "
+                              "nodes' ranges)\n");
+            return 2;
+        }
         const bool movement =
             !flights && (!options.odometry_csv.empty() || options.robot_id >= 0 || !options.out_trajectory.empty());
 
@@ -510,7 +610,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             if (const int code = readWholeRanges(ranges); code != 0) {
                 return code;
             }
-            int code = runFlights(options, engine, ranges, out.get(), log);
+            int code = runFlights(options, params, engine, ranges, out.get(), log);
             if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
                 std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
                 code = 2;

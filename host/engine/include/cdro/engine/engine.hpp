@@ -130,6 +130,7 @@ public:
     void trackOnOneBody(NodeId a, NodeId b, double separation_m) { flights_.addBody(a, b, separation_m); }
     std::optional<FlightEstimate> flightEstimate(NodeId id) const { return flights_.estimate(id); }
     const FlightCounters &flightCounters() const { return flights_.counters(); }
+    const std::vector<FlightNlosCount> &flightNlosCounts() const { return flights_.nlosCounts(); }
 
     // The movement stage's EKF owns this node's position: here it is an anchor at that position
     // (not refined, not placed again) until unpinned.

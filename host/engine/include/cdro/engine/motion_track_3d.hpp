@@ -100,6 +100,15 @@ struct FlightCounters {
     uint64_t body_updates = 0; // one-body pseudo-measurements applied
 };
 
+// What the NLOS likelihood did to the ranges of one link kind: the ranges to one anchor, or all
+// the ranges between tracked nodes (anchor = 0). A range counts once, when it is decided.
+struct FlightNlosCount {
+    NodeId anchor = 0;          // the anchor's id; 0: the ranges between tracked nodes
+    uint64_t taken = 0;         // Used or Reset
+    uint64_t down_weighted = 0; // ... of those taken, with P(line of sight) < 0.5 (noise widened)
+    uint64_t refused = 0;       // beyond the gate, looking NLOS: not used
+};
+
 class FlightTracks {
 public:
     static constexpr uint32_t kMinAnchors = 4;        // distinct anchors before a node is reported (a 3D fix's need)
@@ -128,6 +137,10 @@ public:
 
     std::optional<FlightEstimate> estimate(NodeId id) const;
     const FlightCounters &counters() const { return counters_; }
+    // Per anchor (in setAnchors' order), then the ranges between tracked nodes: the NLOS model's
+    // verdicts (docs/engine.md, "Nodes that never stop"). Ranges not decided (Waiting, NoAnchor)
+    // are not in it.
+    const std::vector<FlightNlosCount> &nlosCounts() const { return nlos_; }
 
 private:
     static constexpr uint32_t kNone = 0xFFFFFFFFU;
@@ -169,6 +182,8 @@ private:
     Eigen::MatrixXd covariance_;
     std::optional<double> t_s_; // s, the filter's time
     FlightCounters counters_;
+    std::vector<FlightNlosCount> nlos_; // one per anchor, then the tag-to-tag entry
+    void countNlos(size_t entry, FlightRangeUse use, uint64_t down_weighted_before);
 };
 
 } // namespace cdro::engine

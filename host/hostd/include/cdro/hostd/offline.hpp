@@ -66,6 +66,7 @@ struct OfflineOptions {
     std::string motion_csv;                 // t,id,moving (optional)
     std::vector<std::string> moving;        // node ids moving from the start, tracked in 3D (--moving)
     std::vector<std::string> moving_bodies; // "A:B:SEPARATION_M": two of them on one rigid body (--moving-body)
+    std::string out_anchors; // --moving without --fixed-csv: the calibrated anchors id,x,y,z,height_given
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;
