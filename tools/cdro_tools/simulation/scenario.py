@@ -148,7 +148,7 @@ FAULT_KINDS = {
 # The faults cdro-fil injects on the I2C bus and in the simulated Pozyx; cdro-sim's device is not
 # behind a simulated I2C bus, so it cannot act on them.
 FIL_FAULT_KINDS = ("nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
-                   "stale_range", "drop_remote_reply", "refuse_function", "late_reply", "power_off", "hang")
+                   "stale_range", "drop_remote_reply", "refuse_function", "late_reply", "power_off")
 
 # Keys of the one scenario format that only cdro-fil acts on (firmware/fil/src/scenario.cpp), by
 # path with list indices written [].
