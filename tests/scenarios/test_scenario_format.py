@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from cdro_tools.simulation.scenario import ScenarioError, parse_scenario
+from cdro_tools.simulation.scenario import FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, parse_scenario
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SHARED = REPO / "tests" / "scenarios" / "shared_office.yaml"
@@ -103,46 +103,62 @@ def test_that_the_repository_has_a_scenario_both_tools_read():
     assert SHARED in SCENARIO_FILES
 
 
-# (text added to MINIMAL, the key the message names)
+# (a scenario file, the key the message names)
 FIL_ONLY = [
-    ("uwb: {bias_m: 0.1}\n", "uwb.bias_m"),
-    ("uwb: {ranging_us: 20000}\n", "uwb.ranging_us"),
-    ("pozyx: {model: ideal}\n", "pozyx.model"),
-    ("pozyx: {who_am_i: 0x42}\n", "pozyx.who_am_i"),
-    ("faults:\n  - {kind: nack_address, at_s: 2, count: 3}\n", "faults[0].kind"),
-    ("faults:\n  - {kind: power_off, node: 0x6A01, at_s: 2, duration_s: 3}\n", "faults[0].kind"),
-    ("motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[4, 2, 1.5]]}\n",
+    (MINIMAL + "uwb: {bias_m: 0.1}\n", "uwb.bias_m"),
+    (MINIMAL + "uwb: {ranging_us: 20000}\n", "uwb.ranging_us"),
+    (MINIMAL + "pozyx: {model: ideal}\n", "pozyx.model"),
+    (MINIMAL + "pozyx: {who_am_i: 0x42}\n", "pozyx.who_am_i"),
+    (MINIMAL + "faults:\n  - {kind: nack_address, at_s: 2, count: 3}\n", "faults[0].kind"),
+    (MINIMAL + "faults:\n  - {kind: power_off, node: 0x6A01, at_s: 2, duration_s: 3}\n", "faults[0].kind"),
+    (MINIMAL + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints_m: [[4, 2, 1.5]]}\n",
      "motion[0].waypoints_m[0]"),
 ]
 SIM_ONLY = [
-    ("schedule: {mode: direct_only}\n", "scenario.schedule"),
-    ("robot: {id: 0x6000, waypoints_m: [[2, 2]]}\n", "scenario.robot"),
-    ("device: {free_ram_bytes: 400}\n", "scenario.device"),
-    ("epoch_unix_s: 1800000000\n", "scenario.epoch_unix_s"),
-    ("uwb: {scale: 1.02}\n", "uwb.scale"),
-    ("uwb: {dropout_probability: 0.1}\n", "uwb.dropout_probability"),
-    ("uwb: {noise_variance_m2: [0.1, 0.2]}\n", "uwb.noise_variance_m2"),
-    ("uwb: {nlos: {random_links: 1}}\n", "uwb.nlos"),
-    ("pozyx: {present: false}\n", "pozyx.present"),
-    ("faults:\n  - {kind: vanish, at_s: 2, duration_s: 1}\n", "faults[0].kind"),
-    ("faults:\n  - {kind: garbage, at_s: 2}\n", "faults[0].kind"),
+    (MINIMAL + "schedule: {mode: direct_only}\n", "scenario.schedule"),
+    (MINIMAL + "robot: {id: 0x6000, waypoints_m: [[2, 2]]}\n", "scenario.robot"),
+    (MINIMAL + "device: {free_ram_bytes: 400}\n", "scenario.device"),
+    (MINIMAL + "epoch_unix_s: 1800000000\n", "scenario.epoch_unix_s"),
+    (MINIMAL + "uwb: {scale: 1.02}\n", "uwb.scale"),
+    (MINIMAL + "uwb: {dropout_probability: 0.1}\n", "uwb.dropout_probability"),
+    (MINIMAL + "uwb: {noise_variance_m2: [0.1, 0.2]}\n", "uwb.noise_variance_m2"),
+    (MINIMAL + "uwb: {nlos: {random_links: 1}}\n", "uwb.nlos"),
+    (MINIMAL + "pozyx: {present: false}\n", "pozyx.present"),
+    (MINIMAL.replace("x_m: 0, y_m: 0}", "x_m: 0, y_m: 0, moving_amplitude_mg: 100}"), "nodes[0].moving_amplitude_mg"),
+    (MINIMAL + "faults:\n  - {kind: vanish, at_s: 2, duration_s: 1}\n", "faults[0].kind"),
+    (MINIMAL + "faults:\n  - {kind: garbage, at_s: 2}\n", "faults[0].kind"),
 ]
 
 
-@pytest.mark.parametrize(("extra", "key"), FIL_ONLY, ids=[k for _, k in FIL_ONLY])
-def test_that_a_key_only_cdro_fil_acts_on_is_refused_by_cdro_sim_saying_so(fil_binary, tmp_path, extra, key):
+def test_that_each_tools_fault_kinds_are_refused_by_the_other_naming_it(fil_binary, tmp_path):
+    path = tmp_path / "fault.yaml"
+    for kind in FAULT_KINDS:
+        path.write_text(MINIMAL + f"faults:\n  - {{kind: {kind}, at_s: 1}}\n")
+        assert sim_view(path).returncode == 0, kind
+        fil = fil_view(fil_binary, path)
+        assert fil.returncode == 2 and f"only cdro-sim supports the fault kind '{kind}'" in fil.stderr, fil.stderr
+    for kind in FIL_FAULT_KINDS:
+        extra = ", node: 0x6A01, duration_s: 2" if kind == "power_off" else ""
+        path.write_text(MINIMAL + f"faults:\n  - {{kind: {kind}, at_s: 1{extra}}}\n")
+        assert fil_view(fil_binary, path).returncode == 0, kind
+        sim = sim_view(path)
+        assert sim.returncode == 2 and f"only cdro-fil supports the fault kind '{kind}'" in sim.stderr, sim.stderr
+
+
+@pytest.mark.parametrize(("text", "key"), FIL_ONLY, ids=[k for _, k in FIL_ONLY])
+def test_that_a_key_only_cdro_fil_acts_on_is_refused_by_cdro_sim_saying_so(fil_binary, tmp_path, text, key):
     path = tmp_path / "fil-only.yaml"
-    path.write_text(MINIMAL + extra)
+    path.write_text(text)
     assert fil_view(fil_binary, path).returncode == 0, "cdro-fil reads it"
     sim = sim_view(path)
     assert sim.returncode == 2
     assert f"{path}: {key}: only cdro-fil supports" in sim.stderr, sim.stderr
 
 
-@pytest.mark.parametrize(("extra", "key"), SIM_ONLY, ids=[k for _, k in SIM_ONLY])
-def test_that_a_key_only_cdro_sim_acts_on_is_refused_by_cdro_fil_saying_so(fil_binary, tmp_path, extra, key):
+@pytest.mark.parametrize(("text", "key"), SIM_ONLY, ids=[k for _, k in SIM_ONLY])
+def test_that_a_key_only_cdro_sim_acts_on_is_refused_by_cdro_fil_saying_so(fil_binary, tmp_path, text, key):
     path = tmp_path / "sim-only.yaml"
-    path.write_text(MINIMAL + extra)
+    path.write_text(text)
     assert sim_view(path).returncode == 0, "cdro-sim reads it"
     fil = fil_view(fil_binary, path)
     assert fil.returncode == 2

@@ -289,7 +289,7 @@ class _Reader:
             raise self.fail(path, "expected a non-empty list of points")
         out = []
         for i, point in enumerate(value):
-            if size == 2 and isinstance(point, (list, tuple)) and len(point) == 3:
+            if path.startswith("motion") and isinstance(point, (list, tuple)) and len(point) == 3:
                 raise self.fail(f"{path}[{i}]", "only cdro-fil supports [x, y, z] waypoints (a node carried up or "
                                                 "down); cdro-sim keeps each node at its z_m: give [x, y]")
             if not isinstance(point, (list, tuple)) or len(point) != size:
