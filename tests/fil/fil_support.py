@@ -40,14 +40,14 @@ class Scenario:
     path: pathlib.Path
     raw: dict
     own: int
-    nodes: dict[int, dict]          # id -> node entry (x_m, y_m, z_m, tag)
+    nodes: dict[int, dict]          # id -> node entry (x_m, y_m, z_m, accelerometer)
     duration_s: float
 
     @classmethod
     def load(cls, path: pathlib.Path) -> "Scenario":
         raw = yaml.safe_load(path.read_text())
         nodes = {n["id"]: n for n in raw["nodes"]}
-        return cls(path, raw, raw["own"], nodes, float(raw.get("duration_s", 0)))
+        return cls(path, raw, raw["own_id"], nodes, float(raw.get("duration_s", 0)))
 
     @property
     def remote_ids(self) -> list[int]:
@@ -55,7 +55,7 @@ class Scenario:
 
     @property
     def tags(self) -> list[int]:
-        return [i for i, n in self.nodes.items() if n.get("tag")]
+        return [i for i, n in self.nodes.items() if n.get("accelerometer")]
 
     def faults(self, kind: str) -> list[dict]:
         return [f for f in self.raw.get("faults", []) if f["kind"] == kind]

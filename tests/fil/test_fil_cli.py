@@ -39,7 +39,7 @@ def run_fil(binary, *args, timeout_s=GUARD_S):
 def test_bad_input_is_a_clear_error(fil, tmp_path):
     binary, elf = fil
     bad = tmp_path / "bad.yaml"
-    bad.write_text("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n"
+    bad.write_text("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n"
                    "  - {id: 0x6A01, x_m: 1, y_m: 0, colour: red}\n")
     result = run_fil(binary, "--elf", elf, "--scenario", bad)
     assert result.returncode == 2

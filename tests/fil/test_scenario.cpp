@@ -14,9 +14,9 @@ using cdro::fil::ScenarioError;
 namespace {
 
 const char *const kMinimal = R"(
-own: 0x6000
+own_id: 0x6000
 nodes:
-  - {id: 0x6000, tag: true, x_m: 0, y_m: 0}
+  - {id: 0x6000, accelerometer: true, x_m: 0, y_m: 0}
   - {id: 0x6A01, x_m: 4, y_m: 0, z_m: 2}
 )";
 
@@ -39,8 +39,8 @@ TEST(FilScenario, ShippedScenarioReadsAsWritten)
     EXPECT_EQ(s.name, "office-60s");
     EXPECT_EQ(s.own_id, 0x6000);
     ASSERT_EQ(s.nodes.size(), 7U);
-    EXPECT_TRUE(s.node(0x6B05)->tag);
-    EXPECT_FALSE(s.node(0x6A02)->tag);
+    EXPECT_TRUE(s.node(0x6B05)->accelerometer);
+    EXPECT_FALSE(s.node(0x6A02)->accelerometer);
     EXPECT_DOUBLE_EQ(s.node(0x6A01)->position.z_m, 2.4);
     ASSERT_EQ(s.motion.size(), 1U);
     EXPECT_EQ(s.motion[0].node, 0x6B05);
@@ -64,7 +64,7 @@ TEST(FilScenario, DefaultsApply)
     const Scenario s = parseScenario(kMinimal, "test.yaml");
     EXPECT_EQ(s.seed, 1U);
     EXPECT_DOUBLE_EQ(s.duration_s, 0.0) << "0 = until a signal";
-    EXPECT_DOUBLE_EQ(s.uwb.noise_std_mm, 30.0);
+    EXPECT_DOUBLE_EQ(s.uwb.noise_std_m, 0.03);
     EXPECT_TRUE(s.pozyx_realistic) << "the real device's behaviour by default";
     EXPECT_EQ(s.uwb.ranging_us, 40000U) << "and its timings";
     EXPECT_EQ(s.uwb.message_us, 3500U);
@@ -83,25 +83,25 @@ TEST(FilScenario, MistakesNameTheLineAndTheKey)
     EXPECT_NE(message.find("test.yaml:7: scenario.seeed: unknown key"), std::string::npos) << message;
     EXPECT_NE(message.find("seed"), std::string::npos) << message;
     message =
-        errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0, colour: red}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+        errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0, colour: red}\n  - {id: 2, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("test.yaml:3: nodes[0].colour: unknown key"), std::string::npos) << message;
     // Missing and malformed values.
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("nodes[0].x_m: missing"), std::string::npos) << message;
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: far, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: far, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("nodes[0].x_m: expected a number, got 'far'"), std::string::npos) << message;
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0xFFFF, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0xFFFF, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("nodes[0].id: must be between 1 and 65534"), std::string::npos) << message;
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6000, x_m: 1, y_m: 0}\n");
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6000, x_m: 1, y_m: 0}\n");
     EXPECT_NE(message.find("listed twice"), std::string::npos) << message;
-    message = errorOf("own: 0x7000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
-    EXPECT_NE(message.find("scenario.own: node 28672 is not in nodes"), std::string::npos) << message;
-    message = errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n");
+    message = errorOf("own_id: 0x7000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("scenario.own_id: node 28672 is not in nodes"), std::string::npos) << message;
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n");
     EXPECT_NE(message.find("at least 2 nodes"), std::string::npos) << message;
     EXPECT_NE(errorOf("nodes: [").find("not valid YAML"), std::string::npos);
     EXPECT_NE(errorOf("").find("empty scenario"), std::string::npos);
-    message = errorOf(base + "uwb: {noise_std_mm: -1}\n");
-    EXPECT_NE(message.find("uwb.noise_std_mm: must be between 0"), std::string::npos) << message;
+    message = errorOf(base + "uwb: {noise_std_m: -1}\n");
+    EXPECT_NE(message.find("uwb.noise_std_m: must be between 0"), std::string::npos) << message;
     message = errorOf(base + "pozyx: {model: perfect}\n");
     EXPECT_NE(message.find("pozyx.model: 'perfect' is not one of: realistic, ideal"), std::string::npos) << message;
 }
@@ -169,4 +169,72 @@ TEST(FilScenario, FaultsAreChecked)
     EXPECT_EQ(s.faults[0].count, 1U);
     EXPECT_EQ(s.faults[1].count, 3U);
     EXPECT_EQ(s.faults[1].error_code, 0x17);
+}
+
+TEST(FilScenario, AStretchGivesItsSpeedOrItsEnd)
+{
+    const std::string base = kMinimal;
+    // 0x6A01 from (4, 0) to (4, 6) and on to (4, 6, 4): 6 m + 2 m.
+    Scenario s = parseScenario(base + "motion:\n  - {node: 0x6A01, start_s: 2, end_s: 6, waypoints_m: [[4, 6]]}\n"
+                                      "  - {node: 0x6A01, start_s: 10, speed_mps: 0.5, waypoints_m: [[4, 6, 4]]}\n",
+                               "test.yaml");
+    ASSERT_EQ(s.motion.size(), 2U);
+    EXPECT_DOUBLE_EQ(s.motion[0].speed_mps, 1.5);
+    EXPECT_DOUBLE_EQ(s.motion[0].end_s, 6.0);
+    EXPECT_DOUBLE_EQ(s.motion[1].speed_mps, 0.5);
+    EXPECT_DOUBLE_EQ(s.motion[1].end_s, 14.0);
+    std::string message =
+        errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 2, end_s: 6, speed_mps: 1, waypoints_m: [[4, 6]]}\n");
+    EXPECT_NE(message.find("motion[0]: give exactly one of speed_mps and end_s"), std::string::npos) << message;
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 2, end_s: 2, waypoints_m: [[4, 6]]}\n");
+    EXPECT_NE(message.find("motion[0].end_s: must be after start_s"), std::string::npos) << message;
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 2, end_s: 3, waypoints_m: [[400, 6]]}\n");
+    EXPECT_NE(message.find("motion[0].end_s: "), std::string::npos) << message;
+    EXPECT_NE(message.find("the speed must be between 0.01 and 20 m/s"), std::string::npos) << message;
+}
+
+TEST(FilScenario, AnEarlierSpellingSaysWhatItIsCalledNow)
+{
+    std::string message =
+        errorOf("own: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("test.yaml:1: scenario.own: this key is now called own_id"), std::string::npos) << message;
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, x: 0, y_m: 0}\n  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("test.yaml:3: nodes[0].x: this key is now called x_m"), std::string::npos) << message;
+    message = errorOf("own_id: 0x6000\nnodes:\n  - {id: 0x6000, tag: true, x_m: 0, y_m: 0}\n"
+                      "  - {id: 2, x_m: 1, y_m: 0}\n");
+    EXPECT_NE(message.find("nodes[0].tag: this key is now called accelerometer"), std::string::npos) << message;
+    const std::string base = kMinimal;
+    message = errorOf(base + "uwb: {noise_std_mm: 30}\n");
+    EXPECT_NE(message.find("uwb.noise_std_mm: this key is now called noise_std_m (in metres)"), std::string::npos)
+        << message;
+    message = errorOf(base + "motion:\n  - {node: 0x6A01, start_s: 1, speed_mps: 1, waypoints: [[1, 1]]}\n");
+    EXPECT_NE(message.find("motion[0].waypoints: this key is now called waypoints_m"), std::string::npos) << message;
+}
+
+TEST(FilScenario, AKeyOnlyCdroSimActsOnIsRefusedSayingSo)
+{
+    const std::string base = kMinimal;
+    for (const char *extra : {"schedule: {mode: all_pairs}\n", "robot: {id: 0x6000, waypoints_m: [[1, 1]]}\n",
+                              "uwb: {scale: 1.03}\n", "uwb: {nlos: {outlier_probability: 0.01}}\n",
+                              "pozyx: {present: false}\n", "device: {free_ram_bytes: 500}\n"}) {
+        const std::string message = errorOf(base + extra);
+        EXPECT_NE(message.find("only cdro-sim supports this key"), std::string::npos) << extra << message;
+        EXPECT_EQ(message.find("unknown key"), std::string::npos) << extra << message;
+    }
+    const std::string message = errorOf(base + "faults:\n  - {kind: vanish, at_s: 3, duration_s: 2}\n");
+    EXPECT_NE(message.find("faults[0].kind: only cdro-sim supports the fault kind 'vanish'"), std::string::npos)
+        << message;
+}
+
+TEST(FilScenario, TheSharedViewHasWhatBothToolsRead)
+{
+    const Scenario s = parseScenario(std::string(kMinimal) + "seed: 9\nduration_s: 12\nuwb: {noise_std_m: 0.05}\n"
+                                                             "motion:\n  - {node: 0x6A01, start_s: 2, end_s: 6, "
+                                                             "waypoints_m: [[4, 6]]}\n",
+                                     "test.yaml");
+    const std::string view = cdro::fil::sharedViewJson(s);
+    for (const char *part : {"\"own_id\": 24576", "\"seed\": 9", "\"duration_s\": 12.0", "\"noise_std_m\": 0.05",
+                             "\"speed_mps\": 1.5", "\"accelerometer\": true", "\"firmware_version\": 17"}) {
+        EXPECT_NE(view.find(part), std::string::npos) << part << "\n" << view;
+    }
 }

@@ -26,13 +26,13 @@ constexpr uint8_t kAddress = POZYX_SIM_DEFAULT_I2C_ADDRESS;
 // at 2 m/s from 1 s (so moving during [1, 3) s). The ideal Pozyx model: these tests check the
 // world's accounting, with the model's timings (15 ms a ranging).
 const char *const kScenario = R"(
-own: 0x6000
+own_id: 0x6000
 seed: 5
 pozyx: {model: ideal}
 nodes:
-  - {id: 0x6000, tag: true, x_m: 0, y_m: 0}
+  - {id: 0x6000, accelerometer: true, x_m: 0, y_m: 0}
   - {id: 0x6A01, x_m: 4, y_m: 0, z_m: 2}
-  - {id: 0x6B02, tag: true, x_m: 0, y_m: 3, z_m: 1}
+  - {id: 0x6B02, accelerometer: true, x_m: 0, y_m: 3, z_m: 1}
 motion:
   - {node: 0x6B02, start_s: 1, speed_mps: 2, waypoints_m: [[4, 3]]}
 )";

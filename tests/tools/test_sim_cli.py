@@ -123,9 +123,9 @@ def test_that_faults_in_a_capture_are_counted_as_a_host_decoder_counts_them(tmp_
 own_id: 0x6001
 duration_s: 30
 nodes:
-  - {id: 0x6001, x: 0, y: 0, accelerometer: true}
-  - {id: 0x6002, x: 6, y: 0}
-  - {id: 0x6003, x: 3, y: 5}
+  - {id: 0x6001, x_m: 0, y_m: 0, accelerometer: true}
+  - {id: 0x6002, x_m: 6, y_m: 0}
+  - {id: 0x6003, x_m: 3, y_m: 5}
 faults:
   - {at_s: 5, kind: bit_flip, frames: 3}
   - {at_s: 8, kind: cut_frame, frames: 2}
@@ -186,7 +186,7 @@ def test_that_bad_input_exits_non_zero_with_a_clear_message(tmp_path, args, mess
 
 def test_that_a_scenario_with_a_wrong_key_names_the_key(tmp_path):
     path = tmp_path / "bad.yaml"
-    path.write_text("own_id: 0x6001\nnodes:\n  - {id: 0x6001, x: 0, y: 0, hieght: 2}\n")
+    path.write_text("own_id: 0x6001\nnodes:\n  - {id: 0x6001, x_m: 0, y_m: 0, hieght: 2}\n")
     result = sim("--scenario", path, "--ranges-csv", tmp_path / "r.csv", check=False)
     assert result.returncode == 2 and "nodes[0]: unknown key(s) hieght" in result.stderr
 

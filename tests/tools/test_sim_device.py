@@ -27,10 +27,10 @@ OWN, A, B, D = 0x6001, 0x6002, 0x6003, 0x6004
 def scenario(**overrides):
     data = {
         "own_id": OWN,
-        "nodes": [{"id": OWN, "x": 0, "y": 0, "z": 1.0, "accelerometer": True},
-                  {"id": A, "x": 5, "y": 0, "z": 2.0},
-                  {"id": B, "x": 5, "y": 5, "z": 1.5},
-                  {"id": D, "x": 0, "y": 5, "z": 0.5, "accelerometer": True}],
+        "nodes": [{"id": OWN, "x_m": 0, "y_m": 0, "z_m": 1.0, "accelerometer": True},
+                  {"id": A, "x_m": 5, "y_m": 0, "z_m": 2.0},
+                  {"id": B, "x_m": 5, "y_m": 5, "z_m": 1.5},
+                  {"id": D, "x_m": 0, "y_m": 5, "z_m": 0.5, "accelerometer": True}],
         "duration_s": 30,
     }
     data.update(overrides)
@@ -319,7 +319,7 @@ def test_that_dropouts_are_retried_and_a_success_on_a_retry_has_the_retry_flag()
 def test_that_a_carried_node_is_flagged_moving_then_still_again():
     # D is carried from 4 s to 8 s; the own tag and D are polled every 100 ms
     sc = scenario(schedule={"mode": "direct_only", "motion_poll_ms": 100},
-                  motion=[{"node": D, "start_s": 4.0, "waypoints": [[2.0, 5.0]], "end_s": 8.0}])
+                  motion=[{"node": D, "start_s": 4.0, "waypoints_m": [[2.0, 5.0]], "end_s": 8.0}])
     device, sink = started(sc)
     advance(device, 16_000_000)
     changes = [(t, f["moving"]) for t, _, f in sink.items
@@ -391,7 +391,7 @@ def test_that_commands_during_boot_wait_in_the_receive_buffer_and_what_overflows
 
 
 def test_that_a_missing_pozyx_reports_an_error_and_refuses_start():
-    device, sink = booted(scenario(device={"pozyx_present": False}))
+    device, sink = booted(scenario(pozyx={"present": False}))
     hello = sink.frames("HELLO")[0]
     assert (hello["node_id"], hello["pozyx_firmware"], hello["capabilities"]) == \
         (host_device.constant("NODE_ID_UNKNOWN"), 0, 0)

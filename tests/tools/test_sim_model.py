@@ -15,9 +15,9 @@ A, B, C3, D = 0x6001, 0x6002, 0x6003, 0x6004
 
 
 def two_nodes(distance_m=10.0, **uwb):
-    return parse_scenario({"own_id": A, "nodes": [{"id": A, "x": 0, "y": 0, "z": 1.0},
-                                                  {"id": B, "x": distance_m, "y": 0, "z": 1.0},
-                                                  {"id": C3, "x": 0, "y": 6, "z": 2.0}],
+    return parse_scenario({"own_id": A, "nodes": [{"id": A, "x_m": 0, "y_m": 0, "z_m": 1.0},
+                                                  {"id": B, "x_m": distance_m, "y_m": 0, "z_m": 1.0},
+                                                  {"id": C3, "x_m": 0, "y_m": 6, "z_m": 2.0}],
                            "uwb": uwb}, "test")
 
 
@@ -58,7 +58,8 @@ def test_that_a_listed_nlos_link_reads_long_by_its_bias_and_others_do_not():
 
 
 def test_that_random_nlos_links_get_a_positive_bias_in_the_range():
-    sc = parse_scenario({"own_id": A, "nodes": [{"id": 0x6001 + i, "x": i * 3.0, "y": (i % 2) * 4.0} for i in range(6)],
+    sc = parse_scenario({"own_id": A,
+                         "nodes": [{"id": 0x6001 + i, "x_m": i * 3.0, "y_m": (i % 2) * 4.0} for i in range(6)],
                          "uwb": {"nlos": {"random_links": 4, "random_bias_m": [0.5, 1.0]}}}, "test")
     uwb = model(sc, seed=14)
     assert len(uwb.link_bias_m) == 4 and all(0.5 <= b <= 1.0 for b in uwb.link_bias_m.values())
@@ -102,14 +103,16 @@ def test_that_rss_is_plausible():
 
 def test_that_the_3d_distance_is_measured():
     sc = parse_scenario({"own_id": A,
-                         "nodes": [{"id": A, "x": 0, "y": 0, "z": 0.0}, {"id": B, "x": 3, "y": 0, "z": 4.0}],
+                         "nodes": [{"id": A, "x_m": 0, "y_m": 0, "z_m": 0.0},
+                                   {"id": B, "x_m": 3, "y_m": 0, "z_m": 4.0}],
                          "uwb": {"noise_std_m": 0.0}}, "test")
     assert model(sc, seed=19).measure(A, B, 0.0).distance_mm == 5000
 
 
 def test_that_a_carried_node_moves_along_its_waypoints_at_its_speed():
-    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x": 0, "y": 0}, {"id": B, "x": 1, "y": 1, "z": 1.5}],
-                         "motion": [{"node": B, "start_s": 10, "speed_mps": 1.25, "waypoints": [[4, 5], [4, 6]]}]},
+    sc = parse_scenario({"own_id": A,
+                         "nodes": [{"id": A, "x_m": 0, "y_m": 0}, {"id": B, "x_m": 1, "y_m": 1, "z_m": 1.5}],
+                         "motion": [{"node": B, "start_s": 10, "speed_mps": 1.25, "waypoints_m": [[4, 5], [4, 6]]}]},
                         "test")
     world = World(sc)
     assert world.position(B, 9.9) == (1, 1, 1.5)
@@ -121,18 +124,19 @@ def test_that_a_carried_node_moves_along_its_waypoints_at_its_speed():
 
 
 def test_that_overlapping_motion_segments_are_rejected():
-    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x": 0, "y": 0}, {"id": B, "x": 0, "y": 0}],
-                         "motion": [{"node": B, "start_s": 0, "end_s": 10, "waypoints": [[5, 0]]},
-                                    {"node": B, "start_s": 5, "speed_mps": 1, "waypoints": [[0, 0]]}]}, "test")
+    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x_m": 0, "y_m": 0}, {"id": B, "x_m": 0, "y_m": 0}],
+                         "motion": [{"node": B, "start_s": 0, "end_s": 10, "waypoints_m": [[5, 0]]},
+                                    {"node": B, "start_s": 5, "speed_mps": 1, "waypoints_m": [[0, 0]]}]}, "test")
     with pytest.raises(ScenarioError, match="overlap"):
         World(sc)
 
 
 def robot_scenario(**odometry):
-    return parse_scenario({"own_id": A, "duration_s": 60, "nodes": [{"id": A, "x": 0, "y": 0, "accelerometer": True},
-                                                                    {"id": B, "x": 10, "y": 10}],
+    return parse_scenario({"own_id": A, "duration_s": 60,
+                           "nodes": [{"id": A, "x_m": 0, "y_m": 0, "accelerometer": True},
+                                     {"id": B, "x_m": 10, "y_m": 10}],
                            "robot": {"id": A, "start_s": 5, "speed_mps": 0.5, "turn_rate_rad_s": 0.5,
-                                     "waypoints": [[10, 0], [10, 10], [0, 10]], "odometry": odometry}}, "test")
+                                     "waypoints_m": [[10, 0], [10, 10], [0, 10]], "odometry": odometry}}, "test")
 
 
 def dead_reckon(rows, start):
@@ -177,10 +181,10 @@ def test_that_odometry_noise_and_drift_make_dead_reckoning_drift():
 def test_that_the_accelerometer_reads_one_g_still_and_swings_while_moving():
     seed = 22
     print(f"seed {seed}")
-    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x": 0, "y": 0, "accelerometer": True},
-                                                {"id": B, "x": 0, "y": 0, "accelerometer": True}],
-                         "motion": [{"node": B, "start_s": 10, "end_s": 20, "waypoints": [[10, 0]]}],
-                         "accelerometer": {"noise_mg": 8, "moving_amplitude_mg": 250}}, "test")
+    sc = parse_scenario({"own_id": A, "nodes": [{"id": A, "x_m": 0, "y_m": 0, "accelerometer": True},
+                                                {"id": B, "x_m": 0, "y_m": 0, "accelerometer": True}],
+                         "motion": [{"node": B, "start_s": 10, "end_s": 20, "waypoints_m": [[10, 0]]}],
+                         "accelerometer": {"noise_std_mg": 8, "moving_amplitude_mg": 250}}, "test")
     world = World(sc)
     rng = random.Random(seed)
     still = [world.accel_norm_mg(B, t / 10, rng) - 1000 for t in range(0, 90)]

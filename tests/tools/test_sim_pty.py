@@ -20,12 +20,12 @@ SCENARIO = """
 own_id: 0x6001
 duration_s: 20
 nodes:
-  - {id: 0x6001, x: 0, y: 0, z: 1.0, accelerometer: true}
-  - {id: 0x6002, x: 6, y: 0, z: 2.0}
-  - {id: 0x6003, x: 6, y: 5, z: 1.5}
-  - {id: 0x6004, x: 0, y: 5, z: 0.5, accelerometer: true}
+  - {id: 0x6001, x_m: 0, y_m: 0, z_m: 1.0, accelerometer: true}
+  - {id: 0x6002, x_m: 6, y_m: 0, z_m: 2.0}
+  - {id: 0x6003, x_m: 6, y_m: 5, z_m: 1.5}
+  - {id: 0x6004, x_m: 0, y_m: 5, z_m: 0.5, accelerometer: true}
 motion:
-  - {node: 0x6004, start_s: 4, end_s: 12, waypoints: [[3, 5], [3, 8]]}
+  - {node: 0x6004, start_s: 4, end_s: 12, waypoints_m: [[3, 5], [3, 8]]}
 """
 GUARD_S = 30
 

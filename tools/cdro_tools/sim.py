@@ -32,7 +32,7 @@ import sys
 from .simulation.link import LinkError
 from .simulation.network import random_network
 from .simulation.runner import LiveRunner, Simulation, print_to_stderr, run_offline, streams
-from .simulation.scenario import ScenarioError, builtin_names, load_scenario, parse_fault_option
+from .simulation.scenario import ScenarioError, builtin_names, load_scenario, parse_fault_option, shared_view
 from .simulation.world import World
 from .cli import entry_point
 
@@ -58,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     source.add_argument("--scenario", metavar="NAME|PATH", help="built-in scenario name or YAML file")
     source.add_argument("--random-network", type=int, metavar="NODES", help="random geometric network of NODES nodes")
     source.add_argument("--list-scenarios", action="store_true", help="list the built-in scenarios and exit")
+    p.add_argument("--print-scenario", action="store_true",
+                   help="print what cdro-sim and cdro-fil both read from the scenario as JSON and exit")
     p.add_argument("--seed", type=int, help="random seed (default: the scenario's seed; 1 for --random-network)")
     p.add_argument("--duration", type=float, metavar="S", help="simulated seconds (default: the scenario's duration_s)")
     out = p.add_argument_group("files (any mode)")
@@ -214,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
             raise ScenarioError(f"--duration {duration_s}: must be above 0")
         scenario.duration_s = duration_s
         world = World(scenario)
+        if args.print_scenario:
+            scenario.seed = seed
+            print(json.dumps(shared_view(scenario), indent=1))
+            return 0
         offline_outputs = [args.ranges_csv, args.capture, args.truth_csv, args.heights_csv, args.tracks_csv,
                            args.odometry_csv, args.robot_truth_csv, args.motion_csv]
         if not args.pty and not any(offline_outputs):

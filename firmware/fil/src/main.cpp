@@ -45,6 +45,7 @@ struct Options {
     std::string ranges_csv;
     bool start_on_open = false;
     bool trace_pozyx = false;
+    bool print_scenario = false;
     BoardOptions board;
 };
 
@@ -264,9 +265,8 @@ static int runMain(int argc, char **argv)
     CLI::App app{"cdro-fil: the Uno firmware in simavr against a simulated Pozyx network, its UART on a "
                  "pseudo-terminal (docs/firmware.md, \"Firmware in the loop\")"};
     Options options;
-    app.add_option("--elf", options.elf, "the firmware image (build-avr/bin/cdro-firmware-uno.elf)")
-        ->required()
-        ->check(CLI::ExistingFile);
+    CLI::Option *elf = app.add_option("--elf", options.elf, "the firmware image (build-avr/bin/cdro-firmware-uno.elf)")
+                           ->check(CLI::ExistingFile);
     app.add_option("--scenario", options.scenario, "scenario YAML: nodes, motion, faults, models, seed")
         ->required()
         ->check(CLI::ExistingFile);
@@ -289,11 +289,32 @@ static int runMain(int argc, char **argv)
     app.add_option("--loop-symbol", options.board.loop_symbol,
                    "function whose entries delimit main-loop iterations (default loop)");
     app.add_flag("--trace-pozyx", options.trace_pozyx, "log every simulated Pozyx call and event to stderr");
+    app.add_flag("--print-scenario", options.print_scenario,
+                 "print what cdro-fil and cdro-sim both read from the scenario as JSON and exit (no --elf needed)");
     try {
         app.parse(argc, argv);
+        if (!options.print_scenario && elf->count() == 0) {
+            throw CLI::RequiredError("--elf");
+        }
     } catch (const CLI::ParseError &error) {
         // --help is a "parse error" with code 0; every real one is bad input: exit 2.
         return app.exit(error) == 0 ? 0 : 2;
+    }
+    if (options.print_scenario) {
+        try {
+            Scenario scenario = loadScenario(options.scenario);
+            if (options.seed >= 0) {
+                scenario.seed = static_cast<uint64_t>(options.seed);
+            }
+            if (options.duration_s >= 0.0) {
+                scenario.duration_s = options.duration_s;
+            }
+            std::printf("%s\n", sharedViewJson(scenario).c_str());
+            return 0;
+        } catch (const std::exception &error) {
+            std::fprintf(stderr, "cdro-fil: %s\n", error.what());
+            return 2;
+        }
     }
     options.board.elf_path = options.elf;
 

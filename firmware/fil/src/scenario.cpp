@@ -5,9 +5,11 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <regex>
 #include <set>
 #include <sstream>
 
+#include <nlohmann/json.hpp>
 #include <yaml-cpp/yaml.h>
 
 #include "pozyx_sim/pozyx_sim.h"
@@ -20,6 +22,46 @@ const char *const kFaultNames[kFaultKindCount] = {"nack_address",      "nack_wri
                                                   "error_completion",  "garbage_range",   "stale_range",
                                                   "drop_remote_reply", "refuse_function", "late_reply",
                                                   "power_off"};
+
+// The fault kinds of cdro-sim: faults of the serial stream between the device and the host and of
+// the device itself, which cdro-fil's unmodified firmware and simulated Pozyx cannot produce.
+const char *const kSimFaultNames[] = {"garbage", "bit_flip", "cut_frame", "absurd", "vanish", "reset"};
+
+struct KeyNote {
+    const char *pattern; // path of the key, list indices written []
+    const char *note;
+};
+
+// Keys of the one scenario format that only cdro-sim acts on (tools/cdro_tools/simulation/scenario.py).
+const KeyNote kSimOnlyKeys[] = {
+    {"robot", "a robot driving the own node, with wheel odometry"},
+    {"schedule", "the SET_SCHEDULE its simulated host sends"},
+    {"device", "the board's free RAM and transmit buffer"},
+    {"epoch_unix_s", "the host clock of its capture files"},
+    {"nodes[].moving_amplitude_mg", "a node's own walking swing"},
+    {"uwb.noise_variance_m2", "per-link noise variances"},
+    {"uwb.scale", "a range scale error"},
+    {"uwb.dropout_probability", "failed attempts at random"},
+    {"uwb.nlos", "biased links and outliers"},
+    {"pozyx.present", "a shield silent on I2C; here pozyx.who_am_i makes the firmware report POZYX_ABSENT"},
+};
+
+// Spellings of earlier scenario files (cdro-fil's and cdro-sim's) and what they are called now.
+// The keys are refused rather than read, so that a file has one spelling.
+const KeyNote kRenamedKeys[] = {
+    {"own", "own_id"},
+    {"nodes[].x", "x_m"},
+    {"nodes[].y", "y_m"},
+    {"nodes[].z", "z_m"},
+    {"nodes[].tag", "accelerometer"},
+    {"motion[].waypoints", "waypoints_m"},
+    {"robot.waypoints", "waypoints_m"},
+    {"uwb.noise_std_mm", "noise_std_m (in metres)"},
+    {"uwb.bias_mm", "bias_m (in metres)"},
+    {"accelerometer.noise_mg", "noise_std_mg"},
+    {"device.pozyx_firmware", "pozyx.firmware_version"},
+    {"device.pozyx_present", "pozyx.present"},
+};
 
 std::string where(const YAML::Node &node, const std::string &origin)
 {
@@ -42,6 +84,22 @@ public:
         if (!node_.IsMap()) {
             throw ScenarioError(where(node_, origin_) + ": " + path_ + ": expected a map of keys, got " + text(node_));
         }
+        // Before a required key is missed: `x` where `x_m` is required says that it is renamed.
+        for (const auto &entry : node_) {
+            const std::string key = entry.first.as<std::string>();
+            const std::string generic = pattern(key);
+            for (const KeyNote &renamed : kRenamedKeys) {
+                if (generic == renamed.pattern) {
+                    fail(entry.first, key, std::string("this key is now called ") + renamed.note);
+                }
+            }
+        }
+    }
+
+    // The key's path with list indices written [], as the tables above have it.
+    std::string pattern(const std::string &key) const
+    {
+        return std::regex_replace(path_ == "scenario" ? key : path_ + "." + key, std::regex(R"(\[\d+\])"), "[]");
     }
 
     [[noreturn]] void fail(const YAML::Node &at, const std::string &key, const std::string &message) const
@@ -143,6 +201,14 @@ public:
         for (const auto &entry : node_) {
             const std::string key = entry.first.as<std::string>();
             if (used_.count(key) == 0) {
+                const std::string generic = pattern(key);
+                for (const KeyNote &sim_only : kSimOnlyKeys) {
+                    if (generic == sim_only.pattern) {
+                        fail(entry.first, key,
+                             std::string("only cdro-sim supports this key (") + sim_only.note +
+                                 "); cdro-fil cannot act on it");
+                    }
+                }
                 std::string known;
                 for (const std::string &k : used_) {
                     known += (known.empty() ? "" : ", ") + k;
@@ -253,7 +319,7 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
         Map n(nodes[i], "nodes[" + std::to_string(i) + "]", origin);
         NodeSpec spec;
         spec.id = nodeId(n, "id", true);
-        spec.tag = n.boolean("tag", false);
+        spec.accelerometer = n.boolean("accelerometer", false);
         spec.position.x_m = n.number("x_m", 0.0, -1000.0, 1000.0, true);
         spec.position.y_m = n.number("y_m", 0.0, -1000.0, 1000.0, true);
         spec.position.z_m = n.number("z_m", 0.0, -1000.0, 1000.0);
@@ -263,9 +329,9 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
         }
         s.nodes.push_back(spec);
     }
-    s.own_id = nodeId(top, "own", true);
+    s.own_id = nodeId(top, "own_id", true);
     if (s.node(s.own_id) == nullptr) {
-        top.fail(top.get("own"), "own", "node " + std::to_string(s.own_id) + " is not in nodes");
+        top.fail(top.get("own_id"), "own_id", "node " + std::to_string(s.own_id) + " is not in nodes");
     }
 
     // ---- motion
@@ -282,30 +348,56 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                 m.fail(m.get("node"), "node", "node " + std::to_string(spec.node) + " is not in nodes");
             }
             spec.start_s = m.number("start_s", 0.0, 0.0, 1e6, true);
-            spec.speed_mps = m.number("speed_mps", 1.0, 0.01, 20.0, true);
+            if (m.has("speed_mps") == m.has("end_s")) {
+                m.fail(motion[i], "", "give exactly one of speed_mps and end_s");
+            }
+            if (m.has("speed_mps")) {
+                spec.speed_mps = m.number("speed_mps", 1.0, 0.01, 20.0, true);
+            } else {
+                spec.end_s = m.number("end_s", 0.0, 0.0, 1e6, true);
+                if (spec.end_s <= spec.start_s) {
+                    m.fail(m.get("end_s"), "end_s", "must be after start_s");
+                }
+                spec.speed_mps = 0.0; // follows from the path, below
+            }
             spec.waypoints = waypoints(m, "waypoints_m", node->position.z_m);
             m.finish();
             s.motion.push_back(spec);
         }
         // Stretches of one node must not overlap: each starts where the previous one ended.
         for (const NodeSpec &node : s.nodes) {
-            std::vector<const MotionSpec *> mine;
-            for (const MotionSpec &m : s.motion) {
-                if (m.node == node.id) {
-                    mine.push_back(&m);
+            std::vector<size_t> mine;
+            for (size_t i = 0; i < s.motion.size(); ++i) {
+                if (s.motion[i].node == node.id) {
+                    mine.push_back(i);
                 }
             }
-            std::sort(mine.begin(), mine.end(), [](auto *a, auto *b) { return a->start_s < b->start_s; });
+            std::stable_sort(mine.begin(), mine.end(),
+                             [&](size_t a, size_t b) { return s.motion[a].start_s < s.motion[b].start_s; });
             Vec3 at = node.position;
             double free_s = 0.0;
-            for (const MotionSpec *m : mine) {
-                if (m->start_s < free_s) {
+            for (const size_t i : mine) {
+                MotionSpec &m = s.motion[i];
+                if (m.start_s < free_s) {
                     throw ScenarioError(origin + ": motion: node " + std::to_string(node.id) + " starts a stretch at " +
-                                        std::to_string(m->start_s) + " s before its previous one ends at " +
+                                        std::to_string(m.start_s) + " s before its previous one ends at " +
                                         std::to_string(free_s) + " s");
                 }
-                free_s = m->start_s + pathLength(at, m->waypoints) / m->speed_mps;
-                at = m->waypoints.back();
+                const double length_m = pathLength(at, m.waypoints);
+                if (m.speed_mps == 0.0) {
+                    m.speed_mps = length_m / (m.end_s - m.start_s);
+                    if (m.speed_mps < 0.01 || m.speed_mps > 20.0) {
+                        std::ostringstream message;
+                        message << origin << ": motion[" << i << "].end_s: " << length_m << " m in "
+                                << m.end_s - m.start_s << " s is " << m.speed_mps
+                                << " m/s; the speed must be between 0.01 and 20 m/s";
+                        throw ScenarioError(message.str());
+                    }
+                } else {
+                    m.end_s = m.start_s + length_m / m.speed_mps;
+                }
+                free_s = m.end_s;
+                at = m.waypoints.back();
             }
         }
     }
@@ -323,6 +415,17 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                 f.fail(f.get("kind"), "kind",
                        "'hang' cannot be simulated here: simavr's TWI completes every byte on its own timer, so a "
                        "slave cannot hold the clock low (the native tests cover the hung bus)");
+            }
+            for (const char *sim_kind : kSimFaultNames) {
+                if (kind == sim_kind) {
+                    std::string names;
+                    for (const char *name : kFaultNames) {
+                        names += (names.empty() ? "" : ", ") + std::string(name);
+                    }
+                    f.fail(f.get("kind"), "kind",
+                           "only cdro-sim supports the fault kind '" + kind +
+                               "' (faults of the serial stream and of the device); cdro-fil's kinds are " + names);
+                }
             }
             bool known = false;
             for (int k = 0; k < kFaultKindCount; ++k) {
@@ -397,8 +500,8 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     }
     if (top.has("uwb")) {
         Map u(top.get("uwb"), "uwb", origin);
-        s.uwb.noise_std_mm = u.number("noise_std_mm", s.uwb.noise_std_mm, 0.0, 10000.0);
-        s.uwb.bias_mm = u.number("bias_mm", s.uwb.bias_mm, -10000.0, 10000.0);
+        s.uwb.noise_std_m = u.number("noise_std_m", s.uwb.noise_std_m, 0.0, 10.0);
+        s.uwb.bias_m = u.number("bias_m", s.uwb.bias_m, -10.0, 10.0);
         s.uwb.max_range_m = u.number("max_range_m", s.uwb.max_range_m, 0.1, 10000.0);
         s.uwb.ranging_us = static_cast<uint32_t>(u.integer("ranging_us", s.uwb.ranging_us, 1, 10000000));
         s.uwb.message_us = static_cast<uint32_t>(u.integer("message_us", s.uwb.message_us, 1, 10000000));
@@ -414,6 +517,41 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     }
     top.finish();
     return s;
+}
+
+std::string sharedViewJson(const Scenario &scenario)
+{
+    nlohmann::ordered_json view;
+    view["name"] = scenario.name;
+    view["seed"] = scenario.seed;
+    view["duration_s"] = scenario.duration_s;
+    view["own_id"] = scenario.own_id;
+    view["nodes"] = nlohmann::ordered_json::array();
+    for (const NodeSpec &n : scenario.nodes) {
+        view["nodes"].push_back({{"id", n.id},
+                                 {"x_m", n.position.x_m},
+                                 {"y_m", n.position.y_m},
+                                 {"z_m", n.position.z_m},
+                                 {"accelerometer", n.accelerometer}});
+    }
+    view["motion"] = nlohmann::ordered_json::array();
+    for (const MotionSpec &m : scenario.motion) {
+        nlohmann::ordered_json points = nlohmann::ordered_json::array();
+        for (const Vec3 &p : m.waypoints) {
+            points.push_back({p.x_m, p.y_m, p.z_m});
+        }
+        view["motion"].push_back({{"node", m.node},
+                                  {"start_s", m.start_s},
+                                  {"end_s", m.end_s},
+                                  {"speed_mps", m.speed_mps},
+                                  {"waypoints_m", points}});
+    }
+    view["uwb"] = {{"noise_std_m", scenario.uwb.noise_std_m}, {"max_range_m", scenario.uwb.max_range_m}};
+    view["accelerometer"] = {{"noise_std_mg", scenario.accel.noise_std_mg},
+                             {"moving_amplitude_mg", scenario.accel.moving_amplitude_mg},
+                             {"moving_frequency_hz", scenario.accel.moving_frequency_hz}};
+    view["pozyx"] = {{"firmware_version", scenario.pozyx_firmware_version}};
+    return view.dump(1);
 }
 
 Scenario loadScenario(const std::string &path)

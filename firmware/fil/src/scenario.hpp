@@ -2,7 +2,9 @@
 // (the local one on the shield and the remote ones), their geometry, which of them are carried
 // along a path and when, the faults to inject, the UWB and accelerometer models and the seed.
 // Read from a YAML file, strictly: an unknown key, a wrong type or an impossible value is an
-// error naming the file, the line and the key (docs/firmware.md, "Firmware in the loop").
+// error naming the file, the line and the key. The format is the one cdro-sim reads
+// (docs/tools.md, "Scenario files"): a key only cdro-sim can act on is refused with a message
+// saying so, an earlier spelling with its current name.
 #pragma once
 
 #include <cstdint>
@@ -25,16 +27,18 @@ struct Vec3 {
 
 struct NodeSpec {
     uint16_t id = 0;
-    bool tag = false; // a tag has an accelerometer; an anchor does not
-    Vec3 position;    // where it stands at t = 0
+    bool accelerometer = false; // a tag has one; an anchor does not
+    Vec3 position;              // where it stands at t = 0
 };
 
 // One carried stretch: from where the node is at start_s, through the waypoints at a constant
-// speed; it then stays at the last waypoint. Waypoints without z keep the node's height.
+// speed; it then stays at the last waypoint. Waypoints without z keep the node's height. The
+// file gives the speed or the end time; the other follows from the path's length.
 struct MotionSpec {
     uint16_t node = 0;
     double start_s = 0.0;
     double speed_mps = 1.0;
+    double end_s = 0.0;
     std::vector<Vec3> waypoints;
 };
 
@@ -67,8 +71,8 @@ struct FaultSpec {
 // The timings default to those of the Pozyx model in use (pozyx.model): realistic 40000 /
 // 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
 struct UwbSpec {
-    double noise_std_mm = 30.0;    // Gaussian noise of each distance
-    double bias_mm = 0.0;          // added to every distance
+    double noise_std_m = 0.03;     // Gaussian noise of each distance
+    double bias_m = 0.0;           // added to every distance
     double max_range_m = 50.0;     // longer links fail
     uint32_t ranging_us = 40000;   // one two-way ranging exchange
     uint32_t message_us = 3500;    // one UWB message on air, turnaround included
@@ -106,5 +110,11 @@ struct Scenario {
 Scenario loadScenario(const std::string &path);
 // The same from YAML text (`origin` names it in messages); for the tests.
 Scenario parseScenario(const std::string &yaml_text, const std::string &origin);
+
+// What cdro-fil and cdro-sim both read from a scenario, as JSON (cdro-fil --print-scenario; the
+// same as cdro-sim --print-scenario for a file both load): name, seed, duration_s, own_id, the
+// nodes, the motion stretches with both speed and end, uwb noise and range, the accelerometer,
+// the Pozyx firmware version.
+std::string sharedViewJson(const Scenario &scenario);
 
 } // namespace cdro::fil

@@ -134,8 +134,8 @@ World::World(const Scenario &scenario) : scenario_(scenario), sim_(std::make_uni
     config.seed = scenario_.seed;
     config.who_am_i = scenario_.pozyx_who_am_i;
     config.firmware_version = scenario_.pozyx_firmware_version;
-    config.range_noise_std_mm = scenario_.uwb.noise_std_mm;
-    config.range_bias_mm = scenario_.uwb.bias_mm;
+    config.range_noise_std_mm = scenario_.uwb.noise_std_m * 1000.0;
+    config.range_bias_mm = scenario_.uwb.bias_m * 1000.0;
     config.max_range_m = scenario_.uwb.max_range_m;
     config.ranging_duration_us = scenario_.uwb.ranging_us;
     config.uwb_message_us = scenario_.uwb.message_us;
@@ -154,7 +154,7 @@ World::World(const Scenario &scenario) : scenario_(scenario), sim_(std::make_uni
     for (const NodeSpec *n : order) {
         tracks_.push_back(std::make_unique<Track>(*n, scenario_.motion, scenario_.accel));
         pozyx_sim_node_config_t node;
-        pozyx_sim_node_config_default(&node, n->id, n->tag ? 1 : 0);
+        pozyx_sim_node_config_default(&node, n->id, n->accelerometer ? 1 : 0);
         node.position_m = {n->position.x_m, n->position.y_m, n->position.z_m};
         node.position_fn = &Track::positionFn;
         node.position_context = tracks_.back().get();

@@ -1,6 +1,10 @@
 """Scenario files: YAML, checked strictly (unknown keys, wrong types and impossible values are
 errors naming the key), with every default in one place. docs/tools.md documents each key.
 
+The format is shared with cdro-fil (firmware/fil/src/scenario.cpp, which reads the same keys):
+a key only cdro-fil can act on is refused with a message saying so, and a key spelled the way an
+older file spelled it is refused with its current name (FIL_ONLY_KEYS, FIL_FAULT_KINDS, RENAMED_KEYS).
+
 Built-in scenarios ship in cdro_tools/scenarios/*.yaml and are named without the extension.
 """
 from __future__ import annotations
@@ -9,6 +13,7 @@ import dataclasses
 import importlib.resources
 import math
 import pathlib
+import re
 from typing import Any
 
 import yaml
@@ -36,7 +41,7 @@ class Node:
 class MotionSegment:
     node: int
     start_s: float
-    waypoints: list[tuple[float, float]]   # metres; the node starts from where it is
+    waypoints: list[tuple[float, float]]   # waypoints_m: (x_m, y_m); the node starts from where it is
     speed_mps: float | None = None         # either a speed ...
     end_s: float | None = None             # ... or an end time (then the speed follows)
 
@@ -106,7 +111,7 @@ class Uwb:
 
 @dataclasses.dataclass
 class Accelerometer:
-    noise_mg: float = 8.0                  # std of the norm's noise
+    noise_std_mg: float = 8.0              # std of the norm's noise
     moving_amplitude_mg: float = 250.0     # swing of the norm while carried (walking)
     moving_frequency_hz: float = 1.8       # step frequency
 
@@ -114,10 +119,11 @@ class Accelerometer:
 @dataclasses.dataclass
 class Device:
     """What the firmware cannot know about its board. Everything else (its version, how many
-    nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim)."""
+    nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim).
+    pozyx_firmware and pozyx_present are read from the scenario's pozyx section."""
 
-    pozyx_firmware: int = 0x12             # Pozyx FIRMWARE_VER, major << 4 | minor
-    pozyx_present: bool = True            # False: the shield does not answer on I2C
+    pozyx_firmware: int = 0x12             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
+    pozyx_present: bool = True            # pozyx.present; False: the shield does not answer on I2C
     free_ram_bytes: int = 612              # reported in STATUS
     tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
 
@@ -137,6 +143,39 @@ FAULT_KINDS = {
     "absurd": {"frames": 6},
     "vanish": {"duration_s": 3.0, "reboot": False},
     "reset": {"cause": "watchdog"},
+}
+
+# The faults cdro-fil injects on the I2C bus and in the simulated Pozyx; cdro-sim's device is not
+# behind a simulated I2C bus, so it cannot act on them.
+FIL_FAULT_KINDS = ("nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
+                   "stale_range", "drop_remote_reply", "refuse_function", "late_reply", "power_off")
+
+# Keys of the one scenario format that only cdro-fil acts on (firmware/fil/src/scenario.cpp), by
+# path with list indices written [].
+FIL_ONLY_KEYS = {
+    "uwb.bias_m": "a constant added to every range",
+    "uwb.ranging_us": "the simulated Pozyx's timing",
+    "uwb.message_us": "the simulated Pozyx's timing",
+    "uwb.processing_us": "the simulated Pozyx's timing",
+    "pozyx.who_am_i": "the simulated Pozyx's WHO_AM_I register",
+    "pozyx.model": "the simulated Pozyx's behaviour, realistic or ideal",
+}
+
+# Spellings of earlier scenario files (cdro-sim's and cdro-fil's) and what they are called now.
+# The keys are refused rather than read, so that a file has one spelling.
+RENAMED_KEYS = {
+    "own": "own_id",
+    "nodes[].x": "x_m",
+    "nodes[].y": "y_m",
+    "nodes[].z": "z_m",
+    "nodes[].tag": "accelerometer",
+    "motion[].waypoints": "waypoints_m",
+    "robot.waypoints": "waypoints_m",
+    "uwb.noise_std_mm": "noise_std_m (in metres)",
+    "uwb.bias_mm": "bias_m (in metres)",
+    "accelerometer.noise_mg": "noise_std_mg",
+    "device.pozyx_firmware": "pozyx.firmware_version",
+    "device.pozyx_present": "pozyx.present",
 }
 
 RESET_CAUSES = {"power_on": C["CDRO_RESET_POWER_ON"], "external": C["CDRO_RESET_EXTERNAL"],
@@ -188,6 +227,14 @@ class _Reader:
         if not isinstance(value, dict):
             raise self.fail(path, f"expected a mapping, got {type(value).__name__}")
         unknown = sorted(str(k) for k in value if k not in allowed)
+        prefix = "" if path == "(top)" else path + "."
+        for key in unknown:
+            pattern = re.sub(r"\[\d+\]", "[]", prefix + key)
+            if pattern in RENAMED_KEYS:
+                raise self.fail(prefix + key, f"this key is now called {RENAMED_KEYS[pattern]}")
+            if pattern in FIL_ONLY_KEYS:
+                raise self.fail(prefix + key, f"only cdro-fil supports this key ({FIL_ONLY_KEYS[pattern]}); "
+                                              "cdro-sim cannot act on it")
         if unknown:
             raise self.fail(path, f"unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
         missing = sorted(required - set(value))
@@ -218,7 +265,11 @@ class _Reader:
         return value
 
     def node_id(self, value: Any, path: str) -> int:
-        return self.integer(value, path, 1, 0xFFFF)
+        # 0 is not an address and 0xFFFF is the UWB broadcast (and the firmware's "no Pozyx" id).
+        return self.integer(value, path, 1, 0xFFFE)
+
+    def coordinate(self, value: Any, path: str) -> float:
+        return self.number(value, path, -1000.0, 1000.0)
 
     def boolean(self, value: Any, path: str) -> bool:
         if not isinstance(value, bool):
@@ -238,6 +289,9 @@ class _Reader:
             raise self.fail(path, "expected a non-empty list of points")
         out = []
         for i, point in enumerate(value):
+            if path.startswith("motion") and isinstance(point, (list, tuple)) and len(point) == 3:
+                raise self.fail(f"{path}[{i}]", "only cdro-fil supports [x, y, z] waypoints (a node carried up or "
+                                                "down); cdro-sim keeps each node at its z_m: give [x, y]")
             if not isinstance(point, (list, tuple)) or len(point) != size:
                 raise self.fail(f"{path}[{i}]", f"expected {size} numbers, got {point!r}")
             out.append(tuple(self.number(v, f"{path}[{i}][{k}]") for k, v in enumerate(point)))
@@ -251,17 +305,18 @@ def _fields(cls) -> set[str]:
 def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Scenario:
     r = _Reader(source)
     top = r.mapping(data, "(top)", {"name", "description", "duration_s", "seed", "own_id", "nodes", "motion",
-                                    "robot", "schedule", "uwb", "accelerometer", "device", "faults",
+                                    "robot", "schedule", "uwb", "accelerometer", "pozyx", "device", "faults",
                                     "epoch_unix_s"}, {"own_id", "nodes"})
     nodes: list[Node] = []
     if not isinstance(top["nodes"], list) or not top["nodes"]:
         raise r.fail("nodes", "expected a non-empty list of nodes")
     for i, raw in enumerate(top["nodes"]):
         path = f"nodes[{i}]"
-        m = r.mapping(raw, path, {"id", "x", "y", "z", "accelerometer", "moving_amplitude_mg"}, {"id", "x", "y"})
+        m = r.mapping(raw, path, {"id", "x_m", "y_m", "z_m", "accelerometer", "moving_amplitude_mg"},
+                      {"id", "x_m", "y_m"})
         nodes.append(Node(
-            id=r.node_id(m["id"], f"{path}.id"), x_m=r.number(m["x"], f"{path}.x"), y_m=r.number(m["y"], f"{path}.y"),
-            z_m=r.number(m.get("z", 0.0), f"{path}.z"),
+            id=r.node_id(m["id"], f"{path}.id"), x_m=r.coordinate(m["x_m"], f"{path}.x_m"),
+            y_m=r.coordinate(m["y_m"], f"{path}.y_m"), z_m=r.coordinate(m.get("z_m", 0.0), f"{path}.z_m"),
             accelerometer=r.boolean(m.get("accelerometer", False), f"{path}.accelerometer"),
             moving_amplitude_mg=(None if m.get("moving_amplitude_mg") is None
                                  else r.number(m["moving_amplitude_mg"], f"{path}.moving_amplitude_mg", 0))))
@@ -278,6 +333,8 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
             raise r.fail(path, f"0x{node_id:04X} is not among the nodes")
         return node_id
 
+    if top.get("duration_s") == 0:
+        raise r.fail("duration_s", "only cdro-fil supports 0 (run until stopped); cdro-sim needs a duration")
     scenario = Scenario(name=str(top.get("name", default_name)), own_id=own_id, nodes=nodes,
                         duration_s=r.number(top.get("duration_s", 60.0), "duration_s", 0, low_open=True),
                         seed=r.integer(top.get("seed", 1), "seed", 0, 2**63 - 1),
@@ -288,11 +345,11 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     for i, raw in enumerate(top.get("motion") or []):
         path = f"motion[{i}]"
-        m = r.mapping(raw, path, {"node", "start_s", "waypoints", "speed_mps", "end_s"},
-                      {"node", "start_s", "waypoints"})
+        m = r.mapping(raw, path, {"node", "start_s", "waypoints_m", "speed_mps", "end_s"},
+                      {"node", "start_s", "waypoints_m"})
         segment = MotionSegment(node=known(r.node_id(m["node"], f"{path}.node"), f"{path}.node"),
                                 start_s=r.number(m["start_s"], f"{path}.start_s", 0),
-                                waypoints=r.points(m["waypoints"], f"{path}.waypoints", 2))
+                                waypoints=r.points(m["waypoints_m"], f"{path}.waypoints_m", 2))
         if ("speed_mps" in m) == ("end_s" in m):
             raise r.fail(path, "give exactly one of speed_mps and end_s")
         if "speed_mps" in m:
@@ -303,7 +360,7 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     if top.get("robot") is not None:
         path = "robot"
-        m = r.mapping(top["robot"], path, _fields(Robot), {"id"})
+        m = r.mapping(top["robot"], path, _fields(Robot) - {"waypoints"} | {"waypoints_m"}, {"id"})
         robot = Robot(id=known(r.node_id(m["id"], "robot.id"), "robot.id"),
                       start_s=r.number(m.get("start_s", 0.0), "robot.start_s", 0),
                       speed_mps=r.number(m.get("speed_mps", 0.5), "robot.speed_mps", 0, low_open=True),
@@ -311,10 +368,10 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
                                                low_open=True),
                       moving_amplitude_mg=r.number(m.get("moving_amplitude_mg", 120.0),
                                                    "robot.moving_amplitude_mg", 0))
-        if ("waypoints" in m) == ("poses" in m):
-            raise r.fail(path, "give exactly one of waypoints and poses")
-        if "waypoints" in m:
-            robot.waypoints = r.points(m["waypoints"], "robot.waypoints", 2)
+        if ("waypoints_m" in m) == ("poses" in m):
+            raise r.fail(path, "give exactly one of waypoints_m and poses")
+        if "waypoints_m" in m:
+            robot.waypoints = r.points(m["waypoints_m"], "robot.waypoints_m", 2)
         else:
             robot.poses = r.points(m["poses"], "robot.poses", 3)
             times = [p[0] for p in robot.poses]
@@ -375,15 +432,16 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     a = r.mapping(top.get("accelerometer"), "accelerometer", _fields(Accelerometer))
     scenario.accelerometer = Accelerometer(
-        noise_mg=r.number(a.get("noise_mg", 8.0), "accelerometer.noise_mg", 0),
+        noise_std_mg=r.number(a.get("noise_std_mg", 8.0), "accelerometer.noise_std_mg", 0),
         moving_amplitude_mg=r.number(a.get("moving_amplitude_mg", 250.0), "accelerometer.moving_amplitude_mg", 0),
         moving_frequency_hz=r.number(a.get("moving_frequency_hz", 1.8), "accelerometer.moving_frequency_hz", 0,
                                      low_open=True))
 
-    dv = r.mapping(top.get("device"), "device", _fields(Device))
+    pz = r.mapping(top.get("pozyx"), "pozyx", {"firmware_version", "present"})
+    dv = r.mapping(top.get("device"), "device", _fields(Device) - {"pozyx_firmware", "pozyx_present"})
     scenario.device = Device(
-        pozyx_firmware=r.integer(dv.get("pozyx_firmware", 0x12), "device.pozyx_firmware", 0, 0xFF),
-        pozyx_present=r.boolean(dv.get("pozyx_present", True), "device.pozyx_present"),
+        pozyx_firmware=r.integer(pz.get("firmware_version", 0x12), "pozyx.firmware_version", 0, 0xFF),
+        pozyx_present=r.boolean(pz.get("present", True), "pozyx.present"),
         free_ram_bytes=r.integer(dv.get("free_ram_bytes", 612), "device.free_ram_bytes", 0, 0xFFFF),
         tx_buffer_bytes=r.integer(dv.get("tx_buffer_bytes", 4096), "device.tx_buffer_bytes", 128, 1 << 24))
 
@@ -400,6 +458,9 @@ def parse_fault_mapping(raw: Any, path: str, r: _Reader) -> Fault:
     if not isinstance(raw, dict) or "kind" not in raw:
         raise r.fail(path, "expected a mapping with kind and at_s")
     kind = raw["kind"]
+    if kind in FIL_FAULT_KINDS:
+        raise r.fail(f"{path}.kind", f"only cdro-fil supports the fault kind {kind!r} (I2C and Pozyx faults under "
+                                     f"simavr); cdro-sim's kinds are {', '.join(FAULT_KINDS)}")
     if kind not in FAULT_KINDS:
         raise r.fail(f"{path}.kind", f"{kind!r} is not one of {', '.join(FAULT_KINDS)}")
     m = r.mapping(raw, path, {"kind", "at_s", *FAULT_KINDS[kind]}, {"at_s"})
@@ -466,3 +527,41 @@ def load_scenario(name_or_path: str) -> Scenario:
     except yaml.YAMLError as error:
         raise ScenarioError(f"{source}: not valid YAML: {error}") from None
     return parse_scenario(data, source, default_name)
+
+
+def shared_view(scenario: Scenario) -> dict[str, Any]:
+    """What cdro-sim and cdro-fil both read from a scenario, in the form `cdro-fil --print-scenario`
+    prints it (docs/tools.md, "Scenario files"): a file both tools load must give both the same.
+    Each motion stretch has both its speed and its end, whichever of the two the file gives, and
+    its waypoints with the height the node keeps."""
+    motion = []
+    at: dict[int, tuple[float, float]] = {n.id: (n.x_m, n.y_m) for n in scenario.nodes}
+    for segment in sorted(scenario.motion, key=lambda s: s.start_s):
+        points = [at[segment.node], *segment.waypoints]
+        length_m = sum(math.dist(a, b) for a, b in zip(points, points[1:]))
+        if segment.speed_mps is not None:
+            speed_mps = segment.speed_mps
+            end_s = segment.start_s + length_m / speed_mps
+        else:
+            end_s = segment.end_s
+            speed_mps = length_m / (end_s - segment.start_s)
+        at[segment.node] = segment.waypoints[-1]
+        z_m = scenario.node(segment.node).z_m
+        motion.append((segment, {"node": segment.node, "start_s": segment.start_s, "end_s": end_s,
+                                 "speed_mps": speed_mps, "waypoints_m": [[x, y, z_m] for x, y in segment.waypoints]}))
+    order = {id(segment): i for i, segment in enumerate(scenario.motion)}
+    motion.sort(key=lambda item: order[id(item[0])])
+    return {
+        "name": scenario.name,
+        "seed": scenario.seed,
+        "duration_s": scenario.duration_s,
+        "own_id": scenario.own_id,
+        "nodes": [{"id": n.id, "x_m": n.x_m, "y_m": n.y_m, "z_m": n.z_m, "accelerometer": n.accelerometer}
+                  for n in scenario.nodes],
+        "motion": [view for _, view in motion],
+        "uwb": {"noise_std_m": scenario.uwb.noise_std_m, "max_range_m": scenario.uwb.max_range_m},
+        "accelerometer": {"noise_std_mg": scenario.accelerometer.noise_std_mg,
+                          "moving_amplitude_mg": scenario.accelerometer.moving_amplitude_mg,
+                          "moving_frequency_hz": scenario.accelerometer.moving_frequency_hz},
+        "pozyx": {"firmware_version": scenario.device.pozyx_firmware},
+    }

@@ -205,7 +205,7 @@ class World:
     def accel_norm_mg(self, node_id: int, t_s: float, rng: random.Random) -> int:
         """Norm of the acceleration a tag reads: 1 g plus noise, plus a periodic swing while moving."""
         model = self.scenario.accelerometer
-        norm = ONE_G_MG + rng.gauss(0.0, model.noise_mg)
+        norm = ONE_G_MG + rng.gauss(0.0, model.noise_std_mg)
         if self.moving(node_id, t_s):
             node = self.nodes[node_id]
             if node.moving_amplitude_mg is not None:
