@@ -4,7 +4,81 @@
 #include <cmath>
 #include <vector>
 
+#include "cdro/engine/point_solver.hpp"
+
 namespace cdro::engine {
+
+namespace {
+
+// An inferred-moving node stands still again when one position explains its last
+// MotionMemory::kStillRanges ranges to anchors, taken over at least kStillSpanS on at least
+// kStillMinAnchors anchors: each within kStillSigmas of its noise (and its anchor's uncertainty
+// along it), all of them together within the 99 % point of their chi-square and better than the
+// moving track predicted them (its innovations: a likelihood ratio of standing against moving),
+// and that position determined to within kStillSigmaM. One NLOS range fails the test, and then
+// the track's speed decides, as without it.
+constexpr uint32_t kStillMinAnchors = 4;
+constexpr double kStillSpanS = 0.75; // s
+constexpr double kStillSigmas = 3.0;
+constexpr double kStillChiSquare = 16.81; // chi-square, 6 degrees of freedom (8 ranges, 2 unknowns), 99 %
+constexpr double kStillSigmaM = 0.3;      // m
+
+bool standsStill(const MapState &map, const NodeState &state, const RangeLikelihood &likelihood, double sigma_m)
+{
+    const MotionMemory &memory = state.motion;
+    if (memory.still_count < MotionMemory::kStillRanges) {
+        return false;
+    }
+    std::vector<RangeConstraint> constraints;
+    std::vector<uint32_t> anchors;
+    for (uint32_t i = 0; i < MotionMemory::kStillRanges; ++i) {
+        const NodeState &anchor = map.nodes[memory.still_anchor[i]];
+        if (!anchor.anchor()) {
+            return false;
+        }
+        RangeConstraint constraint;
+        constraint.anchor_m = anchor.position_m;
+        constraint.anchor_covariance_m2 = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
+        constraint.range_m = memory.still_range_m[i];
+        constraints.push_back(constraint);
+        if (std::find(anchors.begin(), anchors.end(), memory.still_anchor[i]) == anchors.end()) {
+            anchors.push_back(memory.still_anchor[i]);
+        }
+    }
+    const auto [earliest, latest] = std::minmax_element(memory.still_t_s.begin(), memory.still_t_s.end());
+    if (anchors.size() < kStillMinAnchors || !(*latest - *earliest >= kStillSpanS)) {
+        return false;
+    }
+    PointSolverParams solver;
+    solver.range_sigma_m = sigma_m;
+    const Vector2 start_m = state.track ? state.track->position() : state.position_m;
+    const PointSolution fit = solvePoint(constraints, start_m, likelihood, solver);
+    if (!fit.well_posed || !(std::sqrt(fit.covariance_m2.trace()) < kStillSigmaM)) {
+        return false;
+    }
+    double chi_square = 0.0;
+    for (const RangeConstraint &constraint : constraints) {
+        const Vector2 along = fit.position_m - constraint.anchor_m;
+        const double distance_m = along.norm();
+        if (distance_m < 1e-9) {
+            return false;
+        }
+        const Vector2 u = along / distance_m;
+        const double variance = sigma_m * sigma_m + u.dot(constraint.anchor_covariance_m2 * u);
+        const double residual_m = constraint.range_m - distance_m;
+        if (residual_m * residual_m > kStillSigmas * kStillSigmas * variance) {
+            return false;
+        }
+        chi_square += residual_m * residual_m / variance;
+    }
+    double track_chi_square = 0.0;
+    for (const double innovation : memory.still_track_chi_square) {
+        track_chi_square += innovation;
+    }
+    return chi_square <= kStillChiSquare && chi_square < track_chi_square;
+}
+
+} // namespace
 
 MotionTracker::MotionTracker(const EngineParams &params, const RangeLikelihood &likelihood)
     : params_(params.motion), range_sigma_m_(params.range.sigma_m), gate_sigma_(params.sog.gate_sigma),
@@ -46,6 +120,7 @@ bool MotionTracker::change(MapState &map, SogBank &sogs, uint32_t node, bool mov
     state.motion.still_anchor_m = state.position_m;
     state.motion.still_updates = 0;
     state.motion.recent_count = 0;
+    state.motion.still_count = 0;
     // Stopping: the track, at rest, stays the estimate until every link has a range again (the
     // links start afresh below, and a median of nothing is no range).
     if (!moving && state.track && params_.track) {
@@ -115,6 +190,7 @@ void MotionTracker::track(MapState &map, uint32_t moving_node, uint32_t anchor_n
     if (!params_.reset || !params_.track || !(state.moving() || state.settling()) || !anchor.anchor()) {
         return;
     }
+
     if (!state.track) {
         // An inferred motion is found late: the node is already somewhere else, by metres.
         const double position_sigma = state.motion.inferred ? 2.0 : 0.3;
@@ -123,6 +199,21 @@ void MotionTracker::track(MapState &map, uint32_t moving_node, uint32_t anchor_n
     // At rest (settling) only a little jitter is allowed, not walking.
     state.track->predict(t_s, state.settling() ? 0.05 : params_.track_accel_sigma_mps2);
     const Matrix2 anchor_covariance = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
+    if (state.moving() && state.motion.inferred) {
+        // The range and how well the moving track predicted it, for the test that it stopped.
+        MotionMemory &memory = state.motion;
+        const Vector2 along = state.track->position() - anchor.position_m;
+        const double distance_m = along.norm();
+        const Vector2 u = distance_m > 1e-9 ? Vector2(along / distance_m) : Vector2::UnitX();
+        const double variance =
+            range_sigma_m_ * range_sigma_m_ + u.dot((state.track->positionCovariance() + anchor_covariance) * u);
+        memory.still_anchor[memory.still_next] = anchor_node;
+        memory.still_range_m[memory.still_next] = range_m;
+        memory.still_t_s[memory.still_next] = t_s;
+        memory.still_track_chi_square[memory.still_next] = (range_m - distance_m) * (range_m - distance_m) / variance;
+        memory.still_next = (memory.still_next + 1) % MotionMemory::kStillRanges;
+        memory.still_count = std::min(memory.still_count + 1, MotionMemory::kStillRanges);
+    }
     if (state.track->updateRange(anchor.position_m, anchor_covariance, range_m, range_sigma_m_, likelihood_,
                                  gate_sigma_)) {
         state.track->limitSpeed(params_.track_max_speed_mps);
@@ -154,6 +245,9 @@ bool MotionTracker::afterUpdate(MapState &map, SogBank &sogs, uint32_t node, con
     // An inferred motion ends when the track's speed stayed low for a while (or, without a track,
     // the estimate stayed within inferred_still_m).
     MotionMemory &memory = state.motion;
+    if (standsStill(map, state, likelihood_, range_sigma_m_)) {
+        return change(map, sogs, node, false, trace);
+    }
     const bool slow = state.track ? state.track->velocity().norm() < params_.inferred_still_speed_mps
                                   : (state.position_m - memory.still_anchor_m).norm() < params_.inferred_still_m;
     memory.still_updates = slow ? memory.still_updates + 1 : 0;

@@ -98,6 +98,14 @@ struct MotionMemory {
     uint32_t recent_next = 0;
     Vector2 still_anchor_m = Vector2::Zero(); // m, where an inferred-moving node was N updates ago
     uint32_t still_updates = 0;
+    // An inferred-moving node's last ranges to anchors, for the test that it stands still again.
+    static constexpr uint32_t kStillRanges = 8;
+    std::array<uint32_t, kStillRanges> still_anchor{};         // node indices
+    std::array<double, kStillRanges> still_range_m{};          // m
+    std::array<double, kStillRanges> still_t_s{};              // s
+    std::array<double, kStillRanges> still_track_chi_square{}; // the range's innovation^2 / its variance (the track's)
+    uint32_t still_count = 0;
+    uint32_t still_next = 0;
 };
 
 struct NodeState {
