@@ -1,7 +1,8 @@
 """cdro-hostd's checkpoint blocks (tags TAG_ENGINE and TAG_MOVEMENT) as named fields.
 
 The layouts are the tables CHECKPOINT_ENGINE_RECORDS and CHECKPOINT_MOVEMENT_RECORDS of
-layout.py, generated from checkpoint_layout.def. One walker serves every
+layout.py, generated from checkpoint_layout.def, whose C++ expansion
+(host/hostd/include/cdro/hostd/checkpoint_blocks.hpp) cdro-hostd writes and reads. One walker serves every
 record: an L field is a list of dicts, a V field a list of values, a Q field a list of rows,
 an A field (a u8 count) a list; doubles (F64) come out exactly as written.
 """
