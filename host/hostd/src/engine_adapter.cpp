@@ -12,6 +12,12 @@ using service::CheckpointError;
 
 namespace {
 
+// The table's ranges of the enums (checkpoint_layout.def) are the engine's: a new value is a new
+// block version.
+static_assert(static_cast<unsigned>(engine::NodeRole::Pinned) == CDRO_CHECKPOINT_LAST_ROLE);
+static_assert(static_cast<unsigned>(engine::NodeLifecycle::Settling) == CDRO_CHECKPOINT_LAST_LIFECYCLE);
+static_assert(static_cast<unsigned>(engine::NodeDoubt::Unsettled) == CDRO_CHECKPOINT_LAST_DOUBT);
+
 uint32_t mmOfRange(double metres)
 {
     const double mm = std::round(std::max(metres, 0.0) * 1000.0);
