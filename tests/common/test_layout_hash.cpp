@@ -43,6 +43,18 @@ TEST(LayoutHash, CheckpointLayoutHashMatchesTheTable)
         << ", bump CDRO_CHECKPOINT_SERVICE_INFO_VERSION and add the pair to tests/golden/layout_history.json";
 }
 
+TEST(LayoutHash, CheckpointBlockLayoutHashesMatchTheTables)
+{
+    EXPECT_EQ(hashOf(CDRO_CHECKPOINT_ENGINE_LAYOUT_DESCRIPTOR), CDRO_CHECKPOINT_ENGINE_LAYOUT_HASH)
+        << "checkpoint_layout.def's engine block changed: set CDRO_CHECKPOINT_ENGINE_LAYOUT_HASH to 0x" << std::hex
+        << hashOf(CDRO_CHECKPOINT_ENGINE_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CHECKPOINT_ENGINE_VERSION and add the pair to tests/golden/layout_history.json";
+    EXPECT_EQ(hashOf(CDRO_CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR), CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH)
+        << "checkpoint_layout.def's movement block changed: set CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH to 0x" << std::hex
+        << hashOf(CDRO_CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CHECKPOINT_MOVEMENT_VERSION and add the pair to tests/golden/layout_history.json";
+}
+
 TEST(LayoutHash, EachVersionHasExactlyOneLayout)
 {
     const auto history = nlohmann::json::parse(golden::readFile(std::string(CDRO_GOLDEN_DIR) + "/layout_history.json"));
@@ -61,6 +73,16 @@ TEST(LayoutHash, EachVersionHasExactlyOneLayout)
         << "record service block version " << checkpoint_version;
     EXPECT_EQ(std::stoul(history["checkpoint"][checkpoint_version].get<std::string>(), nullptr, 16),
               CDRO_CHECKPOINT_LAYOUT_HASH);
+    const std::string engine_version = std::to_string(CDRO_CHECKPOINT_ENGINE_VERSION);
+    ASSERT_TRUE(history["checkpoint_engine"].contains(engine_version))
+        << "record engine block version " << engine_version;
+    EXPECT_EQ(std::stoul(history["checkpoint_engine"][engine_version].get<std::string>(), nullptr, 16),
+              CDRO_CHECKPOINT_ENGINE_LAYOUT_HASH);
+    const std::string movement_version = std::to_string(CDRO_CHECKPOINT_MOVEMENT_VERSION);
+    ASSERT_TRUE(history["checkpoint_movement"].contains(movement_version))
+        << "record movement block version " << movement_version;
+    EXPECT_EQ(std::stoul(history["checkpoint_movement"][movement_version].get<std::string>(), nullptr, 16),
+              CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH);
 }
 
 } // namespace

@@ -22,14 +22,17 @@ DEFINE = re.compile(r"^#define\s+(CDRO_[A-Z0-9_]+)\s+(0x[0-9A-Fa-f]+|\d+)[UL]*\b
 STRING_DEFINE = re.compile(r'^#define\s+(CDRO_[A-Z0-9_]+)\s+"([^"\\]*)"', re.M)
 LIST = re.compile(r"#define\s+(CDRO_[A-Z_]*LIST)\(X\)((?:[^\n]*\\\n)*[^\n]*)")
 RECORD = re.compile(r'X\((\w+),\s*(\w+),\s*(\w+),\s*"([^"]*)"\)')
-FIELDS = re.compile(r"#define\s+CDRO_FIELDS_(\w+)\(F, R, A\)((?:[^\n]*\\\n)*[^\n]*)")
-FIELD = re.compile(r'\b([FRA])\(((?:\s*(?:"[^"]*"|[-\w]+)\s*,)*\s*"[^"]*")\s*\)')
+FIELDS = re.compile(r"#define\s+CDRO_(?:BLOCK_)?FIELDS_(\w+)\(F, R, A(?:, L, V, Q)?\)((?:[^\n]*\\\n)*[^\n]*)")
+FIELD = re.compile(r'\b([FRALVQ])\(((?:\s*(?:"[^"]*"|[-\w]+)\s*,)*\s*"[^"]*")\s*\)')
 ARG = re.compile(r'"([^"]*)"|([-\w]+)')
 NUMBER = re.compile(r"(-?(?:0x[0-9A-Fa-f]+|\d+))[UL]*")
 # The arguments of each field macro: "t" a token (kind, name, number or constant), "s" a string.
-SHAPES = {"F": "ttss", "R": "ttstts", "A": "tttstts"}
+# L, V and Q are the checkpoint blocks' repeated records, vectors and square matrices
+# (checkpoint_layout.def).
+SHAPES = {"F": "ttss", "R": "ttstts", "A": "tttstts", "L": "tts", "V": "ttss", "Q": "tttss"}
+COUNT_KIND = "U32"  # the count before an L or a V
 
-KIND_SIZES = {"U8": 1, "U16": 2, "U32": 4, "U64": 8, "I16": 2, "I32": 4, "I64": 8}
+KIND_SIZES = {"U8": 1, "U16": 2, "U32": 4, "U64": 8, "I16": 2, "I32": 4, "I64": 8, "F64": 8}
 KIND_LIMITS = {"U8": (0, 0xFF), "U16": (0, 0xFFFF), "U32": (0, 0xFFFFFFFF), "U64": (0, 2**64 - 1),
                "I16": (-2**15, 2**15 - 1), "I32": (-2**31, 2**31 - 1), "I64": (-2**63, 2**63 - 1)}
 
@@ -45,22 +48,31 @@ def _number(token: str, constants: dict) -> int:
 
 
 def _field(record: str, shape: str, args: list[tuple[str, str]], constants: dict) -> dict:
-    """One F, R or A entry: kind, name, max (arrays), unit, range (R and A), doc."""
+    """One F, R or A entry: kind, name, max (arrays), unit, range (R and A), doc; an L entry:
+    list (the record's name), name, doc; a V entry has "vector", a Q entry "square_of"."""
     kinds = "".join("s" if quoted or not token else "t" for quoted, token in args)
     if kinds != SHAPES[shape]:
         raise ValueError(f"{record}: {shape}(...) with arguments {args}, expected the shape {SHAPES[shape]}")
     values = [quoted if kind == "s" else token for kind, (quoted, token) in zip(kinds, args)]
     kind, name = values[0], values[1]
+    if shape == "L":
+        return {"list": kind, "name": name, "doc": values[2]}
     if kind not in KIND_SIZES:
         raise ValueError(f"{record}.{name}: unknown kind {kind}")
     entry = {"kind": kind, "name": name}
     rest = values[2:]
     if shape == "A":
         entry["max"] = _number(rest.pop(0), constants)
+    if shape == "V":
+        entry["vector"] = True
+    if shape == "Q":
+        entry["square_of"] = rest.pop(0)
     entry["unit"] = rest.pop(0)
     if shape in "RA":
         lo_text, hi_text = rest.pop(0), rest.pop(0)
         lo, hi = _number(lo_text, constants), _number(hi_text, constants)
+        if kind not in KIND_LIMITS:
+            raise ValueError(f"{record}.{name}: {kind} takes no range")
         kind_lo, kind_hi = KIND_LIMITS[kind]
         if not kind_lo <= lo <= hi <= kind_hi:
             raise ValueError(f"{record}.{name}: range {lo}..{hi} empty or outside {kind}'s {kind_lo}..{kind_hi}")
@@ -88,7 +100,7 @@ def parse_def(text: str) -> dict:
     fields = {}
     for record, body in FIELDS.findall(text):
         fields[record] = [_field(record, shape, ARG.findall(args), constants) for shape, args in FIELD.findall(body)]
-        if len(fields[record]) != len(re.findall(r"\b[FRA]\(", body)):
+        if len(fields[record]) != len(re.findall(r"\b[FRALVQ]\(", body)):
             raise ValueError(f"CDRO_FIELDS_{record}: a field line does not follow the grammar")
     return {"constants": constants, "strings": strings, "lists": lists, "fields": fields}
 
@@ -99,7 +111,13 @@ def descriptor(records: list[dict], fields: dict, empty: list[dict] = ()) -> str
     for record in records:
         parts = []
         for f in fields[record["name"]]:
-            if "max" in f:
+            if "list" in f:
+                parts.append(f"LIST {f['list']} {f['name']};")
+            elif "vector" in f:
+                parts.append(f"{f['kind']} {f['name']}[];")
+            elif "square_of" in f:
+                parts.append(f"{f['kind']} {f['name']}[{f['square_of']}*{f['square_of']}];")
+            elif "max" in f:
                 parts.append(f"{f['kind']} {f['name']}[{f['max']}];")
             else:
                 parts.append(f"{f['kind']} {f['name']};")
@@ -107,6 +125,23 @@ def descriptor(records: list[dict], fields: dict, empty: list[dict] = ()) -> str
     for record in empty:
         out.append(f"{record['name']} {record['id_text']}{{}}")
     return "".join(out)
+
+
+BLOCK_LISTS = {"ENGINE": "CDRO_CHECKPOINT_ENGINE_LIST", "MOVEMENT": "CDRO_CHECKPOINT_MOVEMENT_LIST"}
+
+
+def check_block(records: list[dict], fields: dict) -> None:
+    """A checkpoint block's table: every L names a record of the same list, every Q a V before it."""
+    names = {r["name"] for r in records}
+    for record in records:
+        vectors = set()
+        for f in fields[record["name"]]:
+            if "list" in f and f["list"] not in names:
+                raise ValueError(f"{record['name']}.{f['name']}: L of {f['list']}, not a record of this list")
+            if "vector" in f:
+                vectors.add(f["name"])
+            if "square_of" in f and f["square_of"] not in vectors:
+                raise ValueError(f"{record['name']}.{f['name']}: Q of {f['square_of']}, not a V before it")
 
 
 def crc16(data: bytes) -> int:
@@ -132,6 +167,10 @@ def generate(include_dir: pathlib.Path) -> str:
     capture_text = descriptor(capture_list, capture["fields"])
     checkpoint_list = checkpoint["lists"]["CDRO_CHECKPOINT_RECORD_LIST"]
     checkpoint_text = descriptor(checkpoint_list, checkpoint["fields"])
+    block_texts = {}
+    for block, list_name in BLOCK_LISTS.items():
+        check_block(checkpoint["lists"][list_name], checkpoint["fields"])
+        block_texts[block] = descriptor(checkpoint["lists"][list_name], checkpoint["fields"])
 
     def table(fields: list[dict]) -> list[dict]:  # range_text is for the docs only
         return [{key: value for key, value in f.items() if key != "range_text"} for f in fields]
@@ -147,6 +186,10 @@ def generate(include_dir: pathlib.Path) -> str:
                        for r in capture_list}
     checkpoint_records = {r["name"]: {"doc": r["doc"], "fields": table(checkpoint["fields"][r["name"]])}
                           for r in checkpoint_list}
+    block_records = {
+        block: {r["name"]: {"doc": r["doc"], "fields": table(checkpoint["fields"][r["name"]])}
+                for r in checkpoint["lists"][list_name]}
+        for block, list_name in BLOCK_LISTS.items()}
     constants = dict(frames["constants"])
     constants.update(sog["constants"])
     constants.update(capture["constants"])
@@ -168,6 +211,10 @@ def generate(include_dir: pathlib.Path) -> str:
         "",
         f"CHECKPOINT_RECORDS = {pprint.pformat(checkpoint_records, sort_dicts=False, width=100)}",
         "",
+        f"CHECKPOINT_ENGINE_RECORDS = {pprint.pformat(block_records['ENGINE'], sort_dicts=False, width=100)}",
+        "",
+        f"CHECKPOINT_MOVEMENT_RECORDS = {pprint.pformat(block_records['MOVEMENT'], sort_dicts=False, width=100)}",
+        "",
         f"FRAME_LAYOUT_DESCRIPTOR = {frame_text!r}",
         f"FRAME_LAYOUT_HASH_COMPUTED = 0x{crc16(frame_text.encode('ascii')):04X}",
         f"SOG_LAYOUT_DESCRIPTOR = {sog_text!r}",
@@ -176,6 +223,10 @@ def generate(include_dir: pathlib.Path) -> str:
         f"CAPTURE_LAYOUT_HASH_COMPUTED = 0x{crc16(capture_text.encode('ascii')):04X}",
         f"CHECKPOINT_LAYOUT_DESCRIPTOR = {checkpoint_text!r}",
         f"CHECKPOINT_LAYOUT_HASH_COMPUTED = 0x{crc16(checkpoint_text.encode('ascii')):04X}",
+        f"CHECKPOINT_ENGINE_LAYOUT_DESCRIPTOR = {block_texts['ENGINE']!r}",
+        f"CHECKPOINT_ENGINE_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['ENGINE'].encode('ascii')):04X}",
+        f"CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR = {block_texts['MOVEMENT']!r}",
+        f"CHECKPOINT_MOVEMENT_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['MOVEMENT'].encode('ascii')):04X}",
         "",
     ]
     return "\n".join(lines)
@@ -184,7 +235,8 @@ def generate(include_dir: pathlib.Path) -> str:
 DOC_BEGIN = ("<!-- BEGIN GENERATED LAYOUT TABLES "
              "(python -m cdro_tools.codegen common/include --docs docs/protocol.md) -->")
 DOC_END = "<!-- END GENERATED LAYOUT TABLES -->"
-_KIND_TEXT = {"U8": "u8", "U16": "u16", "U32": "u32", "U64": "u64", "I16": "i16", "I32": "i32", "I64": "i64"}
+_KIND_TEXT = {"U8": "u8", "U16": "u16", "U32": "u32", "U64": "u64", "I16": "i16", "I32": "i32", "I64": "i64",
+              "F64": "f64"}
 
 
 def _cell(text: str) -> str:
@@ -218,11 +270,42 @@ def _bound_text(token: str, constants: dict) -> str:
     return match.group(1) if match else str(constants[token])
 
 
+AFTER = re.compile(r"after (\w+)(?:\+(\d+))?")
+
+
+def _advance(offset: int | str, size: int) -> int | str:
+    """The offset size bytes on: a number, "after FIELD+N" past a repeated field, else a sum."""
+    if isinstance(offset, int):
+        return offset + size
+    after = AFTER.fullmatch(offset)
+    if after:
+        return f"after {after.group(1)}+{int(after.group(2) or 0) + size}"
+    return f"{offset}+{size}"
+
+
+def _repeated_rows(field: dict, offset: int | str) -> list[str]:
+    """The rows of an L, V or Q field: its count (L, V) and its elements."""
+    doc = _cell(field["doc"])
+    count = f"{field['name']}_count"
+    if "square_of" in field:
+        of = field["square_of"]
+        return [f"| {offset} | {_KIND_TEXT[field['kind']]}[{of}_count²] | {field['name']} | "
+                f"{_cell(field['unit']) or '-'} | - | {doc}, row by row |"]
+    element = field["list"] if "list" in field else _KIND_TEXT[field["kind"]]
+    unit = "-" if "list" in field else (_cell(field["unit"]) or "-")
+    return [f"| {offset} | {_KIND_TEXT[COUNT_KIND]} | {count} | count | - | number of elements |",
+            f"| {_advance(offset, 4)} | {element}[{count}] | {field['name']} | {unit} | - | {doc} |"]
+
+
 def _field_table(fields: list[dict], constants: dict, start: int = 0) -> list[str]:
     """Offsets, types, units and the declared valid ranges ("-": none declared)."""
     rows = ["| Offset | Type | Field | Unit | Range | Meaning |", "|---:|---|---|---|---|---|"]
     offset: int | str = start
     for field in fields:
+        if "list" in field or "vector" in field or "square_of" in field:
+            rows += _repeated_rows(field, offset)
+            offset = f"after {field['name']}"
+            continue
         kind = _KIND_TEXT[field["kind"]]
         unit = _cell(field["unit"]) or "-"
         valid = "-"
@@ -231,7 +314,7 @@ def _field_table(fields: list[dict], constants: dict, start: int = 0) -> list[st
         doc = _cell(field["doc"])
         if "max" in field:
             rows.append(f"| {offset} | u8 | {field['name']}_count | count | 0..{field['max']} | number of elements |")
-            nxt = offset + 1 if isinstance(offset, int) else f"{offset}+1"
+            nxt = _advance(offset, 1)
             each = f"{valid} each" if "range_text" in field else valid
             rows.append(f"| {nxt} | {kind}[count] | {field['name']} | {unit} | {each} | {doc} |")
             size = KIND_SIZES[field["kind"]]
@@ -239,7 +322,7 @@ def _field_table(fields: list[dict], constants: dict, start: int = 0) -> list[st
         else:
             rows.append(f"| {offset} | {kind} | {field['name']} | {unit} | {valid} | {doc} |")
             size = KIND_SIZES[field["kind"]]
-            offset = offset + size if isinstance(offset, int) else f"{offset}+{size}"
+            offset = _advance(offset, size)
     if not fields:
         rows.append("| - | - | - | - | - | empty payload |")
     return rows
@@ -310,6 +393,18 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
         out.append("")
         out += _field_table(fields, checkpoint["constants"])
         out.append("")
+    for block, list_name in BLOCK_LISTS.items():
+        version = f"CDRO_CHECKPOINT_{block}_VERSION"
+        out.append(f"### Checkpoint {block.lower()} block (version {checkpoint['constants'][version]})")
+        out.append("")
+        for record in checkpoint["lists"][list_name]:
+            fields = checkpoint["fields"][record["name"]]
+            out.append(f"#### {record['name']}")
+            out.append("")
+            out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
+            out.append("")
+            out += _field_table(fields, checkpoint["constants"])
+            out.append("")
     out.append(DOC_END)
     return "\n".join(out)
 

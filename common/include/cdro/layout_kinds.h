@@ -15,6 +15,7 @@
 #define CDRO_CTYPE_I16 int16_t
 #define CDRO_CTYPE_I32 int32_t
 #define CDRO_CTYPE_I64 int64_t
+#define CDRO_CTYPE_F64 double /* host-side tables only (checkpoint_layout.def's blocks) */
 #define CDRO_SIZE_U8 1
 #define CDRO_SIZE_U16 2
 #define CDRO_SIZE_U32 4
@@ -22,6 +23,7 @@
 #define CDRO_SIZE_I16 2
 #define CDRO_SIZE_I32 4
 #define CDRO_SIZE_I64 8
+#define CDRO_SIZE_F64 8
 
 /* A table's fields come in three shapes (F any value, R a range, A an array; see the grammar in
  * frame_layout.def). Expansions that care about the layout only forward R to their F. */

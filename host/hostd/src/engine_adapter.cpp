@@ -2,10 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 
 #include "cdro/fixed.h"
-#include "cdro/wire.h"
+#include "cdro/hostd/checkpoint_blocks.hpp"
 
 namespace cdro::hostd {
 
@@ -13,56 +12,11 @@ using service::CheckpointError;
 
 namespace {
 
-// ---- little-endian byte blocks for the extension ----------------------------------------
-
-class ByteWriter {
-public:
-    void u8(uint8_t v) { bytes_.push_back(v); }
-    void u16(uint16_t v) { put(v, 2); }
-    void u32(uint32_t v) { put(v, 4); }
-    void u64(uint64_t v) { put(v, 8); }
-    std::vector<uint8_t> take() { return std::move(bytes_); }
-
-private:
-    void put(uint64_t v, size_t size)
-    {
-        uint8_t buffer[8];
-        cdro_put_u64(buffer, v);
-        bytes_.insert(bytes_.end(), buffer, buffer + size);
-    }
-    std::vector<uint8_t> bytes_;
-};
-
-class ByteReader {
-public:
-    explicit ByteReader(const std::vector<uint8_t> &bytes, const char *block = "engine") : bytes_(bytes), block_(block)
-    {
-    }
-    uint8_t u8() { return static_cast<uint8_t>(get(1)); }
-    uint16_t u16() { return static_cast<uint16_t>(get(2)); }
-    uint32_t u32() { return static_cast<uint32_t>(get(4)); }
-    uint64_t u64() { return get(8); }
-    bool done() const { return position_ == bytes_.size(); }
-
-private:
-    uint64_t get(size_t size)
-    {
-        if (position_ + size > bytes_.size()) {
-            throw CheckpointError(std::string("the ") + block_ + " block of the checkpoint is cut short");
-        }
-        uint8_t buffer[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-        std::memcpy(buffer, bytes_.data() + position_, size);
-        position_ += size;
-        return cdro_get_u64(buffer);
-    }
-    const std::vector<uint8_t> &bytes_;
-    const char *block_;
-    size_t position_ = 0;
-};
-
-// 2: roles, lifecycles and doubts as enums; the motion memory, the solve's view of each node and
-// the solve schedule; the counters of every step.
-constexpr uint8_t kEngineBlockVersion = 2;
+// The table's ranges of the enums (checkpoint_layout.def) are the engine's: a new value is a new
+// block version.
+static_assert(static_cast<unsigned>(engine::NodeRole::Pinned) == CDRO_CHECKPOINT_LAST_ROLE);
+static_assert(static_cast<unsigned>(engine::NodeLifecycle::Settling) == CDRO_CHECKPOINT_LAST_LIFECYCLE);
+static_assert(static_cast<unsigned>(engine::NodeDoubt::Unsettled) == CDRO_CHECKPOINT_LAST_DOUBT);
 
 uint32_t mmOfRange(double metres)
 {
@@ -114,30 +68,6 @@ std::vector<uint64_t *> counterFields(engine::EngineCounters &c)
             &c.solve.solve_refreshes,
             &c.solve.offsets_adopted,
             &c.sogs.weight_updates_deferred};
-}
-
-// Doubles through the block: their bits, exactly.
-uint64_t bitsOf(double value)
-{
-    uint64_t bits = 0;
-    std::memcpy(&bits, &value, sizeof bits);
-    return bits;
-}
-
-double doubleOf(uint64_t bits)
-{
-    double value = 0.0;
-    std::memcpy(&value, &bits, sizeof value);
-    return value;
-}
-
-template <typename Enum> Enum enumOf(uint8_t value, uint8_t last, const char *what)
-{
-    if (value > last) {
-        throw CheckpointError(std::string("the checkpoint's engine block has an unknown ") + what + " " +
-                              std::to_string(value));
-    }
-    return static_cast<Enum>(value);
 }
 
 engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)
@@ -304,48 +234,6 @@ void EngineAdapter::restore(const service::SogSnapshot &snapshot)
 
 namespace {
 
-// 1: the stage's whole state (movement.hpp MovementStage::Saved), doubles as their bits.
-constexpr uint8_t kMovementBlockVersion = 1;
-
-void putVector(ByteWriter &block, const Eigen::VectorXd &values)
-{
-    block.u32(static_cast<uint32_t>(values.size()));
-    for (Eigen::Index i = 0; i < values.size(); ++i) {
-        block.u64(bitsOf(values(i)));
-    }
-}
-
-Eigen::VectorXd vectorOf(ByteReader &block, uint32_t limit)
-{
-    const uint32_t size = block.u32();
-    if (size > limit) {
-        throw CheckpointError("the checkpoint's movement block holds a vector of " + std::to_string(size) + " values");
-    }
-    Eigen::VectorXd values(size);
-    for (uint32_t i = 0; i < size; ++i) {
-        values(i) = doubleOf(block.u64());
-    }
-    return values;
-}
-
-void putMatrix2(ByteWriter &block, const engine::Matrix2 &m)
-{
-    block.u64(bitsOf(m(0, 0)));
-    block.u64(bitsOf(m(0, 1)));
-    block.u64(bitsOf(m(1, 0)));
-    block.u64(bitsOf(m(1, 1)));
-}
-
-engine::Matrix2 matrix2Of(ByteReader &block)
-{
-    engine::Matrix2 m;
-    m(0, 0) = doubleOf(block.u64());
-    m(0, 1) = doubleOf(block.u64());
-    m(1, 0) = doubleOf(block.u64());
-    m(1, 1) = doubleOf(block.u64());
-    return m;
-}
-
 std::vector<double> doublesOf(const Eigen::VectorXd &values) { return {values.data(), values.data() + values.size()}; }
 
 Eigen::VectorXd vectorFrom(const std::vector<double> &values)
@@ -361,80 +249,79 @@ std::vector<uint64_t *> movementCounterFields(engine::MovementCounters &c)
             &c.beacon_sogs,    &c.hypotheses_pruned, &c.nlos_link_ranges_skipped};
 }
 
+uint8_t bitIf(bool condition, unsigned bit) { return condition ? static_cast<uint8_t>(bit) : uint8_t{0}; }
+
 } // namespace
 
 std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement)
 {
     engine::MovementStage::Saved saved = movement.saved();
-    ByteWriter block;
-    block.u8(kMovementBlockVersion);
-    block.u16(movement.params().robot_id);
-    block.u8(static_cast<uint8_t>((saved.started ? 1U : 0U) | (saved.own_frame ? 2U : 0U) |
-                                  (saved.waiting_for_fix ? 4U : 0U) | (saved.have_time ? 8U : 0U) |
-                                  (saved.adaptive_sigma_m ? 16U : 0U)));
-    block.u64(bitsOf(saved.moved_m));
-    block.u64(bitsOf(saved.last_t_s));
-    block.u64(bitsOf(saved.dead_reckoning.x_m));
-    block.u64(bitsOf(saved.dead_reckoning.y_m));
-    block.u64(bitsOf(saved.dead_reckoning.heading_rad));
-    block.u64(bitsOf(saved.adaptive_sigma_m.value_or(0.0)));
-    block.u32(static_cast<uint32_t>(saved.hypotheses.size()));
+    blocks::movement_block block;
+    block.version = CDRO_CHECKPOINT_MOVEMENT_VERSION;
+    block.robot_id = movement.params().robot_id;
+    block.flags =
+        static_cast<uint8_t>(bitIf(saved.started, CDRO_CHECKPOINT_MOVEMENT_STARTED) |
+                             bitIf(saved.own_frame, CDRO_CHECKPOINT_MOVEMENT_OWN_FRAME) |
+                             bitIf(saved.waiting_for_fix, CDRO_CHECKPOINT_MOVEMENT_WAITING_FOR_FIX) |
+                             bitIf(saved.have_time, CDRO_CHECKPOINT_MOVEMENT_HAVE_TIME) |
+                             bitIf(saved.adaptive_sigma_m.has_value(), CDRO_CHECKPOINT_MOVEMENT_ADAPTIVE_SIGMA));
+    block.moved_m = saved.moved_m;
+    block.last_t_s = saved.last_t_s;
+    block.dead_reckoning_x_m = saved.dead_reckoning.x_m;
+    block.dead_reckoning_y_m = saved.dead_reckoning.y_m;
+    block.dead_reckoning_heading_rad = saved.dead_reckoning.heading_rad;
+    block.adaptive_sigma_m = saved.adaptive_sigma_m.value_or(0.0);
     for (const engine::MovementStage::Hypothesis &hypothesis : saved.hypotheses) {
         const engine::RobotFilter &filter = hypothesis.filter;
-        block.u64(bitsOf(hypothesis.log_weight));
-        block.u8(static_cast<uint8_t>((filter.mirrored() ? 1U : 0U) | (filter.scaleFixed() ? 2U : 0U) |
-                                      (filter.offsetFixed() ? 4U : 0U)));
-        const std::vector<engine::NodeId> nodes = filter.nodes();
-        block.u32(static_cast<uint32_t>(nodes.size()));
-        for (engine::NodeId id : nodes) {
-            block.u16(id);
+        blocks::movement_hypothesis &out = block.hypotheses.emplace_back();
+        out.log_weight = hypothesis.log_weight;
+        out.filter_flags = static_cast<uint8_t>(bitIf(filter.mirrored(), CDRO_CHECKPOINT_FILTER_MIRRORED) |
+                                                bitIf(filter.scaleFixed(), CDRO_CHECKPOINT_FILTER_SCALE_FIXED) |
+                                                bitIf(filter.offsetFixed(), CDRO_CHECKPOINT_FILTER_OFFSET_FIXED));
+        for (engine::NodeId id : filter.nodes()) {
+            out.node_ids.push_back(id);
         }
-        putVector(block, filter.state());
+        out.state = doublesOf(filter.state());
         const Eigen::MatrixXd &covariance = filter.covariance();
         for (Eigen::Index i = 0; i < covariance.rows(); ++i) {
             for (Eigen::Index j = 0; j < covariance.cols(); ++j) {
-                block.u64(bitsOf(covariance(i, j)));
+                out.covariance.push_back(covariance(i, j));
             }
         }
     }
-    block.u32(static_cast<uint32_t>(saved.beacons.size()));
     for (const auto &[id, sog] : saved.beacons) {
-        block.u16(id);
-        block.u32(sog.ranges);
-        block.u64(bitsOf(sog.first_robot_m.x()));
-        block.u64(bitsOf(sog.first_robot_m.y()));
-        block.u64(bitsOf(sog.baseline_m));
-        block.u32(static_cast<uint32_t>(sog.components.size()));
+        blocks::movement_beacon &out = block.beacons.emplace_back();
+        out.id = id;
+        out.ranges = sog.ranges;
+        out.first_robot_x_m = sog.first_robot_m.x();
+        out.first_robot_y_m = sog.first_robot_m.y();
+        out.baseline_m = sog.baseline_m;
         for (const engine::MovementStage::BeaconComponent &component : sog.components) {
-            block.u64(bitsOf(component.mean_m.x()));
-            block.u64(bitsOf(component.mean_m.y()));
-            putMatrix2(block, component.covariance_m2);
-            block.u64(bitsOf(component.weight));
+            blocks::movement_component &c = out.components.emplace_back();
+            c.mean_x_m = component.mean_m.x();
+            c.mean_y_m = component.mean_m.y();
+            c.var_x_m2 = component.covariance_m2(0, 0);
+            c.cov_xy_m2 = component.covariance_m2(0, 1);
+            c.cov_yx_m2 = component.covariance_m2(1, 0);
+            c.var_y_m2 = component.covariance_m2(1, 1);
+            c.weight = component.weight;
         }
     }
-    block.u32(static_cast<uint32_t>(saved.moving.size()));
     for (const auto &[id, moving] : saved.moving) {
-        block.u16(id);
-        block.u8(moving ? 1 : 0);
+        block.moving.push_back({id, static_cast<uint8_t>(moving ? 1 : 0)});
     }
-    block.u32(static_cast<uint32_t>(saved.links.size()));
     for (const auto &[ends, watch] : saved.links) {
-        block.u16(ends.first);
-        block.u16(ends.second);
-        block.u32(static_cast<uint32_t>(watch.next));
-        block.u8(watch.excluded ? 1 : 0);
-        putVector(block, vectorFrom(watch.innovations_m));
+        block.links.push_back({ends.first, ends.second, static_cast<uint32_t>(watch.next),
+                               static_cast<uint8_t>(watch.excluded ? 1 : 0), watch.innovations_m});
     }
-    putVector(block, vectorFrom(saved.innovations_m));
-    putVector(block, vectorFrom(saved.prior_variances_m2));
-    block.u32(static_cast<uint32_t>(saved.innovation_next));
-    block.u64(saved.revision);
-    const std::vector<uint64_t *> fields = movementCounterFields(saved.counters);
-    block.u8(static_cast<uint8_t>(fields.size()));
-    for (uint64_t *field : fields) {
-        block.u64(*field);
+    block.innovations_m = saved.innovations_m;
+    block.prior_variances_m2 = saved.prior_variances_m2;
+    block.innovation_next = static_cast<uint32_t>(saved.innovation_next);
+    block.revision = saved.revision;
+    for (const uint64_t *field : movementCounterFields(saved.counters)) {
+        block.counters.push_back(*field);
     }
-    return block.take();
+    return blocks::encode(block);
 }
 
 void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot &snapshot)
@@ -443,123 +330,90 @@ void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot
     if (extension == nullptr) {
         return; // written without a robot: the stage starts afresh, as on a first start
     }
-    // Far more than any stage holds (the EKF takes at most 120 nodes); a bigger count is damage.
-    constexpr uint32_t kLimit = 1U << 20U;
-    ByteReader block(extension->bytes, "movement");
-    if (block.u8() != kMovementBlockVersion) {
-        throw CheckpointError("the checkpoint's movement block is of another version");
-    }
-    const engine::NodeId robot = block.u16();
-    if (robot != movement.params().robot_id) {
-        throw CheckpointError("the checkpoint's movement stage is robot " + std::to_string(robot) +
+    const auto block =
+        blocks::decode<blocks::movement_block>(extension->bytes, "movement", CDRO_CHECKPOINT_MOVEMENT_VERSION);
+    if (block.robot_id != movement.params().robot_id) {
+        throw CheckpointError("the checkpoint's movement stage is robot " + std::to_string(block.robot_id) +
                               ", the configuration's " + std::to_string(movement.params().robot_id));
     }
     engine::MovementStage::Saved saved;
-    const uint8_t flags = block.u8();
-    saved.started = (flags & 1U) != 0;
-    saved.own_frame = (flags & 2U) != 0;
-    saved.waiting_for_fix = (flags & 4U) != 0;
-    saved.have_time = (flags & 8U) != 0;
-    saved.moved_m = doubleOf(block.u64());
-    saved.last_t_s = doubleOf(block.u64());
-    saved.dead_reckoning.x_m = doubleOf(block.u64());
-    saved.dead_reckoning.y_m = doubleOf(block.u64());
-    saved.dead_reckoning.heading_rad = doubleOf(block.u64());
-    const double adaptive_sigma_m = doubleOf(block.u64());
-    if ((flags & 16U) != 0) {
-        saved.adaptive_sigma_m = adaptive_sigma_m;
+    saved.started = (block.flags & CDRO_CHECKPOINT_MOVEMENT_STARTED) != 0;
+    saved.own_frame = (block.flags & CDRO_CHECKPOINT_MOVEMENT_OWN_FRAME) != 0;
+    saved.waiting_for_fix = (block.flags & CDRO_CHECKPOINT_MOVEMENT_WAITING_FOR_FIX) != 0;
+    saved.have_time = (block.flags & CDRO_CHECKPOINT_MOVEMENT_HAVE_TIME) != 0;
+    saved.moved_m = block.moved_m;
+    saved.last_t_s = block.last_t_s;
+    saved.dead_reckoning.x_m = block.dead_reckoning_x_m;
+    saved.dead_reckoning.y_m = block.dead_reckoning_y_m;
+    saved.dead_reckoning.heading_rad = block.dead_reckoning_heading_rad;
+    if ((block.flags & CDRO_CHECKPOINT_MOVEMENT_ADAPTIVE_SIGMA) != 0) {
+        saved.adaptive_sigma_m = block.adaptive_sigma_m;
     }
-    const uint32_t hypotheses = block.u32();
-    if (hypotheses > kLimit) {
-        throw CheckpointError("the checkpoint's movement block names " + std::to_string(hypotheses) + " hypotheses");
-    }
-    for (uint32_t h = 0; h < hypotheses; ++h) {
-        const double log_weight = doubleOf(block.u64());
-        const uint8_t filter_flags = block.u8();
-        const uint32_t node_count = block.u32();
-        if (node_count > engine::RobotFilter::kMaxNodes) {
-            throw CheckpointError("the checkpoint's movement block has an EKF of " + std::to_string(node_count) +
-                                  " nodes");
+    for (const blocks::movement_hypothesis &in : block.hypotheses) {
+        if (in.node_ids.size() > engine::RobotFilter::kMaxNodes) {
+            throw CheckpointError("the checkpoint's movement block has an EKF of " +
+                                  std::to_string(in.node_ids.size()) + " nodes");
         }
-        std::vector<engine::NodeId> nodes;
-        for (uint32_t i = 0; i < node_count; ++i) {
-            nodes.push_back(block.u16());
-        }
-        const Eigen::VectorXd state = vectorOf(block, kLimit);
+        const std::vector<engine::NodeId> nodes(in.node_ids.begin(), in.node_ids.end());
+        const Eigen::VectorXd state = vectorFrom(in.state);
         Eigen::MatrixXd covariance(state.size(), state.size());
         for (Eigen::Index i = 0; i < covariance.rows(); ++i) {
             for (Eigen::Index j = 0; j < covariance.cols(); ++j) {
-                covariance(i, j) = doubleOf(block.u64());
+                covariance(i, j) = in.covariance[static_cast<size_t>(i * covariance.cols() + j)];
             }
         }
         try {
             saved.hypotheses.push_back(engine::MovementStage::Hypothesis{
-                engine::RobotFilter::restored(state, covariance, nodes, (filter_flags & 1U) != 0,
-                                              (filter_flags & 2U) != 0, (filter_flags & 4U) != 0),
-                log_weight});
+                engine::RobotFilter::restored(state, covariance, nodes,
+                                              (in.filter_flags & CDRO_CHECKPOINT_FILTER_MIRRORED) != 0,
+                                              (in.filter_flags & CDRO_CHECKPOINT_FILTER_SCALE_FIXED) != 0,
+                                              (in.filter_flags & CDRO_CHECKPOINT_FILTER_OFFSET_FIXED) != 0),
+                in.log_weight});
         } catch (const std::invalid_argument &error) {
             throw CheckpointError(std::string("the checkpoint's movement block: ") + error.what());
         }
     }
-    const uint32_t beacons = block.u32();
-    for (uint32_t b = 0; b < beacons && b < kLimit; ++b) {
-        const engine::NodeId id = block.u16();
+    for (const blocks::movement_beacon &in : block.beacons) {
         engine::MovementStage::BeaconSog sog;
-        sog.ranges = block.u32();
-        sog.first_robot_m.x() = doubleOf(block.u64());
-        sog.first_robot_m.y() = doubleOf(block.u64());
-        sog.baseline_m = doubleOf(block.u64());
-        const uint32_t components = block.u32();
-        if (components > kLimit) {
-            throw CheckpointError("the checkpoint's movement block has a beacon of " + std::to_string(components) +
-                                  " components");
-        }
-        for (uint32_t k = 0; k < components; ++k) {
+        sog.ranges = in.ranges;
+        sog.first_robot_m = engine::Vector2(in.first_robot_x_m, in.first_robot_y_m);
+        sog.baseline_m = in.baseline_m;
+        for (const blocks::movement_component &c : in.components) {
             engine::MovementStage::BeaconComponent component;
-            component.mean_m.x() = doubleOf(block.u64());
-            component.mean_m.y() = doubleOf(block.u64());
-            component.covariance_m2 = matrix2Of(block);
-            component.weight = doubleOf(block.u64());
+            component.mean_m = engine::Vector2(c.mean_x_m, c.mean_y_m);
+            component.covariance_m2(0, 0) = c.var_x_m2;
+            component.covariance_m2(0, 1) = c.cov_xy_m2;
+            component.covariance_m2(1, 0) = c.cov_yx_m2;
+            component.covariance_m2(1, 1) = c.var_y_m2;
+            component.weight = c.weight;
             sog.components.push_back(component);
         }
-        saved.beacons[id] = std::move(sog);
+        saved.beacons[in.id] = std::move(sog);
     }
-    const uint32_t moving = block.u32();
-    for (uint32_t i = 0; i < moving && i < kLimit; ++i) {
-        const engine::NodeId id = block.u16();
-        saved.moving[id] = block.u8() != 0;
+    for (const blocks::movement_moving &in : block.moving) {
+        saved.moving[in.id] = in.moving != 0;
     }
-    const uint32_t links = block.u32();
-    for (uint32_t i = 0; i < links && i < kLimit; ++i) {
-        const engine::NodeId a = block.u16();
-        const engine::NodeId b = block.u16();
+    for (const blocks::movement_link &in : block.links) {
         engine::MovementStage::LinkWatch watch;
-        watch.next = block.u32();
-        watch.excluded = block.u8() != 0;
-        watch.innovations_m = doublesOf(vectorOf(block, kLimit));
+        watch.next = in.next;
+        watch.excluded = in.excluded != 0;
+        watch.innovations_m = in.innovations_m;
         if (watch.next > watch.innovations_m.size()) {
             throw CheckpointError("the checkpoint's movement block has a link watch past its end");
         }
-        saved.links[{a, b}] = std::move(watch);
+        saved.links[{in.a_id, in.b_id}] = std::move(watch);
     }
-    saved.innovations_m = doublesOf(vectorOf(block, kLimit));
-    saved.prior_variances_m2 = doublesOf(vectorOf(block, kLimit));
-    saved.innovation_next = block.u32();
+    saved.innovations_m = block.innovations_m;
+    saved.prior_variances_m2 = block.prior_variances_m2;
+    saved.innovation_next = block.innovation_next;
     if (saved.prior_variances_m2.size() != saved.innovations_m.size() ||
         saved.innovation_next > saved.innovations_m.size()) {
         throw CheckpointError("the checkpoint's movement block has innovations that do not fit together");
     }
-    saved.revision = block.u64();
+    saved.revision = block.revision;
     std::vector<uint64_t *> fields = movementCounterFields(saved.counters);
-    const uint8_t stored = block.u8();
-    for (uint8_t i = 0; i < stored; ++i) {
-        const uint64_t value = block.u64();
-        if (i < fields.size()) {
-            *fields[i] = value;
-        }
-    }
-    if (!block.done()) {
-        throw CheckpointError("the checkpoint's movement block has bytes after its end");
+    for (size_t i = 0; i < block.counters.size() && i < fields.size(); ++i) {
+        *fields[i] = block.counters[i];
     }
     movement.restore(saved);
 }
@@ -571,14 +425,14 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
     snapshot.header.created_unix_us = created_unix_us;
     snapshot.header.ranges_processed =
         static_cast<uint32_t>(std::min<uint64_t>(engine.counters().intake.ranges_received, 0xFFFFFFFFULL));
-    ByteWriter block;
-    block.u8(kEngineBlockVersion);
-    const auto frame = engine.frameNodes();
-    block.u8(frame ? 1 : 0);
-    for (size_t i = 0; i < 3; ++i) {
-        block.u16(frame ? (*frame)[i] : 0);
+    blocks::engine_block block;
+    block.version = CDRO_CHECKPOINT_ENGINE_VERSION;
+    if (const auto frame = engine.frameNodes()) {
+        block.has_frame = 1;
+        block.frame_origin_id = (*frame)[0];
+        block.frame_axis_id = (*frame)[1];
+        block.frame_side_id = (*frame)[2];
     }
-    block.u32(static_cast<uint32_t>(network.nodes.size()));
     for (const engine::NodeState &node : network.nodes) {
         cdro_sog_node_t out{};
         out.id = node.id;
@@ -598,61 +452,58 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         out.average_y_mm = cdro_fixed_mm_from_m(node.average_m.y());
         out.merge_count = saturate16(node.update_count);
         snapshot.nodes.push_back(out);
-        block.u16(node.id);
-        block.u32(node.still_updates);
-        block.u32(node.placements);
-        block.u32(node.update_count);
         // The exact state (the common layout above is rounded to millimetres and flags).
-        block.u8(static_cast<uint8_t>(node.role));
-        block.u8(static_cast<uint8_t>(node.lifecycle));
-        block.u8(static_cast<uint8_t>(node.doubt));
+        blocks::engine_node &exact = block.nodes.emplace_back();
+        exact.id = node.id;
+        exact.still_updates = node.still_updates;
+        exact.placements = node.placements;
+        exact.update_count = node.update_count;
+        exact.role = static_cast<uint8_t>(node.role);
+        exact.lifecycle = static_cast<uint8_t>(node.lifecycle);
+        exact.doubt = static_cast<uint8_t>(node.doubt);
         const auto &structural = engine.structuralDoubts();
         const size_t index = static_cast<size_t>(&node - network.nodes.data());
-        block.u8(static_cast<uint8_t>(index < structural.size() ? structural[index] : engine::NodeDoubt::None));
-        for (uint32_t hinge : node.hinge) {
-            block.u16(hinge == engine::kNoIndex ? 0 : network.nodes[hinge].id);
-        }
-        block.u64(bitsOf(node.position_m.x()));
-        block.u64(bitsOf(node.position_m.y()));
-        block.u64(bitsOf(node.covariance_m2(0, 0)));
-        block.u64(bitsOf(node.covariance_m2(0, 1)));
-        block.u64(bitsOf(node.covariance_m2(1, 1)));
-        block.u64(bitsOf(node.average_m.x()));
-        block.u64(bitsOf(node.average_m.y()));
-        block.u32(node.waiting_ranges);
-        block.u64(node.first_range);
-        block.u8(static_cast<uint8_t>((node.motion.reports ? 1U : 0U) | (node.motion.reported_moving ? 2U : 0U) |
-                                      (node.motion.inferred ? 4U : 0U)));
+        exact.structural_doubt =
+            static_cast<uint8_t>(index < structural.size() ? structural[index] : engine::NodeDoubt::None);
+        exact.hinge_a_id = node.hinge[0] == engine::kNoIndex ? 0 : network.nodes[node.hinge[0]].id;
+        exact.hinge_b_id = node.hinge[1] == engine::kNoIndex ? 0 : network.nodes[node.hinge[1]].id;
+        exact.x_m = node.position_m.x();
+        exact.y_m = node.position_m.y();
+        exact.var_x_m2 = node.covariance_m2(0, 0);
+        exact.cov_xy_m2 = node.covariance_m2(0, 1);
+        exact.var_y_m2 = node.covariance_m2(1, 1);
+        exact.average_x_m = node.average_m.x();
+        exact.average_y_m = node.average_m.y();
+        exact.waiting_ranges = node.waiting_ranges;
+        exact.first_range = node.first_range;
+        exact.motion_flags =
+            static_cast<uint8_t>(bitIf(node.motion.reports, CDRO_CHECKPOINT_MOTION_REPORTS) |
+                                 bitIf(node.motion.reported_moving, CDRO_CHECKPOINT_MOTION_REPORTED_MOVING) |
+                                 bitIf(node.motion.inferred, CDRO_CHECKPOINT_MOTION_INFERRED));
         const engine::NodeSolveView &solve = node.solve;
-        block.u8(
-            static_cast<uint8_t>((solve.solved ? 1U : 0U) | (solve.disputed ? 2U : 0U) | (solve.main_part ? 4U : 0U)));
-        block.u64(bitsOf(solve.position_m.x()));
-        block.u64(bitsOf(solve.position_m.y()));
-        block.u64(bitsOf(solve.covariance_m2(0, 0)));
-        block.u64(bitsOf(solve.covariance_m2(0, 1)));
-        block.u64(bitsOf(solve.covariance_m2(1, 1)));
-        block.u64(bitsOf(solve.reliability_m));
-        block.u64(bitsOf(node.range_offset_m));
+        exact.solve_flags = static_cast<uint8_t>(bitIf(solve.solved, CDRO_CHECKPOINT_SOLVE_SOLVED) |
+                                                 bitIf(solve.disputed, CDRO_CHECKPOINT_SOLVE_DISPUTED) |
+                                                 bitIf(solve.main_part, CDRO_CHECKPOINT_SOLVE_MAIN_PART));
+        exact.solve_x_m = solve.position_m.x();
+        exact.solve_y_m = solve.position_m.y();
+        exact.solve_var_x_m2 = solve.covariance_m2(0, 0);
+        exact.solve_cov_xy_m2 = solve.covariance_m2(0, 1);
+        exact.solve_var_y_m2 = solve.covariance_m2(1, 1);
+        exact.solve_reliability_m = solve.reliability_m;
+        exact.range_offset_m = node.range_offset_m;
     }
-    block.u32(static_cast<uint32_t>(network.links.size()));
     for (const engine::LinkState &link : network.links) {
-        block.u16(network.nodes[link.node_a].id);
-        block.u16(network.nodes[link.node_b].id);
-        block.u32(link.range_count);
-        block.u32(mmOfRange(link.last_range_m));
-        block.u16(cdro_fixed_q16_from(link.inlier_probability));
-        block.u64(bitsOf(link.solved_range_m));
-        const std::vector<double> window = link.window.values();
-        block.u8(static_cast<uint8_t>(window.size()));
-        for (double value : window) {
-            block.u32(mmOfRange(value));
+        blocks::engine_link &out = block.links.emplace_back();
+        out.a_id = network.nodes[link.node_a].id;
+        out.b_id = network.nodes[link.node_b].id;
+        out.range_count = link.range_count;
+        out.last_range_mm = mmOfRange(link.last_range_m);
+        out.inlier_probability_q16 = cdro_fixed_q16_from(link.inlier_probability);
+        out.solved_range_m = link.solved_range_m;
+        for (double value : link.window.values()) {
+            out.window_mm.push_back(mmOfRange(value));
         }
     }
-    uint32_t rings = 0;
-    for (const engine::RingSog &ring : network.rings) {
-        rings += ring.empty() ? 0U : 1U;
-    }
-    block.u32(rings);
     for (const engine::RingSog &ring : network.rings) {
         if (ring.empty()) {
             continue;
@@ -679,24 +530,22 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
             pair.components.push_back(out);
         }
         snapshot.pairs.push_back(std::move(pair));
-        block.u32(ring.updateCount());
+        block.ring_update_counts.push_back(ring.updateCount());
     }
     const engine::SolveSchedule &schedule = engine.solveSchedule();
-    block.u64(schedule.links_at_last);
-    block.u64(schedule.ranges_at_last);
-    block.u64(schedule.ranges_since_new_link);
-    block.u64(schedule.ranges_at_check);
-    block.u64(schedule.links_at_full);
-    block.u64(schedule.nodes_at_full);
-    block.u64(schedule.ranges_at_full);
-    block.u64(engine.assessedKey());
+    block.links_at_last_solve = schedule.links_at_last;
+    block.ranges_at_last_solve = schedule.ranges_at_last;
+    block.ranges_since_new_link = schedule.ranges_since_new_link;
+    block.ranges_at_check = schedule.ranges_at_check;
+    block.links_at_full_solve = schedule.links_at_full;
+    block.nodes_at_full_solve = schedule.nodes_at_full;
+    block.ranges_at_full_solve = schedule.ranges_at_full;
+    block.assessed_key = engine.assessedKey();
     engine::EngineCounters counters = engine.counters();
-    const std::vector<uint64_t *> fields = counterFields(counters);
-    block.u8(static_cast<uint8_t>(fields.size()));
-    for (uint64_t *field : fields) {
-        block.u64(*field);
+    for (const uint64_t *field : counterFields(counters)) {
+        block.counters.push_back(*field);
     }
-    snapshot.extensions.push_back({kEngineExtensionTag, block.take()});
+    snapshot.extensions.push_back({kEngineExtensionTag, blocks::encode(block)});
     return snapshot;
 }
 
@@ -706,106 +555,86 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
     if (extension == nullptr) {
         throw CheckpointError("the checkpoint has no engine block (tag 0x0001): not written by cdro-hostd");
     }
-    ByteReader block(extension->bytes);
-    if (block.u8() != kEngineBlockVersion) {
-        throw CheckpointError("the checkpoint's engine block is of another version");
-    }
+    const auto block = blocks::decode<blocks::engine_block>(extension->bytes, "engine", CDRO_CHECKPOINT_ENGINE_VERSION);
     engine::Engine::RestoredState state;
-    const bool has_frame = block.u8() != 0;
-    std::array<engine::NodeId, 3> frame{};
-    for (size_t i = 0; i < 3; ++i) {
-        frame[i] = block.u16();
+    if (block.has_frame != 0) {
+        state.frame_nodes =
+            std::array<engine::NodeId, 3>{block.frame_origin_id, block.frame_axis_id, block.frame_side_id};
     }
-    if (has_frame) {
-        state.frame_nodes = frame;
+    if (block.nodes.size() != snapshot.nodes.size()) {
+        throw CheckpointError("the checkpoint's engine block names " + std::to_string(block.nodes.size()) +
+                              " nodes, the map " + std::to_string(snapshot.nodes.size()));
     }
-    const uint32_t node_count = block.u32();
-    if (node_count != snapshot.nodes.size()) {
-        throw CheckpointError("the checkpoint's engine block names " + std::to_string(node_count) + " nodes, the map " +
-                              std::to_string(snapshot.nodes.size()));
-    }
-    std::vector<std::array<engine::NodeId, 2>> hinges;
-    for (const cdro_sog_node_t &in : snapshot.nodes) {
+    for (size_t n = 0; n < block.nodes.size(); ++n) {
+        const cdro_sog_node_t &in = snapshot.nodes[n];
+        const blocks::engine_node &exact = block.nodes[n];
         engine::NodeState node;
         node.id = in.id;
-        if (block.u16() != in.id) {
+        if (exact.id != in.id) {
             throw CheckpointError("the checkpoint's engine block lists the nodes in another order");
         }
-        node.still_updates = block.u32();
-        node.placements = block.u32();
-        node.update_count = block.u32();
-        node.role = enumOf<engine::NodeRole>(block.u8(), static_cast<uint8_t>(engine::NodeRole::Pinned), "role");
-        node.lifecycle =
-            enumOf<engine::NodeLifecycle>(block.u8(), static_cast<uint8_t>(engine::NodeLifecycle::Settling),
-                                          "lifecycle");
-        node.doubt = enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt");
-        state.structural_doubts.push_back(
-            enumOf<engine::NodeDoubt>(block.u8(), static_cast<uint8_t>(engine::NodeDoubt::Unsettled), "doubt"));
-        std::array<engine::NodeId, 2> hinge_ids{};
-        hinge_ids[0] = block.u16();
-        hinge_ids[1] = block.u16();
-        hinges.push_back(hinge_ids);
+        node.still_updates = exact.still_updates;
+        node.placements = exact.placements;
+        node.update_count = exact.update_count;
+        node.role = static_cast<engine::NodeRole>(exact.role); // in range: the table's R
+        node.lifecycle = static_cast<engine::NodeLifecycle>(exact.lifecycle);
+        node.doubt = static_cast<engine::NodeDoubt>(exact.doubt);
+        state.structural_doubts.push_back(static_cast<engine::NodeDoubt>(exact.structural_doubt));
         if ((in.flags & CDRO_SOG_NODE_HEIGHT_KNOWN) != 0) {
             node.height_m = cdro_fixed_mm_to_m(in.z_mm);
         }
-        node.position_m.x() = doubleOf(block.u64());
-        node.position_m.y() = doubleOf(block.u64());
-        node.covariance_m2(0, 0) = doubleOf(block.u64());
-        node.covariance_m2(0, 1) = node.covariance_m2(1, 0) = doubleOf(block.u64());
-        node.covariance_m2(1, 1) = doubleOf(block.u64());
-        node.average_m.x() = doubleOf(block.u64());
-        node.average_m.y() = doubleOf(block.u64());
-        node.waiting_ranges = block.u32();
-        node.first_range = block.u64();
-        const uint8_t motion = block.u8();
-        node.motion.reports = (motion & 1U) != 0;
-        node.motion.reported_moving = (motion & 2U) != 0;
-        node.motion.inferred = (motion & 4U) != 0;
-        const uint8_t solve = block.u8();
-        node.solve.solved = (solve & 1U) != 0;
-        node.solve.disputed = (solve & 2U) != 0;
-        node.solve.main_part = (solve & 4U) != 0;
-        node.solve.position_m.x() = doubleOf(block.u64());
-        node.solve.position_m.y() = doubleOf(block.u64());
-        node.solve.covariance_m2(0, 0) = doubleOf(block.u64());
-        node.solve.covariance_m2(0, 1) = node.solve.covariance_m2(1, 0) = doubleOf(block.u64());
-        node.solve.covariance_m2(1, 1) = doubleOf(block.u64());
-        node.solve.reliability_m = doubleOf(block.u64());
-        node.range_offset_m = doubleOf(block.u64());
+        node.position_m = engine::Vector2(exact.x_m, exact.y_m);
+        node.covariance_m2(0, 0) = exact.var_x_m2;
+        node.covariance_m2(0, 1) = node.covariance_m2(1, 0) = exact.cov_xy_m2;
+        node.covariance_m2(1, 1) = exact.var_y_m2;
+        node.average_m = engine::Vector2(exact.average_x_m, exact.average_y_m);
+        node.waiting_ranges = exact.waiting_ranges;
+        node.first_range = exact.first_range;
+        node.motion.reports = (exact.motion_flags & CDRO_CHECKPOINT_MOTION_REPORTS) != 0;
+        node.motion.reported_moving = (exact.motion_flags & CDRO_CHECKPOINT_MOTION_REPORTED_MOVING) != 0;
+        node.motion.inferred = (exact.motion_flags & CDRO_CHECKPOINT_MOTION_INFERRED) != 0;
+        node.solve.solved = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_SOLVED) != 0;
+        node.solve.disputed = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_DISPUTED) != 0;
+        node.solve.main_part = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_MAIN_PART) != 0;
+        node.solve.position_m = engine::Vector2(exact.solve_x_m, exact.solve_y_m);
+        node.solve.covariance_m2(0, 0) = exact.solve_var_x_m2;
+        node.solve.covariance_m2(0, 1) = node.solve.covariance_m2(1, 0) = exact.solve_cov_xy_m2;
+        node.solve.covariance_m2(1, 1) = exact.solve_var_y_m2;
+        node.solve.reliability_m = exact.solve_reliability_m;
+        node.range_offset_m = exact.range_offset_m;
         state.nodes.push_back(node);
     }
     // Hinges name nodes by id; the engine keeps indices (the nodes' order is the block's).
     for (size_t i = 0; i < state.nodes.size(); ++i) {
+        const std::array<engine::NodeId, 2> hinges{block.nodes[i].hinge_a_id, block.nodes[i].hinge_b_id};
         for (size_t k = 0; k < 2; ++k) {
             state.nodes[i].hinge[k] = engine::kNoIndex;
-            for (size_t j = 0; j < state.nodes.size() && hinges[i][k] != 0; ++j) {
-                if (state.nodes[j].id == hinges[i][k]) {
+            for (size_t j = 0; j < state.nodes.size() && hinges[k] != 0; ++j) {
+                if (state.nodes[j].id == hinges[k]) {
                     state.nodes[i].hinge[k] = static_cast<uint32_t>(j);
                 }
             }
         }
     }
-    const uint32_t link_count = block.u32();
-    for (uint32_t i = 0; i < link_count; ++i) {
+    for (const blocks::engine_link &in : block.links) {
         engine::Engine::RestoredLink link;
-        link.a = block.u16();
-        link.b = block.u16();
-        link.range_count = block.u32();
-        link.last_range_m = block.u32() / 1000.0;
-        link.inlier_probability = cdro_fixed_q16_to(block.u16());
-        link.solved_range_m = doubleOf(block.u64());
-        const uint8_t size = block.u8();
-        for (uint8_t k = 0; k < size; ++k) {
-            link.window_m.push_back(block.u32() / 1000.0);
+        link.a = in.a_id;
+        link.b = in.b_id;
+        link.range_count = in.range_count;
+        link.last_range_m = in.last_range_mm / 1000.0;
+        link.inlier_probability = cdro_fixed_q16_to(in.inlier_probability_q16);
+        link.solved_range_m = in.solved_range_m;
+        for (uint32_t mm : in.window_mm) {
+            link.window_m.push_back(mm / 1000.0);
         }
         state.links.push_back(std::move(link));
     }
-    const uint32_t ring_count = block.u32();
-    if (ring_count != snapshot.pairs.size()) {
-        throw CheckpointError("the checkpoint's engine block names " + std::to_string(ring_count) + " SoGs, the map " +
-                              std::to_string(snapshot.pairs.size()));
+    if (block.ring_update_counts.size() != snapshot.pairs.size()) {
+        throw CheckpointError("the checkpoint's engine block names " + std::to_string(block.ring_update_counts.size()) +
+                              " SoGs, the map " + std::to_string(snapshot.pairs.size()));
     }
-    for (const service::SogSnapshot::Pair &pair : snapshot.pairs) {
+    for (size_t p = 0; p < snapshot.pairs.size(); ++p) {
+        const service::SogSnapshot::Pair &pair = snapshot.pairs[p];
         std::vector<engine::SogComponentState> components;
         for (const cdro_sog_component_t &in : pair.components) {
             engine::SogComponentState component;
@@ -819,27 +648,20 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         const size_t count = std::max<size_t>(components.size(), 1U);
         ring.setWeightFloor(std::min(engine.params().ring.weight_floor, 0.1 / static_cast<double>(count)));
         ring.setComponents(components);
-        ring.setUpdateCount(block.u32());
+        ring.setUpdateCount(block.ring_update_counts[p]);
         state.rings.push_back(std::move(ring));
     }
-    state.solve_schedule.links_at_last = block.u64();
-    state.solve_schedule.ranges_at_last = block.u64();
-    state.solve_schedule.ranges_since_new_link = block.u64();
-    state.solve_schedule.ranges_at_check = block.u64();
-    state.solve_schedule.links_at_full = block.u64();
-    state.solve_schedule.nodes_at_full = block.u64();
-    state.solve_schedule.ranges_at_full = block.u64();
-    state.assessed_key = block.u64();
+    state.solve_schedule.links_at_last = block.links_at_last_solve;
+    state.solve_schedule.ranges_at_last = block.ranges_at_last_solve;
+    state.solve_schedule.ranges_since_new_link = block.ranges_since_new_link;
+    state.solve_schedule.ranges_at_check = block.ranges_at_check;
+    state.solve_schedule.links_at_full = block.links_at_full_solve;
+    state.solve_schedule.nodes_at_full = block.nodes_at_full_solve;
+    state.solve_schedule.ranges_at_full = block.ranges_at_full_solve;
+    state.assessed_key = block.assessed_key;
     std::vector<uint64_t *> fields = counterFields(state.counters);
-    const uint8_t stored = block.u8();
-    for (uint8_t i = 0; i < stored; ++i) {
-        const uint64_t value = block.u64();
-        if (i < fields.size()) {
-            *fields[i] = value;
-        }
-    }
-    if (!block.done()) {
-        throw CheckpointError("the checkpoint's engine block has bytes after its end");
+    for (size_t i = 0; i < block.counters.size() && i < fields.size(); ++i) {
+        *fields[i] = block.counters[i];
     }
     try {
         engine.restore(state);

@@ -8,7 +8,8 @@
 //                       plus an extension block (tag kEngineExtensionTag) with what the layout
 //                       does not hold: link windows, update counts, the frame, the counters;
 //                       with a robot, a second block (kMovementExtensionTag): the movement
-//                       stage's EKF hypotheses, beacon SoGs and link watches, exactly
+//                       stage's EKF hypotheses, beacon SoGs and link watches, exactly; both
+//                       laid out by checkpoint_layout.def (cdro/hostd/checkpoint_blocks.hpp)
 //
 // Resuming from a checkpoint continues from the state rounded to the layout's scales
 // (positions to 0.5 mm, standard deviations to 0.5 um, weights to 7.7e-6, ranges in the link
