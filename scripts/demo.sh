@@ -4,7 +4,7 @@
 #   cdro-sim --scenario demo  (7 Pozyx nodes at known heights in a 12 m x 9 m room, one of them
 #                              carried 5.2 m halfway through, two NLOS links, outliers, dropouts)
 #     acts as the Pozyx tag on the Uno, on a pseudo-terminal: the firmware itself runs there
-#     (firmware/core built for the host, firmware/host_device);
+#     (firmware/core built for the host, sim/host_device);
 #   (the heights as measured with a tape: out/demo-heights.csv, written by cdro-sim)
 #   cdro-hostd reads that pseudo-terminal as its serial port: handshake, SET_NODES/SET_SCHEDULE/
 #     START, the SLAM engine, the live map over HTTP, JSON Lines, the capture, checkpoints.
@@ -14,7 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo > /dev/null
-cmake --build build -j "$(nproc)" --target cdro-hostd cdro_host_device   # cdro-sim runs the firmware (firmware/host_device)
+cmake --build build -j "$(nproc)" --target cdro-hostd cdro_host_device   # cdro-sim runs the firmware (sim/host_device)
 
 mkdir -p out
 rm -f out/estimates.jsonl out/demo.cdrocap* out/checkpoint.cdrosog out/map.png out/rmse.png out/demo-*.csv

@@ -1,4 +1,4 @@
-"""Shared pytest fixtures: where the golden vectors and the native build live, and a real MQTT
+"""Shared pytest fixtures: where the golden vectors, the native build and the AVR build live, and a real MQTT
 broker (mosquitto) for the tests that need one."""
 import os
 import pathlib
@@ -26,6 +26,12 @@ def golden_dir() -> pathlib.Path:
 def build_dir() -> pathlib.Path:
     """The native CMake build (scripts/test.sh sets CDRO_BUILD_DIR; default ./build)."""
     return pathlib.Path(os.environ.get("CDRO_BUILD_DIR", REPO / "build"))
+
+
+@pytest.fixture(scope="session")
+def avr_build_dir() -> pathlib.Path:
+    """The Uno's AVR build (scripts/test.sh sets CDRO_AVR_BUILD_DIR; default ./build-avr)."""
+    return pathlib.Path(os.environ.get("CDRO_AVR_BUILD_DIR", REPO / "build-avr"))
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,4 @@
-// The firmware on the host (firmware/host_device, cdro-sim's device) through its C interface,
+// The firmware on the host (sim/host_device, cdro-sim's device) through its C interface,
 // as cdro-sim drives it: boot, a command, ranging against the caller's world, a reset. Linked
 // against the shared library only (its codec decodes what it wrote).
 #include <gtest/gtest.h>

@@ -1,5 +1,5 @@
 """cdro-sim's device is the firmware itself (firmware/core built for the host with
-firmware/pozyx_sim as its Pozyx: firmware/host_device), driven in simulated time in-process
+sim/pozyx_sim as its Pozyx: sim/host_device), driven in simulated time in-process
 against the "Device behaviour" contract of docs/protocol.md. What these tests add to the
 firmware's own (tests/firmware: its scheduler, motion detector, commands, each in C) is the
 joint: the Python world answering the firmware's Pozyx (positions, the UWB error model, the

@@ -93,7 +93,7 @@ def test_that_ranges_beyond_the_maximum_fail_with_a_timeout():
 
 
 def test_that_rss_is_plausible():
-    # (how long a ranging takes is the Pozyx model's, firmware/pozyx_sim, not this model's)
+    # (how long a ranging takes is the Pozyx model's, sim/pozyx_sim, not this model's)
     uwb = model(two_nodes(), seed=18)
     direct = [uwb.measure(A, B, 0.0) for _ in range(200)]
     near = statistics.fmean(o.rss_dbm for o in [uwb.measure(A, C3, 0.0) for _ in range(200)])  # 6.1 m

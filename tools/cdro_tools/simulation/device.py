@@ -1,6 +1,6 @@
 """The simulated device: the CDRO firmware itself (firmware/core, the code the Uno runs), built
-for the host (firmware/host_device) and driven here in simulated time. Its Pozyx is
-firmware/pozyx_sim's register model, the one firmware in the loop uses; what that Pozyx
+for the host (sim/host_device) and driven here in simulated time. Its Pozyx is
+sim/pozyx_sim's register model, the one firmware in the loop uses; what that Pozyx
 measures comes from the world: where the nodes are (World), what each ranging reports
 (UwbModel: noise, NLOS, outliers, dropouts) and what each accelerometer reads.
 

@@ -1,6 +1,6 @@
-"""The CDRO firmware built for the host (firmware/host_device: libcdro_host_device.so), loaded
-with ctypes: firmware/core as the Uno runs it, against firmware/pozyx_sim's Pozyx register
-model, with the world answering through callbacks. See firmware/host_device/include/
+"""The CDRO firmware built for the host (sim/host_device: libcdro_host_device.so), loaded
+with ctypes: firmware/core as the Uno runs it, against sim/pozyx_sim's Pozyx register
+model, with the world answering through callbacks. See sim/host_device/include/
 cdro_host_device/host_device.h for the C side.
 
 The library is found, in this order, at $CDRO_HOST_DEVICE_LIB, in $CDRO_BUILD_DIR/lib, in the

@@ -1,7 +1,7 @@
 """Scenario files: YAML, checked strictly (unknown keys, wrong types and impossible values are
 errors naming the key), with every default in one place. docs/tools.md documents each key.
 
-The format is shared with cdro-fil (firmware/fil/src/scenario.cpp, which reads the same keys):
+The format is shared with cdro-fil (sim/fil/src/scenario.cpp, which reads the same keys):
 a key only cdro-fil can act on is refused with a message saying so, and a key spelled the way an
 older file spelled it is refused with its current name (FIL_ONLY_KEYS, FIL_FAULT_KINDS, RENAMED_KEYS).
 
@@ -150,7 +150,7 @@ FAULT_KINDS = {
 FIL_FAULT_KINDS = ("nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
                    "stale_range", "drop_remote_reply", "refuse_function", "late_reply", "power_off")
 
-# Keys of the one scenario format that only cdro-fil acts on (firmware/fil/src/scenario.cpp), by
+# Keys of the one scenario format that only cdro-fil acts on (sim/fil/src/scenario.cpp), by
 # path with list indices written [].
 FIL_ONLY_KEYS = {
     "uwb.bias_m": "a constant added to every range",

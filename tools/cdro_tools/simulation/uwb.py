@@ -1,5 +1,5 @@
 """The UWB error model: what a Pozyx two-way range reports for two nodes at a given time, and
-when it fails. (How long it takes is the Pozyx model's, firmware/pozyx_sim, which asks this
+when it fails. (How long it takes is the Pozyx model's, sim/pozyx_sim, which asks this
 model for every ranging the firmware runs.)
 
     measured_m = scale x true_3d_m + link_bias_m + N(0, link_std_m^2) [+ Exp(outlier_mean_m)]

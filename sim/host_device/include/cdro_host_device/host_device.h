@@ -5,7 +5,7 @@
  *
  * What it joins:
  *   - the firmware: cdro_fw_init / cdro_fw_step of firmware/core, unchanged, with host ops;
- *   - the Pozyx on its I2C bus: firmware/pozyx_sim's register model (the one firmware in the
+ *   - the Pozyx on its I2C bus: sim/pozyx_sim's register model (the one firmware in the
  *     loop uses, with its real-device behaviours on), each transaction costing simulated time
  *     at the I2C clock as on the Uno (9 bits a byte plus start and stop, Wire's overhead, clock
  *     stretching, Wire's timeout for a hung bus);
