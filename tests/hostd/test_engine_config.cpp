@@ -289,6 +289,16 @@ TEST(EngineConfig, LoadAppliesFileSettingsAndSwitches)
     } catch (const ConfigError &error) {
         EXPECT_NE(std::string(error.what()).find("cannot read"), std::string::npos) << error.what();
     }
+    // A setting in a section that does not exist is a mistake, not a new section (the same check
+    // as cdro-hostd's: one loader).
+    EngineOverrides misspelt;
+    misspelt.sets = {"solve.adopt_after_sweeps=1"};
+    try {
+        loadEngineParams("", misspelt);
+        ADD_FAILURE() << "a setting of an unknown section was taken";
+    } catch (const ConfigError &error) {
+        EXPECT_NE(std::string(error.what()).find("unknown section 'solve'"), std::string::npos) << error.what();
+    }
     std::remove(path.c_str());
 }
 

@@ -8,6 +8,7 @@
 #include <CLI/CLI.hpp>
 #include <yaml-cpp/yaml.h>
 
+#include "cdro/service/config.hpp"
 #include "cdro/service/yaml_section.hpp"
 
 namespace cdro::hostd {
@@ -378,29 +379,44 @@ void applySettings(YAML::Node &root, const std::vector<std::string> &settings)
     }
 }
 
-engine::EngineParams loadEngineParams(const std::string &config_path, const EngineOverrides &overrides)
+ConfigDocument loadConfigDocument(const std::string &path, const std::vector<std::string> &sets)
 {
-    YAML::Node root;
-    std::string origin = "<defaults>";
-    if (!config_path.empty()) {
-        std::ifstream in(config_path, std::ios::binary);
+    ConfigDocument document;
+    document.origin = path.empty() ? "<defaults>" : path;
+    if (!path.empty()) {
+        std::ifstream in(path, std::ios::binary);
         if (!in) {
-            throw ConfigError(config_path + ": cannot read the configuration file");
+            throw ConfigError(path + ": cannot read the configuration file");
         }
         std::ostringstream text;
         text << in.rdbuf();
+        document.service_text = text.str();
         try {
-            root = YAML::Load(text.str());
+            document.root = YAML::Load(document.service_text);
         } catch (const YAML::Exception &error) {
-            throw ConfigError(config_path + ": not valid YAML: " + error.what());
+            throw ConfigError(path + ": not valid YAML: " + error.what());
         }
-        origin = config_path;
     }
-    if (!overrides.sets.empty()) {
-        applySettings(root, overrides.sets);
-        origin += " + --set";
+    // Each layer rejects unknown keys inside its sections; a misspelt section name, in the file or
+    // in a --set, is caught here, where every layer's sections are known.
+    std::vector<std::string> sections = service::serviceSectionNames();
+    sections.insert(sections.end(), {"engine", "movement", "map"});
+    service::rejectUnknownSections(document.root, document.origin, sections);
+    if (!sets.empty()) {
+        applySettings(document.root, sets);
+        service::rejectUnknownSections(document.root, "--set", sections);
+        YAML::Emitter out;
+        out << document.root;
+        document.service_text = out.c_str();
+        document.origin += " + --set";
     }
-    engine::EngineParams params = parseEngineParams(root, origin);
+    return document;
+}
+
+engine::EngineParams loadEngineParams(const std::string &config_path, const EngineOverrides &overrides)
+{
+    const ConfigDocument document = loadConfigDocument(config_path, overrides.sets);
+    engine::EngineParams params = parseEngineParams(document.root, document.origin);
     applySwitches(params, overrides);
     return params;
 }

@@ -8,8 +8,6 @@
 // docs/service.md documents the service, docs/engine.md the engine and its parameters.
 #include <cstdio>
 #include <exception>
-#include <fstream>
-#include <sstream>
 
 #include <unistd.h>
 
@@ -30,50 +28,6 @@
 #include "cdro/service/yaml_section.hpp"
 
 namespace {
-
-using cdro::service::ConfigError;
-
-// The YAML document of --config with the --set settings applied, and the text the service's
-// parser reads (the file's own text when nothing was set, so its messages name real lines).
-struct ConfigDocument {
-    YAML::Node root;
-    std::string service_text;
-    std::string origin;
-};
-
-ConfigDocument loadDocument(const std::string &path, const std::vector<std::string> &sets)
-{
-    ConfigDocument document;
-    document.origin = path.empty() ? "<defaults>" : path;
-    if (!path.empty()) {
-        std::ifstream in(path, std::ios::binary);
-        if (!in) {
-            throw ConfigError(path + ": cannot read the configuration file");
-        }
-        std::ostringstream text;
-        text << in.rdbuf();
-        document.service_text = text.str();
-        try {
-            document.root = YAML::Load(document.service_text);
-        } catch (const YAML::Exception &error) {
-            throw ConfigError(path + ": not valid YAML: " + error.what());
-        }
-    }
-    // Each layer rejects unknown keys inside its sections; a misspelt section name, in the file or
-    // in a --set, is caught here, where every layer's sections are known.
-    std::vector<std::string> sections = cdro::service::serviceSectionNames();
-    sections.insert(sections.end(), {"engine", "movement", "map"});
-    cdro::service::rejectUnknownSections(document.root, document.origin, sections);
-    if (!sets.empty()) {
-        cdro::hostd::applySettings(document.root, sets);
-        cdro::service::rejectUnknownSections(document.root, "--set", sections);
-        YAML::Emitter out;
-        out << document.root;
-        document.service_text = out.c_str();
-        document.origin += " + --set";
-    }
-    return document;
-}
 
 // A replay reaches the live run's map only with what the map depended on: the heights and fixed
 // nodes and the settings, which the live run recorded in its capture's header. Whatever the
@@ -185,7 +139,8 @@ static int runMain(int argc, char **argv)
     }
 
     try {
-        const ConfigDocument document = loadDocument(service_overrides.config_path, engine_overrides.sets);
+        const cdro::hostd::ConfigDocument document =
+            cdro::hostd::loadConfigDocument(service_overrides.config_path, engine_overrides.sets);
         cdro::hostd::EngineOverrides switches = engine_overrides;
         switches.sets.clear(); // already in the document
         cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);

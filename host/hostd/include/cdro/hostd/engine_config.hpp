@@ -12,14 +12,13 @@
 #include <string>
 #include <vector>
 
+#include <yaml-cpp/yaml.h>
+
 #include "cdro/engine/movement.hpp"
 #include "cdro/engine/params.hpp"
 
 namespace CLI {
 class App;
-}
-namespace YAML {
-class Node;
 }
 
 namespace cdro::hostd {
@@ -40,7 +39,18 @@ void applySwitches(engine::EngineParams &params, const EngineOverrides &override
 // Throws cdro::service::ConfigError.
 engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string &origin);
 
-// Reads the file (or none: "" gives the defaults), applies the overrides, parses, validates.
+// The YAML document of --config (or none: "" gives an empty one) with the --set settings
+// applied, and the text the service's parser reads (the file's own text when nothing was set, so
+// that its messages name real lines). A section no layer knows, in the file or in a --set, is an
+// error naming it and the known ones. Throws cdro::service::ConfigError.
+struct ConfigDocument {
+    YAML::Node root;
+    std::string service_text;
+    std::string origin; // the file's path, "<defaults>", + " + --set"
+};
+ConfigDocument loadConfigDocument(const std::string &path, const std::vector<std::string> &sets);
+
+// The engine's parameters from loadConfigDocument, with the switches applied.
 // Throws cdro::service::ConfigError.
 engine::EngineParams loadEngineParams(const std::string &config_path, const EngineOverrides &overrides);
 
