@@ -1,11 +1,11 @@
 #include "scenario.hpp"
 
+#include <cctype>
 #include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <limits>
 #include <map>
-#include <regex>
 #include <set>
 #include <sstream>
 
@@ -96,10 +96,25 @@ public:
         }
     }
 
-    // The key's path with list indices written [], as the tables above have it.
+    // The key's path with list indices written [], as the tables above have it ("nodes[3].x_m" ->
+    // "nodes[].x_m"). By hand: <regex> under GCC 12's -O1 sanitizer build warns inside libstdc++.
     std::string pattern(const std::string &key) const
     {
-        return std::regex_replace(path_ == "scenario" ? key : path_ + "." + key, std::regex(R"(\[\d+\])"), "[]");
+        const std::string path = path_ == "scenario" ? key : path_ + "." + key;
+        std::string out;
+        for (size_t i = 0; i < path.size(); ++i) {
+            size_t end = i + 1;
+            while (path[i] == '[' && end < path.size() && std::isdigit(static_cast<unsigned char>(path[end])) != 0) {
+                ++end;
+            }
+            if (path[i] == '[' && end > i + 1 && end < path.size() && path[end] == ']') {
+                out += "[]";
+                i = end;
+            } else {
+                out += path[i];
+            }
+        }
+        return out;
     }
 
     [[noreturn]] void fail(const YAML::Node &at, const std::string &key, const std::string &message) const
