@@ -406,8 +406,9 @@ std::vector<CalibratedAnchor> MovingCalibration::solve(const std::vector<Calibra
             if (placed[i]) {
                 point_of[i] = static_cast<uint32_t>(network.points_m.size());
                 network.points_m.push_back(*placed[i]);
-                const uint8_t anchor = anchor_hold == kHeld || height[i] ? anchor_hold : kFree;
-                network.held.push_back(i < anchors ? anchor : kFree);
+                // `height` is the anchors' only: a window's node is always free.
+                const bool anchor = i < anchors;
+                network.held.push_back(anchor && (anchor_hold == kHeld || height[i]) ? anchor_hold : kFree);
             }
         }
         for (const CalibrationRange &r : used) {
