@@ -18,6 +18,18 @@ typedef char
                                                                                                                  : -1];
 typedef char cdro_capture_magic_agrees[(sizeof CDRO_CAPTURE_MAGIC == CDRO_CAPTURE_MAGIC_SIZE) ? 1 : -1];
 
+/* Appends n bytes (n may be 0, src then may be NULL); returns the position after them. */
+static uint8_t *put_bytes(uint8_t *p, const void *src, size_t n)
+{
+    if (n > 0U) {
+        memcpy(p, src, n);
+    }
+    return p + n;
+}
+
+/* Both the header and a record end in the CRC-16 of every byte before it. */
+static void put_crc(uint8_t *start, uint8_t *end) { (void)cdro_put_u16(end, cdro_crc16(start, (size_t)(end - start))); }
+
 size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *out, size_t out_cap)
 {
     const size_t context_size = header->context_len > 0U ? 2U + (size_t)header->context_len : 0U;
@@ -34,17 +46,13 @@ size_t cdro_capture_header_encode(const cdro_capture_header_t *header, uint8_t *
     head.header_size = (uint16_t)size;
     head.created_unix_us = header->created_unix_us;
     head.source_len = header->source_len;
-    memcpy(p, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE); /* includes the 0x00 */
-    p += CDRO_CAPTURE_MAGIC_SIZE;
+    p = put_bytes(p, CDRO_CAPTURE_MAGIC, CDRO_CAPTURE_MAGIC_SIZE); /* includes the 0x00 */
     p += encode_capture_head(&head, p);
-    memcpy(p, header->source, header->source_len);
-    p += header->source_len;
+    p = put_bytes(p, header->source, header->source_len);
     if (header->context_len > 0U) {
-        p = cdro_put_u16(p, header->context_len);
-        memcpy(p, header->context, header->context_len);
-        p += header->context_len;
+        p = put_bytes(cdro_put_u16(p, header->context_len), header->context, header->context_len);
     }
-    (void)cdro_put_u16(p, cdro_crc16(out, (size_t)(p - out)));
+    put_crc(out, p);
     return size;
 }
 
@@ -109,11 +117,7 @@ size_t cdro_capture_record_encode(const cdro_capture_record_t *record, uint8_t *
     head.data_len = record->data_len;
     head.host_time_us = record->host_time_us;
     p += encode_capture_record_head(&head, p);
-    if (record->data_len > 0U) {
-        memcpy(p, record->data, record->data_len);
-    }
-    p += record->data_len;
-    (void)cdro_put_u16(p, cdro_crc16(out, (size_t)(p - out)));
+    put_crc(out, put_bytes(p, record->data, record->data_len));
     return size;
 }
 
