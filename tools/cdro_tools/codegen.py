@@ -297,6 +297,16 @@ def _repeated_rows(field: dict, offset: int | str) -> list[str]:
             f"| {_advance(offset, 4)} | {element}[{count}] | {field['name']} | {unit} | - | {doc} |"]
 
 
+def _fixed_size(fields: list) -> int:
+    return sum(KIND_SIZES[f["kind"]] for f in fields)
+
+
+def _record_section(title: str, record: dict, fields: list, constants: dict, start: int = 0) -> list[str]:
+    """One record's part of docs/protocol.md: its heading, its doc sentence and its field table."""
+    doc = record["doc"][0].upper() + record["doc"][1:] + "."
+    return [f"#### {title}", "", doc, "", *_field_table(fields, constants, start), ""]
+
+
 def _field_table(fields: list[dict], constants: dict, start: int = 0) -> list[str]:
     """Offsets, types, units and the declared valid ranges ("-": none declared)."""
     rows = ["| Offset | Type | Field | Unit | Range | Meaning |", "|---:|---|---|---|---|---|"]
@@ -352,59 +362,34 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
         arrays = [f for f in fields if "max" in f]
         most = size + 1 + sum(KIND_SIZES[f["kind"]] * f["max"] for f in arrays)
         size_text = f"{size} bytes" if not arrays else f"{size + 1}..{most} bytes"
-        out.append(f"#### {record['name']} (0x{record['id']:02X}, {direction}, payload {size_text})")
-        out.append("")
-        out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
-        out.append("")
-        out += _field_table(fields, frames["constants"])
-        out.append("")
+        out += _record_section(f"{record['name']} (0x{record['id']:02X}, {direction}, payload {size_text})",
+                               record, fields, frames["constants"])
     out.append("### SoG snapshot records")
     out.append("")
     for record in sog["lists"]["CDRO_SOG_RECORD_LIST"]:
         fields = sog["fields"][record["name"]]
-        size = sum(KIND_SIZES[f["kind"]] for f in fields)
-        out.append(f"#### {record['name']} ({size} bytes)")
-        out.append("")
-        out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
-        out.append("")
-        out += _field_table(fields, sog["constants"])
-        out.append("")
+        out += _record_section(f"{record['name']} ({_fixed_size(fields)} bytes)", record, fields, sog["constants"])
     out.append("### Capture file records")
     out.append("")
     # CAPTURE_HEAD follows the magic; a record starts with CAPTURE_RECORD_HEAD.
     starts = {"CAPTURE_HEAD": capture["constants"]["CDRO_CAPTURE_MAGIC_SIZE"]}
     for record in capture["lists"]["CDRO_CAPTURE_RECORD_LIST"]:
         fields = capture["fields"][record["name"]]
-        size = sum(KIND_SIZES[f["kind"]] for f in fields)
-        out.append(f"#### {record['name']} ({size} bytes)")
-        out.append("")
-        out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
-        out.append("")
-        out += _field_table(fields, capture["constants"], starts.get(record["name"], 0))
-        out.append("")
+        out += _record_section(f"{record['name']} ({_fixed_size(fields)} bytes)", record, fields,
+                               capture["constants"], starts.get(record["name"], 0))
     out.append("### Checkpoint extension blocks")
     out.append("")
     for record in checkpoint["lists"]["CDRO_CHECKPOINT_RECORD_LIST"]:
         fields = checkpoint["fields"][record["name"]]
-        size = sum(KIND_SIZES[f["kind"]] for f in fields)
-        out.append(f"#### {record['name']} ({size} bytes)")
-        out.append("")
-        out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
-        out.append("")
-        out += _field_table(fields, checkpoint["constants"])
-        out.append("")
+        out += _record_section(f"{record['name']} ({_fixed_size(fields)} bytes)", record, fields,
+                               checkpoint["constants"])
     for block, list_name in BLOCK_LISTS.items():
         version = f"CDRO_CHECKPOINT_{block}_VERSION"
         out.append(f"### Checkpoint {block.lower()} block (version {checkpoint['constants'][version]})")
         out.append("")
         for record in checkpoint["lists"][list_name]:
             fields = checkpoint["fields"][record["name"]]
-            out.append(f"#### {record['name']}")
-            out.append("")
-            out.append(record["doc"][0].upper() + record["doc"][1:] + ".")
-            out.append("")
-            out += _field_table(fields, checkpoint["constants"])
-            out.append("")
+            out += _record_section(record["name"], record, fields, checkpoint["constants"])
     out.append(DOC_END)
     return "\n".join(out)
 
