@@ -1,4 +1,4 @@
-// motion_track_3d.hpp: nodes that never stop, tracked in 3D (issue 19 (c); docs/engine.md,
+// motion_track_3d.hpp: nodes that never stop, tracked in 3D (docs/engine.md,
 // "Nodes that never stop: 3D tracks").
 //
 // A node declared moving from the start whose height is not known (a tag on a drone, a person)

@@ -1,5 +1,5 @@
 // moving_calibration.hpp: static anchors whose positions are not given, calibrated from the ranges
-// of moving nodes alone (issue 19 (d); docs/engine.md, "Nodes that never stop: anchors not given").
+// of moving nodes alone (docs/engine.md, "Nodes that never stop: anchors not given").
 //
 // The data: ranges between moving nodes (tags) and static anchors, and between tags; none between
 // anchors. Unknowns: each anchor's position (x, y, z; z given when its height is known) and each
