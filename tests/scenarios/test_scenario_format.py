@@ -12,7 +12,8 @@ import sys
 
 import pytest
 
-from cdro_tools.simulation.scenario import FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, parse_scenario
+from cdro_tools.simulation.scenario import (FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, from_shared_view,
+                                            parse_scenario, shared_view)
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SHARED = REPO / "tests" / "scenarios" / "shared_office.yaml"
@@ -75,6 +76,12 @@ def test_that_both_read_the_shared_scenario_alike(fil_binary):
     assert third["waypoints_m"] == [[3.0, 3.0, 1.1]]                       # the height the node keeps
     assert sim_json["uwb"] == {"noise_std_m": 0.05, "max_range_m": 30.0}
     assert sim_json["accelerometer"]["noise_std_mg"] == 6.0 and sim_json["pozyx"] == {"firmware_version": 0x12}
+
+
+def test_that_a_view_read_back_is_the_same_scenario(fil_binary):
+    # fil_support builds the world model of a cdro-fil run from this view (from_shared_view).
+    view = json.loads(fil_view(fil_binary, SHARED).stdout)
+    assert_same(shared_view(from_shared_view(view, "view")), view)
 
 
 def test_that_a_seed_and_duration_given_on_the_command_line_reach_both_views(fil_binary):

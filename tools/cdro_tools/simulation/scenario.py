@@ -565,3 +565,37 @@ def shared_view(scenario: Scenario) -> dict[str, Any]:
                           "moving_frequency_hz": scenario.accelerometer.moving_frequency_hz},
         "pozyx": {"firmware_version": scenario.device.pozyx_firmware},
     }
+
+
+def from_shared_view(view: dict[str, Any], source: str) -> Scenario:
+    """The Scenario of a shared view (`cdro-fil --print-scenario`, shared_view's form), so that the
+    world model (world.World) places the nodes of a run of cdro-fil: what cdro-fil read, without a
+    second reader of the YAML. Only the shared keys come through; the rest keep their defaults. A
+    stretch carried up or down (a waypoint off the node's height, which only cdro-fil supports) is
+    refused: the world model keeps each node at its height."""
+    try:
+        nodes = [Node(id=int(n["id"]), x_m=float(n["x_m"]), y_m=float(n["y_m"]), z_m=float(n["z_m"]),
+                      accelerometer=bool(n["accelerometer"])) for n in view["nodes"]]
+        heights_m = {n.id: n.z_m for n in nodes}
+        motion = []
+        for i, m in enumerate(view["motion"]):
+            for k, (_, _, z_m) in enumerate(m["waypoints_m"]):
+                if not math.isclose(z_m, heights_m[m["node"]], abs_tol=1e-9):
+                    raise ScenarioError(f"{source}: motion[{i}].waypoints_m[{k}]: z {z_m} m is not the height of "
+                                        f"node 0x{m['node']:04X} ({heights_m[m['node']]} m); the world model "
+                                        "keeps each node at its height")
+            motion.append(MotionSegment(node=int(m["node"]), start_s=float(m["start_s"]),
+                                        waypoints=[(float(x), float(y)) for x, y, _ in m["waypoints_m"]],
+                                        speed_mps=float(m["speed_mps"]), end_s=float(m["end_s"])))
+        uwb, accel = view["uwb"], view["accelerometer"]
+        return Scenario(name=str(view["name"]), own_id=int(view["own_id"]), nodes=nodes,
+                        duration_s=float(view["duration_s"]), seed=int(view["seed"]), motion=motion,
+                        uwb=Uwb(noise_std_m=float(uwb["noise_std_m"]), max_range_m=float(uwb["max_range_m"])),
+                        accelerometer=Accelerometer(noise_std_mg=float(accel["noise_std_mg"]),
+                                                    moving_amplitude_mg=float(accel["moving_amplitude_mg"]),
+                                                    moving_frequency_hz=float(accel["moving_frequency_hz"])),
+                        device=Device(pozyx_firmware=int(view["pozyx"]["firmware_version"])))
+    except ScenarioError:
+        raise
+    except (KeyError, TypeError, ValueError) as error:
+        raise ScenarioError(f"{source}: not a shared scenario view ({type(error).__name__}: {error})") from None
