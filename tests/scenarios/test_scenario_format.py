@@ -78,6 +78,30 @@ def test_that_both_read_the_shared_scenario_alike(fil_binary):
     assert sim_json["accelerometer"]["noise_std_mg"] == 6.0 and sim_json["pozyx"] == {"firmware_version": 0x12}
 
 
+# Only the required keys: every default of the keys both tools read applies.
+BARE = "own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6A01, x_m: 4, y_m: 0}\n"
+
+
+def test_that_both_tools_give_a_key_left_out_the_same_default(fil_binary, tmp_path):
+    path = tmp_path / "bare-office.yaml"
+    path.write_text(BARE)
+    fil, sim = fil_view(fil_binary, path), sim_view(path)
+    assert fil.returncode == 0, fil.stderr
+    assert sim.returncode == 0, sim.stderr
+    fil_json, sim_json = json.loads(fil.stdout), json.loads(sim.stdout)
+    assert_same(fil_json, sim_json)
+    # The defaults of docs/tools.md, "Scenario files", so that both tools moving together fail too.
+    assert_same(sim_json, {
+        "name": "bare-office", "seed": 1, "duration_s": 60.0, "own_id": 0x6000,
+        "nodes": [{"id": 0x6000, "x_m": 0.0, "y_m": 0.0, "z_m": 0.0, "accelerometer": False},
+                  {"id": 0x6A01, "x_m": 4.0, "y_m": 0.0, "z_m": 0.0, "accelerometer": False}],
+        "motion": [],
+        "uwb": {"noise_std_m": 0.1, "max_range_m": 100.0},
+        "accelerometer": {"noise_std_mg": 8.0, "moving_amplitude_mg": 250.0, "moving_frequency_hz": 1.8},
+        "pozyx": {"firmware_version": 0x11},
+    })
+
+
 def test_that_a_view_read_back_is_the_same_scenario(fil_binary):
     # fil_support builds the world model of a cdro-fil run from this view (from_shared_view).
     view = json.loads(fil_view(fil_binary, SHARED).stdout)

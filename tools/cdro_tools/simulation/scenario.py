@@ -122,7 +122,7 @@ class Device:
     nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim).
     pozyx_firmware and pozyx_present are read from the scenario's pozyx section."""
 
-    pozyx_firmware: int = 0x12             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
+    pozyx_firmware: int = 0x11             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
     pozyx_present: bool = True            # pozyx.present; False: the shield does not answer on I2C
     free_ram_bytes: int = 612              # reported in STATUS
     tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
@@ -440,7 +440,7 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     pz = r.mapping(top.get("pozyx"), "pozyx", {"firmware_version", "present"})
     dv = r.mapping(top.get("device"), "device", _fields(Device) - {"pozyx_firmware", "pozyx_present"})
     scenario.device = Device(
-        pozyx_firmware=r.integer(pz.get("firmware_version", 0x12), "pozyx.firmware_version", 0, 0xFF),
+        pozyx_firmware=r.integer(pz.get("firmware_version", 0x11), "pozyx.firmware_version", 0, 0xFF),
         pozyx_present=r.boolean(pz.get("present", True), "pozyx.present"),
         free_ram_bytes=r.integer(dv.get("free_ram_bytes", 612), "device.free_ram_bytes", 0, 0xFFFF),
         tx_buffer_bytes=r.integer(dv.get("tx_buffer_bytes", 4096), "device.tx_buffer_bytes", 128, 1 << 24))
