@@ -12,7 +12,6 @@ pseudo-terminal, so runs can go on in parallel.
 """
 from __future__ import annotations
 
-import bisect
 import csv
 import dataclasses
 import json
@@ -22,9 +21,10 @@ import signal
 import subprocess
 import time
 
-import yaml
-
 from cdro_tools.codec import FrameError, decode_frame, read_capture, validate_frame
+from cdro_tools.evaluation.tracking import read_node_tracks
+from cdro_tools.simulation.scenario import Scenario, from_shared_view
+from cdro_tools.simulation.world import World
 
 DEADLOCK_GUARD_S = 60.0  # s of wall-clock time beyond the scenario; only reached when something is broken
 
@@ -33,62 +33,37 @@ def avr_elf(avr_build_dir: pathlib.Path, board: str = "uno") -> pathlib.Path:
     return avr_build_dir / "bin" / f"cdro-firmware-{board}.elf"
 
 
-# ---- the scenario, as the test needs it -------------------------------------------------------
+# ---- the scenario and its truth ----------------------------------------------------------------
 
-@dataclasses.dataclass
-class Scenario:
-    path: pathlib.Path
-    raw: dict
-    own: int
-    nodes: dict[int, dict]          # id -> node entry (x_m, y_m, z_m, accelerometer)
-    duration_s: float
-
-    @classmethod
-    def load(cls, path: pathlib.Path) -> "Scenario":
-        raw = yaml.safe_load(path.read_text())
-        nodes = {n["id"]: n for n in raw["nodes"]}
-        return cls(path, raw, raw["own_id"], nodes, float(raw.get("duration_s", 0)))
-
-    @property
-    def remote_ids(self) -> list[int]:
-        return [i for i in self.nodes if i != self.own]
-
-    @property
-    def tags(self) -> list[int]:
-        return [i for i, n in self.nodes.items() if n.get("accelerometer")]
-
-    def faults(self, kind: str) -> list[dict]:
-        return [f for f in self.raw.get("faults", []) if f["kind"] == kind]
+def fil_scenario(fil_binary: pathlib.Path, path: pathlib.Path, fil_args: list[str] | None = None) -> Scenario:
+    """The scenario as cdro-fil reads it for a run with `fil_args` (--seed, --duration-s ...):
+    `cdro-fil --print-scenario` (docs/tools.md, "Scenario files"), as the tools' Scenario, so that
+    the tools' world model (World) gives the truth of the run."""
+    result = subprocess.run([str(fil_binary), "--print-scenario", "--scenario", str(path), *(fil_args or [])],
+                            capture_output=True, text=True, timeout=60)
+    if result.returncode != 0:
+        raise AssertionError(f"cdro-fil --print-scenario {path} exited with {result.returncode}:\n{result.stderr}")
+    return from_shared_view(json.loads(result.stdout), f"cdro-fil --print-scenario {path}")
 
 
-# ---- truth --------------------------------------------------------------------------------------
+def tag_ids(scenario: Scenario) -> list[int]:
+    """The nodes with an accelerometer, in scenario order."""
+    return [n.id for n in scenario.nodes if n.accelerometer]
 
-class Truth:
-    """cdro-fil --truth-csv: t,id,x,y,z (s, m), sampled every --truth-period-ms."""
 
-    def __init__(self, path: pathlib.Path):
-        self.tracks: dict[int, tuple[list[float], list[tuple[float, float, float]]]] = {}
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f):
-                times, points = self.tracks.setdefault(int(row["id"]), ([], []))
-                times.append(float(row["t"]))
-                points.append((float(row["x"]), float(row["y"]), float(row["z"])))
-
-    def position(self, node: int, t_s: float) -> tuple[float, float, float]:
-        """Linear between samples (the tracks are piecewise linear, so exact up to a corner)."""
-        times, points = self.tracks[node]
-        i = bisect.bisect_right(times, t_s)
-        if i == 0:
-            return points[0]
-        if i == len(times):
-            return points[-1]
-        t0, t1 = times[i - 1], times[i]
-        f = (t_s - t0) / (t1 - t0)
-        a, b = points[i - 1], points[i]
-        return tuple(a[k] + f * (b[k] - a[k]) for k in range(3))
-
-    def distance(self, a: int, b: int, t_s: float) -> float:
-        return math.dist(self.position(a, t_s), self.position(b, t_s))
+def truth_disagreement_m(world: World, truth_csv: pathlib.Path) -> tuple[float, int]:
+    """How far cdro-fil's --truth-csv (t,id,x,y,z) is from the world model at its samples: the
+    largest distance (m) and the number of samples."""
+    bad: list = []
+    tracks = read_node_tracks(str(truth_csv), bad)
+    if bad:
+        raise AssertionError(f"{truth_csv}: rows that do not read: {bad[:3]}")
+    worst_m, samples = 0.0, 0
+    for node, track in tracks.items():
+        for t_s, p_m in zip(track.t_s, track.p_m):
+            worst_m = max(worst_m, math.dist(world.position(node, float(t_s)), p_m))
+            samples += 1
+    return worst_m, samples
 
 
 def read_csv(path: pathlib.Path) -> list[dict]:
@@ -150,7 +125,10 @@ class FilRun:
             if not path.exists():
                 raise AssertionError(f"{path} missing: {how}")
         self.dir = pathlib.Path(directory)
-        self.scenario = Scenario.load(pathlib.Path(scenario))
+        self.scenario_path = pathlib.Path(scenario)
+        self.fil_args = fil_args or []
+        self.scenario = fil_scenario(self.fil_binary, self.scenario_path, self.fil_args)
+        self.world = World(self.scenario)
         self.name = name
         self.host = host
         self.link = self.dir / f"{name}.tty"
@@ -192,7 +170,6 @@ checkpoint: {{path: ""}}
 logging: {{level: info}}
 {extra_config}
 """)
-        self.fil_args = fil_args or []
         self.host_args = host_args or []
         self.fil = None
         self.host_process = None
@@ -202,7 +179,7 @@ logging: {{level: info}}
         # host opens it), so the host sees the boot from its first byte; then the host.
         self._fil_log = open(self.fil_log_path, "w")
         self.fil = subprocess.Popen(
-            [str(self.fil_binary), "--elf", str(self.elf), "--scenario", str(self.scenario.path),
+            [str(self.fil_binary), "--elf", str(self.elf), "--scenario", str(self.scenario_path),
              "--link", str(self.link), "--start-on-open", "--summary", str(self.summary_path),
              "--truth-csv", str(self.truth_path), "--ranges-csv", str(self.ranges_path), *self.fil_args],
             stdout=subprocess.DEVNULL, stderr=self._fil_log)
@@ -256,7 +233,6 @@ logging: {{level: info}}
 
     def _load(self) -> None:
         self.summary = json.loads(self.summary_path.read_text())
-        self.truth = Truth(self.truth_path)
         self.sim_ranges = read_csv(self.ranges_path)
         self.frames, self.capture_created_us, self.rejected = capture_frames(self.capture_path)
         self.jsonl = [json.loads(line) for line in self.jsonl_path.read_text().splitlines() if line]
@@ -289,21 +265,3 @@ def node_estimates(run: FilRun) -> dict[int, list[dict]]:
         if line["type"] == "node":
             out.setdefault(line["id"], []).append(line)
     return out
-
-
-def align_2d(estimated: dict[int, tuple[float, float]], truth: dict[int, tuple[float, float]]):
-    """The rigid transform (rotation, translation, and a reflection if that fits better: a
-    range-only map is known up to all three) taking estimated positions onto the truth, by least
-    squares (the tools' one fit, cdro_tools.evaluation.alignment). Returns (transform function,
-    RMS residual in m)."""
-    from cdro_tools.evaluation.alignment import align
-
-    ids = sorted(set(estimated) & set(truth))
-    if len(ids) < 3:
-        raise AssertionError(f"only {len(ids)} nodes to align")
-    fit = align(estimated, truth)
-
-    def transform(xy):
-        return tuple(fit.apply(xy).tolist())
-
-    return transform, fit.rmse_m

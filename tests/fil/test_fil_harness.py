@@ -17,7 +17,7 @@ import pytest
 
 from cdro_tools.codec import CONSTANTS as C
 
-from fil_support import FilRun
+from fil_support import FilRun, tag_ids, truth_disagreement_m
 
 HERE = pathlib.Path(__file__).resolve().parent
 SCENARIO = HERE / "office_60s.yaml"
@@ -63,7 +63,7 @@ def last_connected_health(run):
 # ---- the handshake and the host's commands -----------------------------------------------------
 
 def test_handshake_commands_and_keepalive(run):
-    own, remotes = run.scenario.own, run.scenario.remote_ids
+    own, remotes = run.scenario.own_id, run.scenario.remote_ids
     device = run.device()
     assert run.rejected == {}, f"chunks that did not decode: {run.rejected}"
 
@@ -130,7 +130,7 @@ def test_handshake_commands_and_keepalive(run):
 # ---- ranges: every pair kind, against the truth ------------------------------------------------
 
 def test_ranges_cover_every_pair_and_agree_with_the_truth(run):
-    own, remotes = run.scenario.own, run.scenario.remote_ids
+    own, remotes = run.scenario.own_id, run.scenario.remote_ids
     ranges = run.device("RANGE")
     pairs = {}
     for r in ranges:
@@ -143,10 +143,14 @@ def test_ranges_cover_every_pair_and_agree_with_the_truth(run):
         remote_flag = pair in remote
         assert all(bool(r["flags"] & C["CDRO_RANGE_FLAG_REMOTE"]) == remote_flag for r in pairs[pair])
 
+    # The truth is the tools' world model of what cdro-fil read (cdro-fil --print-scenario), and
+    # cdro-fil's own truth file agrees with it at every sample (0.1 mm written).
+    disagreement_m, samples = truth_disagreement_m(run.world, run.truth_path)
+    assert samples >= 7 * 600 and disagreement_m <= 0.001, (samples, disagreement_m)
     worst = 0.0
     for r in ranges:
         t = r["device_time_ms"] / 1000.0
-        error = abs(r["distance_mm"] / 1000.0 - run.truth.distance(r["from_id"], r["to_id"], t))
+        error = abs(r["distance_mm"] / 1000.0 - run.world.distance_m(r["from_id"], r["to_id"], t))
         worst = max(worst, error)
         assert error <= RANGE_BOUND_M, f"RANGE {r.frame.fields} is {error:.3f} m off the truth"
     print(f"{len(ranges)} ranges, worst {worst * 1000:.0f} mm off the truth (bound {RANGE_BOUND_M * 1000:.0f} mm)")
@@ -198,12 +202,12 @@ def test_carried_node_is_reported_moving_then_still(run):
     assert end_s + 22 * 0.2 <= still_s <= end_s + 30 * 0.21 + 0.5, (end_s, still_s)
 
     # Every tag reports PERIODIC samples every 5 s; anchors are never polled after their kind.
-    for node in run.scenario.tags:
+    for node in tag_ids(run.scenario):
         periodic = [m for m in motions if m["node_id"] == node and m["reason"] == C["CDRO_MOTION_REASON_PERIODIC"]]
         assert len(periodic) >= 10, f"{node:#06x}: {len(periodic)} periodic MOTION"
         if node != mover:
             assert all(m["moving"] == 0 for m in motions if m["node_id"] == node)
-    assert {m["node_id"] for m in motions} == set(run.scenario.tags)
+    assert {m["node_id"] for m in motions} == set(tag_ids(run.scenario))
 
     # Between the two, the carried node's pairs carry MOVING and are ranged about boost (2)
     # times as often per pair as the others; outside, no RANGE carries MOVING.
@@ -298,7 +302,7 @@ def test_counters_and_errors_agree_with_the_faults(run):
         assert off_s <= e["device_time_ms"] / 1000.0 <= on_s + STEP_S, e.frame.fields
         assert e["node_id"] in responders, e.frame.fields
     assert node in {e["node_id"] for e in ranging_errors}
-    pairs = [(run.scenario.own, node)] + [(a, b) for i, a in enumerate(remotes) for b in remotes[i + 1:]
+    pairs = [(run.scenario.own_id, node)] + [(a, b) for i, a in enumerate(remotes) for b in remotes[i + 1:]
                                           if node in (a, b)]
     back_bound_s = 8.0  # 4 whole rounds of backoff (under 1 s each here) and the round under way
     for a, b in pairs:

@@ -14,7 +14,9 @@ import pathlib
 
 import pytest
 
-from fil_support import FilRun, align_2d, node_estimates
+from cdro_tools.evaluation.alignment import align
+
+from fil_support import FilRun, node_estimates
 
 HERE = pathlib.Path(__file__).resolve().parent
 SCENARIO = HERE / "office_60s.yaml"
@@ -43,19 +45,19 @@ def test_map_converges_and_the_carried_node_is_tracked(build_dir, avr_build_dir,
     (stretch,) = run.summary["motion"]
     mover, start_s, end_s = stretch["node"], stretch["from_s"], stretch["to_s"]
     estimates = node_estimates(run)
-    assert set(estimates) == set(run.scenario.nodes), "every node is on the map"
+    assert set(estimates) == {n.id for n in run.scenario.nodes}, "every node is on the map"
 
     # Convergence: the still nodes' last estimates against the truth at the end.
     end = run.scenario.duration_s
-    still = [n for n in run.scenario.nodes if n != mover]
+    still = [n.id for n in run.scenario.nodes if n.id != mover]
     last = {n: estimates[n][-1] for n in still}
     assert all(e["converged"] and e["placed"] for e in last.values()), {n: e for n, e in last.items()}
-    truth_end = {n: run.truth.position(n, end)[:2] for n in still}
-    transform, rms = align_2d({n: (e["x_m"], e["y_m"]) for n, e in last.items()}, truth_end)
-    print(f"map: {rms:.3f} m RMS over {len(still)} still nodes (bound {MAP_RMS_M} m)")
-    assert rms <= MAP_RMS_M
-    for n, e in last.items():
-        error = math.dist(transform((e["x_m"], e["y_m"])), truth_end[n])
+    truth_end = {n: run.world.position(n, end)[:2] for n in still}
+    fit = align({n: (e["x_m"], e["y_m"]) for n, e in last.items()}, truth_end)
+    assert fit.nodes == len(still)
+    print(f"map: {fit.rmse_m:.3f} m RMS over {len(still)} still nodes (bound {MAP_RMS_M} m)")
+    assert fit.rmse_m <= MAP_RMS_M
+    for n, error in fit.errors_m.items():
         assert error <= MAP_NODE_M, f"node {n:#06x} is {error:.2f} m off"
 
     # Tracking: in the still nodes' frame, the carried node follows its path and ends where it
@@ -66,10 +68,10 @@ def test_map_converges_and_the_carried_node_is_tracked(build_dir, avr_build_dir,
     assert during, "estimates of the carried node while it was carried"
     assert any(e["moving"] for e in during)
     close = [e for e in during
-             if math.dist(transform((e["x_m"], e["y_m"])), run.truth.position(mover, sim_t(e))[:2]) <= TRACK_WALK_M]
+             if math.dist(fit.apply((e["x_m"], e["y_m"])), run.world.position(mover, sim_t(e))[:2]) <= TRACK_WALK_M]
     assert len(close) >= 0.8 * len(during), f"{len(close)} of {len(during)} estimates within {TRACK_WALK_M} m"
     after = [e for e in track if sim_t(e) >= end_s + 5.0]
     assert after
-    error = math.dist(transform((after[-1]["x_m"], after[-1]["y_m"])), run.truth.position(mover, end)[:2])
+    error = math.dist(fit.apply((after[-1]["x_m"], after[-1]["y_m"])), run.world.position(mover, end)[:2])
     assert error <= TRACK_END_M, f"the carried node ends {error:.2f} m off"
     assert not after[-1]["moving"]

@@ -61,10 +61,19 @@ TEST(FilScenario, ShippedScenarioReadsAsWritten)
 
 TEST(FilScenario, DefaultsApply)
 {
-    const Scenario s = parseScenario(kMinimal, "test.yaml");
+    // The defaults of the keys cdro-sim also reads are cdro-sim's (docs/tools.md, "Scenario files";
+    // tests/scenarios/test_scenario_format.py compares the two tools on a file without them).
+    const Scenario s = parseScenario(kMinimal, "some/dir/test.yaml");
+    EXPECT_EQ(s.name, "test") << "the file's name without its extension";
     EXPECT_EQ(s.seed, 1U);
-    EXPECT_DOUBLE_EQ(s.duration_s, 0.0) << "0 = until a signal";
-    EXPECT_DOUBLE_EQ(s.uwb.noise_std_m, 0.03);
+    EXPECT_DOUBLE_EQ(s.duration_s, 60.0);
+    EXPECT_DOUBLE_EQ(s.uwb.noise_std_m, 0.1);
+    EXPECT_DOUBLE_EQ(s.uwb.max_range_m, 100.0);
+    EXPECT_DOUBLE_EQ(s.accel.noise_std_mg, 8.0);
+    EXPECT_DOUBLE_EQ(s.accel.moving_frequency_hz, 1.8);
+    EXPECT_EQ(s.pozyx_firmware_version, 0x11);
+    EXPECT_DOUBLE_EQ(parseScenario(std::string(kMinimal) + "duration_s: 0\n", "test.yaml").duration_s, 0.0)
+        << "0 = until a signal";
     EXPECT_TRUE(s.pozyx_realistic) << "the real device's behaviour by default";
     EXPECT_EQ(s.uwb.ranging_us, 40000U) << "and its timings";
     EXPECT_EQ(s.uwb.message_us, 3500U);

@@ -24,11 +24,12 @@ constexpr uint8_t kAddress = POZYX_SIM_DEFAULT_I2C_ADDRESS;
 
 // Own tag at the origin, anchor 0x6A01 at (4, 0, 2) m, tag 0x6B02 carried from (0, 3) to (4, 3)
 // at 2 m/s from 1 s (so moving during [1, 3) s). The ideal Pozyx model: these tests check the
-// world's accounting, with the model's timings (15 ms a ranging).
+// world's accounting, with the model's timings (15 ms a ranging), and 30 mm range noise.
 const char *const kScenario = R"(
 own_id: 0x6000
 seed: 5
 pozyx: {model: ideal}
+uwb: {noise_std_m: 0.03}
 nodes:
   - {id: 0x6000, accelerometer: true, x_m: 0, y_m: 0}
   - {id: 0x6A01, x_m: 4, y_m: 0, z_m: 2}

@@ -7,12 +7,14 @@ from __future__ import annotations
 import json
 import math
 import pathlib
+import re
 import subprocess
 import sys
 
 import pytest
 
-from cdro_tools.simulation.scenario import FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, parse_scenario
+from cdro_tools.simulation.scenario import (FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, from_shared_view,
+                                            parse_scenario, shared_view)
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 SHARED = REPO / "tests" / "scenarios" / "shared_office.yaml"
@@ -75,6 +77,60 @@ def test_that_both_read_the_shared_scenario_alike(fil_binary):
     assert third["waypoints_m"] == [[3.0, 3.0, 1.1]]                       # the height the node keeps
     assert sim_json["uwb"] == {"noise_std_m": 0.05, "max_range_m": 30.0}
     assert sim_json["accelerometer"]["noise_std_mg"] == 6.0 and sim_json["pozyx"] == {"firmware_version": 0x12}
+
+
+# Only the required keys: every default of the keys both tools read applies.
+BARE = "own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6A01, x_m: 4, y_m: 0}\n"
+DOCS = REPO / "docs" / "tools.md"
+
+
+def documented_defaults() -> dict[str, float]:
+    """The defaults docs/tools.md ("Scenario files") gives the numeric keys both tools read: the
+    Default column of their rows, and the `key` (default) pairs of the accelerometer row."""
+    rows = {}
+    for line in DOCS.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 4 and cells[1] == "both":
+            rows[cells[0].strip("`")] = cells
+    out = {}
+    for key in ("duration_s", "seed", "uwb.noise_std_m", "uwb.max_range_m", "pozyx.firmware_version"):
+        assert key in rows, f"docs/tools.md: no row for {key} used by both tools"
+        number = re.match(r"0x[0-9A-Fa-f]+|\d+(\.\d+)?", rows[key][2])
+        assert number, f"docs/tools.md: {key}: no default in {rows[key][2]!r}"
+        out[key] = float(int(number.group(0), 0)) if number.group(0).startswith("0x") else float(number.group(0))
+    for key, value in re.findall(r"`(\w+)` \(([\d.]+)\)", rows["accelerometer"][3]):
+        out[f"accelerometer.{key}"] = float(value)
+    assert len(out) == 8, f"docs/tools.md: defaults found: {out}"
+    return out
+
+
+def test_that_both_tools_give_a_key_left_out_the_documented_default(fil_binary, tmp_path):
+    path = tmp_path / "bare-office.yaml"
+    path.write_text(BARE)
+    fil, sim = fil_view(fil_binary, path), sim_view(path)
+    assert fil.returncode == 0, fil.stderr
+    assert sim.returncode == 0, sim.stderr
+    fil_json, sim_json = json.loads(fil.stdout), json.loads(sim.stdout)
+    assert_same(fil_json, sim_json)
+    # The one table of docs/tools.md, so that both tools moving together fail too.
+    docs = documented_defaults()
+    assert_same(sim_json, {
+        "name": "bare-office", "seed": docs["seed"], "duration_s": docs["duration_s"], "own_id": 0x6000,
+        "nodes": [{"id": 0x6000, "x_m": 0.0, "y_m": 0.0, "z_m": 0.0, "accelerometer": False},
+                  {"id": 0x6A01, "x_m": 4.0, "y_m": 0.0, "z_m": 0.0, "accelerometer": False}],
+        "motion": [],
+        "uwb": {"noise_std_m": docs["uwb.noise_std_m"], "max_range_m": docs["uwb.max_range_m"]},
+        "accelerometer": {k: docs[f"accelerometer.{k}"]
+                          for k in ("noise_std_mg", "moving_amplitude_mg", "moving_frequency_hz")},
+        "pozyx": {"firmware_version": docs["pozyx.firmware_version"]},
+    })
+    assert (docs["duration_s"], docs["uwb.noise_std_m"], docs["pozyx.firmware_version"]) == (60.0, 0.1, 0x11)
+
+
+def test_that_a_view_read_back_is_the_same_scenario(fil_binary):
+    # fil_support builds the world model of a cdro-fil run from this view (from_shared_view).
+    view = json.loads(fil_view(fil_binary, SHARED).stdout)
+    assert_same(shared_view(from_shared_view(view, "view")), view)
 
 
 def test_that_a_seed_and_duration_given_on_the_command_line_reach_both_views(fil_binary):

@@ -3,6 +3,7 @@
 #include <cctype>
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <map>
@@ -316,10 +317,10 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     Scenario s;
     s.source = origin;
     Map top(root, "scenario", origin);
-    s.name = top.string("name", "unnamed");
+    s.name = top.string("name", std::filesystem::path(origin).stem().string());
     s.description = top.string("description", "");
     s.seed = static_cast<uint64_t>(top.integer("seed", 1, 0, std::numeric_limits<int64_t>::max()));
-    s.duration_s = top.number("duration_s", 0.0, 0.0, 1e6);
+    s.duration_s = top.number("duration_s", s.duration_s, 0.0, 1e6);
 
     // ---- nodes
     const YAML::Node nodes = top.get("nodes");

@@ -71,27 +71,27 @@ struct FaultSpec {
 // The timings default to those of the Pozyx model in use (pozyx.model): realistic 40000 /
 // 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
 struct UwbSpec {
-    double noise_std_m = 0.03;     // Gaussian noise of each distance
+    double noise_std_m = 0.1;      // Gaussian noise of each distance (the Pozyx's nominal accuracy)
     double bias_m = 0.0;           // added to every distance
-    double max_range_m = 50.0;     // longer links fail
+    double max_range_m = 100.0;    // longer links fail
     uint32_t ranging_us = 40000;   // one two-way ranging exchange
     uint32_t message_us = 3500;    // one UWB message on air, turnaround included
     uint32_t processing_us = 1000; // a remote node's handling of a request
 };
 
 struct AccelSpec {
-    double noise_std_mg = 5.0;          // per axis
+    double noise_std_mg = 8.0;          // per axis
     double moving_amplitude_mg = 250.0; // vertical bounce of a carried node (walking)
     double moving_frequency_hz = 1.8;   // step frequency
 };
 
 struct Scenario {
     std::string source; // file it came from, for messages
-    std::string name;
+    std::string name;   // default: the file's name without its extension, as cdro-sim's
     std::string description;
     uint64_t seed = 1;
-    double duration_s = 0.0; // simulated seconds; 0 = until SIGTERM/SIGINT
-    uint16_t own_id = 0;     // the Pozyx on the shield (the I2C device); one of `nodes`
+    double duration_s = 60.0; // simulated seconds; 0 = until SIGTERM/SIGINT
+    uint16_t own_id = 0;      // the Pozyx on the shield (the I2C device); one of `nodes`
     std::vector<NodeSpec> nodes;
     std::vector<MotionSpec> motion;
     std::vector<FaultSpec> faults;

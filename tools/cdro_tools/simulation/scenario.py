@@ -122,7 +122,7 @@ class Device:
     nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim).
     pozyx_firmware and pozyx_present are read from the scenario's pozyx section."""
 
-    pozyx_firmware: int = 0x12             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
+    pozyx_firmware: int = 0x11             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
     pozyx_present: bool = True            # pozyx.present; False: the shield does not answer on I2C
     free_ram_bytes: int = 612              # reported in STATUS
     tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
@@ -302,6 +302,12 @@ def _fields(cls) -> set[str]:
     return {f.name for f in dataclasses.fields(cls)}
 
 
+def _given(m: dict, cls, key: str, field: str | None = None) -> Any:
+    """m[key] if the file gives it, else the default of the dataclass's field (`field`, or the key):
+    every default is written once, in the dataclasses above."""
+    return m.get(key, getattr(cls, field or key))
+
+
 def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Scenario:
     r = _Reader(source)
     top = r.mapping(data, "(top)", {"name", "description", "duration_s", "seed", "own_id", "nodes", "motion",
@@ -316,8 +322,8 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
                       {"id", "x_m", "y_m"})
         nodes.append(Node(
             id=r.node_id(m["id"], f"{path}.id"), x_m=r.coordinate(m["x_m"], f"{path}.x_m"),
-            y_m=r.coordinate(m["y_m"], f"{path}.y_m"), z_m=r.coordinate(m.get("z_m", 0.0), f"{path}.z_m"),
-            accelerometer=r.boolean(m.get("accelerometer", False), f"{path}.accelerometer"),
+            y_m=r.coordinate(m["y_m"], f"{path}.y_m"), z_m=r.coordinate(_given(m, Node, "z_m"), f"{path}.z_m"),
+            accelerometer=r.boolean(_given(m, Node, "accelerometer"), f"{path}.accelerometer"),
             moving_amplitude_mg=(None if m.get("moving_amplitude_mg") is None
                                  else r.number(m["moving_amplitude_mg"], f"{path}.moving_amplitude_mg", 0))))
     ids = [n.id for n in nodes]
@@ -336,10 +342,10 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     if top.get("duration_s") == 0:
         raise r.fail("duration_s", "only cdro-fil supports 0 (run until stopped); cdro-sim needs a duration")
     scenario = Scenario(name=str(top.get("name", default_name)), own_id=own_id, nodes=nodes,
-                        duration_s=r.number(top.get("duration_s", 60.0), "duration_s", 0, low_open=True),
-                        seed=r.integer(top.get("seed", 1), "seed", 0, 2**63 - 1),
+                        duration_s=r.number(_given(top, Scenario, "duration_s"), "duration_s", 0, low_open=True),
+                        seed=r.integer(_given(top, Scenario, "seed"), "seed", 0, 2**63 - 1),
                         description=str(top.get("description", "")).strip(),
-                        epoch_unix_s=r.number(top.get("epoch_unix_s", 1_700_000_000.0), "epoch_unix_s", 0, 4e9))
+                        epoch_unix_s=r.number(_given(top, Scenario, "epoch_unix_s"), "epoch_unix_s", 0, 4e9))
     if len(nodes) - 1 > C["CDRO_MAX_NODES"]:
         raise r.fail("nodes", f"{len(nodes) - 1} remote nodes; a device schedules at most {C['CDRO_MAX_NODES']}")
 
@@ -362,11 +368,11 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
         path = "robot"
         m = r.mapping(top["robot"], path, _fields(Robot) - {"waypoints"} | {"waypoints_m"}, {"id"})
         robot = Robot(id=known(r.node_id(m["id"], "robot.id"), "robot.id"),
-                      start_s=r.number(m.get("start_s", 0.0), "robot.start_s", 0),
-                      speed_mps=r.number(m.get("speed_mps", 0.5), "robot.speed_mps", 0, low_open=True),
-                      turn_rate_rad_s=r.number(m.get("turn_rate_rad_s", 0.5), "robot.turn_rate_rad_s", 0,
+                      start_s=r.number(_given(m, Robot, "start_s"), "robot.start_s", 0),
+                      speed_mps=r.number(_given(m, Robot, "speed_mps"), "robot.speed_mps", 0, low_open=True),
+                      turn_rate_rad_s=r.number(_given(m, Robot, "turn_rate_rad_s"), "robot.turn_rate_rad_s", 0,
                                                low_open=True),
-                      moving_amplitude_mg=r.number(m.get("moving_amplitude_mg", 120.0),
+                      moving_amplitude_mg=r.number(_given(m, Robot, "moving_amplitude_mg"),
                                                    "robot.moving_amplitude_mg", 0))
         if ("waypoints_m" in m) == ("poses" in m):
             raise r.fail(path, "give exactly one of waypoints_m and poses")
@@ -381,10 +387,12 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
             robot.heading_rad = r.number(m["heading_rad"], "robot.heading_rad")
         o = r.mapping(m.get("odometry"), "robot.odometry", _fields(Odometry))
         robot.odometry = Odometry(
-            rate_hz=r.number(o.get("rate_hz", 10.0), "robot.odometry.rate_hz", 0, low_open=True),
-            distance_noise_frac=r.number(o.get("distance_noise_frac", 0.02), "robot.odometry.distance_noise_frac", 0),
-            heading_noise_rad=r.number(o.get("heading_noise_rad", 0.002), "robot.odometry.heading_noise_rad", 0),
-            heading_drift_rad_s=r.number(o.get("heading_drift_rad_s", 0.0), "robot.odometry.heading_drift_rad_s"))
+            rate_hz=r.number(_given(o, Odometry, "rate_hz"), "robot.odometry.rate_hz", 0, low_open=True),
+            distance_noise_frac=r.number(_given(o, Odometry, "distance_noise_frac"),
+                                         "robot.odometry.distance_noise_frac", 0),
+            heading_noise_rad=r.number(_given(o, Odometry, "heading_noise_rad"), "robot.odometry.heading_noise_rad", 0),
+            heading_drift_rad_s=r.number(_given(o, Odometry, "heading_drift_rad_s"),
+                                         "robot.odometry.heading_drift_rad_s"))
         if any(s.node == robot.id for s in scenario.motion):
             raise r.fail("motion", f"the robot 0x{robot.id:04X} moves by its path, not by motion segments")
         scenario.robot = robot
@@ -396,26 +404,27 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
         raise r.fail("schedule.mode", f"{mode!r} is not one of {', '.join(modes)}")
     scenario.schedule = Schedule(
         mode=modes[mode],
-        slot_period_ms=r.integer(s.get("slot_period_ms", 0), "schedule.slot_period_ms", 0, 60000),
-        motion_poll_ms=r.integer(s.get("motion_poll_ms", 200), "schedule.motion_poll_ms", 0, 60000),
-        moving_boost=r.integer(s.get("moving_boost", 2), "schedule.moving_boost", 1, 8),
-        status_period_ms=r.integer(s.get("status_period_ms", 1000), "schedule.status_period_ms", 100, 60000),
-        max_retries=r.integer(s.get("max_retries", 1), "schedule.max_retries", 0, 10))
+        slot_period_ms=r.integer(_given(s, Schedule, "slot_period_ms"), "schedule.slot_period_ms", 0, 60000),
+        motion_poll_ms=r.integer(_given(s, Schedule, "motion_poll_ms"), "schedule.motion_poll_ms", 0, 60000),
+        moving_boost=r.integer(_given(s, Schedule, "moving_boost"), "schedule.moving_boost", 1, 8),
+        status_period_ms=r.integer(_given(s, Schedule, "status_period_ms"), "schedule.status_period_ms", 100, 60000),
+        max_retries=r.integer(_given(s, Schedule, "max_retries"), "schedule.max_retries", 0, 10))
 
     u = r.mapping(top.get("uwb"), "uwb", _fields(Uwb))
-    uwb = Uwb(noise_std_m=r.number(u.get("noise_std_m", 0.1), "uwb.noise_std_m", 0),
-              scale=r.number(u.get("scale", 1.0), "uwb.scale", 0, low_open=True),
-              max_range_m=r.number(u.get("max_range_m", 100.0), "uwb.max_range_m", 0, low_open=True),
-              dropout_probability=r.number(u.get("dropout_probability", 0.0), "uwb.dropout_probability", 0, 1))
+    uwb = Uwb(noise_std_m=r.number(_given(u, Uwb, "noise_std_m"), "uwb.noise_std_m", 0),
+              scale=r.number(_given(u, Uwb, "scale"), "uwb.scale", 0, low_open=True),
+              max_range_m=r.number(_given(u, Uwb, "max_range_m"), "uwb.max_range_m", 0, low_open=True),
+              dropout_probability=r.number(_given(u, Uwb, "dropout_probability"), "uwb.dropout_probability", 0, 1))
     if u.get("noise_variance_m2") is not None:
         uwb.noise_variance_m2 = r.pair(u["noise_variance_m2"], "uwb.noise_variance_m2", 0)
     n = r.mapping(u.get("nlos"), "uwb.nlos", _fields(Nlos))
-    uwb.nlos = Nlos(random_links=r.integer(n.get("random_links", 0), "uwb.nlos.random_links", 0),
-                    random_bias_m=r.pair(n.get("random_bias_m", [0.3, 1.5]), "uwb.nlos.random_bias_m", 0),
-                    outlier_probability=r.number(n.get("outlier_probability", 0.0), "uwb.nlos.outlier_probability",
+    uwb.nlos = Nlos(random_links=r.integer(_given(n, Nlos, "random_links"), "uwb.nlos.random_links", 0),
+                    random_bias_m=r.pair(_given(n, Nlos, "random_bias_m"), "uwb.nlos.random_bias_m", 0),
+                    outlier_probability=r.number(_given(n, Nlos, "outlier_probability"), "uwb.nlos.outlier_probability",
                                                  0, 1),
-                    outlier_mean_m=r.number(n.get("outlier_mean_m", 0.5), "uwb.nlos.outlier_mean_m", 0, low_open=True),
-                    rss_loss_db=r.number(n.get("rss_loss_db", 6.0), "uwb.nlos.rss_loss_db", 0))
+                    outlier_mean_m=r.number(_given(n, Nlos, "outlier_mean_m"), "uwb.nlos.outlier_mean_m", 0,
+                                            low_open=True),
+                    rss_loss_db=r.number(_given(n, Nlos, "rss_loss_db"), "uwb.nlos.rss_loss_db", 0))
     for i, link in enumerate(n.get("links") or []):
         path = f"uwb.nlos.links[{i}]"
         if not isinstance(link, (list, tuple)) or len(link) != 3:
@@ -432,18 +441,20 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
 
     a = r.mapping(top.get("accelerometer"), "accelerometer", _fields(Accelerometer))
     scenario.accelerometer = Accelerometer(
-        noise_std_mg=r.number(a.get("noise_std_mg", 8.0), "accelerometer.noise_std_mg", 0),
-        moving_amplitude_mg=r.number(a.get("moving_amplitude_mg", 250.0), "accelerometer.moving_amplitude_mg", 0),
-        moving_frequency_hz=r.number(a.get("moving_frequency_hz", 1.8), "accelerometer.moving_frequency_hz", 0,
-                                     low_open=True))
+        noise_std_mg=r.number(_given(a, Accelerometer, "noise_std_mg"), "accelerometer.noise_std_mg", 0),
+        moving_amplitude_mg=r.number(_given(a, Accelerometer, "moving_amplitude_mg"),
+                                     "accelerometer.moving_amplitude_mg", 0),
+        moving_frequency_hz=r.number(_given(a, Accelerometer, "moving_frequency_hz"),
+                                     "accelerometer.moving_frequency_hz", 0, low_open=True))
 
     pz = r.mapping(top.get("pozyx"), "pozyx", {"firmware_version", "present"})
     dv = r.mapping(top.get("device"), "device", _fields(Device) - {"pozyx_firmware", "pozyx_present"})
     scenario.device = Device(
-        pozyx_firmware=r.integer(pz.get("firmware_version", 0x12), "pozyx.firmware_version", 0, 0xFF),
-        pozyx_present=r.boolean(pz.get("present", True), "pozyx.present"),
-        free_ram_bytes=r.integer(dv.get("free_ram_bytes", 612), "device.free_ram_bytes", 0, 0xFFFF),
-        tx_buffer_bytes=r.integer(dv.get("tx_buffer_bytes", 4096), "device.tx_buffer_bytes", 128, 1 << 24))
+        pozyx_firmware=r.integer(_given(pz, Device, "firmware_version", "pozyx_firmware"), "pozyx.firmware_version",
+                                 0, 0xFF),
+        pozyx_present=r.boolean(_given(pz, Device, "present", "pozyx_present"), "pozyx.present"),
+        free_ram_bytes=r.integer(_given(dv, Device, "free_ram_bytes"), "device.free_ram_bytes", 0, 0xFFFF),
+        tx_buffer_bytes=r.integer(_given(dv, Device, "tx_buffer_bytes"), "device.tx_buffer_bytes", 128, 1 << 24))
 
     faults = top.get("faults") or []
     if not isinstance(faults, list):
@@ -565,3 +576,37 @@ def shared_view(scenario: Scenario) -> dict[str, Any]:
                           "moving_frequency_hz": scenario.accelerometer.moving_frequency_hz},
         "pozyx": {"firmware_version": scenario.device.pozyx_firmware},
     }
+
+
+def from_shared_view(view: dict[str, Any], source: str) -> Scenario:
+    """The Scenario of a shared view (`cdro-fil --print-scenario`, shared_view's form), so that the
+    world model (world.World) places the nodes of a run of cdro-fil: what cdro-fil read, without a
+    second reader of the YAML. Only the shared keys come through; the rest keep their defaults. A
+    stretch carried up or down (a waypoint off the node's height, which only cdro-fil supports) is
+    refused: the world model keeps each node at its height."""
+    try:
+        nodes = [Node(id=int(n["id"]), x_m=float(n["x_m"]), y_m=float(n["y_m"]), z_m=float(n["z_m"]),
+                      accelerometer=bool(n["accelerometer"])) for n in view["nodes"]]
+        heights_m = {n.id: n.z_m for n in nodes}
+        motion = []
+        for i, m in enumerate(view["motion"]):
+            for k, (_, _, z_m) in enumerate(m["waypoints_m"]):
+                if not math.isclose(z_m, heights_m[m["node"]], abs_tol=1e-9):
+                    raise ScenarioError(f"{source}: motion[{i}].waypoints_m[{k}]: z {z_m} m is not the height of "
+                                        f"node 0x{m['node']:04X} ({heights_m[m['node']]} m); the world model "
+                                        "keeps each node at its height")
+            motion.append(MotionSegment(node=int(m["node"]), start_s=float(m["start_s"]),
+                                        waypoints=[(float(x), float(y)) for x, y, _ in m["waypoints_m"]],
+                                        speed_mps=float(m["speed_mps"]), end_s=float(m["end_s"])))
+        uwb, accel = view["uwb"], view["accelerometer"]
+        return Scenario(name=str(view["name"]), own_id=int(view["own_id"]), nodes=nodes,
+                        duration_s=float(view["duration_s"]), seed=int(view["seed"]), motion=motion,
+                        uwb=Uwb(noise_std_m=float(uwb["noise_std_m"]), max_range_m=float(uwb["max_range_m"])),
+                        accelerometer=Accelerometer(noise_std_mg=float(accel["noise_std_mg"]),
+                                                    moving_amplitude_mg=float(accel["moving_amplitude_mg"]),
+                                                    moving_frequency_hz=float(accel["moving_frequency_hz"])),
+                        device=Device(pozyx_firmware=int(view["pozyx"]["firmware_version"])))
+    except ScenarioError:
+        raise
+    except (KeyError, TypeError, ValueError) as error:
+        raise ScenarioError(f"{source}: not a shared scenario view ({type(error).__name__}: {error})") from None
