@@ -351,7 +351,8 @@ def test_that_print_config_prints_every_section_with_defaults_and_reads_back(hos
     # Assert
     printed = yaml.safe_load(defaults)
     assert list(printed) == ["serial", "nodes", "schedule", "capture", "output", "jsonl", "mqtt", "mqtt_auth", "http",
-                             "checkpoint", "odometry", "logging", "web", "engine", "movement", "map"]
+                             "checkpoint", "odometry", "logging", "web", "engine", "movement", "calibration",
+                             "map"]
     assert printed["web"] == {"floor_plan": {"path": "", "metres_per_pixel": 0.05, "origin_x_m": 0,
                                              "origin_y_m": 0, "rotation_rad": 0}}
     assert printed["serial"]["device"] == "/dev/ttyACM0" and printed["serial"]["baud"] == 115200

@@ -146,6 +146,8 @@ static int runMain(int argc, char **argv)
         cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);
         cdro::hostd::applySwitches(params, switches);
         cdro::engine::MovementParams movement = cdro::hostd::parseMovementParams(document.root, document.origin);
+        const cdro::engine::MovingCalibrationParams calibration =
+            cdro::hostd::parseCalibrationParams(document.root, document.origin, params);
         cdro::hostd::KnownGeometry geometry = cdro::hostd::parseKnownGeometry(document.root, document.origin);
         if (!offline.heights_csv.empty()) {
             geometry.heights_csv = offline.heights_csv;
@@ -167,6 +169,7 @@ static int runMain(int argc, char **argv)
             std::fputs(cdro::service::serviceConfigYaml(config).c_str(), stdout);
             std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
             std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
+            std::fputs(cdro::hostd::calibrationParamsYaml(calibration).c_str(), stdout);
             std::fputs(map.c_str(), stdout);
             std::fputs("\n", stdout);
             return 0;
@@ -179,6 +182,7 @@ static int runMain(int argc, char **argv)
                 return 2;
             }
             offline.settle = !no_settle;
+            offline.calibration = calibration;
             return cdro::hostd::runOffline(offline, params, movement, stderr);
         }
 

@@ -319,6 +319,9 @@ int calibrateAnchors(const OfflineOptions &options, engine::Engine &engine, cons
     }
     engine::MovingCalibrationParams calibration_params;
     calibration_params.range_sigma_m = params.range.sigma_m;
+    if (options.calibration) {
+        calibration_params = *options.calibration;
+    }
     engine::MovingCalibration calibration(calibration_params, params.motion);
     std::vector<engine::CalibratedAnchor> anchors;
     try {
