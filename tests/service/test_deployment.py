@@ -359,7 +359,7 @@ def test_that_print_config_prints_every_section_with_defaults_and_reads_back(hos
     assert printed["jsonl"] == {"rotate_mib": 64, "keep": 5, "max_node_rate_hz": 2}
     assert printed["mqtt"]["url"] == "" and printed["mqtt_auth"]["username"] == ""
     assert printed["output"]["jsonl"] == "-" and printed["http"]["port"] == 8080
-    assert printed["map"] == {"heights_csv": "", "fixed_csv": ""}
+    assert printed["map"] == {"heights_csv": "", "fixed_csv": "", "moving": []}
     example = yaml.safe_load(configured)
     assert example["serial"]["device"] == "/dev/cdro-tag" and example["http"]["port"] == 8181
     assert example["mqtt"]["url"] == "mqtt://127.0.0.1:1883"

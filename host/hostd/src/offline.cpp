@@ -559,7 +559,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             engine.setTrace(
                 [log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
-        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows,
+        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv, {}}, options.max_reported_rows,
                            log);
         if (options.moving.empty() && !options.moving_bodies.empty()) {
             std::fprintf(log, "cdro-hostd: --moving-body needs --moving (its nodes are moving ones)\n");
