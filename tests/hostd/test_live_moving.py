@@ -11,7 +11,9 @@ does, run as a user runs it on a capture:
   lines --moving gives;
 - bad input is refused with status 2 and a message naming map.moving: fewer than four fixed nodes
   of known height, a moving node that is fixed, a node id that is none;
-- --resume says that the 3D tracks restart (they are not in checkpoints).
+- --resume says that the 3D tracks restart (they are not in checkpoints);
+- a capture whose run context records map.moving (with the heights and fixed nodes) replays with
+  its nodes tracked in 3D untold, to the lines a replay told them gives.
 
 The capture is built from the flight's ranges (one RANGE frame per range, at its time). The binary
 is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO_TEST_SEED replays one."""
@@ -28,16 +30,17 @@ from test_output_schema import check_line
 
 from cdro_tools import outputs_schema
 from cdro_tools.codec import Frame, encode_frame
-from cdro_tools.codec.capture_file import CaptureRecord, CaptureWriter
+from cdro_tools.codec.capture_file import CaptureRecord, CaptureWriter, decode_header, encode_header
 from cdro_tools.codec.frames import LAYOUT_HASH, PROTOCOL_VERSION
 
 GUARD_S = 120  # s, a deadlock guard only
 START_US = 1_700_000_000_000_000  # us since the epoch: the capture's start, the flight's t = 0
 
 
-def write_capture(folder):
-    """flight.cdrocap: a HELLO, then a RANGE frame per row of ranges.csv at START_US + t."""
-    path = folder / "flight.cdrocap"
+def write_capture(folder, context=b"", name="flight.cdrocap"):
+    """NAME: a HELLO, then a RANGE frame per row of ranges.csv at START_US + t; context: the run's
+    context of its header (cdro-hostd's JSON), b"" = none."""
+    path = folder / name
     rows = (folder / "ranges.csv").read_text().splitlines()[1:]
     with CaptureWriter(path, "serial:/dev/ttyACM0@115200", START_US) as writer:
         hello = Frame("HELLO", 0, dict(device_time_ms=50, firmware_version=0x0102, protocol_version=PROTOCOL_VERSION,
@@ -51,6 +54,11 @@ def write_capture(folder):
                                                   to_id=int(b), distance_mm=round(float(range_m) * 1000),
                                                   rss_dbm=-80, flags=0))
             writer.write(CaptureRecord(at_us, encode_frame(frame)[:-1], 0))
+    if context:
+        data = path.read_bytes()
+        header, size = decode_header(data)
+        header.context = context
+        path.write_bytes(encode_header(header) + data[size:])
     return path
 
 
@@ -150,3 +158,26 @@ def test_that_a_resume_says_the_3d_tracks_restart(build_dir, tmp_path):
 
     assert resumed.returncode == 0, resumed.stderr
     assert "the 2 nodes tracked in 3D (map.moving) are not in checkpoints" in resumed.stderr, resumed.stderr
+
+
+def test_that_a_capture_recording_map_moving_replays_its_3d_tracks_untold(build_dir, tmp_path):
+    folder = write_flight(tmp_path, seed_of(14), duration_s=20.0)
+    rows = {name: [line.split(",") for line in (folder / f"{name}.csv").read_text().splitlines()[1:]]
+            for name in ("anchors", "heights")}
+    context = {"heights": [[int(i), float(z)] for i, z in rows["heights"]],
+               "fixed": [[int(i), float(x), float(y)] for i, x, y in rows["anchors"]],
+               "settings": "", "moving": list(TAGS)}
+    recorded = write_capture(folder, json.dumps(context).encode(), "recorded.cdrocap")
+
+    untold = replay(build_dir, folder, recorded, "untold.jsonl")
+    told = replay(build_dir, folder, recorded, "told.jsonl", *geometry(folder), "--moving", "10,20")
+    other = replay(build_dir, folder, recorded, "other.jsonl", "--moving", "10")
+
+    assert untold.returncode == 0 and told.returncode == 0, untold.stderr + told.stderr
+    assert "the live run's 2 nodes tracked in 3D (map.moving), from the capture" in untold.stderr, untold.stderr
+    assert "differ from the live run's" not in told.stderr, told.stderr
+    lines = node_lines(folder / "untold.jsonl")
+    assert any("var_z_m2" in line for line in lines)
+    assert (folder / "untold.jsonl").read_bytes() == (folder / "told.jsonl").read_bytes()
+    assert other.returncode == 0, other.stderr
+    assert "the nodes tracked in 3D given (map.moving, --moving) differ from the live run's" in other.stderr
