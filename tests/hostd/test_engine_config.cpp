@@ -5,11 +5,13 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <yaml-cpp/yaml.h>
 
 #include "cdro/hostd/engine_config.hpp"
+#include "cdro/hostd/known_geometry.hpp"
 #include "cdro/service/config.hpp"
 
 namespace cdro::hostd {
@@ -300,6 +302,32 @@ TEST(EngineConfig, LoadAppliesFileSettingsAndSwitches)
         EXPECT_NE(std::string(error.what()).find("unknown section 'solve'"), std::string::npos) << error.what();
     }
     std::remove(path.c_str());
+}
+
+// map.moving: the nodes tracked in 3D, read as node ids, and recorded in a capture's run context
+// (only when there are some: a run without them records what it did before).
+TEST(KnownGeometry, MapMovingIsReadCheckedAndRecordedInTheRunContext)
+{
+    const KnownGeometry geometry = parseKnownGeometry(YAML::Load("map:\n  moving: [0x6A70, 11]\n"), "test.yaml");
+    EXPECT_EQ(geometry.moving, (std::vector<uint16_t>{0x6A70, 11}));
+    std::string error;
+    try {
+        parseKnownGeometry(YAML::Load("map:\n  moving: [10, 0]\n"), "test.yaml");
+    } catch (const ConfigError &thrown) {
+        error = thrown.what();
+    }
+    EXPECT_NE(error.find("map.moving"), std::string::npos) << error;
+    EXPECT_NE(error.find("outside 1..65535"), std::string::npos) << error;
+
+    RunContext context;
+    context.settings = "engine: {}\n";
+    const std::string without = encodeRunContext(context);
+    EXPECT_EQ(without.find("moving"), std::string::npos) << without;
+    EXPECT_TRUE(decodeRunContext(without, "test").moving.empty());
+    context.moving = {0x6A70, 11};
+    const RunContext back = decodeRunContext(encodeRunContext(context), "test");
+    EXPECT_EQ(back.moving, context.moving);
+    EXPECT_EQ(back.settings, context.settings);
 }
 
 } // namespace

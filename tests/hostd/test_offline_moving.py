@@ -17,16 +17,20 @@
   (written to the log and --out-anchors), then the tags tracked: both near the truth after a rigid fit, the same
   input giving the same trajectory; without the heights either, in 3D; with fewer than 4 anchors
   it is refused by name;
-- the per-anchor NLOS lines are in the log.
+- the per-anchor NLOS lines are in the log;
+- the configuration's `calibration:` section (file or --set) reaches the calibration (its windows
+  and iterations change), and a value out of range or a misspelt key is refused by name.
 
 The binary is the native build's (CDRO_BUILD_DIR; default ./build). Seeded; CDRO_TEST_SEED
 replays one."""
 import csv
 import math
 import random
+import re
 
 import numpy as np
 import pytest
+import yaml
 from offline_run import run, seed_of
 
 TRAJECTORY_HEADER = "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz"
@@ -284,3 +288,52 @@ def test_that_calibration_with_three_anchors_is_refused_by_name(hostd, tmp_path)
                     "--out-anchors", folder / "a.csv")
     assert no_moving.returncode == 2 and "--out-anchors needs --moving" in no_moving.stderr
     assert not (folder / "a.csv").exists()
+
+
+CALIBRATION_SUMMARY = re.compile(r"(\d+) windows \(\d+ placed by the MDS\), \d+ epochs; (\d+) \+ (\d+) iterations")
+
+
+def calibration_summary(log):
+    """(windows, static iterations, batch iterations) of the calibration's summary line."""
+    found = CALIBRATION_SUMMARY.search(log)
+    assert found, log
+    return tuple(int(v) for v in found.groups())
+
+
+def test_that_the_calibration_section_reaches_the_calibration_and_bad_values_are_refused(hostd, tmp_path):
+    folder = write_flight(tmp_path, seed_of(10), duration_s=30.0)
+    args = [a for a in moving_args(folder) if a not in ("--fixed-csv", folder / "anchors.csv")]
+    config = tmp_path / "calibration.yaml"
+    config.write_text("calibration:\n  window_s: 2\n")
+
+    default = run(hostd, *args[:-1], folder / "default.csv")
+    short_windows = run(hostd, *args[:-1], folder / "w2.csv", "--set", "calibration.window_s=2")
+    from_file = run(hostd, *args[:-1], folder / "w2-file.csv", "--config", config)
+    few_iterations = run(hostd, *args[:-1], folder / "it1.csv", "--set", "calibration.max_iterations=1")
+    zero_window = run(hostd, *args[:-1], folder / "zero.csv", "--set", "calibration.window_s=0")
+    bad_huber = run(hostd, *args[:-1], folder / "huber.csv", "--set", "calibration.huber_sigmas=-1")
+    misspelt = run(hostd, *args[:-1], folder / "typo.csv", "--set", "calibration.windows_s=2")
+    printed = run(hostd, "--print-config", "--set", "engine.range.sigma_m=0.2", "--set", "calibration.window_s=3")
+
+    for result in (default, short_windows, from_file, few_iterations):
+        assert result.returncode == 0, result.stderr
+    windows, static_iterations, batch_iterations = calibration_summary(default.stderr)
+    print(f"default: {windows} windows, {static_iterations} + {batch_iterations} iterations")
+    # 30 s of two tags in 4 s windows, then in 2 s windows: about twice as many.
+    assert calibration_summary(short_windows.stderr)[0] > 1.5 * windows
+    assert (folder / "w2.csv").read_bytes() == (folder / "w2-file.csv").read_bytes()
+    assert (folder / "w2.csv").read_bytes() != (folder / "default.csv").read_bytes()
+    assert static_iterations + batch_iterations > 2
+    _, few_static, few_batch = calibration_summary(few_iterations.stderr)
+    assert few_static + few_batch < static_iterations + batch_iterations
+    assert zero_window.returncode == 2
+    assert "calibration.window_s: must be between 0.001 and" in zero_window.stderr, zero_window.stderr
+    assert bad_huber.returncode == 2 and "calibration.huber_sigmas: must be between" in bad_huber.stderr
+    assert misspelt.returncode == 2 and "unknown key 'windows_s'" in misspelt.stderr, misspelt.stderr
+    for name in ("zero.csv", "huber.csv", "typo.csv"):
+        assert not (folder / name).exists()
+    assert printed.returncode == 0, printed.stderr
+    section = yaml.safe_load(printed.stdout)["calibration"]
+    # range_sigma_m follows engine.range.sigma_m unless set.
+    assert section == {"window_s": 3, "range_sigma_m": 0.2, "huber_sigmas": 2, "max_iterations": 1000,
+                       "unknown_plane_height_m": 1.8}

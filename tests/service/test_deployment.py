@@ -351,14 +351,15 @@ def test_that_print_config_prints_every_section_with_defaults_and_reads_back(hos
     # Assert
     printed = yaml.safe_load(defaults)
     assert list(printed) == ["serial", "nodes", "schedule", "capture", "output", "jsonl", "mqtt", "mqtt_auth", "http",
-                             "checkpoint", "odometry", "logging", "web", "engine", "movement", "map"]
+                             "checkpoint", "odometry", "logging", "web", "engine", "movement", "calibration",
+                             "map"]
     assert printed["web"] == {"floor_plan": {"path": "", "metres_per_pixel": 0.05, "origin_x_m": 0,
                                              "origin_y_m": 0, "rotation_rad": 0}}
     assert printed["serial"]["device"] == "/dev/ttyACM0" and printed["serial"]["baud"] == 115200
     assert printed["jsonl"] == {"rotate_mib": 64, "keep": 5, "max_node_rate_hz": 2}
     assert printed["mqtt"]["url"] == "" and printed["mqtt_auth"]["username"] == ""
     assert printed["output"]["jsonl"] == "-" and printed["http"]["port"] == 8080
-    assert printed["map"] == {"heights_csv": "", "fixed_csv": ""}
+    assert printed["map"] == {"heights_csv": "", "fixed_csv": "", "moving": []}
     example = yaml.safe_load(configured)
     assert example["serial"]["device"] == "/dev/cdro-tag" and example["http"]["port"] == 8181
     assert example["mqtt"]["url"] == "mqtt://127.0.0.1:1883"

@@ -39,6 +39,9 @@ std::string mapText(int nodes)
                              "converged",
                              "",
                              {},
+                             {},
+                             {},
+                             {},
                              {}});
     }
     return mapJson(map).dump();

@@ -24,16 +24,16 @@ MapState twoNodes(double x0)
 {
     MapState map;
     map.nodes.push_back(
-        {24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, {}});
-    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}, {}});
+        {24577, x0, -0.502, 0.0041, -0.0003, 0.0052, true, false, true, false, "converged", "", {}, {}, {}, {}, {}});
+    map.nodes.push_back({24578, 1.0, 2.0, 0.1, 0.0, 0.1, false, true, true, false, "moving", "", {}, {}, {}, {}, {}});
     return map;
 }
 } // namespace
 
 TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
 {
-    NodeEstimate node{24577, 3.214, -0.502, 0.0041,      -0.0003, 0.0052, true,
-                      false, true,  false,  "converged", "",      {},     1.25};
+    NodeEstimate node{24577, 3.214,       -0.502, 0.0041, -0.0003, 0.0052, true, false, true,
+                      false, "converged", "",     {},     1.25,    {},     {},   {}};
     const OutputTime at{12.5, 1700000012.5};
     EXPECT_EQ(JsonLinesWriter::line(nodeJson(node, at)),
               R"({"type":"node","schema":2,"t_s":12.5,"t_unix_s":1700000012.5,"id":24577,"id_hex":"0x6001",)"
@@ -84,6 +84,33 @@ TEST(JsonOutput, NodeRobotAndHealthLinesHaveTheDocumentedKeysInOrder)
     EXPECT_EQ(h["counters"]["crc_errors"], 3);
     EXPECT_TRUE(h["counters"].contains("frames_ok"));
     EXPECT_TRUE(h["counters"].contains("device_resets"));
+}
+
+// A node tracked in 3D (map.moving) carries its track's z covariance after the keys every node
+// has; the others do not have those keys at all, and a change in them is a change of estimate.
+TEST(JsonOutput, OnlyA3dTrackCarriesItsZCovariance)
+{
+    NodeEstimate node;
+    node.id = 10;
+    node.placed = true;
+    node.moving = true;
+    node.status = "moving";
+    node.z_m = 0.75;
+    const OutputTime at{1.0, 1700000001.0};
+    const std::string flat = JsonLinesWriter::line(nodeJson(node, at));
+    EXPECT_EQ(flat.find("var_z_m2"), std::string::npos) << flat;
+    NodeEstimate tracked = node;
+    tracked.var_z_m2 = 0.04;
+    tracked.cov_xz_m2 = -0.01;
+    tracked.cov_yz_m2 = 0.02;
+    EXPECT_NE(JsonLinesWriter::line(nodeJson(tracked, at))
+                  .find(R"("hinge":[],"hinge_hex":[],"var_z_m2":0.04,"cov_xz_m2":-0.01,"cov_yz_m2":0.02})"),
+              std::string::npos);
+    EXPECT_FALSE(sameEstimate(node, tracked));
+    NodeEstimate moved = tracked;
+    moved.var_z_m2 = 0.05;
+    EXPECT_FALSE(sameEstimate(tracked, moved));
+    EXPECT_TRUE(sameEstimate(tracked, tracked));
 }
 
 TEST(JsonOutput, AnUnplacedNodeHasNoPositionAndAnUnknownHeightNoZ)

@@ -71,8 +71,9 @@ MapState mapWith(double x)
     MapState map;
     map.t_s = 4.5;
     map.t_unix_s = 1700000004.5;
-    map.nodes.push_back({24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true, false, "converged", "", {}, 1.5});
-    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true, false, "moving", "", {}, {}});
+    map.nodes.push_back(
+        {24577, x, 1.0, 0.01, 0.0, 0.02, true, false, true, false, "converged", "", {}, 1.5, {}, {}, {}});
+    map.nodes.push_back({24578, 2.0, 3.0, 0.01, 0.0, 0.02, false, true, true, false, "moving", "", {}, {}, {}, {}, {}});
     RobotPose robot;
     robot.id = 24600;
     robot.x_m = 0.5;

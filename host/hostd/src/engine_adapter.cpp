@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "cdro/fixed.h"
 #include "cdro/hostd/checkpoint_blocks.hpp"
+#include "cdro/service/log.hpp"
 
 namespace cdro::hostd {
 
@@ -83,8 +85,8 @@ engine::Matrix2 covarianceOf(const cdro_fixed_covariance_t &fixed)
 
 } // namespace
 
-EngineAdapter::EngineAdapter(engine::Engine &engine, engine::MovementStage *movement)
-    : engine_(engine), movement_(movement)
+EngineAdapter::EngineAdapter(engine::Engine &engine, engine::MovementStage *movement, std::vector<uint16_t> moving)
+    : engine_(engine), movement_(movement), moving_(std::move(moving))
 {
 }
 
@@ -154,6 +156,39 @@ void EngineAdapter::fill(service::MapState &map) const
             out.var_y_m2 = node.covariance_m2(1, 1);
         }
         map.nodes.push_back(out);
+    }
+    // The nodes tracked in 3D are not in the static map: their tracks, once started (before
+    // FlightTracks::kMinAnchors anchors are heard, not placed).
+    for (const uint16_t id : moving_) {
+        const std::optional<engine::FlightEstimate> track = engine_.flightEstimate(id);
+        if (!track || track->status == engine::FlightStatus::Waiting) {
+            continue;
+        }
+        service::NodeEstimate out;
+        out.id = id;
+        out.moving = true;
+        out.status = "moving";
+        if (track->status == engine::FlightStatus::Tracking) {
+            const engine::Vector3 &p = track->position_m;
+            const engine::Matrix3 &c = track->covariance_m2;
+            out.placed = true;
+            out.x_m = p.x();
+            out.y_m = p.y();
+            out.z_m = p.z();
+            out.var_x_m2 = c(0, 0);
+            out.cov_xy_m2 = c(0, 1);
+            out.var_y_m2 = c(1, 1);
+            out.var_z_m2 = c(2, 2);
+            out.cov_xz_m2 = c(0, 2);
+            out.cov_yz_m2 = c(1, 2);
+        } else {
+            out.status = "unplaced";
+        }
+        map.nodes.push_back(out);
+    }
+    if (!moving_.empty()) {
+        std::sort(map.nodes.begin(), map.nodes.end(),
+                  [](const service::NodeEstimate &a, const service::NodeEstimate &b) { return a.id < b.id; });
     }
     map.links.clear();
     for (const engine::LinkOutput &link : engine_.links()) {
@@ -227,6 +262,11 @@ service::SogSnapshot EngineAdapter::snapshot()
 void EngineAdapter::restore(const service::SogSnapshot &snapshot)
 {
     restoreFrom(engine_, snapshot);
+    if (!moving_.empty()) {
+        service::log()->warn("resume: the {} nodes tracked in 3D (map.moving) are not in checkpoints: their tracks "
+                             "restart from their next ranges",
+                             moving_.size());
+    }
     if (movement_ != nullptr) {
         restoreMovement(*movement_, snapshot);
     }

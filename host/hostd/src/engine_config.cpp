@@ -173,6 +173,21 @@ const std::vector<Key<engine::MovementParams>> &movementKeys()
     return keys;
 }
 
+// The calibration's parameters a user may set; min_prior_sigma_m only keeps the motion prior's
+// weights finite and is left out.
+const std::vector<Key<engine::MovingCalibrationParams>> &calibrationKeys()
+{
+    using P = engine::MovingCalibrationParams;
+    static const std::vector<Key<P>> keys = {
+        CDRO_REAL("", "window_s", 0.001, 1e6, window_s),
+        CDRO_REAL("", "range_sigma_m", 0.001, 100.0, range_sigma_m),
+        CDRO_REAL("", "huber_sigmas", 0.1, 1000.0, huber_sigmas),
+        CDRO_COUNT("", "max_iterations", 1, 1000000, max_iterations),
+        CDRO_REAL("", "unknown_plane_height_m", -kHuge, kHuge, unknown_plane_height_m),
+    };
+    return keys;
+}
+
 #undef CDRO_REAL
 #undef CDRO_COUNT
 #undef CDRO_FLAG
@@ -308,6 +323,23 @@ std::string movementParamsYaml(const engine::MovementParams &params)
     return emitKeys("movement", movementKeys(), params);
 }
 
+engine::MovingCalibrationParams parseCalibrationParams(const YAML::Node &root, const std::string &origin,
+                                                       const engine::EngineParams &engine)
+{
+    engine::MovingCalibrationParams params;
+    params.range_sigma_m = engine.range.sigma_m;
+    if (!root || root.IsNull() || !root.IsMap()) {
+        return params;
+    }
+    parseKeys(root, "calibration", origin, calibrationKeys(), params);
+    return params;
+}
+
+std::string calibrationParamsYaml(const engine::MovingCalibrationParams &params)
+{
+    return emitKeys("calibration", calibrationKeys(), params);
+}
+
 engine::EngineParams parseEngineParams(const YAML::Node &root, const std::string &origin)
 {
     engine::EngineParams params;
@@ -329,6 +361,8 @@ std::vector<std::string> configurationKeys()
     std::vector<std::string> names = keyNames("engine", engineKeys());
     const std::vector<std::string> movement = keyNames("movement", movementKeys());
     names.insert(names.end(), movement.begin(), movement.end());
+    const std::vector<std::string> calibration = keyNames("calibration", calibrationKeys());
+    names.insert(names.end(), calibration.begin(), calibration.end());
     return names;
 }
 
@@ -400,7 +434,7 @@ ConfigDocument loadConfigDocument(const std::string &path, const std::vector<std
     // Each layer rejects unknown keys inside its sections; a misspelt section name, in the file or
     // in a --set, is caught here, where every layer's sections are known.
     std::vector<std::string> sections = service::serviceSectionNames();
-    sections.insert(sections.end(), {"engine", "movement", "map"});
+    sections.insert(sections.end(), {"engine", "movement", "calibration", "map"});
     service::rejectUnknownSections(document.root, document.origin, sections);
     if (!sets.empty()) {
         applySettings(document.root, sets);

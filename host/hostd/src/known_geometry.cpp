@@ -1,6 +1,9 @@
 // Known heights and fixed nodes, from the `map:` section or the command line (known_geometry.hpp).
 #include "cdro/hostd/known_geometry.hpp"
 
+#include <algorithm>
+#include <stdexcept>
+
 #include <nlohmann/json.hpp>
 #include <yaml-cpp/yaml.h>
 
@@ -24,6 +27,7 @@ KnownGeometry parseKnownGeometry(const YAML::Node &root, const std::string &orig
     service::Section section(node, "map", origin);
     section.readString("heights_csv", geometry.heights_csv);
     section.readString("fixed_csv", geometry.fixed_csv);
+    section.readIds("moving", geometry.moving);
     section.rejectUnknownKeys();
     return geometry;
 }
@@ -80,6 +84,34 @@ KnownGeometryCounts applyKnownRows(engine::Engine &engine, const KnownRows &rows
     return counts;
 }
 
+void trackMovingNodes(engine::Engine &engine, const KnownRows &rows, const std::vector<uint16_t> &moving)
+{
+    if (moving.empty()) {
+        return;
+    }
+    size_t anchors = 0;
+    for (const FixedRow &fixed : rows.fixed) {
+        anchors += std::any_of(rows.heights.begin(), rows.heights.end(),
+                               [&fixed](const HeightRow &height) { return height.id == fixed.id; })
+                       ? 1U
+                       : 0U;
+    }
+    if (anchors < engine::FlightTracks::kMinAnchors) {
+        throw service::ConfigError("map.moving: the nodes tracked in 3D need at least " +
+                                   std::to_string(engine::FlightTracks::kMinAnchors) +
+                                   " fixed nodes of known height (map.fixed_csv and map.heights_csv, or --fixed-csv "
+                                   "and --heights-csv); " +
+                                   std::to_string(anchors) + " given");
+    }
+    for (const uint16_t id : moving) {
+        try {
+            engine.trackMoving3D(id);
+        } catch (const std::logic_error &error) {
+            throw service::ConfigError(std::string("map.moving: ") + error.what());
+        }
+    }
+}
+
 KnownGeometryCounts applyKnownGeometry(engine::Engine &engine, const KnownGeometry &geometry,
                                        uint32_t max_reported_rows, std::FILE *log)
 {
@@ -98,6 +130,9 @@ std::string encodeRunContext(const RunContext &context)
         json["fixed"].push_back({row.id, row.x_m, row.y_m});
     }
     json["settings"] = context.settings;
+    if (!context.moving.empty()) {
+        json["moving"] = context.moving; // absent otherwise: the header of a run without it is as before
+    }
     return json.dump(); // doubles in their shortest round-trip form: read back bit for bit
 }
 
@@ -120,6 +155,9 @@ RunContext decodeRunContext(const std::string &text, const std::string &origin)
             context.rows.fixed.push_back(row);
         }
         context.settings = json.at("settings").get<std::string>();
+        if (json.contains("moving")) {
+            context.moving = json.at("moving").get<std::vector<uint16_t>>();
+        }
     } catch (const nlohmann::json::exception &error) {
         throw service::ConfigError(origin + ": the run's context in the capture header is unreadable (" +
                                    std::string(error.what()) + ")");

@@ -6,14 +6,18 @@
 //   cdro-hostd --version                                    release, protocol, layout hashes
 //
 // docs/service.md documents the service, docs/engine.md the engine and its parameters.
+#include <algorithm>
 #include <cstdio>
 #include <exception>
+#include <string>
+#include <vector>
 
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
 #include <yaml-cpp/yaml.h>
 
+#include "cdro/csv/reader.hpp"
 #include "cdro/engine/engine.hpp"
 #include "cdro/hostd/engine_adapter.hpp"
 #include "cdro/hostd/engine_config.hpp"
@@ -21,6 +25,7 @@
 #include "cdro/hostd/offline.hpp"
 #include "cdro/hostd/progress.hpp"
 #include "cdro/service/capture.hpp"
+#include "cdro/service/config.hpp"
 #include "cdro/service/config_cli.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
@@ -34,7 +39,8 @@ namespace {
 // replay's own command line and configuration do not give is taken from there; what they give
 // is used, with a warning when it differs from the live run's.
 void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_settings, cdro::hostd::KnownRows &rows,
-                    cdro::engine::EngineParams &params, cdro::engine::MovementParams &movement)
+                    cdro::engine::EngineParams &params, cdro::engine::MovementParams &movement,
+                    std::vector<uint16_t> &moving)
 {
     cdro::service::CaptureReader reader(capture);
     if (reader.context().empty()) {
@@ -54,6 +60,17 @@ void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_se
         cdro::service::log()->warn("replay: the heights or fixed nodes given differ from the live run's (recorded in "
                                    "the capture: {} heights, {} fixed nodes); the map will differ from the live one",
                                    recorded.rows.heights.size(), recorded.rows.fixed.size());
+    }
+    if (moving.empty()) {
+        moving = recorded.moving;
+        if (!moving.empty()) {
+            cdro::service::log()->info("replay: the live run's {} nodes tracked in 3D (map.moving), from the capture",
+                                       moving.size());
+        }
+    } else if (moving != recorded.moving) {
+        cdro::service::log()->warn("replay: the nodes tracked in 3D given (map.moving, --moving) differ from the live "
+                                   "run's ({} recorded in the capture); the outputs will differ from the live ones",
+                                   recorded.moving.size());
     }
     const std::string now = cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement);
     if (!gave_settings) {
@@ -104,12 +121,12 @@ static int runMain(int argc, char **argv)
                    "with --moving: the moving nodes' 3D trajectories")
         ->needs(ranges_option);
     app.add_option("--moving", offline.moving,
-                   "offline: node ids (comma separated) that move from the start, tracked in 3D against the fixed "
-                   "nodes of known height (without --fixed-csv: the static nodes they range are calibrated from "
-                   "their ranges first, heights from --heights-csv held); with --out-trajectory: "
+                   "node ids (comma separated) that move from the start, tracked in 3D against the fixed nodes of "
+                   "known height (map.moving). Live and replay: their estimates carry z_m and var_z_m2. Offline: "
+                   "without --fixed-csv the static nodes they range are calibrated from their ranges first "
+                   "(calibration:, heights from --heights-csv held); with --out-trajectory: "
                    "t,id,x,y,z,var_x,cov_xy,var_y,var_z,cov_xz,cov_yz")
-        ->delimiter(',')
-        ->needs(ranges_option);
+        ->delimiter(',');
     app.add_option("--moving-body", offline.moving_bodies,
                    "offline, with --moving: A:B:SEPARATION_M, moving nodes A and B on one rigid body SEPARATION_M "
                    "(m) apart (repeatable)")
@@ -146,12 +163,32 @@ static int runMain(int argc, char **argv)
         cdro::engine::EngineParams params = cdro::hostd::parseEngineParams(document.root, document.origin);
         cdro::hostd::applySwitches(params, switches);
         cdro::engine::MovementParams movement = cdro::hostd::parseMovementParams(document.root, document.origin);
+        const cdro::engine::MovingCalibrationParams calibration =
+            cdro::hostd::parseCalibrationParams(document.root, document.origin, params);
         cdro::hostd::KnownGeometry geometry = cdro::hostd::parseKnownGeometry(document.root, document.origin);
         if (!offline.heights_csv.empty()) {
             geometry.heights_csv = offline.heights_csv;
         }
         if (!offline.fixed_csv.empty()) {
             geometry.fixed_csv = offline.fixed_csv;
+        }
+        if (!offline.moving.empty() && offline.ranges_csv.empty()) {
+            // Offline checks its own list (offline.cpp); here the live run's, as the map section's.
+            geometry.moving.clear();
+            for (const std::string &text : offline.moving) {
+                uint16_t id = 0;
+                if (!cdro::csv::parseNodeId(text, &id)) {
+                    throw cdro::service::ConfigError("--moving: '" + text +
+                                                     "' is not a node id (1..65535, decimal or 0x hex)");
+                }
+                if (std::find(geometry.moving.begin(), geometry.moving.end(), id) == geometry.moving.end()) {
+                    geometry.moving.push_back(id);
+                }
+            }
+        } else if (offline.moving.empty()) {
+            for (const uint16_t id : geometry.moving) {
+                offline.moving.push_back(std::to_string(id));
+            }
         }
         if (print_config) {
             // What a run with these arguments would use, as a file --config reads back.
@@ -163,10 +200,12 @@ static int runMain(int argc, char **argv)
             YAML::Emitter map;
             map << YAML::BeginMap << YAML::Key << "map" << YAML::Value << YAML::BeginMap << YAML::Key << "heights_csv"
                 << YAML::Value << geometry.heights_csv << YAML::Key << "fixed_csv" << YAML::Value << geometry.fixed_csv
-                << YAML::EndMap << YAML::EndMap;
+                << YAML::Key << "moving" << YAML::Value << YAML::Flow << geometry.moving << YAML::EndMap
+                << YAML::EndMap;
             std::fputs(cdro::service::serviceConfigYaml(config).c_str(), stdout);
             std::fputs(cdro::hostd::engineParamsYaml(params).c_str(), stdout);
             std::fputs(cdro::hostd::movementParamsYaml(movement).c_str(), stdout);
+            std::fputs(cdro::hostd::calibrationParamsYaml(calibration).c_str(), stdout);
             std::fputs(map.c_str(), stdout);
             std::fputs("\n", stdout);
             return 0;
@@ -179,6 +218,7 @@ static int runMain(int argc, char **argv)
                 return 2;
             }
             offline.settle = !no_settle;
+            offline.calibration = calibration;
             return cdro::hostd::runOffline(offline, params, movement, stderr);
         }
 
@@ -207,7 +247,11 @@ static int runMain(int argc, char **argv)
                 (document.root && document.root.IsMap() && (document.root["engine"] || document.root["movement"])) ||
                 engine_overrides.no_weight_transfer || engine_overrides.no_cooperative ||
                 engine_overrides.no_refinement || engine_overrides.no_motion_reset;
-            takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows, params, movement);
+            takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows, params, movement,
+                           geometry.moving);
+        }
+        if (!geometry.moving.empty() && movement.robot_id != 0) {
+            throw cdro::service::ConfigError("map.moving is not for the movement stage: no movement.robot_id with it");
         }
         cdro::engine::Engine engine(params);
         engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
@@ -215,16 +259,21 @@ static int runMain(int argc, char **argv)
         if (known.heights + known.fixed > 0) {
             cdro::service::log()->info("map: {} known heights, {} fixed nodes", known.heights, known.fixed);
         }
+        cdro::hostd::trackMovingNodes(engine, rows, geometry.moving);
+        if (!geometry.moving.empty()) {
+            cdro::service::log()->info("map: {} nodes tracked in 3D (map.moving)", geometry.moving.size());
+        }
         std::unique_ptr<cdro::engine::MovementStage> stage;
         if (movement.robot_id != 0) {
             stage = std::make_unique<cdro::engine::MovementStage>(engine, movement);
             stage->setTrace([](const std::string &message) { cdro::service::log()->debug("movement: {}", message); });
         }
-        cdro::hostd::EngineAdapter adapter(engine, stage.get());
+        cdro::hostd::EngineAdapter adapter(engine, stage.get(), geometry.moving);
         cdro::service::SystemClock clock;
         cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter, &adapter}, clock);
         service.setCaptureContext(cdro::hostd::encodeRunContext(
-            {rows, cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement)}));
+            {rows, cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement),
+             geometry.moving}));
         service.start();
         if (!service.liveMapUrl().empty()) {
             std::fprintf(stderr, "cdro-hostd: live map: %s\n", service.liveMapUrl().c_str());

@@ -319,6 +319,9 @@ int calibrateAnchors(const OfflineOptions &options, engine::Engine &engine, cons
     }
     engine::MovingCalibrationParams calibration_params;
     calibration_params.range_sigma_m = params.range.sigma_m;
+    if (options.calibration) {
+        calibration_params = *options.calibration;
+    }
     engine::MovingCalibration calibration(calibration_params, params.motion);
     std::vector<engine::CalibratedAnchor> anchors;
     try {
@@ -556,7 +559,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             engine.setTrace(
                 [log](const std::string &message) { std::fprintf(log, "cdro-hostd: engine: %s\n", message.c_str()); });
         }
-        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv}, options.max_reported_rows,
+        applyKnownGeometry(engine, KnownGeometry{options.heights_csv, options.fixed_csv, {}}, options.max_reported_rows,
                            log);
         if (options.moving.empty() && !options.moving_bodies.empty()) {
             std::fprintf(log, "cdro-hostd: --moving-body needs --moving (its nodes are moving ones)\n");

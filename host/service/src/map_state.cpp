@@ -65,7 +65,8 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
     return a.id == b.id && sameBits(a.x_m, b.x_m) && sameBits(a.y_m, b.y_m) && sameBits(a.var_x_m2, b.var_x_m2) &&
            sameBits(a.cov_xy_m2, b.cov_xy_m2) && sameBits(a.var_y_m2, b.var_y_m2) && a.converged == b.converged &&
            a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable && a.status == b.status &&
-           a.reason == b.reason && a.hinge == b.hinge && sameBits(a.z_m, b.z_m);
+           a.reason == b.reason && a.hinge == b.hinge && sameBits(a.z_m, b.z_m) && sameBits(a.var_z_m2, b.var_z_m2) &&
+           sameBits(a.cov_xz_m2, b.cov_xz_m2) && sameBits(a.cov_yz_m2, b.cov_yz_m2);
 }
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)
@@ -105,6 +106,12 @@ nlohmann::ordered_json nodeJson(const NodeEstimate &n, OutputTime time)
     j["reason"] = n.reason;
     j["hinge"] = n.hinge;
     j["hinge_hex"] = idList(n.hinge);
+    // A 3D track's covariance: only on the nodes that have one, so 2D consumers see nothing new.
+    if (n.var_z_m2) {
+        j["var_z_m2"] = *n.var_z_m2;
+        j["cov_xz_m2"] = orNull(n.cov_xz_m2);
+        j["cov_yz_m2"] = orNull(n.cov_yz_m2);
+    }
     return j;
 }
 

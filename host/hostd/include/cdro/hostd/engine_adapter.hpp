@@ -3,7 +3,9 @@
 //
 //   FrameConsumer       RANGE -> Engine::addRange (mm -> m), MOTION -> Engine::setMoving (or the
 //                       movement stage's, with the frame's event time in s)
-//   MapSource           the engine's estimates in the output frame, its links, SoG components
+//   MapSource           the engine's estimates in the output frame, its links, SoG components;
+//                       the nodes tracked in 3D (map.moving) with their 3D track: z_m, var_z_m2,
+//                       cov_xz_m2, cov_yz_m2 (docs/outputs.md), once they have started
 //   CheckpointProvider  the engine state in common/'s fixed-point SoG layout (sog_layout.h),
 //                       plus an extension block (tag kEngineExtensionTag) with what the layout
 //                       does not hold: link windows, update counts, the frame, the counters;
@@ -11,6 +13,7 @@
 //                       stage's EKF hypotheses, beacon SoGs and link watches, exactly; both
 //                       laid out by checkpoint_layout.def (cdro/hostd/checkpoint_blocks.hpp)
 //
+// The 3D tracks are not in checkpoints: on a resume they restart from their next ranges (logged).
 // Resuming from a checkpoint continues from the state rounded to the layout's scales
 // (positions to 0.5 mm, standard deviations to 0.5 um, weights to 7.7e-6, ranges in the link
 // windows to 0.5 mm) and with an empty neighbour-update queue; docs/service.md states the
@@ -23,6 +26,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "cdro/checkpoint_layout.def"
 #include "cdro/engine/engine.hpp"
@@ -45,7 +49,9 @@ class EngineAdapter final : public service::FrameConsumer,
                             public service::OdometryConsumer {
 public:
     // movement: the movement stage over the same engine when a robot is configured, else null.
-    explicit EngineAdapter(engine::Engine &engine, engine::MovementStage *movement = nullptr);
+    // moving: the nodes the engine tracks in 3D (Engine::trackMoving3D, done by the caller).
+    explicit EngineAdapter(engine::Engine &engine, engine::MovementStage *movement = nullptr,
+                           std::vector<uint16_t> moving = {});
 
     // OdometryConsumer: a step from the robot (UDP, MQTT, or a capture's odometry records), ending
     // at message.t_s (the frames' clock); ignored without a movement stage.
@@ -70,6 +76,7 @@ public:
 private:
     engine::Engine &engine_;
     engine::MovementStage *movement_ = nullptr;
+    std::vector<uint16_t> moving_; // tracked in 3D
     uint64_t ranges_refused_ = 0;
     int64_t last_event_unix_us_ = 0;
 };

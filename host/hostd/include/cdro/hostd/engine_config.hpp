@@ -15,6 +15,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "cdro/engine/movement.hpp"
+#include "cdro/engine/moving_calibration.hpp"
 #include "cdro/engine/params.hpp"
 
 namespace CLI {
@@ -57,6 +58,13 @@ engine::EngineParams loadEngineParams(const std::string &config_path, const Engi
 // The `movement:` section (the movement stage, movement.hpp); defaults where absent.
 engine::MovementParams parseMovementParams(const YAML::Node &root, const std::string &origin);
 
+// The `calibration:` section: the anchors' calibration from moving nodes' ranges (offline
+// --moving without --fixed-csv; moving_calibration.hpp). Defaults where absent, except
+// calibration.range_sigma_m, which is engine.range.sigma_m (of `engine`) unless set.
+// Throws cdro::service::ConfigError naming the key for a value out of its range.
+engine::MovingCalibrationParams parseCalibrationParams(const YAML::Node &root, const std::string &origin,
+                                                       const engine::EngineParams &engine);
+
 // Applies `section.key=value` settings to a YAML document (creating maps as needed).
 // Throws cdro::service::ConfigError for a malformed setting.
 void applySettings(YAML::Node &root, const std::vector<std::string> &settings);
@@ -64,8 +72,10 @@ void applySettings(YAML::Node &root, const std::vector<std::string> &settings);
 // Every engine key with its current value, as YAML (for --print-config and the docs test).
 std::string engineParamsYaml(const engine::EngineParams &params);
 std::string movementParamsYaml(const engine::MovementParams &params);
+std::string calibrationParamsYaml(const engine::MovingCalibrationParams &params);
 
-// Every key, as "engine.<group>.<name>" and "movement.[<group>.]<name>" (docs/engine.md lists them).
+// Every key, as "engine.<group>.<name>", "movement.[<group>.]<name>" and "calibration.<name>"
+// (docs/engine.md lists them).
 std::vector<std::string> configurationKeys();
 
 } // namespace cdro::hostd

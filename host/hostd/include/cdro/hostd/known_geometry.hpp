@@ -9,6 +9,11 @@
 //   map:
 //     heights_csv: site/heights.csv
 //     fixed_csv: site/fixed.csv
+//     moving: [0x6A70, 0x6A71]
+//
+// `moving` (or --moving, which wins): nodes that move from the start, their height unknown (tags
+// on drones, people), tracked in 3D (Engine::trackMoving3D, motion_track_3d.hpp) against the
+// fixed nodes of known height, in the live service as offline (offline.hpp).
 #pragma once
 
 #include <cstdint>
@@ -29,8 +34,9 @@ class Engine;
 namespace cdro::hostd {
 
 struct KnownGeometry {
-    std::string heights_csv; // "" = none
-    std::string fixed_csv;   // "" = none
+    std::string heights_csv;      // "" = none
+    std::string fixed_csv;        // "" = none
+    std::vector<uint16_t> moving; // node ids tracked in 3D; empty = none
 };
 
 // The `map:` section of a YAML document (root: the whole document); unknown keys are errors
@@ -58,14 +64,22 @@ KnownGeometryCounts applyKnownGeometry(engine::Engine &engine, const KnownGeomet
                                        uint32_t max_reported_rows, std::FILE *log);
 KnownGeometryCounts applyKnownRows(engine::Engine &engine, const KnownRows &rows);
 
+// The nodes of `moving` tracked in 3D (after applyKnownRows, before any range). Throws
+// cdro::service::ConfigError naming map.moving when fewer than FlightTracks::kMinAnchors fixed nodes
+// have a known height (the anchors a 3D track needs), or for a node that is fixed or has a known
+// height.
+void trackMovingNodes(engine::Engine &engine, const KnownRows &rows, const std::vector<uint16_t> &moving);
+
 // A capture's record of what the map depends on (the service writes it into the capture
-// header, capture.h): the known heights and fixed nodes, and the engine's and movement stage's
+// header, capture.h): the known heights and fixed nodes, the nodes tracked in 3D, and the engine's and movement stage's
 // settings as --print-config prints them. JSON:
-//   {"heights": [[id, z_m], ...], "fixed": [[id, x_m, y_m], ...], "settings": "engine:\n  ..."}
+//   {"heights": [[id, z_m], ...], "fixed": [[id, x_m, y_m], ...], "settings": "engine:\n  ...",
+//    "moving": [id, ...]}
 // A replay takes from it whatever its own command line does not give (docs/service.md).
 struct RunContext {
     KnownRows rows;
-    std::string settings; // YAML
+    std::string settings;         // YAML
+    std::vector<uint16_t> moving; // map.moving; "moving": [id, ...] (absent in older captures: none)
 };
 std::string encodeRunContext(const RunContext &context);
 // Throws cdro::service::ConfigError naming `origin` when the text is not a run context.

@@ -44,13 +44,16 @@
 // with --trace-csv.
 // --moving-body A:B:SEPARATION_M (repeatable): moving nodes A and B are carried by one rigid body,
 // SEPARATION_M (m) apart (a drone's two tags: the distance between their lever arms).
+// The calibration's parameters are the configuration's `calibration:` section (docs/engine.md).
 #pragma once
 
 #include <cstdio>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "cdro/engine/movement.hpp"
+#include "cdro/engine/moving_calibration.hpp"
 #include "cdro/engine/params.hpp"
 
 namespace cdro::hostd {
@@ -67,6 +70,9 @@ struct OfflineOptions {
     std::vector<std::string> moving;        // node ids moving from the start, tracked in 3D (--moving)
     std::vector<std::string> moving_bodies; // "A:B:SEPARATION_M": two of them on one rigid body (--moving-body)
     std::string out_anchors; // --moving without --fixed-csv: the calibrated anchors id,x,y,z,height_given
+    // The calibration's parameters (the configuration's `calibration:` section); unset: the
+    // defaults with range_sigma_m = engine.range.sigma_m.
+    std::optional<engine::MovingCalibrationParams> calibration;
     std::string heights_csv;
     std::string fixed_csv;
     std::string out_csv;

@@ -47,7 +47,12 @@ struct NodeEstimate {
     std::string reason;          // why placed but not converged: "too few links", "ambiguous", "foldable",
                                  // "flexible", "unsettled"; empty otherwise
     std::vector<uint16_t> hinge; // foldable: the one or two nodes its part hangs on
-    std::optional<double> z_m;   // m, the node's height where it is known (heights CSV, config)
+    std::optional<double> z_m;   // m, the node's height where it is known (heights CSV, config), or its 3D track's z
+    // m^2, the rest of a 3D track's position covariance (a node tracked in 3D, map.moving); unset
+    // for every other node, and then not written
+    std::optional<double> var_z_m2;
+    std::optional<double> cov_xz_m2;
+    std::optional<double> cov_yz_m2;
 };
 
 struct RobotPose {
