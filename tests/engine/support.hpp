@@ -2,7 +2,7 @@
 // networks with their range streams, aligned errors against the truth, and the PLANT data.
 //
 // Randomness: netgen's seeded stream (cdro/netgen/random.hpp), so that a seed gives the same
-// network on every standard library, and the tests draw as the benchmarks and cdro-netgen do.
+// network on every standard library, drawn as cdro-netgen and the building families draw.
 // Every randomised test prints its seed; the environment variable CDRO_TEST_SEED replays one (as
 // tests/firmware does).
 #pragma once
