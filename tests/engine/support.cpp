@@ -19,10 +19,6 @@
 
 namespace cdro::enginetest {
 
-namespace {
-constexpr double kPi = 3.14159265358979323846;
-} // namespace
-
 std::vector<uint64_t> testSeeds(const std::vector<uint64_t> &defaults)
 {
     if (const char *env = std::getenv("CDRO_TEST_SEED")) {
@@ -40,26 +36,6 @@ std::string seedTrace(uint64_t seed)
     std::fflush(stdout);
     return "seed " + std::to_string(seed) + " (set CDRO_TEST_SEED=" + std::to_string(seed) + " to replay)";
 }
-
-// splitmix64 (Steele, Lea, Flood 2014): tiny, full period, good enough for test geometry.
-uint64_t Random::next()
-{
-    uint64_t z = (state_ += 0x9E3779B97F4A7C15ULL);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
-    return z ^ (z >> 31);
-}
-
-double Random::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
-
-double Random::normal()
-{
-    // 1 - uniform() is in (0, 1]: the logarithm is finite.
-    const double radius = std::sqrt(-2.0 * std::log(1.0 - uniform()));
-    return radius * std::cos(2.0 * kPi * uniform());
-}
-
-size_t Random::below(size_t count) { return static_cast<size_t>(uniform() * static_cast<double>(count)); }
 
 Vector2 uniformPoint(netgen::RandomSource &random, double low_m, double high_m)
 {

@@ -1,10 +1,10 @@
 // Test support for the engine suites: seeded randomness that can be replayed, random planar
 // networks with their range streams, aligned errors against the truth, and the PLANT data.
 //
-// Randomness: splitmix64 with our own uniform/normal/shuffle (below), so that a seed gives the
-// same network on every standard library (std::uniform_real_distribution and std::shuffle are
-// implementation-defined). Every randomised test prints its seed; the
-// environment variable CDRO_TEST_SEED replays one (as tests/firmware does).
+// Randomness: netgen's seeded stream (cdro/netgen/random.hpp), so that a seed gives the same
+// network on every standard library, drawn as cdro-netgen and the building families draw.
+// Every randomised test prints its seed; the environment variable CDRO_TEST_SEED replays one (as
+// tests/firmware does).
 #pragma once
 
 #include <cstdint>
@@ -43,21 +43,9 @@ std::vector<uint64_t> testSeeds(const std::vector<uint64_t> &defaults);
 uint64_t testSeed(uint64_t fallback);
 std::string seedTrace(uint64_t seed); // "seed N (set CDRO_TEST_SEED=N to replay)"
 
-// splitmix64, with uniform and shuffle as netgen::Random draws them; normal() (one value per
-// pair of uniforms) and below() (a scaled uniform) are this class's own, kept so that every
-// seeded case draws the networks and ranges it always drew.
-class Random final : public netgen::RandomSource {
-public:
-    explicit Random(uint64_t seed) : state_(seed) {}
-    using netgen::RandomSource::uniform;
-    uint64_t next();
-    double uniform() override;           // [0, 1)
-    double normal() override;            // standard normal (Box-Muller)
-    size_t below(size_t count) override; // [0, count)
-
-private:
-    uint64_t state_;
-};
+// The tests' stream is netgen's (one definition of the seeded draws for tests, benchmarks and
+// tools).
+using Random = netgen::Random;
 
 // A point with both coordinates uniform in [low_m, high_m), and one with both standard normal.
 // y is drawn before x: the order GCC evaluated `Vector2(random.uniform(..), random.uniform(..))`

@@ -655,10 +655,14 @@ Gaussian2 mergedRings(const Engine &engine, NodeId id)
 // The switches of the paper's filter, measured where they act. Weight transfer and the
 // cooperative weights shape the SoGs, which are the estimate only in the paper's filter alone
 // (no refinement, no global solve): there each switch changes the map. Each goes the way it is
-// known to go over six seeded networks (the mean RMSE of the placed nodes): without the
-// cooperative weights the filter is worse (the paper's claim: 16.9 against 12.5 m summed over the
-// six); without weight transfer it is better (docs/results.md, "The paper's Fig. 3 setting": eq. 15
-// throws a ring's evidence away; 5.5 m); with the refinement the links decide (0.3 m).
+// known to go over 30 seeded networks (the RMSE of the placed nodes, summed): without the
+// cooperative weights the filter is worse (the paper's claim); without weight transfer it is
+// better (docs/results.md, "The paper's Fig. 3 setting": eq. 15 throws a ring's evidence away);
+// with the refinement the links decide. Measured over seeds 3501-3530: 55.5 m for the paper's
+// filter, 97.2 m without the cooperative weights, 46.7 m without weight transfer, 2.1 m with the
+// refinement (over 3501-3600: 158.6, 310.1, 117.6 and 8.0 m; network by network the switches go
+// their way in 82 and 67 of the 100, so six networks were too few: the three sums went their way
+// in 64 of the 95 runs of six consecutive seeds, and in all 71 runs of 30).
 TEST(Engine, AblationSwitchesGoTheWayTheyAreKnownTo)
 {
     CDRO_SKIP_WHEN_SANITIZED();
@@ -679,7 +683,7 @@ TEST(Engine, AblationSwitchesGoTheWayTheyAreKnownTo)
     variants[3].name = "with refinement";
     variants[3].params.refinement.enabled = true;
     bool first = true;
-    for (uint64_t seed : {3508U, 3510U, 3511U, 3512U, 3513U, 3514U}) {
+    for (uint64_t seed = 3501; seed <= 3530; ++seed) {
         SCOPED_TRACE(seedTrace(seed));
         Random random(seed);
         const TestNetwork network = randomNetwork(random, 8, 6.0, true);

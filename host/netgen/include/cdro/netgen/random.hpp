@@ -37,7 +37,8 @@ public:
     }
 };
 
-// splitmix64: the stream of the building families, their range streams and cdro-netgen.
+// splitmix64: the stream of the building families, their range streams, cdro-netgen, the robot
+// world and the engine tests.
 class Random final : public RandomSource {
 public:
     explicit Random(uint64_t seed) : state_(seed) {}
