@@ -639,11 +639,18 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
         if (truth_csv == nullptr || ranges_csv == nullptr) {
             throw std::runtime_error("cannot write into " + options.write_csv_dir);
         }
+        std::FILE *heights_csv = std::fopen((options.write_csv_dir + "/heights.csv").c_str(), "w");
+        if (heights_csv == nullptr) {
+            throw std::runtime_error("cannot write into " + options.write_csv_dir);
+        }
         std::fprintf(truth_csv, "id,x,y\n");
+        std::fprintf(heights_csv, "id,z\n");
         for (const auto &[id, position_m] : truth_m) {
             std::fprintf(truth_csv, "%u,%.17g,%.17g\n", static_cast<unsigned>(id), position_m.x(), position_m.y());
+            std::fprintf(heights_csv, "%u,0\n", static_cast<unsigned>(id));
         }
         std::fclose(truth_csv);
+        std::fclose(heights_csv);
         std::fprintf(ranges_csv, "from,to,range_m\n");
     }
     const Memory before = memoryNow();
@@ -651,6 +658,10 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     cdro::engine::EngineParams params;
     params.solve.adopt_after_sweeps = options.adopt_after_sweeps;
     Engine engine(params);
+    // The networks are planar and a deployment in one plane knows it: every height is 0.
+    for (const NodeId id : net.ids) {
+        engine.setHeight(id, 0.0);
+    }
     PlacementTimeline timeline;
     uint64_t fed = 0;
     double fed_wall_s = 0.0;
@@ -1126,9 +1137,11 @@ static int runMain(int argc, char **argv)
     app.add_flag("--json", json, "print one JSON document instead of the table");
     app.add_option("--json-out", json_out, "also write the JSON document to this file (with the table)");
     app.add_option("--one-network", one_network, "run one network of this size in this process, print its JSON");
-    app.add_option("--write-csv", network.write_csv_dir,
-                   "with --one-network: write the stream fed (DIR/ranges.csv) and the truth (DIR/truth.csv), for "
-                   "cdro-hostd --ranges-csv and cdro-eval");
+    app.add_option(
+        "--write-csv", network.write_csv_dir,
+        "with --one-network: write the stream fed (DIR/ranges.csv), the truth (DIR/truth.csv) and the heights the "
+        "engine is told (DIR/heights.csv: 0, the networks are planar), for "
+        "cdro-hostd --ranges-csv and cdro-eval");
     CLI11_PARSE(app, argc, argv);
 
     try {

@@ -329,6 +329,25 @@ private:
 constexpr double kBiasSigmas = 2.0;
 constexpr double kMinShownRedundancy = 0.1;
 
+// How much of the configured common excess (MapModelError) a map is given. Walls make links read
+// long by what each crosses, so the excess the NLOS model cannot tell from noise differs from
+// link to link, and the residuals spread beyond the noise: the variance factor rises. A map whose
+// links fit their noise (a factor near 1) has little room for it: it gets kUnseenExcessFloor of
+// it; one whose factor reaches 1 + kUnseenExcessFullFactor, all of it (between, in proportion).
+// Measured on the scorecard's networks (docs/results.md): walled floors, corridors and PLANT
+// 1.47-1.89, open random networks, wings and radios with offsets 1.00-1.07. Nodes of unknown
+// height read long by what their heights differ, which the map absorbs node by node where the
+// residuals do not show it: a map with such nodes gets at least kUnseenExcessFloorHeightsUnknown.
+constexpr double kUnseenExcessFloor = 1.0 / 6.0;
+constexpr double kUnseenExcessFloorHeightsUnknown = 0.5;
+constexpr double kUnseenExcessFullFactor = 0.4;
+
+double unseenExcessShare(double variance_factor, bool heights_unknown)
+{
+    const double floor = heights_unknown ? kUnseenExcessFloorHeightsUnknown : kUnseenExcessFloor;
+    return std::clamp((variance_factor - 1.0) / kUnseenExcessFullFactor, floor, 1.0);
+}
+
 // Whether two compressed matrices have the same nonzero pattern.
 bool samePattern(const SparseMatrix &x, const SparseMatrix &y)
 {
@@ -621,6 +640,9 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     const double unknowns = static_cast<double>(size) - (out.gauge_free ? 3.0 : 0.0);
     const double degrees_of_freedom = inliers - unknowns;
     out.variance_factor = degrees_of_freedom >= 1.0 ? std::max(weighted / degrees_of_freedom, 1.0) : 1.0;
+    const bool heights_unknown = std::find(model_error.height_unknown.begin(), model_error.height_unknown.end(), 1) !=
+                                 model_error.height_unknown.end();
+    out.common_excess_m = model_error.common_excess_m * unseenExcessShare(out.variance_factor, heights_unknown);
     // Inverse of the information: with a free gauge its null space (translations, rotation) is
     // lifted by a tiny regulariser and projected out again (the pseudo-inverse), so the result is
     // the shape's uncertainty, as a rigid fit to the truth measures it.
@@ -871,10 +893,10 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             transform -= gauge * normal_main.ldlt().solve(selected.transpose());
         }
         Eigen::MatrixXd covariance = transform * sandwich * transform.transpose();
-        if (model_error.common_excess_m > 0.0) {
+        if (out.common_excess_m > 0.0) {
             // In the frame's terms (S), and a model error in m: not scaled by the variance factor.
             const Eigen::VectorXd moved = transform * expansion;
-            covariance += model_error.common_excess_m * model_error.common_excess_m * moved * moved.transpose() /
+            covariance += out.common_excess_m * out.common_excess_m * moved * moved.transpose() /
                           std::max(out.variance_factor, 1.0);
         }
         for (size_t i = 0; i < free_nodes.size(); ++i) {

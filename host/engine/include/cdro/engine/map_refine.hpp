@@ -75,6 +75,9 @@ struct MapCovariance {
     std::vector<uint8_t> main_part;      // per node: in the largest part joined by checked,
                                          // line-of-sight links (the frame of the covariances)
     double variance_factor = 1.0;        // a-posteriori variance of unit weight (applied)
+    double common_excess_m = 0.0;        // m, the std of the common excess given to this map: the
+                                         // model error's, scaled by the evidence for it (the
+                                         // variance factor: mapCovariance)
     bool gauge_free = true;              // no frame from fixed nodes: the covariance is the map's
                                          // shape, relative to the map as a whole (rotation and
                                          // translation projected out)
@@ -83,9 +86,11 @@ struct MapCovariance {
 // What the measurement model leaves out and the covariance must not: NLOS and uncalibrated
 // antenna delays make links read long, in walled buildings nearly all of them a little, and the
 // map then reads larger by what no range can tell apart from a larger building: an excess every
-// link shares, of std common_excess_m, whatever frame fixed nodes give.
+// link shares, of std common_excess_m, whatever frame fixed nodes give (scaled by the evidence:
+// MapCovariance::common_excess_m).
 struct MapModelError {
-    double common_excess_m = 0.0; // m, std of an excess every link shares unseen
+    double common_excess_m = 0.0; // m, std of an excess every link shares unseen, in a map whose
+                                  // residuals spread well beyond the noise
     // > 0: the links' ranges were corrected by range offsets estimated with the map
     // (range_offsets.hpp), each node's a deviation of this std (m) around a common part; their
     // uncertainty goes into the positions' covariance. 0: the ranges' offsets are known.
