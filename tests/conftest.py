@@ -42,6 +42,14 @@ def hostd(build_dir) -> pathlib.Path:
     return binary
 
 
+@pytest.fixture(scope="session")
+def fil_binary(build_dir) -> pathlib.Path:
+    """The cdro-fil of the native build."""
+    binary = build_dir / "bin" / "cdro-fil"
+    assert binary.is_file(), f"{binary} not found: build first (scripts/test.sh), or set CDRO_BUILD_DIR"
+    return binary
+
+
 # ---- a real MQTT broker -------------------------------------------------------------------------
 
 MOSQUITTO_GUARD_S = 60.0  # s; reached only when something is broken

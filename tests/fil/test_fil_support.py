@@ -20,14 +20,6 @@ HERE = pathlib.Path(__file__).resolve().parent
 OFFICE = HERE / "office_60s.yaml"
 
 
-@pytest.fixture(scope="module")
-def fil_binary(build_dir) -> pathlib.Path:
-    binary = build_dir / "bin" / "cdro-fil"
-    if not binary.exists():
-        pytest.fail(f"{binary} missing: build the native tree first (cmake --build build)")
-    return binary
-
-
 def test_the_scenario_is_what_cdro_fil_reads_with_the_runs_options(fil_binary):
     scenario = fil_scenario(fil_binary, OFFICE, ["--seed", "99", "--duration-s", "12.5"])
     assert (scenario.own_id, scenario.seed, scenario.duration_s) == (0x6000, 99, 12.5)

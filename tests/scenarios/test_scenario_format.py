@@ -24,14 +24,6 @@ SCENARIO_FILES = sorted([*(REPO / "tools" / "cdro_tools" / "scenarios").glob("*.
 MINIMAL = "own_id: 0x6000\nduration_s: 10\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6A01, x_m: 4, y_m: 0}\n"
 
 
-@pytest.fixture(scope="module")
-def fil_binary(build_dir) -> pathlib.Path:
-    binary = build_dir / "bin" / "cdro-fil"
-    if not binary.exists():
-        pytest.fail(f"{binary} missing: build the native tree first (cmake --build build)")
-    return binary
-
-
 def fil_view(binary: pathlib.Path, path: pathlib.Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(binary), "--print-scenario", "--scenario", str(path)], capture_output=True, text=True,
                           timeout=60)
