@@ -112,6 +112,16 @@ File openForWriting(const std::string &path, std::FILE *log)
     return file;
 }
 
+// Whether everything written to `file` reached it; says which file failed, and why, when not.
+bool writtenOut(std::FILE *file, const std::string &path, std::FILE *log)
+{
+    if (std::fflush(file) != 0 || std::ferror(file)) {
+        std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", path.c_str(), std::strerror(errno));
+        return false;
+    }
+    return true;
+}
+
 // The outputs of a run that ends with status 2 once they were opened (they are ours then; the
 // trajectory is opened only after every input was read).
 void removeOutputs(const OfflineOptions &options)
@@ -272,8 +282,7 @@ int runMovement(const OfflineOptions &options, const engine::EngineParams &param
         }
         placed += node.placed() ? 1U : 0U;
     }
-    if (std::fflush(trajectory.get()) != 0 || std::ferror(trajectory.get())) {
-        std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_trajectory.c_str(), std::strerror(errno));
+    if (!writtenOut(trajectory.get(), options.out_trajectory, log)) {
         return 2;
     }
     const engine::MovementCounters &c = stage.counters();
@@ -351,8 +360,7 @@ int calibrateAnchors(const OfflineOptions &options, engine::Engine &engine, cons
                          anchor.position_m.x(), anchor.position_m.y(), anchor.position_m.z(),
                          anchor.height_given ? 1 : 0);
         }
-        if (std::fflush(file.get()) != 0 || std::ferror(file.get())) {
-            std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_anchors.c_str(), std::strerror(errno));
+        if (!writtenOut(file.get(), options.out_anchors, log)) {
             return 2;
         }
     }
@@ -497,8 +505,7 @@ int runFlights(const OfflineOptions &options, const engine::EngineParams &params
             writeNodeRow(out, node);
         }
     }
-    if (std::fflush(trajectory.get()) != 0 || std::ferror(trajectory.get())) {
-        std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_trajectory.c_str(), std::strerror(errno));
+    if (!writtenOut(trajectory.get(), options.out_trajectory, log)) {
         return 2;
     }
     const engine::FlightCounters &c = engine.flightCounters();
@@ -614,8 +621,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
                 return code;
             }
             int code = runFlights(options, params, engine, ranges, out.get(), log);
-            if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
-                std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
+            if (code == 0 && !writtenOut(out.get(), options.out_csv, log)) {
                 code = 2;
             }
             if (code != 0) {
@@ -637,8 +643,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             engine::MovementParams stage_params = movement_params;
             stage_params.robot_id = static_cast<engine::NodeId>(options.robot_id);
             const int code = runMovement(options, params, stage_params, engine, ranges, out.get(), log);
-            if (code == 0 && (std::fflush(out.get()) != 0 || std::ferror(out.get()))) {
-                std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
+            if (code == 0 && !writtenOut(out.get(), options.out_csv, log)) {
                 return 2;
             }
             return code;
@@ -754,8 +759,7 @@ int runOffline(const OfflineOptions &options, const engine::EngineParams &params
             placed += node.placed() ? 1U : 0U;
             converged += node.converged() ? 1U : 0U;
         }
-        if (std::fflush(out.get()) != 0 || std::ferror(out.get())) {
-            std::fprintf(log, "cdro-hostd: writing %s failed: %s\n", options.out_csv.c_str(), std::strerror(errno));
+        if (!writtenOut(out.get(), options.out_csv, log)) {
             return 2;
         }
         const engine::EngineCounters c = engine.counters();
