@@ -635,12 +635,9 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     std::FILE *ranges_csv = nullptr;
     if (!options.write_csv_dir.empty()) {
         std::FILE *truth_csv = std::fopen((options.write_csv_dir + "/truth.csv").c_str(), "w");
-        ranges_csv = std::fopen((options.write_csv_dir + "/ranges.csv").c_str(), "w");
-        if (truth_csv == nullptr || ranges_csv == nullptr) {
-            throw std::runtime_error("cannot write into " + options.write_csv_dir);
-        }
         std::FILE *heights_csv = std::fopen((options.write_csv_dir + "/heights.csv").c_str(), "w");
-        if (heights_csv == nullptr) {
+        ranges_csv = std::fopen((options.write_csv_dir + "/ranges.csv").c_str(), "w");
+        if (truth_csv == nullptr || heights_csv == nullptr || ranges_csv == nullptr) {
             throw std::runtime_error("cannot write into " + options.write_csv_dir);
         }
         std::fprintf(truth_csv, "id,x,y\n");

@@ -334,7 +334,7 @@ constexpr double kMinShownRedundancy = 0.1;
 // link to link, and the residuals spread beyond the noise: the variance factor rises. A map whose
 // links fit their noise (a factor near 1) has little room for it: it gets kUnseenExcessFloor of
 // it; one whose factor reaches 1 + kUnseenExcessFullFactor, all of it (between, in proportion).
-// Measured on the scorecard's networks (docs/results.md): walled floors, corridors and PLANT
+// Measured on the scorecard's networks (docs/engine.md, "Confidence"): walled floors, corridors and PLANT
 // 1.47-1.89, open random networks, wings and radios with offsets 1.00-1.07. Nodes of unknown
 // height read long by what their heights differ, which the map absorbs node by node where the
 // residuals do not show it: a map with such nodes gets at least kUnseenExcessFloorHeightsUnknown.
@@ -640,8 +640,10 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     const double unknowns = static_cast<double>(size) - (out.gauge_free ? 3.0 : 0.0);
     const double degrees_of_freedom = inliers - unknowns;
     out.variance_factor = degrees_of_freedom >= 1.0 ? std::max(weighted / degrees_of_freedom, 1.0) : 1.0;
-    const bool heights_unknown = std::find(model_error.height_unknown.begin(), model_error.height_unknown.end(), 1) !=
-                                 model_error.height_unknown.end();
+    bool heights_unknown = false; // a placed node's height is not known
+    for (uint32_t node = 0; node < model_error.height_unknown.size() && node < problem.nodeCount(); ++node) {
+        heights_unknown = heights_unknown || (model_error.height_unknown[node] != 0 && estimate.placed[node] != 0);
+    }
     out.common_excess_m = model_error.common_excess_m * unseenExcessShare(out.variance_factor, heights_unknown);
     // Inverse of the information: with a free gauge its null space (translations, rotation) is
     // lifted by a tiny regulariser and projected out again (the pseudo-inverse), so the result is
