@@ -5,10 +5,14 @@
 // the reference differs from the engine's answer only by where the solve starts.
 //
 //   cdro-reference --truth truth.csv --ranges ranges.csv [--heights heights.csv] --out reference.csv
+//   cdro-reference ... --local        refines in the basin of the given positions only (no annealing)
+//   cdro-reference ... --hypotheses   also solves from scratch as the engine's settle does (no truth
+//                                      used) and prints every start's map: origin, cost, aligned RMSE
 //
 // truth: id,x,y[,z] (m); the output has the estimates' columns (id,x,y,var_x,cov_xy,var_y,converged;
 // covariances from the map's information, converged = 1 for every solved node) and the
 // solve's cost is printed on stdout (nats).
+#include <cmath>
 #include <cstdio>
 #include <limits>
 #include <stdexcept>
@@ -17,6 +21,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "cdro/engine/alignment.hpp"
 #include "cdro/engine/global_solve.hpp"
 #include "cdro/engine/global_step.hpp"
 #include "cdro/engine/map_refine.hpp"
@@ -50,6 +55,14 @@ static int runMain(int argc, char **argv)
     app.add_option("--ranges", ranges_path, "[t,]from,to,range_m")->required();
     app.add_option("--heights", heights_path, "id,z (m): the heights the engine is told");
     app.add_option("--out", out_path, "the reference map, as the engine's estimates CSV")->required();
+    bool local = false;
+    app.add_flag("--local", local,
+                 "refine from the given positions at the nominal noise only (no annealing from wide noise): "
+                 "the cost of the basin the positions are in, e.g. of a map an engine run ended in");
+    bool hypotheses = false;
+    app.add_flag("--hypotheses", hypotheses,
+                 "also solve from scratch (the settle's starts, no truth used) and print each start's map: "
+                 "origin, cost (nats) and RMSE against the truth (m, rigid fit with reflection)");
     CLI11_PARSE(app, argc, argv);
     try {
         const engine::EngineParams params;
@@ -91,10 +104,39 @@ static int runMain(int argc, char **argv)
             estimate.placed[i] = problem.node_links[i].empty() ? 0 : 1;
             estimate.position_m[i] = true_position[problem.ids[i]];
         }
+        if (hypotheses) {
+            engine::GlobalSolveParams solve;
+            solve.range_offsets = params.solve.range_offsets;
+            const engine::GlobalSolveResult solved =
+                engine::solveGlobally(problem, engine::mapLikelihood(params.likelihood), solve);
+            for (const engine::MapHypothesis &h : solved.all) {
+                std::vector<engine::Vector2> source;
+                std::vector<engine::Vector2> target;
+                for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
+                    if (h.estimate.placed[i] != 0) {
+                        source.push_back(h.estimate.position_m[i]);
+                        target.push_back(true_position[problem.ids[i]]);
+                    }
+                }
+                const engine::RigidTransform fit = engine::fitRigid(source, target, true);
+                double sum_m2 = 0.0;
+                for (size_t k = 0; k < source.size(); ++k) {
+                    sum_m2 += (fit.apply(source[k]) - target[k]).squaredNorm();
+                }
+                std::printf("hypothesis cost_nats %.3f placed %u rmse_m %.3f origin %s\n", h.cost,
+                            h.estimate.placedCount(),
+                            source.empty() ? 0.0 : std::sqrt(sum_m2 / static_cast<double>(source.size())),
+                            h.origin.c_str());
+            }
+        }
         // As the global solve treats each of its maps: refined, then judged under the NLOS model
         // learnt from its own residuals.
         engine::RangeLikelihood likelihood = engine::mapLikelihood(params.likelihood);
-        engine::refineMap(problem, estimate, likelihood);
+        engine::MapRefineParams first;
+        if (local) {
+            first.stages = {engine::RefineStage{}};
+        }
+        engine::refineMap(problem, estimate, likelihood, first);
         const engine::GlobalSolveParams solve;
         for (uint32_t round = 0; round < solve.learn_rounds; ++round) {
             likelihood = engine::RangeLikelihood(engine::learnNlosModel(problem, estimate, likelihood));
