@@ -3,6 +3,9 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 
+#include <algorithm>
+#include <cmath>
+
 #include "cdro/engine/range_model.hpp"
 
 namespace cdro::engine {
@@ -46,6 +49,9 @@ std::vector<RangeConstraint> placedConstraints(const MapProblem &problem, const 
 
 namespace {
 
+// evaluate()'s floor of a link's log-density (nats).
+constexpr double kLogDensityFloor = -690.0;
+
 double residualVariance(const RangeConstraint &constraint, const RangePrediction &prediction, double sigma_m,
                         bool with_anchor = true)
 {
@@ -77,21 +83,38 @@ PointSolution solvePoint(const std::vector<RangeConstraint> &constraints, const 
     PointSolution solution;
     solution.position_m = start_m;
     Matrix2 information = Matrix2::Zero();
+    // What the last linearization saw of each link. When the step it gave is below the
+    // tolerance, the bookkeeping takes it from there instead of evaluating every link again at a
+    // point less than step_tolerance_m away (half of the refinement's likelihood evaluations in
+    // the steady state, docs/bench.md).
+    std::vector<double> density_per_m(constraints.size(), 0.0);
+    std::vector<double> inlier(constraints.size(), 1.0);
+    Matrix2 reported_information = Matrix2::Zero();
+    bool converged = false;
     for (uint32_t iteration = 0; iteration < params.max_iterations; ++iteration) {
         information.setZero();
+        reported_information.setZero();
         Eigen::Vector2d gradient = Eigen::Vector2d::Zero();
-        for (const RangeConstraint &constraint : constraints) {
+        for (size_t i = 0; i < constraints.size(); ++i) {
+            const RangeConstraint &constraint = constraints[i];
             const RangePrediction prediction = predictRange(solution.position_m, constraint.anchor_m);
-            if (prediction.singular) {
-                continue;
-            }
             const double variance =
                 residualVariance(constraint, prediction, params.range_sigma_m, params.anchor_uncertainty_in_solve);
             const double residual = constraint.range_m - prediction.range_m;
-            const double weight = likelihood.inlierProbability(residual, variance);
+            const RangeLikelihood::DensityWithInlier at = likelihood.densityWithInlier(residual, variance);
+            density_per_m[i] = at.density_per_m;
+            inlier[i] = at.inlier_probability;
+            if (prediction.singular) {
+                continue;
+            }
+            const double weight = at.inlier_probability;
             const Eigen::Vector2d h = prediction.jacobian_point.transpose();
             information += (weight / variance) * h * h.transpose();
             gradient += (weight / variance) * residual * h;
+            const double reported_variance = params.anchor_uncertainty_in_solve
+                                                 ? variance
+                                                 : residualVariance(constraint, prediction, params.range_sigma_m, true);
+            reported_information += (weight / reported_variance) * h * h.transpose();
         }
         solution.iterations = iteration + 1;
         if (minEigenvalue(information) < params.min_information) {
@@ -106,33 +129,46 @@ PointSolution solvePoint(const std::vector<RangeConstraint> &constraints, const 
         }
         solution.position_m += step;
         if (step.norm() < params.step_tolerance_m) {
+            converged = true;
             break;
         }
     }
-    // Final bookkeeping at the solution: cost, weights, covariance.
     solution.cost = 0.0;
     solution.downweighted = 0;
-    information.setZero();
-    if (inlier_probabilities != nullptr) {
-        inlier_probabilities->assign(constraints.size(), 1.0);
-    }
-    for (size_t i = 0; i < constraints.size(); ++i) {
-        const RangeConstraint &constraint = constraints[i];
-        const RangePrediction prediction = predictRange(solution.position_m, constraint.anchor_m);
-        const double variance =
-            residualVariance(constraint, prediction, params.range_sigma_m, params.anchor_uncertainty_in_solve);
-        const ResidualEvaluation evaluation = likelihood.evaluate(constraint.range_m - prediction.range_m, variance);
-        solution.cost -= evaluation.log_density;
-        if (evaluation.inlier_probability < 0.5) {
-            ++solution.downweighted;
+    if (converged) {
+        for (size_t i = 0; i < constraints.size(); ++i) {
+            solution.cost -= std::max(std::log(density_per_m[i]), kLogDensityFloor);
+            solution.downweighted += inlier[i] < 0.5 ? 1U : 0U;
         }
         if (inlier_probabilities != nullptr) {
-            (*inlier_probabilities)[i] = evaluation.inlier_probability;
+            *inlier_probabilities = inlier;
         }
-        if (!prediction.singular) {
-            const Eigen::Vector2d h = prediction.jacobian_point.transpose();
-            const double reported_variance = residualVariance(constraint, prediction, params.range_sigma_m, true);
-            information += (evaluation.inlier_probability / reported_variance) * h * h.transpose();
+        information = reported_information;
+    } else {
+        // Final bookkeeping at the solution: cost, weights, covariance.
+        information.setZero();
+        if (inlier_probabilities != nullptr) {
+            inlier_probabilities->assign(constraints.size(), 1.0);
+        }
+        for (size_t i = 0; i < constraints.size(); ++i) {
+            const RangeConstraint &constraint = constraints[i];
+            const RangePrediction prediction = predictRange(solution.position_m, constraint.anchor_m);
+            const double variance =
+                residualVariance(constraint, prediction, params.range_sigma_m, params.anchor_uncertainty_in_solve);
+            const ResidualEvaluation evaluation =
+                likelihood.evaluate(constraint.range_m - prediction.range_m, variance);
+            solution.cost -= evaluation.log_density;
+            if (evaluation.inlier_probability < 0.5) {
+                ++solution.downweighted;
+            }
+            if (inlier_probabilities != nullptr) {
+                (*inlier_probabilities)[i] = evaluation.inlier_probability;
+            }
+            if (!prediction.singular) {
+                const Eigen::Vector2d h = prediction.jacobian_point.transpose();
+                const double reported_variance = residualVariance(constraint, prediction, params.range_sigma_m, true);
+                information += (evaluation.inlier_probability / reported_variance) * h * h.transpose();
+            }
         }
     }
     solution.well_posed = solution.well_posed && minEigenvalue(information) >= params.min_information;

@@ -7,6 +7,11 @@
 // The residual of a link to neighbour m is e = r_m - |x - p_m| with r_m the link's median
 // range; its variance is sigma_r^2 + u^T C_m u (the neighbour's uncertainty along the link),
 // or sigma_r^2 alone while solving for refinement (see anchor_uncertainty_in_solve).
+// The cost, the links' inlier probabilities and the covariance are those of the last
+// linearization when its step was below step_tolerance_m (the position is then at most that far
+// from where they were evaluated; near the optimum the cost differs by at most about
+// links x (step_tolerance_m / sigma)^2 nats: 8e-6 for 8 links at 0.1 m), else evaluated again
+// at the position returned.
 #pragma once
 
 #include <cstdint>
