@@ -506,6 +506,7 @@ TEST(MotionTrack3D, ARestoreTellsWhichNodesItDroppedAndWhichRestart)
     EXPECT_EQ(report.dropped, std::vector<NodeId>{20});
     EXPECT_EQ(report.restarted, std::vector<NodeId>{30});
     EXPECT_TRUE(report.bodies_differ);
+    EXPECT_FALSE(report.anchors_differ);
     const std::optional<FlightEstimate> kept = other.flightEstimate(10);
     const std::optional<FlightEstimate> was = head.flightEstimate(10);
     ASSERT_TRUE(kept && was);
@@ -514,6 +515,21 @@ TEST(MotionTrack3D, ARestoreTellsWhichNodesItDroppedAndWhichRestart)
     EXPECT_EQ(kept->covariance_m2, was->covariance_m2);
     EXPECT_EQ(other.flightEstimate(30)->status, FlightStatus::Waiting);
     EXPECT_EQ(other.flightEstimate(20), std::nullopt);
+
+    // Anchors given otherwise now (one moved 2 mm): said; the saved ones are kept.
+    Engine moved;
+    for (size_t a = 0; a < kAnchors.size(); ++a) {
+        moved.setFixed(kAnchors[a], kAnchorPositions[a].head<2>() + Vector2(a == 3 ? 0.002 : 0.0, 0.0));
+        moved.setHeight(kAnchors[a], kAnchorPositions[a].z());
+    }
+    moved.trackMoving3D(10);
+    moved.trackMoving3D(20);
+    moved.trackOnOneBody(10, 20, 1.5);
+    const FlightTracks::RestoreReport anchors = moved.restoreFlights(saved);
+    EXPECT_TRUE(anchors.anchors_differ);
+    EXPECT_FALSE(anchors.bodies_differ);
+    EXPECT_TRUE(anchors.dropped.empty() && anchors.restarted.empty());
+    EXPECT_EQ(moved.flightSaved().anchors, saved.anchors);
 
     // A state that does not fit together is refused, naming what is wrong, and changes nothing.
     FlightTracks::Saved cut = saved;

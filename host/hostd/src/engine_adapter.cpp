@@ -430,6 +430,10 @@ std::vector<std::string> restoreFlight(engine::Engine &engine, const std::vector
                            " of map.moving have no 3D track in the checkpoint: their tracks restart from their "
                            "next ranges");
     }
+    if (report.anchors_differ) {
+        warnings.push_back("the checkpoint's anchors (the fixed nodes of known height the 3D tracks started "
+                           "from) differ from the ones given now: the tracks go on from the checkpoint's");
+    }
     if (report.bodies_differ) {
         warnings.push_back("the checkpoint's rigid bodies differ from the configured ones (--moving-body): the "
                            "configured ones apply");

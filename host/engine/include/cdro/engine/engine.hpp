@@ -135,7 +135,7 @@ public:
     // The 3D tracks' whole state, and back (FlightTracks::saved, restore: after trackMoving3D and
     // trackOnOneBody, before the first range; throws std::invalid_argument).
     FlightTracks::Saved flightSaved() const { return flights_.saved(); }
-    FlightTracks::RestoreReport restoreFlights(const FlightTracks::Saved &saved) { return flights_.restore(saved); }
+    FlightTracks::RestoreReport restoreFlights(const FlightTracks::Saved &saved);
 
     // The movement stage's EKF owns this node's position: here it is an anchor at that position
     // (not refined, not placed again) until unpinned.
@@ -211,6 +211,8 @@ private:
     void relax(uint64_t budget);
     void assess();
     RangeVerdict addFlightRange(NodeId from, NodeId to, double range_m, double t_s);
+    // The 3D tracks' anchors: the fixed nodes of known height (id, x, y, z in m).
+    std::vector<std::pair<NodeId, Vector3>> flightAnchors() const;
     void trace(const std::string &message) const
     {
         if (trace_) {

@@ -169,12 +169,15 @@ public:
         FlightCounters counters;
     };
     // What restore() could not take as it was: saved nodes not declared here (dropped), declared
-    // nodes not in the saved state (they start afresh, as on a first start), and whether the
-    // saved bodies differ from the declared ones (the declared ones are kept).
+    // nodes not in the saved state (they start afresh, as on a first start), whether the saved
+    // bodies differ from the declared ones (the declared ones are kept), and (Engine::
+    // restoreFlights) whether the saved anchors differ from the fixed nodes of known height
+    // given now (the saved ones are kept: the state is in their frame).
     struct RestoreReport {
         std::vector<NodeId> dropped;
         std::vector<NodeId> restarted;
         bool bodies_differ = false;
+        bool anchors_differ = false;
     };
     Saved saved() const;
     // Replaces the state with `saved` for the nodes declared here (add) that it holds; declared

@@ -102,7 +102,8 @@ std::vector<uint8_t> flightBlockOf(const engine::Engine &engine);
 // Restores the tracks of the nodes of `moving` (tracked in the engine already) that the
 // checkpoint holds; returns a warning for each mismatch, naming the nodes: no block (the tracks
 // restart), tracks of nodes not in `moving` (dropped), nodes of `moving` without a track (they
-// restart), other rigid bodies (the configured ones apply). A damaged block, or one whose state
+// restart), other rigid bodies (the configured ones apply), other anchors than the fixed nodes
+// of known height given now (the checkpoint's are kept). A damaged block, or one whose state
 // does not fit together, is refused (CheckpointError).
 std::vector<std::string> restoreFlight(engine::Engine &engine, const std::vector<uint16_t> &moving,
                                        const service::SogSnapshot &snapshot);
