@@ -53,6 +53,10 @@ TEST(LayoutHash, CheckpointBlockLayoutHashesMatchTheTables)
         << "checkpoint_layout.def's movement block changed: set CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH to 0x" << std::hex
         << hashOf(CDRO_CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR)
         << ", bump CDRO_CHECKPOINT_MOVEMENT_VERSION and add the pair to tests/golden/layout_history.json";
+    EXPECT_EQ(hashOf(CDRO_CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR), CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH)
+        << "checkpoint_layout.def's flight block changed: set CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH to 0x" << std::hex
+        << hashOf(CDRO_CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CHECKPOINT_FLIGHT_VERSION and add the pair to tests/golden/layout_history.json";
 }
 
 TEST(LayoutHash, EachVersionHasExactlyOneLayout)
@@ -83,6 +87,11 @@ TEST(LayoutHash, EachVersionHasExactlyOneLayout)
         << "record movement block version " << movement_version;
     EXPECT_EQ(std::stoul(history["checkpoint_movement"][movement_version].get<std::string>(), nullptr, 16),
               CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH);
+    const std::string flight_version = std::to_string(CDRO_CHECKPOINT_FLIGHT_VERSION);
+    ASSERT_TRUE(history["checkpoint_flight"].contains(flight_version))
+        << "record flight block version " << flight_version;
+    EXPECT_EQ(std::stoul(history["checkpoint_flight"][flight_version].get<std::string>(), nullptr, 16),
+              CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH);
 }
 
 } // namespace

@@ -2,7 +2,8 @@
 // simulated flight of two tags among six nearly coplanar anchors (MiLUV's geometry: a 4 m x 4 m
 // room, anchors at 1.6-1.9 m, tags at 0.3-1.3 m), tracked from the known anchors, converges; the
 // tag-to-tag ranges move both ends; the same input gives the same output bit for bit; and the
-// static map is not touched by a tracked node.
+// static map is not touched by a tracked node; the tracks' state saved mid-flight and restored
+// into another engine continues bit for bit as the uninterrupted run.
 #include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
@@ -12,6 +13,7 @@
 #include <cstdio>
 #include <cstring>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "cdro/engine/engine.hpp"
@@ -364,6 +366,186 @@ TEST(MotionTrack3D, TheNlosCountsNameTheBiasedAnchor)
                     static_cast<unsigned long long>(t.down_weighted), static_cast<unsigned long long>(t.refused));
         EXPECT_LE(static_cast<double>(t.down_weighted + t.refused), 0.15 * static_cast<double>(tag_tag));
     }
+}
+
+// Every estimate of both tags after each range (status, anchors heard, position, velocity,
+// covariance as their bits), then the counters and NLOS counts at the end.
+struct FlightRecord {
+    std::vector<double> values;
+    std::vector<uint64_t> counts;
+};
+
+void record(const Engine &engine, FlightRecord &out)
+{
+    for (NodeId tag : kTags) {
+        const std::optional<FlightEstimate> e = engine.flightEstimate(tag);
+        ASSERT_TRUE(e.has_value());
+        out.counts.push_back(static_cast<uint64_t>(e->status));
+        out.counts.push_back(e->anchors_heard);
+        out.values.insert(out.values.end(), e->position_m.data(), e->position_m.data() + 3);
+        out.values.insert(out.values.end(), e->velocity_mps.data(), e->velocity_mps.data() + 3);
+        out.values.insert(out.values.end(), e->covariance_m2.data(), e->covariance_m2.data() + 9);
+    }
+}
+
+void recordTotals(const Engine &engine, FlightRecord &out)
+{
+    const FlightCounters &c = engine.flightCounters();
+    out.counts.insert(out.counts.end(), {c.anchor_ranges, c.tag_ranges, c.down_weighted, c.refused, c.resets, c.waiting,
+                                         c.no_anchor, c.mirrored, c.truncated, c.body_updates});
+    for (const FlightNlosCount &n : engine.flightNlosCounts()) {
+        out.counts.insert(out.counts.end(), {n.anchor, n.taken, n.down_weighted, n.refused});
+    }
+}
+
+Engine bodyEngine()
+{
+    Engine engine = anchoredEngine();
+    engine.trackOnOneBody(kTags[0], kTags[1], 1.5);
+    return engine;
+}
+
+constexpr double kBurstStartS = 20.0; // s: from then, for 2 s, every anchor range of tag 10 reads 3 m long
+constexpr double kBurstS = 2.0;       // s
+
+// The flight with one anchor reading long now and then (the NLOS model refuses and down-weights)
+// and a burst of long ranges to one tag (refused in a row until its covariance is reset), so that
+// every part of the state is exercised.
+std::vector<Range> nlosFlight(uint64_t seed)
+{
+    std::vector<Range> ranges = simulate(seed, true);
+    Random bias(seed + 2000);
+    for (Range &r : ranges) {
+        if ((r.from == kAnchors[2] || r.to == kAnchors[2]) && bias.uniform() < 0.3) {
+            r.range_m += 1.0 + 3.0 * bias.uniform(); // m
+        }
+        const bool tag_to_tag = r.from == kTags[1] || r.to == kTags[1];
+        if (r.from == kTags[0] && !tag_to_tag && r.t_s >= kBurstStartS && r.t_s < kBurstStartS + kBurstS) {
+            r.range_m += 3.0; // m
+        }
+    }
+    return ranges;
+}
+
+// Runs `ranges` from `first` on, recording after each.
+void flyOn(Engine &engine, const std::vector<Range> &ranges, size_t first, FlightRecord &out)
+{
+    for (size_t k = first; k < ranges.size(); ++k) {
+        engine.addRange(ranges[k].from, ranges[k].to, ranges[k].range_m, ranges[k].t_s);
+        record(engine, out);
+    }
+    recordTotals(engine, out);
+}
+
+TEST(MotionTrack3D, SavedAndRestoredMidFlightTheTracksContinueBitForBit)
+{
+    const uint64_t seed = testSeed(8);
+    SCOPED_TRACE(seedTrace(seed));
+    const std::vector<Range> ranges = nlosFlight(seed);
+    // Within the burst: tag 10 has ranges refused in a row.
+    const size_t in_burst = static_cast<size_t>(
+        std::find_if(ranges.begin(), ranges.end(), [](const Range &r) { return r.t_s >= kBurstStartS + 0.5; }) -
+        ranges.begin());
+    // Before any range (no anchors taken), while starting, early, in the burst, and late.
+    for (const size_t split :
+         {size_t{0}, size_t{3}, size_t{40}, in_burst, size_t{ranges.size() / 2}, ranges.size() - 1}) {
+        SCOPED_TRACE("split after " + std::to_string(split) + " ranges");
+        Engine whole = bodyEngine();
+        Engine head = bodyEngine();
+        FlightRecord uninterrupted;
+        FlightRecord resumed;
+        for (size_t k = 0; k < split; ++k) {
+            whole.addRange(ranges[k].from, ranges[k].to, ranges[k].range_m, ranges[k].t_s);
+            head.addRange(ranges[k].from, ranges[k].to, ranges[k].range_m, ranges[k].t_s);
+        }
+        Engine tail = bodyEngine();
+        const FlightTracks::RestoreReport report = tail.restoreFlights(head.flightSaved());
+        EXPECT_TRUE(report.dropped.empty() && report.restarted.empty() && !report.bodies_differ);
+        flyOn(whole, ranges, split, uninterrupted);
+        flyOn(tail, ranges, split, resumed);
+        ASSERT_EQ(uninterrupted.values.size(), resumed.values.size());
+        ASSERT_FALSE(uninterrupted.values.empty());
+        EXPECT_EQ(0, std::memcmp(uninterrupted.values.data(), resumed.values.data(),
+                                 uninterrupted.values.size() * sizeof(double)));
+        EXPECT_EQ(uninterrupted.counts, resumed.counts);
+    }
+    // The flight did exercise the state: refusals, resets, tag-to-tag ranges and the body.
+    Engine engine = bodyEngine();
+    for (const Range &r : ranges) {
+        engine.addRange(r.from, r.to, r.range_m, r.t_s);
+    }
+    const FlightCounters &c = engine.flightCounters();
+    std::printf("saved and restored flight, %s: %llu refused, %llu resets, %llu down-weighted, %llu body updates\n",
+                seedTrace(seed).c_str(), static_cast<unsigned long long>(c.refused),
+                static_cast<unsigned long long>(c.resets), static_cast<unsigned long long>(c.down_weighted),
+                static_cast<unsigned long long>(c.body_updates));
+    EXPECT_GT(c.refused, 0U);
+    EXPECT_GT(c.resets, 0U);
+    EXPECT_GT(c.tag_ranges, 0U);
+    EXPECT_GT(c.body_updates, 0U);
+}
+
+TEST(MotionTrack3D, ARestoreTellsWhichNodesItDroppedAndWhichRestart)
+{
+    const uint64_t seed = testSeed(9);
+    SCOPED_TRACE(seedTrace(seed));
+    const std::vector<Range> ranges = simulate(seed, true);
+    Engine head = bodyEngine();
+    for (size_t k = 0; k < 200; ++k) {
+        head.addRange(ranges[k].from, ranges[k].to, ranges[k].range_m, ranges[k].t_s);
+    }
+    const FlightTracks::Saved saved = head.flightSaved();
+    Engine other; // declares tags 10 and 30: 20 is not declared, 30 was not saved; no body
+    for (size_t a = 0; a < kAnchors.size(); ++a) {
+        other.setFixed(kAnchors[a], kAnchorPositions[a].head<2>());
+        other.setHeight(kAnchors[a], kAnchorPositions[a].z());
+    }
+    other.trackMoving3D(10);
+    other.trackMoving3D(30);
+    const FlightTracks::RestoreReport report = other.restoreFlights(saved);
+    EXPECT_EQ(report.dropped, std::vector<NodeId>{20});
+    EXPECT_EQ(report.restarted, std::vector<NodeId>{30});
+    EXPECT_TRUE(report.bodies_differ);
+    EXPECT_FALSE(report.anchors_differ);
+    const std::optional<FlightEstimate> kept = other.flightEstimate(10);
+    const std::optional<FlightEstimate> was = head.flightEstimate(10);
+    ASSERT_TRUE(kept && was);
+    EXPECT_EQ(kept->status, FlightStatus::Tracking);
+    EXPECT_EQ(kept->position_m, was->position_m);
+    EXPECT_EQ(kept->covariance_m2, was->covariance_m2);
+    EXPECT_EQ(other.flightEstimate(30)->status, FlightStatus::Waiting);
+    EXPECT_EQ(other.flightEstimate(20), std::nullopt);
+
+    // Anchors given otherwise now (one moved 2 mm): said; the saved ones are kept.
+    Engine moved;
+    for (size_t a = 0; a < kAnchors.size(); ++a) {
+        moved.setFixed(kAnchors[a], kAnchorPositions[a].head<2>() + Vector2(a == 3 ? 0.002 : 0.0, 0.0));
+        moved.setHeight(kAnchors[a], kAnchorPositions[a].z());
+    }
+    moved.trackMoving3D(10);
+    moved.trackMoving3D(20);
+    moved.trackOnOneBody(10, 20, 1.5);
+    const FlightTracks::RestoreReport anchors = moved.restoreFlights(saved);
+    EXPECT_TRUE(anchors.anchors_differ);
+    EXPECT_FALSE(anchors.bodies_differ);
+    EXPECT_TRUE(anchors.dropped.empty() && anchors.restarted.empty());
+    EXPECT_EQ(moved.flightSaved().anchors, saved.anchors);
+
+    // A state that does not fit together is refused, naming what is wrong, and changes nothing.
+    FlightTracks::Saved cut = saved;
+    cut.state.conservativeResize(cut.state.size() - 1);
+    Engine fresh = bodyEngine();
+    try {
+        fresh.restoreFlights(cut);
+        ADD_FAILURE() << "a state one value short was taken";
+    } catch (const std::invalid_argument &error) {
+        EXPECT_NE(std::string(error.what()).find("11 state values"), std::string::npos) << error.what();
+    }
+    FlightTracks::Saved deaf = saved;
+    deaf.nodes[0].heard.push_back(99);
+    EXPECT_THROW(fresh.restoreFlights(deaf), std::invalid_argument);
+    EXPECT_EQ(fresh.flightEstimate(10)->status, FlightStatus::Waiting);
+    EXPECT_FALSE(fresh.flightSaved().anchors_set);
 }
 
 TEST(MotionTrack3D, AFixedOrHeightKnownNodeCannotBeTracked)

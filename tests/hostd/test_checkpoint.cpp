@@ -1,10 +1,14 @@
 // Checkpoints of the engine through the adapter (snapshotOf / restoreFrom, encoded and decoded
 // in common/'s SoG layout as the service writes them): a restored engine holds the state rounded
 // to the layout's scales, and continues to within a measured tolerance of the original.
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <map>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -512,6 +516,167 @@ TEST(Checkpoint, AMovementBlockOfAnotherRobotOrCutShortIsRefused)
 }
 
 } // namespace movement
+
+namespace flight {
+
+// Two tags flying among six anchors at 1.6-1.9 m (the room of tests/engine/test_motion_track_3d.cpp),
+// ranged in turn every 0.1 s, one range in five between the tags; noise 0.1 m.
+const std::array<engine::Vector3, 6> kAnchors = {engine::Vector3(0.0, 0.0, 1.60),  engine::Vector3(4.0, 0.0, 1.90),
+                                                 engine::Vector3(4.0, 4.0, 1.70),  engine::Vector3(0.0, 4.0, 1.85),
+                                                 engine::Vector3(2.0, -0.2, 1.75), engine::Vector3(2.0, 4.2, 1.65)};
+const std::vector<uint16_t> kTags = {10, 20};
+
+struct FlightRange {
+    double t_s;
+    NodeId from;
+    NodeId to;
+    double range_m;
+};
+
+engine::Vector3 tagAt(size_t k, double t_s)
+{
+    const double phase = 1.7 * static_cast<double>(k);
+    return {2.0 + 1.3 * std::cos(0.45 * t_s + phase), 2.0 + 1.3 * std::sin(0.36 * t_s + phase),
+            0.8 + 0.5 * std::sin(0.225 * t_s + phase)};
+}
+
+std::vector<FlightRange> fly(uint64_t seed, double duration_s)
+{
+    Random random(seed);
+    std::vector<FlightRange> out;
+    for (size_t slot = 0; static_cast<double>(slot) * 0.1 < duration_s; ++slot) {
+        const double t_s = static_cast<double>(slot) * 0.1;
+        if (slot % 5 == 4) {
+            out.push_back({t_s, kTags[0], kTags[1], (tagAt(0, t_s) - tagAt(1, t_s)).norm() + 0.1 * random.normal()});
+            continue;
+        }
+        const size_t k = slot % 2;
+        const size_t a = (slot / 2) % kAnchors.size();
+        out.push_back(
+            {t_s, kTags[k], static_cast<NodeId>(a + 1), (tagAt(k, t_s) - kAnchors[a]).norm() + 0.1 * random.normal()});
+    }
+    return out;
+}
+
+struct Flight {
+    explicit Flight(const std::vector<uint16_t> &moving) : adapter(engine, nullptr, moving)
+    {
+        for (size_t a = 0; a < kAnchors.size(); ++a) {
+            engine.setFixed(static_cast<NodeId>(a + 1), kAnchors[a].head<2>());
+            engine.setHeight(static_cast<NodeId>(a + 1), kAnchors[a].z());
+        }
+        for (const uint16_t id : moving) {
+            engine.trackMoving3D(id);
+        }
+    }
+    Engine engine;
+    hostd::EngineAdapter adapter;
+};
+
+// Every tag's estimate after each range, as its bits.
+void runFlight(Flight &flight, const std::vector<FlightRange> &ranges, size_t from, size_t to, std::vector<double> *out)
+{
+    for (size_t k = from; k < to; ++k) {
+        flight.engine.addRange(ranges[k].from, ranges[k].to, ranges[k].range_m, ranges[k].t_s);
+        for (const uint16_t tag : kTags) {
+            const auto e = flight.engine.flightEstimate(tag);
+            if (out != nullptr && e) {
+                out->push_back(static_cast<double>(e->status));
+                out->insert(out->end(), e->position_m.data(), e->position_m.data() + 3);
+                out->insert(out->end(), e->velocity_mps.data(), e->velocity_mps.data() + 3);
+                out->insert(out->end(), e->covariance_m2.data(), e->covariance_m2.data() + 9);
+            }
+        }
+    }
+}
+
+TEST(Checkpoint, TheThreeDTracksAreResumedBitForBit)
+{
+    const uint64_t seed = testSeed(31);
+    SCOPED_TRACE(seedTrace(seed));
+    const std::vector<FlightRange> ranges = fly(seed, 30.0);
+    const size_t split = ranges.size() / 2;
+    Flight whole(kTags);
+    Flight head(kTags);
+    runFlight(whole, ranges, 0, split, nullptr);
+    runFlight(head, ranges, 0, split, nullptr);
+    const service::SogSnapshot snapshot = throughTheLayout(head.adapter.snapshot());
+    ASSERT_NE(snapshot.findExtension(hostd::kFlightExtensionTag), nullptr);
+    Flight resumed(kTags);
+    EXPECT_TRUE(hostd::restoreFlight(resumed.engine, kTags, snapshot).empty());
+    Flight through_adapter(kTags);
+    through_adapter.adapter.restore(snapshot);
+    EXPECT_EQ(through_adapter.adapter.restoredNodes(), kTags); // known to the intake as the map's nodes
+    std::vector<double> expected;
+    std::vector<double> got;
+    std::vector<double> got_adapter;
+    runFlight(whole, ranges, split, ranges.size(), &expected);
+    runFlight(resumed, ranges, split, ranges.size(), &got);
+    runFlight(through_adapter, ranges, split, ranges.size(), &got_adapter);
+    ASSERT_EQ(expected.size(), got.size());
+    ASSERT_EQ(expected.size(), got_adapter.size());
+    ASSERT_FALSE(expected.empty());
+    EXPECT_EQ(0, std::memcmp(expected.data(), got.data(), expected.size() * sizeof(double)));
+    EXPECT_EQ(0, std::memcmp(expected.data(), got_adapter.data(), expected.size() * sizeof(double)));
+    EXPECT_EQ(whole.engine.flightCounters().anchor_ranges, resumed.engine.flightCounters().anchor_ranges);
+    EXPECT_EQ(whole.engine.flightCounters().tag_ranges, resumed.engine.flightCounters().tag_ranges);
+    ASSERT_EQ(whole.engine.flightNlosCounts().size(), resumed.engine.flightNlosCounts().size());
+    for (size_t i = 0; i < whole.engine.flightNlosCounts().size(); ++i) {
+        EXPECT_EQ(whole.engine.flightNlosCounts()[i].taken, resumed.engine.flightNlosCounts()[i].taken);
+    }
+}
+
+bool mentions(const std::vector<std::string> &warnings, const std::string &text)
+{
+    return std::any_of(warnings.begin(), warnings.end(),
+                       [&](const std::string &w) { return w.find(text) != std::string::npos; });
+}
+
+TEST(Checkpoint, ThreeDTracksOfOtherNodesAreNamedAndThoseTracksRestart)
+{
+    const uint64_t seed = testSeed(32);
+    SCOPED_TRACE(seedTrace(seed));
+    const std::vector<FlightRange> ranges = fly(seed, 10.0);
+    Flight head(kTags);
+    runFlight(head, ranges, 0, ranges.size(), nullptr);
+    const service::SogSnapshot snapshot = throughTheLayout(head.adapter.snapshot());
+
+    Flight other({10, 30});
+    const std::vector<std::string> warnings = hostd::restoreFlight(other.engine, {10, 30}, snapshot);
+    EXPECT_TRUE(mentions(warnings, "3D tracks of nodes 20 are not in map.moving: dropped")) << warnings.size();
+    EXPECT_TRUE(mentions(warnings, "nodes 30 of map.moving have no 3D track in the checkpoint")) << warnings.size();
+    EXPECT_EQ(other.engine.flightEstimate(10)->position_m, head.engine.flightEstimate(10)->position_m);
+    EXPECT_EQ(other.engine.flightEstimate(30)->status, engine::FlightStatus::Waiting);
+
+    // Written without map.moving (or by an older cdro-hostd): no block, the tracks restart.
+    service::SogSnapshot without = snapshot;
+    without.extensions.erase(std::remove_if(without.extensions.begin(), without.extensions.end(),
+                                            [](const service::SogSnapshot::Extension &e) {
+                                                return e.tag == hostd::kFlightExtensionTag;
+                                            }),
+                             without.extensions.end());
+    Flight fresh(kTags);
+    EXPECT_TRUE(mentions(hostd::restoreFlight(fresh.engine, kTags, without),
+                         "the checkpoint holds no 3D tracks (written without map.moving, or by an older cdro-hostd): "
+                         "the tracks of nodes 10, 20 (map.moving) restart"));
+    EXPECT_EQ(fresh.engine.flightEstimate(10)->status, engine::FlightStatus::Waiting);
+
+    // Nodes no longer tracked in 3D: the block is dropped, named.
+    Engine plain;
+    EXPECT_TRUE(mentions(hostd::restoreFlight(plain, {}, snapshot), "3D tracks of nodes 10, 20 are not in map.moving"));
+
+    // A block cut short is refused.
+    service::SogSnapshot cut = snapshot;
+    for (service::SogSnapshot::Extension &extension : cut.extensions) {
+        if (extension.tag == hostd::kFlightExtensionTag) {
+            extension.bytes.resize(extension.bytes.size() - 3);
+        }
+    }
+    Flight damaged(kTags);
+    EXPECT_THROW(damaged.adapter.restore(cut), service::CheckpointError);
+}
+
+} // namespace flight
 
 } // namespace
 } // namespace cdro::enginetest

@@ -11,7 +11,10 @@ does, run as a user runs it on a capture:
   lines --moving gives;
 - bad input is refused with status 2 and a message naming map.moving: fewer than four fixed nodes
   of known height, a moving node that is fixed, a node id that is none;
-- --resume says that the 3D tracks restart (they are not in checkpoints);
+- the 3D tracks are in checkpoints: a flight replayed in two parts, the second with --resume from
+  the first's checkpoint, gives the moving nodes the lines the uninterrupted replay gives from the
+  split on, and no warning that a track restarts; a checkpoint written with other nodes tracked in
+  3D is resumed with a warning naming them;
 - a capture whose run context records map.moving (with the heights and fixed nodes) replays with
   its nodes tracked in 3D untold, to the lines a replay told them gives.
 
@@ -25,11 +28,12 @@ import subprocess
 
 import numpy as np
 from offline_run import seed_of
-from test_offline_moving import TAGS, truth, write_flight
+from test_offline_moving import ANCHORS, TAGS, truth, write_flight
 from test_output_schema import check_line
 
 from cdro_tools import outputs_schema
-from cdro_tools.codec import Frame, encode_frame
+from cdro_tools.codec import Frame, decode_sog, encode_frame
+from cdro_tools.codec import checkpoint as checkpoint_codec
 from cdro_tools.codec.capture_file import CaptureRecord, CaptureWriter, decode_header, encode_header
 from cdro_tools.codec.frames import LAYOUT_HASH, PROTOCOL_VERSION
 
@@ -37,18 +41,22 @@ GUARD_S = 120  # s, a deadlock guard only
 START_US = 1_700_000_000_000_000  # us since the epoch: the capture's start, the flight's t = 0
 
 
-def write_capture(folder, context=b"", name="flight.cdrocap"):
+def write_capture(folder, context=b"", name="flight.cdrocap", from_s=None, to_s=None):
     """NAME: a HELLO, then a RANGE frame per row of ranges.csv at START_US + t; context: the run's
-    context of its header (cdro-hostd's JSON), b"" = none."""
+    context of its header (cdro-hostd's JSON), b"" = none. With from_s (s): the rows from then on
+    only, and no HELLO (the second part of a run); with to_s (s): the rows before then only."""
     path = folder / name
     rows = (folder / "ranges.csv").read_text().splitlines()[1:]
     with CaptureWriter(path, "serial:/dev/ttyACM0@115200", START_US) as writer:
         hello = Frame("HELLO", 0, dict(device_time_ms=50, firmware_version=0x0102, protocol_version=PROTOCOL_VERSION,
                                        layout_hash=LAYOUT_HASH, node_id=0x6000, capabilities=0x03,
                                        pozyx_firmware=0x12, max_nodes=20, reset_cause=1, pozyx_tries=1))
-        writer.write(CaptureRecord(START_US, encode_frame(hello)[:-1], 0))
+        if from_s is None:
+            writer.write(CaptureRecord(START_US, encode_frame(hello)[:-1], 0))
         for sequence, row in enumerate(rows, start=1):
             t_s, a, b, range_m = row.split(",")
+            if (from_s is not None and float(t_s) < from_s) or (to_s is not None and float(t_s) >= to_s):
+                continue
             at_us = START_US + round(float(t_s) * 1e6)
             frame = Frame("RANGE", sequence, dict(device_time_ms=100 + round(float(t_s) * 1000), from_id=int(a),
                                                   to_id=int(b), distance_mm=round(float(range_m) * 1000),
@@ -144,20 +152,60 @@ def test_that_bad_moving_lists_are_refused_naming_map_moving(build_dir, tmp_path
     assert not_an_id.returncode == 2 and "--moving: 'x' is not a node id" in not_an_id.stderr, not_an_id.stderr
 
 
-def test_that_a_resume_says_the_3d_tracks_restart(build_dir, tmp_path):
-    folder = write_flight(tmp_path, seed_of(13), duration_s=10.0)
-    capture = write_capture(folder)
-    checkpoint = folder / "run.cdrosog"
+def moving_lines(path, from_s=0.0):
+    """The moving nodes' lines at or after from_s (s since the flight's start)."""
+    return [line for line in node_lines(path)
+            if line["id"] in TAGS and line["t_unix_s"] - START_US * 1e-6 >= from_s]
 
-    written = replay(build_dir, folder, capture, "w.jsonl", *geometry(folder), "--moving", "10,20",
+
+def test_that_a_resumed_replay_goes_on_with_the_3d_tracks_as_if_never_stopped(build_dir, tmp_path):
+    seed = seed_of(13)
+    folder = write_flight(tmp_path, seed, duration_s=30.0)
+    split_s = 17.05  # s, mid-flight: both tags tracked, between two ranges
+    whole = write_capture(folder)
+    head = write_capture(folder, name="head.cdrocap", to_s=split_s)
+    tail = write_capture(folder, name="tail.cdrocap", from_s=split_s)
+    checkpoint = folder / "head.cdrosog"
+    # A line per update: the JSON Lines writer's pacing per node (jsonl.max_node_rate_hz) starts
+    # afresh on a resume, so that with it the two runs would write the same estimates at other times.
+    every = ["--set", "jsonl.max_node_rate_hz=0"]
+
+    uninterrupted = replay(build_dir, folder, whole, "whole.jsonl", *geometry(folder), "--moving", "10,20", *every)
+    written = replay(build_dir, folder, head, "head.jsonl", *geometry(folder), "--moving", "10,20", *every,
                      checkpoint=checkpoint)
-    assert written.returncode == 0, written.stderr
-    assert checkpoint.exists()
-    resumed = replay(build_dir, folder, capture, "r.jsonl", *geometry(folder), "--moving", "10,20", "--resume",
-                     checkpoint, checkpoint=folder / "again.cdrosog")
+    assert uninterrupted.returncode == 0 and written.returncode == 0, uninterrupted.stderr + written.stderr
+    # The Python codec reads the tracks cdro-hostd wrote, and writes the same bytes.
+    snapshot = decode_sog(checkpoint.read_bytes())
+    flight = checkpoint_codec.flight_block(snapshot)
+    assert [node["id"] for node in flight["nodes"]] == list(TAGS)
+    assert all(node["status"] == 2 and len(node["heard"]) == len(ANCHORS) for node in flight["nodes"])  # tracking
+    assert sorted(anchor["id"] for anchor in flight["anchors"]) == sorted(ANCHORS)
+    assert len(flight["state"]) == 6 * len(TAGS) and len(flight["covariance"]) == 6 * len(TAGS)
+    assert abs(flight["t_s"] - (START_US * 1e-6 + split_s)) < 0.2
+    assert checkpoint_codec.encode_flight_block(flight) == dict(snapshot.extensions)[checkpoint_codec.TAG_FLIGHT]
+    resumed = replay(build_dir, folder, tail, "tail.jsonl", *geometry(folder), "--moving", "10,20", *every,
+                     "--resume", checkpoint, checkpoint=folder / "again.cdrosog")
 
     assert resumed.returncode == 0, resumed.stderr
-    assert "the 2 nodes tracked in 3D (map.moving) are not in checkpoints" in resumed.stderr, resumed.stderr
+    assert "resume:" in resumed.stderr, resumed.stderr
+    assert "restart" not in resumed.stderr, resumed.stderr
+    expected = moving_lines(folder / "whole.jsonl", split_s)
+    got = moving_lines(folder / "tail.jsonl", split_s)
+    print(f"seed {seed}: {len(expected)} lines of the moving nodes after the split at {split_s} s")
+    assert len(expected) > 100
+    assert {line["id"] for line in got} == set(TAGS)
+    assert all(line["placed"] for line in got)
+    assert got == expected  # every value, as the uninterrupted replay wrote it
+
+    # The tracks of other nodes than map.moving's: named, and those tracks restart.
+    other = replay(build_dir, folder, tail, "other.jsonl", *geometry(folder), "--moving", "10", "--resume",
+                   checkpoint, checkpoint=folder / "other.cdrosog")
+    assert other.returncode == 0, other.stderr
+    assert "the checkpoint's 3D tracks of nodes 20 are not in map.moving: dropped" in other.stderr, other.stderr
+    plain = replay(build_dir, folder, tail, "plain.jsonl", *geometry(folder), "--resume", checkpoint,
+                   checkpoint=folder / "plain.cdrosog")
+    assert plain.returncode == 0, plain.stderr
+    assert "the checkpoint's 3D tracks of nodes 10, 20 are not in map.moving: dropped" in plain.stderr, plain.stderr
 
 
 def test_that_a_capture_recording_map_moving_replays_its_3d_tracks_untold(build_dir, tmp_path):

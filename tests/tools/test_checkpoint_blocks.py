@@ -70,7 +70,8 @@ def test_an_absurd_count_is_refused_before_it_is_read(golden):
 
 
 def test_every_list_and_matrix_of_the_tables_names_what_it_repeats():
-    for records in (layout.CHECKPOINT_ENGINE_RECORDS, layout.CHECKPOINT_MOVEMENT_RECORDS):
+    for records in (layout.CHECKPOINT_ENGINE_RECORDS, layout.CHECKPOINT_MOVEMENT_RECORDS,
+                    layout.CHECKPOINT_FLIGHT_RECORDS):
         for spec in records.values():
             seen = set()
             for field in spec["fields"]:
@@ -79,3 +80,47 @@ def test_every_list_and_matrix_of_the_tables_names_what_it_repeats():
                 if "square_of" in field:
                     assert field["square_of"] in seen
                 seen.add(field["name"])
+
+
+def _flight_block():
+    """Two tags, one of them tracking, six anchors taken, a body; doubles that are not round."""
+    state = [0.1 * k + 1.0 / 3.0 for k in range(12)]
+    covariance = [[(1.0 if i == j else 0.01) / (1 + i + j) for j in range(12)] for i in range(12)]
+    return {"version": checkpoint.FLIGHT_VERSION,
+            "flags": layout.CONSTANTS["CDRO_CHECKPOINT_FLIGHT_ANCHORS_SET"]
+            | layout.CONSTANTS["CDRO_CHECKPOINT_FLIGHT_HAVE_TIME"],
+            "t_s": 1_700_000_017.0123456,
+            "nodes": [{"id": 10, "status": 2, "refused_in_a_row": 1, "heard": [1, 2, 3, 4]},
+                      {"id": 20, "status": 1, "refused_in_a_row": 0, "heard": [2]}],
+            "bodies": [{"a_id": 10, "b_id": 20, "separation_m": 0.45}],
+            "anchors": [{"id": i, "x_m": 0.5 * i, "y_m": -0.25 * i, "z_m": 1.6 + i / 7.0, "taken": 10 * i,
+                         "down_weighted": i, "refused": i % 2} for i in range(1, 7)],
+            "tag_taken": 31, "tag_down_weighted": 2, "tag_refused": 1,
+            "state": state, "covariance": covariance, "counters": list(range(10))}
+
+
+def test_the_flight_block_round_trips_through_its_table():
+    block = _flight_block()
+    blob = checkpoint.encode_flight_block(block)
+    assert blob[0] == checkpoint.FLIGHT_VERSION
+    assert checkpoint.decode_flight_block(blob) == block  # doubles exactly, lists and rows as given
+    assert checkpoint.encode_flight_block(checkpoint.decode_flight_block(blob)) == blob
+    assert checkpoint.TAG_FLIGHT == 0x0003
+
+
+def test_a_damaged_flight_block_is_refused_with_what_is_wrong():
+    blob = checkpoint.encode_flight_block(_flight_block())
+    with pytest.raises(SogError, match="the flight block is cut short in"):
+        checkpoint.decode_flight_block(blob[:-1])
+    with pytest.raises(SogError, match="the flight block has 1 bytes after its end"):
+        checkpoint.decode_flight_block(blob + b"\x00")
+    with pytest.raises(SogError, match=f"the flight block is of version {blob[0] + 1}"):
+        checkpoint.decode_flight_block(bytes([blob[0] + 1]) + blob[1:])
+    bad = _flight_block()
+    bad["nodes"][0]["status"] = 3  # past the last FlightStatus
+    with pytest.raises(SogError, match="FLIGHT_NODE.status is 3, outside 0..2"):
+        checkpoint.decode_flight_block(checkpoint.encode_flight_block(bad))
+    square = _flight_block()
+    square["covariance"] = square["covariance"][:-1]
+    with pytest.raises(ValueError, match="FLIGHT_BLOCK.covariance is not 12 by 12"):
+        checkpoint.encode_flight_block(square)

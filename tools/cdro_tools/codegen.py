@@ -127,7 +127,8 @@ def descriptor(records: list[dict], fields: dict, empty: list[dict] = ()) -> str
     return "".join(out)
 
 
-BLOCK_LISTS = {"ENGINE": "CDRO_CHECKPOINT_ENGINE_LIST", "MOVEMENT": "CDRO_CHECKPOINT_MOVEMENT_LIST"}
+BLOCK_LISTS = {"ENGINE": "CDRO_CHECKPOINT_ENGINE_LIST", "MOVEMENT": "CDRO_CHECKPOINT_MOVEMENT_LIST",
+               "FLIGHT": "CDRO_CHECKPOINT_FLIGHT_LIST"}
 
 
 def check_block(records: list[dict], fields: dict) -> None:
@@ -215,6 +216,8 @@ def generate(include_dir: pathlib.Path) -> str:
         "",
         f"CHECKPOINT_MOVEMENT_RECORDS = {pprint.pformat(block_records['MOVEMENT'], sort_dicts=False, width=100)}",
         "",
+        f"CHECKPOINT_FLIGHT_RECORDS = {pprint.pformat(block_records['FLIGHT'], sort_dicts=False, width=100)}",
+        "",
         f"FRAME_LAYOUT_DESCRIPTOR = {frame_text!r}",
         f"FRAME_LAYOUT_HASH_COMPUTED = 0x{crc16(frame_text.encode('ascii')):04X}",
         f"SOG_LAYOUT_DESCRIPTOR = {sog_text!r}",
@@ -227,6 +230,8 @@ def generate(include_dir: pathlib.Path) -> str:
         f"CHECKPOINT_ENGINE_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['ENGINE'].encode('ascii')):04X}",
         f"CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR = {block_texts['MOVEMENT']!r}",
         f"CHECKPOINT_MOVEMENT_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['MOVEMENT'].encode('ascii')):04X}",
+        f"CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR = {block_texts['FLIGHT']!r}",
+        f"CHECKPOINT_FLIGHT_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['FLIGHT'].encode('ascii')):04X}",
         "",
     ]
     return "\n".join(lines)

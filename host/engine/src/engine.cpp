@@ -72,6 +72,33 @@ void Engine::trackMoving3D(NodeId id)
     flights_.add(id);
 }
 
+std::vector<std::pair<NodeId, Vector3>> Engine::flightAnchors() const
+{
+    std::vector<std::pair<NodeId, Vector3>> anchors;
+    for (const auto &[id, position] : frame_.fixedPositions()) {
+        const uint32_t index = map_.findNode(id);
+        if (index != kNoIndex && map_.nodes[index].height_m) {
+            anchors.emplace_back(id, Vector3(position.x(), position.y(), *map_.nodes[index].height_m));
+        }
+    }
+    return anchors;
+}
+
+FlightTracks::RestoreReport Engine::restoreFlights(const FlightTracks::Saved &saved)
+{
+    FlightTracks::RestoreReport report = flights_.restore(saved);
+    if (saved.anchors_set) {
+        // Within a millimetre: a checkpoint's map holds the heights rounded to 0.5 mm.
+        const std::vector<std::pair<NodeId, Vector3>> given = flightAnchors();
+        report.anchors_differ = given.size() != saved.anchors.size();
+        for (size_t a = 0; a < given.size() && !report.anchors_differ; ++a) {
+            report.anchors_differ = given[a].first != saved.anchors[a].first ||
+                                    (given[a].second - saved.anchors[a].second).cwiseAbs().maxCoeff() > 1e-3;
+        }
+    }
+    return report;
+}
+
 RangeVerdict Engine::addFlightRange(NodeId from, NodeId to, double range_m, double t_s)
 {
     if (from == to) {
@@ -81,15 +108,7 @@ RangeVerdict Engine::addFlightRange(NodeId from, NodeId to, double range_m, doub
         return RangeVerdict::RejectedValue;
     }
     if (!flights_.anchorsSet()) {
-        // The anchors: the fixed nodes of known height (none can be added from now on).
-        std::vector<std::pair<NodeId, Vector3>> anchors;
-        for (const auto &[id, position] : frame_.fixedPositions()) {
-            const uint32_t index = map_.findNode(id);
-            if (index != kNoIndex && map_.nodes[index].height_m) {
-                anchors.emplace_back(id, Vector3(position.x(), position.y(), *map_.nodes[index].height_m));
-            }
-        }
-        flights_.setAnchors(anchors);
+        flights_.setAnchors(flightAnchors()); // none can be added from now on
     }
     ++revision_;
     const FlightRangeUse use = flights_.addRange(from, to, range_m, t_s);

@@ -416,4 +416,141 @@ std::optional<FlightEstimate> FlightTracks::estimate(NodeId id) const
     return out;
 }
 
+FlightTracks::Saved FlightTracks::saved() const
+{
+    Saved out;
+    for (const Node &node : nodes_) {
+        out.nodes.push_back({node.id, node.status, node.heard, node.refused_in_a_row});
+    }
+    for (const Body &body : bodies_) {
+        out.bodies.push_back({ids_[body.a], ids_[body.b], body.separation_m});
+    }
+    out.anchors_set = anchors_set_ == AnchorsState::Set;
+    out.anchors = anchors_;
+    out.nlos = nlos_;
+    out.state = state_;
+    out.covariance = covariance_;
+    out.t_s = t_s_;
+    out.counters = counters_;
+    return out;
+}
+
+namespace {
+
+void checkSaved(const FlightTracks::Saved &saved)
+{
+    const auto fail = [](const std::string &what) { throw std::invalid_argument("the saved 3D tracks " + what); };
+    const size_t n = saved.nodes.size();
+    const auto size = static_cast<Eigen::Index>(6 * n);
+    if (saved.state.size() != size || saved.covariance.rows() != size || saved.covariance.cols() != size) {
+        fail("hold " + std::to_string(saved.state.size()) + " state values and a " +
+             std::to_string(saved.covariance.rows()) + " x " + std::to_string(saved.covariance.cols()) +
+             " covariance for " + std::to_string(n) + " nodes (6 per node)");
+    }
+    if (!saved.state.allFinite() || !saved.covariance.allFinite() || (saved.t_s && !std::isfinite(*saved.t_s))) {
+        fail("hold a value that is not a finite number");
+    }
+    if (!saved.anchors_set && (!saved.anchors.empty() || !saved.nlos.empty())) {
+        fail("have anchors without having taken them");
+    }
+    if (saved.anchors_set && saved.nlos.size() != saved.anchors.size() + 1) {
+        fail("count the NLOS verdicts of " + std::to_string(saved.nlos.size()) + " link kinds for " +
+             std::to_string(saved.anchors.size()) + " anchors (one per anchor, then tag to tag)");
+    }
+    std::vector<NodeId> anchor_ids;
+    for (size_t a = 0; a < saved.anchors.size(); ++a) {
+        const auto &[id, position] = saved.anchors[a];
+        if (!position.allFinite() || saved.nlos[a].anchor != id) {
+            fail("have anchor " + std::to_string(id) + " at no finite position or out of its NLOS counts' order");
+        }
+        anchor_ids.push_back(id);
+    }
+    if (saved.anchors_set && saved.nlos.back().anchor != 0) {
+        fail("do not end their NLOS counts with the ranges between tracked nodes");
+    }
+    std::vector<NodeId> ids;
+    for (const FlightTracks::SavedNode &node : saved.nodes) {
+        if (std::find(ids.begin(), ids.end(), node.id) != ids.end()) {
+            fail("list node " + std::to_string(node.id) + " twice");
+        }
+        ids.push_back(node.id);
+        if (static_cast<unsigned>(node.status) > static_cast<unsigned>(FlightStatus::Tracking)) {
+            fail("give node " + std::to_string(node.id) + " an unknown status");
+        }
+        for (const NodeId heard : node.heard) {
+            if (std::find(anchor_ids.begin(), anchor_ids.end(), heard) == anchor_ids.end()) {
+                fail("say node " + std::to_string(node.id) + " heard anchor " + std::to_string(heard) +
+                     ", which is no anchor");
+            }
+        }
+    }
+}
+
+} // namespace
+
+FlightTracks::RestoreReport FlightTracks::restore(const Saved &saved)
+{
+    checkSaved(saved);
+    RestoreReport report;
+    std::vector<uint32_t> from(ids_.size(), kNone); // each declared node's index in `saved`
+    for (uint32_t j = 0; j < saved.nodes.size(); ++j) {
+        const uint32_t i = find(saved.nodes[j].id);
+        if (i == kNone) {
+            report.dropped.push_back(saved.nodes[j].id);
+        } else {
+            from[i] = j;
+        }
+    }
+    const auto n = static_cast<Eigen::Index>(6 * ids_.size());
+    Eigen::VectorXd state = Eigen::VectorXd::Zero(n);
+    Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(n, n);
+    std::vector<Node> nodes;
+    for (uint32_t i = 0; i < ids_.size(); ++i) {
+        Node node;
+        node.id = ids_[i];
+        if (from[i] == kNone) {
+            report.restarted.push_back(ids_[i]);
+            nodes.push_back(node);
+            continue;
+        }
+        const SavedNode &in = saved.nodes[from[i]];
+        node.status = in.status;
+        node.heard = in.heard;
+        node.refused_in_a_row = in.refused_in_a_row;
+        nodes.push_back(node);
+        const Eigen::Index bi = 6 * static_cast<Eigen::Index>(i);
+        const Eigen::Index si = 6 * static_cast<Eigen::Index>(from[i]);
+        state.segment<6>(bi) = saved.state.segment<6>(si);
+        for (uint32_t k = 0; k < ids_.size(); ++k) {
+            if (from[k] != kNone) {
+                covariance.block<6, 6>(bi, 6 * static_cast<Eigen::Index>(k)) =
+                    saved.covariance.block<6, 6>(si, 6 * static_cast<Eigen::Index>(from[k]));
+            }
+        }
+    }
+    report.bodies_differ = saved.bodies.size() != bodies_.size();
+    for (size_t k = 0; k < bodies_.size() && !report.bodies_differ; ++k) {
+        const SavedBody &in = saved.bodies[k];
+        report.bodies_differ =
+            in.a != ids_[bodies_[k].a] || in.b != ids_[bodies_[k].b] || in.separation_m != bodies_[k].separation_m;
+    }
+    if (saved.anchors_set) {
+        setAnchors(saved.anchors); // the room, as it was derived
+        nlos_ = saved.nlos;
+    } else {
+        anchors_.clear();
+        anchors_set_ = AnchorsState::Unset;
+        nlos_.clear();
+        room_lo_m_.setZero();
+        room_hi_m_.setZero();
+        plane_z_m_ = 0.0;
+    }
+    nodes_ = std::move(nodes);
+    state_ = std::move(state);
+    covariance_ = std::move(covariance);
+    t_s_ = saved.t_s;
+    counters_ = saved.counters;
+    return report;
+}
+
 } // namespace cdro::engine

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 #include <utility>
 
 #include "cdro/fixed.h"
@@ -19,6 +20,7 @@ namespace {
 static_assert(static_cast<unsigned>(engine::NodeRole::Pinned) == CDRO_CHECKPOINT_LAST_ROLE);
 static_assert(static_cast<unsigned>(engine::NodeLifecycle::Settling) == CDRO_CHECKPOINT_LAST_LIFECYCLE);
 static_assert(static_cast<unsigned>(engine::NodeDoubt::Unsettled) == CDRO_CHECKPOINT_LAST_DOUBT);
+static_assert(static_cast<unsigned>(engine::FlightStatus::Tracking) == CDRO_CHECKPOINT_LAST_FLIGHT_STATUS);
 
 uint32_t mmOfRange(double metres)
 {
@@ -256,20 +258,33 @@ service::SogSnapshot EngineAdapter::snapshot()
     if (movement_ != nullptr) {
         snapshot.extensions.push_back({kMovementExtensionTag, movementBlockOf(*movement_)});
     }
+    if (!moving_.empty()) {
+        snapshot.extensions.push_back({kFlightExtensionTag, flightBlockOf(engine_)});
+    }
     return snapshot;
 }
 
 void EngineAdapter::restore(const service::SogSnapshot &snapshot)
 {
     restoreFrom(engine_, snapshot);
-    if (!moving_.empty()) {
-        service::log()->warn("resume: the {} nodes tracked in 3D (map.moving) are not in checkpoints: their tracks "
-                             "restart from their next ranges",
-                             moving_.size());
+    for (const std::string &warning : restoreFlight(engine_, moving_, snapshot)) {
+        service::log()->warn("resume: {}", warning);
     }
     if (movement_ != nullptr) {
         restoreMovement(*movement_, snapshot);
     }
+}
+
+std::vector<uint16_t> EngineAdapter::restoredNodes() const
+{
+    std::vector<uint16_t> out;
+    for (const uint16_t id : moving_) {
+        const std::optional<engine::FlightEstimate> track = engine_.flightEstimate(id);
+        if (track && track->status != engine::FlightStatus::Waiting) {
+            out.push_back(id);
+        }
+    }
+    return out;
 }
 
 namespace {
@@ -291,7 +306,140 @@ std::vector<uint64_t *> movementCounterFields(engine::MovementCounters &c)
 
 uint8_t bitIf(bool condition, unsigned bit) { return condition ? static_cast<uint8_t>(bit) : uint8_t{0}; }
 
+// The 3D tracks' counters, in one fixed order (append only).
+std::vector<uint64_t *> flightCounterFields(engine::FlightCounters &c)
+{
+    return {&c.anchor_ranges, &c.tag_ranges, &c.down_weighted, &c.refused,   &c.resets,
+            &c.waiting,       &c.no_anchor,  &c.mirrored,      &c.truncated, &c.body_updates};
+}
+
+std::string idList(const std::vector<engine::NodeId> &ids)
+{
+    std::string out;
+    for (const engine::NodeId id : ids) {
+        out += (out.empty() ? "" : ", ") + std::to_string(id);
+    }
+    return out;
+}
+
 } // namespace
+
+std::vector<uint8_t> flightBlockOf(const engine::Engine &engine)
+{
+    engine::FlightTracks::Saved saved = engine.flightSaved();
+    blocks::flight_block block;
+    block.version = CDRO_CHECKPOINT_FLIGHT_VERSION;
+    block.flags = static_cast<uint8_t>(bitIf(saved.anchors_set, CDRO_CHECKPOINT_FLIGHT_ANCHORS_SET) |
+                                       bitIf(saved.t_s.has_value(), CDRO_CHECKPOINT_FLIGHT_HAVE_TIME));
+    block.t_s = saved.t_s.value_or(0.0);
+    for (const engine::FlightTracks::SavedNode &node : saved.nodes) {
+        blocks::flight_node &out = block.nodes.emplace_back();
+        out.id = node.id;
+        out.status = static_cast<uint8_t>(node.status);
+        out.refused_in_a_row = node.refused_in_a_row;
+        out.heard.assign(node.heard.begin(), node.heard.end());
+    }
+    for (const engine::FlightTracks::SavedBody &body : saved.bodies) {
+        block.bodies.push_back({body.a, body.b, body.separation_m});
+    }
+    for (size_t a = 0; a < saved.anchors.size(); ++a) {
+        const auto &[id, position] = saved.anchors[a];
+        const engine::FlightNlosCount &nlos = saved.nlos[a];
+        block.anchors.push_back(
+            {id, position.x(), position.y(), position.z(), nlos.taken, nlos.down_weighted, nlos.refused});
+    }
+    if (saved.anchors_set) {
+        const engine::FlightNlosCount &tags = saved.nlos.back(); // the ranges between tracked nodes
+        block.tag_taken = tags.taken;
+        block.tag_down_weighted = tags.down_weighted;
+        block.tag_refused = tags.refused;
+    }
+    block.state = doublesOf(saved.state);
+    for (Eigen::Index i = 0; i < saved.covariance.rows(); ++i) {
+        for (Eigen::Index j = 0; j < saved.covariance.cols(); ++j) {
+            block.covariance.push_back(saved.covariance(i, j));
+        }
+    }
+    for (const uint64_t *field : flightCounterFields(saved.counters)) {
+        block.counters.push_back(*field);
+    }
+    return blocks::encode(block);
+}
+
+std::vector<std::string> restoreFlight(engine::Engine &engine, const std::vector<uint16_t> &moving,
+                                       const service::SogSnapshot &snapshot)
+{
+    std::vector<std::string> warnings;
+    const service::SogSnapshot::Extension *extension = snapshot.findExtension(kFlightExtensionTag);
+    if (extension == nullptr) {
+        if (!moving.empty()) {
+            warnings.push_back("the checkpoint holds no 3D tracks (written without map.moving, or by an older "
+                               "cdro-hostd): the tracks of nodes " +
+                               idList(moving) + " (map.moving) restart from their next ranges");
+        }
+        return warnings;
+    }
+    const auto block = blocks::decode<blocks::flight_block>(extension->bytes, "flight", CDRO_CHECKPOINT_FLIGHT_VERSION);
+    engine::FlightTracks::Saved saved;
+    saved.anchors_set = (block.flags & CDRO_CHECKPOINT_FLIGHT_ANCHORS_SET) != 0;
+    if ((block.flags & CDRO_CHECKPOINT_FLIGHT_HAVE_TIME) != 0) {
+        saved.t_s = block.t_s;
+    }
+    for (const blocks::flight_node &in : block.nodes) {
+        engine::FlightTracks::SavedNode node;
+        node.id = in.id;
+        node.status = static_cast<engine::FlightStatus>(in.status); // in range: the table's R
+        node.refused_in_a_row = in.refused_in_a_row;
+        node.heard.assign(in.heard.begin(), in.heard.end());
+        saved.nodes.push_back(std::move(node));
+    }
+    for (const blocks::flight_body &in : block.bodies) {
+        saved.bodies.push_back({in.a_id, in.b_id, in.separation_m});
+    }
+    for (const blocks::flight_anchor &in : block.anchors) {
+        saved.anchors.emplace_back(in.id, engine::Vector3(in.x_m, in.y_m, in.z_m));
+        saved.nlos.push_back({in.id, in.taken, in.down_weighted, in.refused});
+    }
+    if (saved.anchors_set) {
+        saved.nlos.push_back({0, block.tag_taken, block.tag_down_weighted, block.tag_refused});
+    }
+    saved.state = vectorFrom(block.state);
+    const auto size = static_cast<Eigen::Index>(block.state.size());
+    saved.covariance.resize(size, size);
+    for (Eigen::Index i = 0; i < size; ++i) {
+        for (Eigen::Index j = 0; j < size; ++j) {
+            saved.covariance(i, j) = block.covariance[static_cast<size_t>(i * size + j)];
+        }
+    }
+    std::vector<uint64_t *> fields = flightCounterFields(saved.counters);
+    for (size_t i = 0; i < block.counters.size() && i < fields.size(); ++i) {
+        *fields[i] = block.counters[i];
+    }
+    engine::FlightTracks::RestoreReport report;
+    try {
+        report = engine.restoreFlights(saved);
+    } catch (const std::invalid_argument &error) {
+        throw CheckpointError(std::string("the checkpoint's flight block: ") + error.what());
+    }
+    if (!report.dropped.empty()) {
+        warnings.push_back("the checkpoint's 3D tracks of nodes " + idList(report.dropped) +
+                           " are not in map.moving: dropped");
+    }
+    if (!report.restarted.empty()) {
+        warnings.push_back("nodes " + idList(report.restarted) +
+                           " of map.moving have no 3D track in the checkpoint: their tracks restart from their "
+                           "next ranges");
+    }
+    if (report.anchors_differ) {
+        warnings.push_back("the checkpoint's anchors (the fixed nodes of known height the 3D tracks started "
+                           "from) differ from the ones given now: the tracks go on from the checkpoint's");
+    }
+    if (report.bodies_differ) {
+        warnings.push_back("the checkpoint's rigid bodies differ from the configured ones (--moving-body): the "
+                           "configured ones apply");
+    }
+    return warnings;
+}
 
 std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement)
 {

@@ -88,6 +88,9 @@ void Service::start()
         for (const cdro_sog_node_t &node : snapshot.nodes) {
             mapped.push_back(node.id);
         }
+        for (const uint16_t id : hooks_.checkpoint->restoredNodes()) {
+            mapped.push_back(id);
+        }
         intake_.addKnownNodes(mapped);
         ServiceCheckpointInfo info;
         const SogSnapshot::Extension *own = snapshot.findExtension(kServiceExtensionTag);

@@ -1,7 +1,7 @@
-"""cdro-hostd's checkpoint blocks (tags TAG_ENGINE and TAG_MOVEMENT) as named fields.
+"""cdro-hostd's checkpoint blocks (tags TAG_ENGINE, TAG_MOVEMENT and TAG_FLIGHT) as named fields.
 
-The layouts are the tables CHECKPOINT_ENGINE_RECORDS and CHECKPOINT_MOVEMENT_RECORDS of
-layout.py, generated from checkpoint_layout.def, whose C++ expansion
+The layouts are the tables CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_MOVEMENT_RECORDS and
+CHECKPOINT_FLIGHT_RECORDS of layout.py, generated from checkpoint_layout.def, whose C++ expansion
 (host/hostd/include/cdro/hostd/checkpoint_blocks.hpp) cdro-hostd writes and reads. One walker serves every
 record: an L field is a list of dicts, a V field a list of values, a Q field a list of rows,
 an A field (a u8 count) a list; doubles (F64) come out exactly as written.
@@ -11,13 +11,15 @@ from __future__ import annotations
 import struct
 from typing import Any
 
-from .layout import CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_MOVEMENT_RECORDS, CONSTANTS
+from .layout import CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_FLIGHT_RECORDS, CHECKPOINT_MOVEMENT_RECORDS, CONSTANTS
 from .sog import SogError, SogSnapshot
 
 TAG_ENGINE = CONSTANTS["CDRO_CHECKPOINT_TAG_ENGINE"]
 TAG_MOVEMENT = CONSTANTS["CDRO_CHECKPOINT_TAG_MOVEMENT"]
 ENGINE_VERSION = CONSTANTS["CDRO_CHECKPOINT_ENGINE_VERSION"]
 MOVEMENT_VERSION = CONSTANTS["CDRO_CHECKPOINT_MOVEMENT_VERSION"]
+TAG_FLIGHT = CONSTANTS["CDRO_CHECKPOINT_TAG_FLIGHT"]
+FLIGHT_VERSION = CONSTANTS["CDRO_CHECKPOINT_FLIGHT_VERSION"]
 
 _STRUCT = {"U8": "<B", "U16": "<H", "U32": "<I", "U64": "<Q", "I16": "<h", "I32": "<i", "I64": "<q", "F64": "<d"}
 _COUNT = "<I"      # the count before an L or a V
@@ -113,6 +115,11 @@ def decode_movement_block(blob: bytes) -> dict:
     return _decode_block(CHECKPOINT_MOVEMENT_RECORDS, blob, "movement", MOVEMENT_VERSION)
 
 
+def decode_flight_block(blob: bytes) -> dict:
+    """The fields of a TAG_FLIGHT block (FLIGHT_BLOCK, its nodes, bodies and anchors)."""
+    return _decode_block(CHECKPOINT_FLIGHT_RECORDS, blob, "flight", FLIGHT_VERSION)
+
+
 def encode_engine_block(values: dict) -> bytes:
     out = bytearray()
     _encode_record(CHECKPOINT_ENGINE_RECORDS, "ENGINE_BLOCK", values, out)
@@ -132,3 +139,15 @@ def engine_blocks(snapshot: SogSnapshot) -> tuple[dict, dict | None]:
         raise SogError("the checkpoint has no engine block (tag 0x0001): not written by cdro-hostd")
     movement = blocks.get(TAG_MOVEMENT)
     return decode_engine_block(blocks[TAG_ENGINE]), None if movement is None else decode_movement_block(movement)
+
+
+def encode_flight_block(values: dict) -> bytes:
+    out = bytearray()
+    _encode_record(CHECKPOINT_FLIGHT_RECORDS, "FLIGHT_BLOCK", values, out)
+    return bytes(out)
+
+
+def flight_block(snapshot: SogSnapshot) -> dict | None:
+    """A cdro-hostd checkpoint's 3D tracks (None when it tracked no node in 3D)."""
+    blob = dict(snapshot.extensions).get(TAG_FLIGHT)
+    return None if blob is None else decode_flight_block(blob)

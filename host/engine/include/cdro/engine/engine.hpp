@@ -123,7 +123,8 @@ public:
     // addRange() then says Used for a range a track took, Stored for one it did not use (refused
     // as an outlier, another end not started, or a static end that is no anchor: counted in
     // flightCounters())
-    // and needs the range's time (RejectedValue without it). Not in checkpoints.
+    // and needs the range's time (RejectedValue without it). Checkpoints hold the tracks
+    // (flightSaved, restoreFlights).
     void trackMoving3D(NodeId id);
     // Two nodes tracked in 3D on one rigid body, separation_m (m) apart (a drone's two tags): each
     // one's ranges move the other (motion_track_3d.hpp). Throws std::invalid_argument.
@@ -131,6 +132,10 @@ public:
     std::optional<FlightEstimate> flightEstimate(NodeId id) const { return flights_.estimate(id); }
     const FlightCounters &flightCounters() const { return flights_.counters(); }
     const std::vector<FlightNlosCount> &flightNlosCounts() const { return flights_.nlosCounts(); }
+    // The 3D tracks' whole state, and back (FlightTracks::saved, restore: after trackMoving3D and
+    // trackOnOneBody, before the first range; throws std::invalid_argument).
+    FlightTracks::Saved flightSaved() const { return flights_.saved(); }
+    FlightTracks::RestoreReport restoreFlights(const FlightTracks::Saved &saved);
 
     // The movement stage's EKF owns this node's position: here it is an anchor at that position
     // (not refined, not placed again) until unpinned.
@@ -206,6 +211,8 @@ private:
     void relax(uint64_t budget);
     void assess();
     RangeVerdict addFlightRange(NodeId from, NodeId to, double range_m, double t_s);
+    // The 3D tracks' anchors: the fixed nodes of known height (id, x, y, z in m).
+    std::vector<std::pair<NodeId, Vector3>> flightAnchors() const;
     void trace(const std::string &message) const
     {
         if (trace_) {

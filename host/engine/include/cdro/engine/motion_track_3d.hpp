@@ -42,7 +42,9 @@
 //     (FlightStatus::Tracking) once it has heard kMinAnchors distinct anchors.
 // This is the Python baseline (c-ref) (tools/cdro_tools/evaluation/tracking_baselines.py) in the
 // engine, with the engine's NLOS likelihood in place of its Huber weights. Deterministic: no
-// clock, no randomness; nodes are kept in the order they were declared.
+// clock, no randomness; nodes are kept in the order they were declared. The whole state can be
+// taken out (saved()) and put back (restore()): a restored copy continues bit for bit as the
+// original would (checkpoints: cdro-hostd's flight block, checkpoint_layout.def).
 #pragma once
 
 #include <cstdint>
@@ -141,6 +143,48 @@ public:
     // verdicts (docs/engine.md, "Nodes that never stop"). Ranges not decided (Waiting, NoAnchor)
     // are not in it.
     const std::vector<FlightNlosCount> &nlosCounts() const { return nlos_; }
+
+    // The whole state, for checkpoints: what the declarations (add, addBody) and the ranges made.
+    // The room is not in it: setAnchors() derives it from the anchors and the motion parameters.
+    struct SavedNode {
+        NodeId id = 0;
+        FlightStatus status = FlightStatus::Waiting;
+        std::vector<NodeId> heard; // distinct anchors, in the order heard
+        uint32_t refused_in_a_row = 0;
+    };
+    struct SavedBody {
+        NodeId a = 0;
+        NodeId b = 0;
+        double separation_m = 0.0; // m
+    };
+    struct Saved {
+        std::vector<SavedNode> nodes; // in the order declared
+        std::vector<SavedBody> bodies;
+        bool anchors_set = false;
+        std::vector<std::pair<NodeId, Vector3>> anchors; // m
+        std::vector<FlightNlosCount> nlos;               // as nlosCounts(): one per anchor, then tag to tag
+        Eigen::VectorXd state;                           // 6 per node: x, y, z (m), vx, vy, vz (m/s)
+        Eigen::MatrixXd covariance;                      // of state
+        std::optional<double> t_s;                       // s, the filter's time
+        FlightCounters counters;
+    };
+    // What restore() could not take as it was: saved nodes not declared here (dropped), declared
+    // nodes not in the saved state (they start afresh, as on a first start), whether the saved
+    // bodies differ from the declared ones (the declared ones are kept), and (Engine::
+    // restoreFlights) whether the saved anchors differ from the fixed nodes of known height
+    // given now (the saved ones are kept: the state is in their frame).
+    struct RestoreReport {
+        std::vector<NodeId> dropped;
+        std::vector<NodeId> restarted;
+        bool bodies_differ = false;
+        bool anchors_differ = false;
+    };
+    Saved saved() const;
+    // Replaces the state with `saved` for the nodes declared here (add) that it holds; declared
+    // nodes it does not hold start afresh. Throws std::invalid_argument (naming what is wrong)
+    // for a state that does not fit together (sizes, a status, an anchor heard that is none);
+    // nothing is changed then.
+    RestoreReport restore(const Saved &saved);
 
 private:
     static constexpr uint32_t kNone = 0xFFFFFFFFU;

@@ -1,7 +1,8 @@
-// checkpoint_blocks.hpp: the engine and movement blocks of a checkpoint (checkpoint_layout.def's
-// CDRO_CHECKPOINT_ENGINE_LIST and CDRO_CHECKPOINT_MOVEMENT_LIST) as C++ structs, one per record,
-// with the one writer and reader every record shares. The adapter (engine_adapter.cpp) only maps
-// the engine's state to these structs and back; the bytes are the table's, and the Python codec
+// checkpoint_blocks.hpp: the engine, movement and flight blocks of a checkpoint
+// (checkpoint_layout.def's CDRO_CHECKPOINT_ENGINE_LIST, CDRO_CHECKPOINT_MOVEMENT_LIST and
+// CDRO_CHECKPOINT_FLIGHT_LIST) as C++ structs, one per record, with the one writer and reader
+// every record shares. The adapter (engine_adapter.cpp) only maps the engine's state to these
+// structs and back; the bytes are the table's, and the Python codec
 // (cdro_tools.codec.checkpoint) and docs/protocol.md read the same table.
 //
 // A record's struct has its fields in table order: F and R a value (F64 a double, stored as its
@@ -39,10 +40,13 @@ namespace cdro::hostd::blocks {
 
 CDRO_CHECKPOINT_ENGINE_LIST(CDRO_BLOCK_X_DECLARE)
 CDRO_CHECKPOINT_MOVEMENT_LIST(CDRO_BLOCK_X_DECLARE)
+CDRO_CHECKPOINT_FLIGHT_LIST(CDRO_BLOCK_X_DECLARE)
 CDRO_CHECKPOINT_ENGINE_LIST(CDRO_BLOCK_X_ALIAS)
 CDRO_CHECKPOINT_MOVEMENT_LIST(CDRO_BLOCK_X_ALIAS)
+CDRO_CHECKPOINT_FLIGHT_LIST(CDRO_BLOCK_X_ALIAS)
 CDRO_CHECKPOINT_ENGINE_LIST(CDRO_BLOCK_X_STRUCT)
 CDRO_CHECKPOINT_MOVEMENT_LIST(CDRO_BLOCK_X_STRUCT)
+CDRO_CHECKPOINT_FLIGHT_LIST(CDRO_BLOCK_X_STRUCT)
 
 // ---- bytes --------------------------------------------------------------------------------
 
@@ -133,6 +137,7 @@ private:
 
 CDRO_CHECKPOINT_ENGINE_LIST(CDRO_BLOCK_X_DECLARE_CODEC)
 CDRO_CHECKPOINT_MOVEMENT_LIST(CDRO_BLOCK_X_DECLARE_CODEC)
+CDRO_CHECKPOINT_FLIGHT_LIST(CDRO_BLOCK_X_DECLARE_CODEC)
 
 // The count before an A (u8, at most its max) or an L or V (u32).
 template <typename Count, typename T>
@@ -212,6 +217,7 @@ void writeCount(BlockWriter &out, const std::vector<T> &values, size_t most, con
 
 CDRO_CHECKPOINT_ENGINE_LIST(CDRO_BLOCK_X_DEFINE_CODEC)
 CDRO_CHECKPOINT_MOVEMENT_LIST(CDRO_BLOCK_X_DEFINE_CODEC)
+CDRO_CHECKPOINT_FLIGHT_LIST(CDRO_BLOCK_X_DEFINE_CODEC)
 
 // A whole block: its bytes, and back. decode refuses another version (the first byte), a block
 // cut short, a count past BlockReader::kMaxCount, a value outside its R range and bytes after

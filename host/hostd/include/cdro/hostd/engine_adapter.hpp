@@ -11,9 +11,14 @@
 //                       does not hold: link windows, update counts, the frame, the counters;
 //                       with a robot, a second block (kMovementExtensionTag): the movement
 //                       stage's EKF hypotheses, beacon SoGs and link watches, exactly; both
-//                       laid out by checkpoint_layout.def (cdro/hostd/checkpoint_blocks.hpp)
+//                       laid out by checkpoint_layout.def (cdro/hostd/checkpoint_blocks.hpp);
+//                       with nodes tracked in 3D (map.moving), a third (kFlightExtensionTag):
+//                       the 3D tracks' whole state, doubles exactly, so that they go on as if
+//                       never stopped
 //
-// The 3D tracks are not in checkpoints: on a resume they restart from their next ranges (logged).
+// A checkpoint without the 3D tracks (written by an older cdro-hostd, or without map.moving), or
+// whose tracks are of other nodes than map.moving, is resumed with a warning naming the nodes;
+// those tracks restart from their next ranges.
 // Resuming from a checkpoint continues from the state rounded to the layout's scales
 // (positions to 0.5 mm, standard deviations to 0.5 um, weights to 7.7e-6, ranges in the link
 // windows to 0.5 mm) and with an empty neighbour-update queue; docs/service.md states the
@@ -41,7 +46,8 @@ namespace cdro::hostd {
 // The tags are defined with every other in common/include/cdro/checkpoint_layout.def.
 constexpr uint16_t kEngineExtensionTag = CDRO_CHECKPOINT_TAG_ENGINE;
 constexpr uint16_t kMovementExtensionTag =
-    CDRO_CHECKPOINT_TAG_MOVEMENT; // the movement stage, when a robot is configured
+    CDRO_CHECKPOINT_TAG_MOVEMENT;                                    // the movement stage, when a robot is configured
+constexpr uint16_t kFlightExtensionTag = CDRO_CHECKPOINT_TAG_FLIGHT; // the 3D tracks, with map.moving
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,
@@ -69,6 +75,8 @@ public:
     // CheckpointProvider
     service::SogSnapshot snapshot() override;
     void restore(const service::SogSnapshot &snapshot) override;
+    // The nodes tracked in 3D whose tracks the checkpoint held (started ones).
+    std::vector<uint16_t> restoredNodes() const override;
 
     uint64_t rangesRefused() const { return ranges_refused_; }
     int64_t lastEventUnixUs() const { return last_event_unix_us_; }
@@ -89,5 +97,15 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot); 
 // another robot is refused (CheckpointError).
 std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement);
 void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot &snapshot);
+// The 3D tracks' block (tag kFlightExtensionTag): their whole state, doubles exactly.
+std::vector<uint8_t> flightBlockOf(const engine::Engine &engine);
+// Restores the tracks of the nodes of `moving` (tracked in the engine already) that the
+// checkpoint holds; returns a warning for each mismatch, naming the nodes: no block (the tracks
+// restart), tracks of nodes not in `moving` (dropped), nodes of `moving` without a track (they
+// restart), other rigid bodies (the configured ones apply), other anchors than the fixed nodes
+// of known height given now (the checkpoint's are kept). A damaged block, or one whose state
+// does not fit together, is refused (CheckpointError).
+std::vector<std::string> restoreFlight(engine::Engine &engine, const std::vector<uint16_t> &moving,
+                                       const service::SogSnapshot &snapshot);
 
 } // namespace cdro::hostd

@@ -67,6 +67,9 @@ public:
     virtual SogSnapshot snapshot() = 0;
     // Replaces the engine state; called before any frame is delivered.
     virtual void restore(const SogSnapshot &snapshot) = 0;
+    // After restore(): the node ids the restored state holds beyond the snapshot's SOG_NODE
+    // records (nodes tracked outside the static map), known to the intake as those are.
+    virtual std::vector<uint16_t> restoredNodes() const { return {}; }
 };
 
 std::vector<uint8_t> encodeSnapshot(const SogSnapshot &snapshot);                        // throws CheckpointError
