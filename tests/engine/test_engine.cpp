@@ -266,9 +266,9 @@ TEST(Engine, TheWorkerThreadsSolveIsAdoptedAtTheSameRangeWhateverItsTiming)
     EXPECT_EQ(std::memcmp(&counters_a, &counters_b, sizeof(engine::EngineCounters)), 0);
 }
 
-// The steady state costs no global solve: once the links are known and their medians only
-// flicker (noise within a full window), the solve is not run again, however many ranges come;
-// while the ranges still change the links (a link reading 2 m longer from now on), it is.
+// The steady state costs no global solve: once the links are known and a solve has seen their
+// windows full, their medians only flicker and the solve is not run again, however many ranges
+// come; while the ranges still change the links (a link reading 0.4 m longer from now on), it is.
 TEST(Engine, TheSteadyStateRunsNoGlobalSolveUntilTheRangesChange)
 {
     CDRO_SKIP_WHEN_SANITIZED();

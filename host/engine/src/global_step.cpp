@@ -24,6 +24,11 @@ constexpr double kUnheardRadiusShare = 0.5;
 // about a third of the noise: twice the noise is a change, not flicker).
 constexpr double kChangedLinkShare = 0.1;
 constexpr double kChangedSigmas = 2.0;
+// Once the ranges behind the last full solve have doubled, their medians have settled further than
+// the flicker test sees, and the map they support may be another one (settle() finds it offline; a
+// live run never settles): one more solve from every start, until a solve has seen the links'
+// windows full. Geometric, so a handful in any run.
+constexpr double kMaturedRanges = 2.0;
 // Whether the nodes to solve changed (a carried node settled) is looked at this many times a sweep
 // of the network: a node that stopped waits for the solve that takes it back in (convergence needs
 // it), so a quarter sweep plus the adoption's lag, not a whole sweep. It costs a pass over the
@@ -229,7 +234,18 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
         return false;
     }
     schedule_.ranges_at_check = ranges_received;
-    return linksChanged(map, kChangedSigmas * params_.range.sigma_m);
+    return matured(ranges_received) || linksChanged(map, kChangedSigmas * params_.range.sigma_m);
+}
+
+bool GlobalStep::matured(uint64_t ranges_received) const
+{
+    // Only while the links' windows were not yet full at that solve (on average): once they were,
+    // more ranges only make their medians flicker.
+    const double full_windows_ranges =
+        static_cast<double>(schedule_.links_at_full) * static_cast<double>(params_.range.window);
+    const auto at_full = static_cast<double>(schedule_.ranges_at_full);
+    return schedule_.ranges_at_full > 0 && at_full < full_windows_ranges &&
+           static_cast<double>(ranges_received) >= kMaturedRanges * at_full;
 }
 
 bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_received) const
@@ -247,8 +263,8 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settl
     job->built = mapProblemOf(map, params_, ranges_received);
     const MapProblem &problem = job->built.problem;
     job->settling = settling;
-    job->refresh =
-        !settling && problem.links.size() == schedule_.links_at_full && problem.nodeCount() == schedule_.nodes_at_full;
+    job->refresh = !settling && problem.links.size() == schedule_.links_at_full &&
+                   problem.nodeCount() == schedule_.nodes_at_full && !matured(ranges_received);
     if (job->refresh) {
         ++counters_.solve_refreshes;
     } else {

@@ -5,10 +5,12 @@
 // have grown by as much and a tenth of the links' ranges have moved by more than twice the noise
 // since the solve last saw them (looked at once a sweep of the network: the medians improve for a while
 // after the last link appeared; once they only flicker, in the steady state, nothing is solved
-// again); once more when no link has appeared
+// again but once each time the ranges reach twice those of the last full solve, until one has seen
+// the links' windows full: a live run never settles); once more when no link has appeared
 // for `quiet_ranges_per_link` ranges per link; and at settle() when ranges arrived since. Only
 // ever at these points of the range stream, so a replay gives the same estimates.
-// Full or refresh: a solve on the same links and nodes as the last full solve starts from the
+// Full or refresh: a solve on the same links and nodes as the last full solve, before the ranges
+// have doubled since, starts from the
 // current map alone (every start was tried on these links; only their ranges changed) and keeps
 // what the full solve found disputed; settle() runs a full solve whenever ranges arrived since one.
 // The problem: the placed or placeable nodes that are not moving, numbered by id, their links'
@@ -98,6 +100,9 @@ public:
     // new link, the nodes to solve changed: a carry settled).
     bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received);
     // At settle(): whether ranges arrived since the last run.
+    // The ranges behind the last full solve have doubled since (kMaturedRanges), and that solve
+    // saw the links' windows not yet full.
+    bool matured(uint64_t ranges_received) const;
     bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;
 
     struct Outcome {
