@@ -6,7 +6,9 @@ maps the test writes, so that every value is known: two 3D nodes at seeded heigh
 dots and bars are checked in SVG coordinates against the axis the panel draws (its z lines and
 their labels) and against the top view (same x). A planar map has no side panel; partial data
 (a 3D node without its variance, with null values, one that goes from unplaced to tracked,
-hundreds of nodes) is drawn without breaking the page.
+hundreds of nodes) is drawn without breaking the page. End to end, cdro-hostd replaying a
+simulated flight with --moving (test_live_moving.py's) serves a page whose side view holds the
+two tags at the heights of the map it drew.
 """
 from __future__ import annotations
 
@@ -16,17 +18,20 @@ import math
 import os
 import pathlib
 import random
+import subprocess
+import sys
 import threading
 import urllib.request
 
 import pytest
 
-from service_support import Harness, wait_until
+from service_support import Harness, free_port, wait_until
 from test_live_map_browser import WebDriver
 
 ANCHORS = {0x6001: (0.0, 0.0, 0.3), 0x6002: (8.0, 0.0, 2.6), 0x6003: (8.0, 6.0, 0.3), 0x6004: (0.0, 6.0, 2.6)}
 PLANAR = 0x6005  # a static node whose height is not known: in neither view's height display
 TAGS = (0x6A01, 0x6A02)  # tracked in 3D
+HOSTD_TESTS = pathlib.Path(__file__).resolve().parents[1] / "hostd"  # the simulated flight's makers
 PAGE_FILES = {"/": "text/html", "/app.js": "text/javascript", "/style.css": "text/css"}
 
 
@@ -357,3 +362,55 @@ def test_side_view_copes_with_partial_data_and_many_nodes(served):
     show(server, browser, a_map(4.0, anchors + [node(first, placed=False), node(second, placed=False)]))
     state = browser.run(SIDE_STATE)
     assert state["hidden"] and state["dots"] == [] and state["height_px"] == 0
+
+
+def test_side_view_of_cdro_hostd_tracking_two_tags_in_3d(build_dir, tmp_path, browser):
+    hostd = build_dir / "bin" / "cdro-hostd"
+    assert hostd.exists(), f"{hostd} missing: build the native tree first"
+    sys.path.insert(0, str(HOSTD_TESTS))
+    from test_live_moving import write_capture
+    from test_offline_moving import TAGS as FLIGHT_TAGS
+    from test_offline_moving import write_flight
+
+    # A flight long enough that the page is read while it is replayed at its own pace.
+    folder = write_flight(tmp_path, seed_of(21), duration_s=300.0)
+    capture = write_capture(folder)
+    port = free_port()
+    log = open(folder / "hostd.log", "w")
+    command = [hostd, "--replay", capture, "--speed", "1", "--jsonl", folder / "o.jsonl", "--http-port", port,
+               "--checkpoint", "", "--capture", "", "--fixed-csv", folder / "anchors.csv",
+               "--heights-csv", folder / "heights.csv", "--moving", ",".join(map(str, FLIGHT_TAGS))]
+    process = subprocess.Popen(list(map(str, command)), stdout=subprocess.DEVNULL, stderr=log, cwd=folder)
+    try:
+        def page_served():
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/map", timeout=5) as response:
+                    return response.status == 200
+            except OSError:
+                assert process.poll() is None, (folder / "hostd.log").read_text()
+                return False
+
+        wait_until(page_served, "cdro-hostd's live map")
+        browser.get(f"http://127.0.0.1:{port}/")
+        browser.wait("return document.querySelectorAll('#side-nodes g.side-node').length === 2", "the tags' dots")
+        # The DOM and the map it was drawn from, read together (the page draws a map at once).
+        got = browser.run("const state = (() => {" + SIDE_STATE + "})();"
+                          "return {state: state, map: window.cdroLiveMap.map()};")
+    finally:
+        process.terminate()
+        process.wait(timeout=30)
+        log.close()
+    state, nodes = got["state"], {n["id"]: n for n in got["map"]["nodes"]}
+    assert not state["hidden"]
+    scale, ground = axis_of(state)
+    assert sorted(dot["id"] for dot in state["dots"]) == sorted(FLIGHT_TAGS)
+    assert sorted(bar["id"] for bar in state["bars"]) == sorted(FLIGHT_TAGS)
+    for dot in state["dots"]:
+        n = nodes[dot["id"]]
+        assert n["moving"] and n["placed"] and n["var_z_m2"] > 0
+        print(f"0x{n['id']:04X}: z {n['z_m']:.3f} m, 2-sigma {2 * math.sqrt(n['var_z_m2']):.3f} m")
+        assert dot["cy"] == pytest.approx(ground - n["z_m"] * scale, abs=1e-6)
+        assert dot["cx"] == pytest.approx(state["top"][str(n["id"])]["cx"], abs=1e-6)
+        assert state["top"][str(n["id"])]["badge"] == "3D"
+        bar = next(b for b in state["bars"] if b["id"] == n["id"])
+        assert bar["y2"] - bar["y1"] == pytest.approx(4 * math.sqrt(n["var_z_m2"]) * scale, abs=1e-6)

@@ -92,6 +92,7 @@ function makeView(map) {
 window.cdroLiveMap = {
   view: () => ({ follow: viewState.follow, center_x_m: viewState.cx, center_y_m: viewState.cy,
                  scale_px_per_m: viewState.scale, width_px: WIDTH, height_px: HEIGHT }),
+  map: () => lastMap, // the map drawn now (/api/map's object)
 };
 
 // The nicest step of 1, 2 or 5 x 10^k metres that is at least min_px on screen.
