@@ -25,6 +25,12 @@ const REASONS = {
   'unsettled': 'its estimate is still moving',
 };
 
+function finite(value) { return typeof value === 'number' && Number.isFinite(value); }
+
+// A node the map can draw: placed, with a position (null or a non-number is drawn as not placed
+// rather than breaking the page).
+function hasPosition(n) { return n.placed && finite(n.x_m) && finite(n.y_m); }
+
 // Ids as the service writes them in `id_hex` and in its logs (docs/outputs.md, "Node ids").
 function hexId(id) { return '0x' + id.toString(16).toUpperCase().padStart(4, '0'); }
 function nodeLabel(n) { return n.id_hex || hexId(n.id); }
@@ -48,7 +54,7 @@ const MIN_SCALE = 0.5, MAX_SCALE = 5000; // px/m
 function fitView(map) {
   let xs = [], ys = [];
   for (const n of map.nodes) {
-    if (!n.placed) continue;
+    if (!hasPosition(n)) continue;
     const s = 2 * Math.sqrt(Math.max(n.var_x_m2, n.var_y_m2, 0));
     xs.push(n.x_m - s, n.x_m + s); ys.push(n.y_m - s, n.y_m + s);
   }
@@ -86,6 +92,7 @@ function makeView(map) {
 window.cdroLiveMap = {
   view: () => ({ follow: viewState.follow, center_x_m: viewState.cx, center_y_m: viewState.cy,
                  scale_px_per_m: viewState.scale, width_px: WIDTH, height_px: HEIGHT }),
+  map: () => lastMap, // the map drawn now (/api/map's object)
 };
 
 // The nicest step of 1, 2 or 5 x 10^k metres that is at least min_px on screen.
@@ -198,7 +205,7 @@ function remember(map) {
     if (!samePoint(robotTrail[robotTrail.length - 1], p)) pushBounded(robotTrail, p, ROBOT_TRAIL_POINTS);
   }
   for (const n of map.nodes) {
-    if (!n.placed) continue;
+    if (!hasPosition(n)) continue;
     const p = [n.x_m, n.y_m];
     let trail = nodeTrails.get(n.id);
     if (n.moving || n.status === 'settling') {
@@ -281,6 +288,94 @@ function renderLinkTable(links) {
   }
 }
 
+// ---- side view: the height of the nodes tracked in 3D ---------------------------------------
+// x as on the map (the same transform, so a node's dot sits right under its circle), z up from
+// the ground with its own scale fitted to the heights and their 2-sigma bars. The SVG carries
+// that scale in data-z-scale-px-per-m and the ground's row in data-ground-px, so that a test
+// can check what is drawn against it.
+const SIDE_HEIGHT = 200, SIDE_TOP = 14, SIDE_BOTTOM = 16; // px of the side view's viewBox
+const tracked3d = new Set(); // ids of the nodes seen with a 3D track's keys (var_z_m2)
+
+// A node tracked in 3D (the configuration's moving list) carries var_z_m2 once placed; one seen
+// with it stays a 3D node on this page, so a map that lacks the key for it still draws it as one
+// (without its bar). Known heights alone (heights CSV) do not make a node 3D.
+function isTracked3d(n) {
+  if ('var_z_m2' in n) tracked3d.add(n.id);
+  return tracked3d.has(n.id);
+}
+
+// Half the 2-sigma interval of z (m), or null where the variance is not known.
+function twoSigmaZ(n) { return finite(n.var_z_m2) && n.var_z_m2 >= 0 ? 2 * Math.sqrt(n.var_z_m2) : null; }
+
+function heightText(n) {
+  const bar = twoSigmaZ(n);
+  return bar === null ? `z ${n.z_m.toFixed(2)} m (2-sigma not known)` : `z ${n.z_m.toFixed(2)} ± ${bar.toFixed(2)} m`;
+}
+
+function onSideView(n) { return hasPosition(n) && finite(n.z_m); }
+
+function drawSideView(view, map) {
+  const panel = document.getElementById('side-panel');
+  const tracks = [], others = [];
+  for (const n of map.nodes) {
+    if (!onSideView(n)) continue;
+    (isTracked3d(n) ? tracks : others).push(n);
+  }
+  const grid = clear('side-grid'), ticks = clear('side-static'), bars = clear('side-bars');
+  const dots = clear('side-nodes'), labels = clear('side-labels');
+  panel.hidden = tracks.length === 0;
+  if (panel.hidden) return;
+
+  // The heights shown: the ground, every dot with its bar, every tick.
+  let z0 = 0, z1 = 0;
+  for (const n of tracks.concat(others)) {
+    const bar = twoSigmaZ(n) || 0;
+    z0 = Math.min(z0, n.z_m - bar); z1 = Math.max(z1, n.z_m + bar);
+  }
+  if (z1 - z0 < 1) z1 = z0 + 1;
+  const pad = 0.05 * (z1 - z0);
+  z0 -= pad; z1 += pad;
+  const zScale = (SIDE_HEIGHT - SIDE_TOP - SIDE_BOTTOM) / (z1 - z0); // px/m
+  const zPx = (z) => SIDE_HEIGHT - SIDE_BOTTOM - (z - z0) * zScale;
+  const svg = document.getElementById('side');
+  svg.dataset.zScalePxPerM = String(zScale);
+  svg.dataset.groundPx = String(zPx(0));
+
+  // Vertical lines where the map has its own, so the two views read alike.
+  const xStep = niceStep(view.scale, 60); // m
+  for (let k = Math.ceil(view.worldX(0) / xStep); k <= Math.floor(view.worldX(WIDTH) / xStep); ++k) {
+    const px = view.x(k * xStep);
+    el('line', { class: 'grid', x1: px, y1: 0, x2: px, y2: SIDE_HEIGHT }, grid);
+  }
+  const zStep = niceStep(zScale, 30); // m
+  // Labels with the step's decimals: 1.5 m on a 0.5 m step must not read 2 m.
+  const zDigits = Math.max(0, -Math.floor(Math.log10(zStep)));
+  for (let k = Math.ceil(z0 / zStep); k <= Math.floor(z1 / zStep); ++k) {
+    const py = zPx(k * zStep);
+    el('line', { class: k === 0 ? 'side-z-line side-ground' : 'grid side-z-line', 'data-z-m': k * zStep,
+      x1: 0, y1: py, x2: WIDTH, y2: py }, grid);
+    el('text', { class: 'grid-label side-z-label', x: 2, y: py - 2, 'data-z-m': k * zStep }, labels).textContent =
+      k === 0 ? 'ground, z = 0 m' : `z ${(k * zStep).toFixed(zDigits)} m`;
+  }
+
+  for (const n of others) {
+    const px = view.x(n.x_m), py = zPx(n.z_m);
+    const tick = el('line', { class: 'side-static', 'data-id': n.id, x1: px - 6, y1: py, x2: px + 6, y2: py }, ticks);
+    el('title', {}, tick).textContent = `${nodeLabel(n)}: z ${n.z_m.toFixed(3)} m`;
+  }
+  for (const n of tracks) {
+    const px = view.x(n.x_m), py = zPx(n.z_m), bar = twoSigmaZ(n);
+    if (bar !== null) {
+      el('line', { class: 'side-sigma2', 'data-id': n.id, 'data-two-sigma-m': bar,
+        x1: px, y1: zPx(n.z_m + bar), x2: px, y2: zPx(n.z_m - bar) }, bars);
+    }
+    const g = el('g', { class: n.id === selectedId ? 'side-node selected' : 'side-node', 'data-id': n.id }, dots);
+    el('circle', { cx: px, cy: py, r: 5 }, g);
+    el('text', { x: px + 8, y: py - 6 }, g).textContent = nodeLabel(n);
+    el('title', {}, g).textContent = `${nodeLabel(n)}: ${heightText(n)}`;
+  }
+}
+
 function render(map) {
   lastMap = map;
   const view = makeView(map);
@@ -291,7 +386,7 @@ function render(map) {
   const links = clear('links');
   for (const l of map.links) {
     const a = byId.get(l.a), b = byId.get(l.b);
-    if (!a || !b || !a.placed || !b.placed) continue;
+    if (!a || !b || !hasPosition(a) || !hasPosition(b)) continue;
     const line = el('line', { class: `link ${residualClass(l)}`, 'data-a': l.a, 'data-b': l.b,
       'data-residual-m': typeof l.residual_m === 'number' ? l.residual_m : '',
       x1: view.x(a.x_m), y1: view.y(a.y_m), x2: view.x(b.x_m), y2: view.y(b.y_m) }, links);
@@ -304,18 +399,23 @@ function render(map) {
   const nodes = clear('nodes');
   const unplaced = [];
   for (const n of map.nodes) {
-    if (!n.placed) { unplaced.push(n); continue; }
+    if (!hasPosition(n)) { unplaced.push(n); continue; }
     drawEllipse(ellipses, view, n.x_m, n.y_m, n.var_x_m2, n.cov_xy_m2, n.var_y_m2, 2, 'sigma2').setAttribute('data-id', n.id);
     const cls = ['node'];
     if (n.converged) cls.push('converged');
     if (n.moving) cls.push('moving');
     if (n.foldable) cls.push('foldable');
     if (n.id === selectedId) cls.push('selected');
+    const in3d = isTracked3d(n);
+    if (in3d) cls.push('tracked-3d');
     const g = el('g', { class: cls.join(' '), 'data-id': n.id, 'data-reason': n.reason || '' }, nodes);
     el('circle', { cx: view.x(n.x_m), cy: view.y(n.y_m), r: 7 }, g);
     el('text', { x: view.x(n.x_m) + 10, y: view.y(n.y_m) - 10 }, g).textContent = nodeLabel(n);
-    el('title', {}, g).textContent = `${nodeLabel(n)}: x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m` +
-      (n.z_m !== null && n.z_m !== undefined ? `, z ${n.z_m.toFixed(3)} m` : '') +
+    if (in3d) el('text', { class: 'badge-3d', x: view.x(n.x_m) + 10, y: view.y(n.y_m) + 16 }, g).textContent = '3D';
+    let height = '';
+    if (finite(n.z_m)) height = in3d ? `, ${heightText(n)}` : `, z ${n.z_m.toFixed(3)} m`;
+    else if (in3d) height = ', z not known yet';
+    el('title', {}, g).textContent = `${nodeLabel(n)}: x ${n.x_m.toFixed(3)} m, y ${n.y_m.toFixed(3)} m${height}` +
       (n.reason ? ` - not converged: ${REASONS[n.reason] || n.reason}` : '') +
       (typeof n.t_updated_unix_s === 'number' && typeof map.t_unix_s === 'number'
         ? ` (estimate changed ${(map.t_unix_s - n.t_updated_unix_s).toFixed(1)} s ago)` : '');
@@ -336,6 +436,7 @@ function render(map) {
 
   drawComponents(view);
   drawScaleBar(view);
+  drawSideView(view, map);
   drawSigmaChart();
   renderLinkTable(map.links);
   renderHealth(map.health);
