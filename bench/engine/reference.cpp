@@ -97,7 +97,7 @@ static int runMain(int argc, char **argv)
             }
             node.lifecycle = engine::NodeLifecycle::Placed;
         }
-        const engine::StateProblem built = engine::mapProblemOf(map, params, intake.counters().ranges_received);
+        const engine::StateProblem built = engine::mapProblemOf(map, params, intake.counters().taken());
         const engine::MapProblem &problem = built.problem;
         engine::MapEstimate estimate = engine::MapEstimate::unplaced(problem.nodeCount());
         for (uint32_t i = 0; i < problem.nodeCount(); ++i) {

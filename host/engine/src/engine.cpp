@@ -183,7 +183,7 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
     if (global_.adoptionDue()) {
         adoptGlobalSolve();
     }
-    if (global_.dueAfterRange(map_, taken.new_link, intake_.counters().ranges_received) && !global_.pending()) {
+    if (global_.dueAfterRange(map_, taken.new_link, intake_.counters().taken()) && !global_.pending()) {
         startGlobalSolve(false);
         if (global_.adoptionDue()) {
             adoptGlobalSolve(); // solved in this thread
@@ -256,7 +256,7 @@ void Engine::startGlobalSolve(bool settling)
     if (!frame_.applied()) {
         frame_.apply(map_);
     }
-    global_.start(map_, intake_.counters().ranges_received, settling);
+    global_.start(map_, intake_.counters().taken(), settling);
 }
 
 void Engine::adoptGlobalSolve()
@@ -434,7 +434,7 @@ uint64_t Engine::settle(uint64_t max_updates)
     if (global_.pending()) {
         adoptGlobalSolve();
     }
-    if (global_.dueAtSettle(map_, intake_.counters().ranges_received)) {
+    if (global_.dueAtSettle(map_, intake_.counters().taken())) {
         startGlobalSolve(true);
         adoptGlobalSolve();
     }

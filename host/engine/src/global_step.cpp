@@ -73,7 +73,7 @@ MapEstimate filterMapOf(const MapState &map, const StateProblem &built)
 
 } // namespace
 
-StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_received)
+StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_taken)
 {
     StateProblem out;
     std::vector<std::pair<NodeId, uint32_t>> by_id;
@@ -95,7 +95,7 @@ StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint6
         const NodeState &state = map.nodes[node];
         problem.fixed.push_back(state.fixed() || state.pinned() ? 1 : 0);
         problem.fixed_position_m.push_back(state.position_m);
-        const double listened = static_cast<double>(ranges_received - std::min(ranges_received, state.first_range));
+        const double listened = static_cast<double>(ranges_taken - std::min(ranges_taken, state.first_range));
         problem.listens.push_back(listened >= kListenSweeps * static_cast<double>(map.links.size()) ? 1 : 0);
     }
     for (const LinkState &link : map.links) {
@@ -195,7 +195,7 @@ void GlobalStep::markSolved(MapState &map)
     }
 }
 
-bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received)
+bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_taken)
 {
     const SolveParams &solve = params_.solve;
     if (!enabled()) {
@@ -223,21 +223,21 @@ bool GlobalStep::dueAfterRange(const MapState &map, bool new_link, uint64_t rang
     // brings links: the growth rules above see it.) Looked at kSolvableChecksPerSweep times a
     // sweep, at fixed points of the range stream.
     const uint64_t check_every = std::max<uint64_t>(map.links.size() / kSolvableChecksPerSweep, 1U);
-    if (ranges_received % check_every == 0 && map.links.size() == schedule_.links_at_last &&
+    if (ranges_taken % check_every == 0 && map.links.size() == schedule_.links_at_last &&
         solvableNodes(map) != schedule_.nodes_at_full) {
         return true;
     }
     // The ranges have grown: solve again if they changed the links, looked at once a sweep of
     // the network (at fixed points of the range stream, so a resumed engine looks when this one did).
-    if (static_cast<double>(ranges_received) < solve.link_growth * static_cast<double>(schedule_.ranges_at_last) ||
-        static_cast<double>(ranges_received - schedule_.ranges_at_check) < links) {
+    if (static_cast<double>(ranges_taken) < solve.link_growth * static_cast<double>(schedule_.ranges_at_last) ||
+        static_cast<double>(ranges_taken - schedule_.ranges_at_check) < links) {
         return false;
     }
-    schedule_.ranges_at_check = ranges_received;
-    return matured(ranges_received) || linksChanged(map, kChangedSigmas * params_.range.sigma_m);
+    schedule_.ranges_at_check = ranges_taken;
+    return matured(ranges_taken) || linksChanged(map, kChangedSigmas * params_.range.sigma_m);
 }
 
-bool GlobalStep::matured(uint64_t ranges_received) const
+bool GlobalStep::matured(uint64_t ranges_taken) const
 {
     // Only while the links' windows were not yet full at that solve (on average): once they were,
     // more ranges only make their medians flicker.
@@ -245,32 +245,32 @@ bool GlobalStep::matured(uint64_t ranges_received) const
         static_cast<double>(schedule_.links_at_full) * static_cast<double>(params_.range.window);
     const auto at_full = static_cast<double>(schedule_.ranges_at_full);
     return schedule_.ranges_at_full > 0 && at_full < full_windows_ranges &&
-           static_cast<double>(ranges_received) >= kMaturedRanges * at_full;
+           static_cast<double>(ranges_taken) >= kMaturedRanges * at_full;
 }
 
-bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_received) const
+bool GlobalStep::dueAtSettle(const MapState &map, uint64_t ranges_taken) const
 {
-    return enabled() && ranges_received != schedule_.ranges_at_full && map.links.size() >= params_.solve.min_links;
+    return enabled() && ranges_taken != schedule_.ranges_at_full && map.links.size() >= params_.solve.min_links;
 }
 
-void GlobalStep::start(const MapState &map, uint64_t ranges_received, bool settling)
+void GlobalStep::start(const MapState &map, uint64_t ranges_taken, bool settling)
 {
     schedule_.links_at_last = map.links.size();
-    schedule_.ranges_at_last = ranges_received;
+    schedule_.ranges_at_last = ranges_taken;
 
     ++counters_.solves;
     auto job = std::make_shared<PendingSolve>();
-    job->built = mapProblemOf(map, params_, ranges_received);
+    job->built = mapProblemOf(map, params_, ranges_taken);
     const MapProblem &problem = job->built.problem;
     job->settling = settling;
     job->refresh = !settling && problem.links.size() == schedule_.links_at_full &&
-                   problem.nodeCount() == schedule_.nodes_at_full && !matured(ranges_received);
+                   problem.nodeCount() == schedule_.nodes_at_full && !matured(ranges_taken);
     if (job->refresh) {
         ++counters_.solve_refreshes;
     } else {
         schedule_.links_at_full = problem.links.size();
         schedule_.nodes_at_full = problem.nodeCount();
-        schedule_.ranges_at_full = ranges_received;
+        schedule_.ranges_at_full = ranges_taken;
     }
     GlobalSolveParams solve = solve_;
     solve.only_current = job->refresh;

@@ -22,7 +22,7 @@ uint32_t RangeIntake::node(MapState &map, NodeId id)
     const size_t before = map.nodes.size();
     const uint32_t index = map.addNode(id);
     if (map.nodes.size() != before) {
-        map.nodes[index].first_range = counters_.ranges_received;
+        map.nodes[index].first_range = counters_.taken();
     }
     return index;
 }

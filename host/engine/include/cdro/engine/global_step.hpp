@@ -1,7 +1,7 @@
 // global_step.hpp: the global solve (global_solve.hpp) as a step of the pipeline: when it runs,
 // the plain problem it is given, and how its map is adopted.
 //
-// When: once the links have grown by `link_growth` since the last run; once the ranges received
+// When: once the links have grown by `link_growth` since the last run; once the ranges taken
 // have grown by as much and a tenth of the links' ranges have moved by more than twice the noise
 // since the solve last saw them (looked at once a sweep of the network: the medians improve for a while
 // after the last link appeared; once they only flicker, in the steady state, nothing is solved
@@ -51,12 +51,12 @@ namespace cdro::engine {
 // uninterrupted one would).
 struct SolveSchedule {
     uint64_t links_at_last = 0;  // links at the last solve
-    uint64_t ranges_at_last = 0; // ranges received at the last solve
+    uint64_t ranges_at_last = 0; // ranges taken at the last solve
     uint64_t ranges_since_new_link = 0;
-    uint64_t ranges_at_check = 0; // ranges received when the links were last checked for change
+    uint64_t ranges_at_check = 0; // ranges taken when the links were last checked for change
     uint64_t links_at_full = 0;   // the problem's links and nodes at the last full solve
     uint64_t nodes_at_full = 0;
-    uint64_t ranges_at_full = 0; // ranges received at the last full solve
+    uint64_t ranges_at_full = 0; // ranges taken at the last full solve
     bool operator==(const SolveSchedule &other) const
     {
         return links_at_last == other.links_at_last && ranges_at_last == other.ranges_at_last &&
@@ -83,7 +83,7 @@ struct StateProblem {
     std::vector<uint32_t> node_of; // problem node number -> MapState node index
 };
 
-StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_received);
+StateProblem mapProblemOf(const MapState &map, const EngineParams &params, uint64_t ranges_taken);
 
 class GlobalStep {
 public:
@@ -98,12 +98,12 @@ public:
     // After a range: whether the solve is due (the links grew; the ranges grew by the same
     // factor and changed a share of the links' ranges; the network has been quiet; or, with no
     // new link, the nodes to solve changed: a carry settled).
-    bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_received);
+    bool dueAfterRange(const MapState &map, bool new_link, uint64_t ranges_taken);
     // At settle(): whether ranges arrived since the last run.
     // The ranges behind the last full solve have doubled since (kMaturedRanges), and that solve
     // saw the links' windows not yet full.
-    bool matured(uint64_t ranges_received) const;
-    bool dueAtSettle(const MapState &map, uint64_t ranges_received) const;
+    bool matured(uint64_t ranges_taken) const;
+    bool dueAtSettle(const MapState &map, uint64_t ranges_taken) const;
 
     struct Outcome {
         std::vector<uint32_t> placed;                      // nodes it placed that were not placed
@@ -118,7 +118,7 @@ public:
     // Starts the solve on the map as it stands (on the worker thread, or deferred to adopt() when
     // it runs in the caller's thread). `settling`: the solve of settle(), whose map is the answer:
     // the best, without the margin; it always runs in the caller's thread.
-    void start(const MapState &map, uint64_t ranges_received, bool settling);
+    void start(const MapState &map, uint64_t ranges_taken, bool settling);
     // A solve started and not adopted yet.
     bool pending() const { return pending_ != nullptr; }
     // One more range taken (refused ranges do not count: they change nothing else either).

@@ -122,7 +122,7 @@ struct NodeState {
     uint32_t update_count = 0;                         // merges/refinements since placed (saturating)
     uint32_t placements = 0;                           // times placed (re-placements after an inconsistency count)
     uint32_t waiting_ranges = 0;                       // ranges seen while not placed (placement's patience)
-    uint64_t first_range = 0;                          // ranges the engine had received when the node appeared
+    uint64_t first_range = 0;                          // ranges the engine had taken when the node appeared
     double range_offset_m = 0.0; // m, its radio reads this much long (range_offsets.hpp; the global solve's)
     std::vector<uint32_t> links; // indices into MapState::links, in order of appearance
     MotionMemory motion;

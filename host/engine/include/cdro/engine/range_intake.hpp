@@ -24,6 +24,9 @@ struct RangeIntakeCounters {
     uint64_t rejected_self = 0;
     uint64_t rejected_value = 0;
     uint64_t projection_clamped = 0; // 3D range shorter than the height difference
+    // The ranges taken (received, not rejected): what the global solve's schedule counts, so
+    // that a rejected range changes nothing at all.
+    uint64_t taken() const { return ranges_received - rejected_self - rejected_value; }
 };
 
 struct TakenRange {
