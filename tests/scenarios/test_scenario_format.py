@@ -7,13 +7,12 @@ from __future__ import annotations
 import json
 import math
 import pathlib
-import re
 import subprocess
 import sys
 
 import pytest
 
-from cdro_tools.simulation.scenario import (FAULT_KINDS, FIL_FAULT_KINDS, ScenarioError, from_shared_view,
+from cdro_tools.simulation.scenario import (FAULT_KINDS, FIL_FAULT_KINDS, KEYS, ScenarioError, from_shared_view,
                                             parse_scenario, shared_view)
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -73,26 +72,16 @@ def test_that_both_read_the_shared_scenario_alike(fil_binary):
 
 # Only the required keys: every default of the keys both tools read applies.
 BARE = "own_id: 0x6000\nnodes:\n  - {id: 0x6000, x_m: 0, y_m: 0}\n  - {id: 0x6A01, x_m: 4, y_m: 0}\n"
-DOCS = REPO / "docs" / "tools.md"
 
 
 def documented_defaults() -> dict[str, float]:
-    """The defaults docs/tools.md ("Scenario files") gives the numeric keys both tools read: the
-    Default column of their rows, and the `key` (default) pairs of the accelerometer row."""
-    rows = {}
-    for line in DOCS.read_text().splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) >= 4 and cells[1] == "both":
-            rows[cells[0].strip("`")] = cells
-    out = {}
-    for key in ("duration_s", "seed", "uwb.noise_std_m", "uwb.max_range_m", "pozyx.firmware_version"):
-        assert key in rows, f"docs/tools.md: no row for {key} used by both tools"
-        number = re.match(r"0x[0-9A-Fa-f]+|\d+(\.\d+)?", rows[key][2])
-        assert number, f"docs/tools.md: {key}: no default in {rows[key][2]!r}"
-        out[key] = float(int(number.group(0), 0)) if number.group(0).startswith("0x") else float(number.group(0))
-    for key, value in re.findall(r"`(\w+)` \(([\d.]+)\)", rows["accelerometer"][3]):
-        out[f"accelerometer.{key}"] = float(value)
-    assert len(out) == 8, f"docs/tools.md: defaults found: {out}"
+    """The defaults sim/scenario_keys.def gives the numeric keys both tools read (docs/tools.md's
+    table is generated from it: tests/scenarios/test_scenario_keys.py)."""
+    out = {key: KEYS[key]["default"] for key in ("duration_s", "seed", "uwb.noise_std_m", "uwb.max_range_m",
+                                                  "pozyx.firmware_version", "accelerometer.noise_std_mg",
+                                                  "accelerometer.moving_amplitude_mg",
+                                                  "accelerometer.moving_frequency_hz")}
+    assert all(KEYS[key]["tool"] == "both" for key in out), out
     return out
 
 
@@ -104,7 +93,7 @@ def test_that_both_tools_give_a_key_left_out_the_documented_default(fil_binary, 
     assert sim.returncode == 0, sim.stderr
     fil_json, sim_json = json.loads(fil.stdout), json.loads(sim.stdout)
     assert_same(fil_json, sim_json)
-    # The one table of docs/tools.md, so that both tools moving together fail too.
+    # The one definition of the keys, so that both tools moving together fail too.
     docs = documented_defaults()
     assert_same(sim_json, {
         "name": "bare-office", "seed": docs["seed"], "duration_s": docs["duration_s"], "own_id": 0x6000,
@@ -236,4 +225,5 @@ def test_that_both_say_what_an_earlier_spelling_is_called_now(fil_binary, tmp_pa
 
 def test_that_cdro_sim_refuses_a_duration_of_zero_saying_which_tool_runs_until_stopped():
     with pytest.raises(ScenarioError, match=r"duration_s: only cdro-fil supports 0 \(run until stopped\)"):
-        parse_scenario({"own_id": 1, "duration_s": 0, "nodes": [{"id": 1, "x_m": 0, "y_m": 0}]}, "test")
+        parse_scenario({"own_id": 1, "duration_s": 0, "nodes": [{"id": 1, "x_m": 0, "y_m": 0},
+                                                                {"id": 2, "x_m": 4, "y_m": 0}]}, "test")

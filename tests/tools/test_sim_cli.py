@@ -186,7 +186,8 @@ def test_that_bad_input_exits_non_zero_with_a_clear_message(tmp_path, args, mess
 
 def test_that_a_scenario_with_a_wrong_key_names_the_key(tmp_path):
     path = tmp_path / "bad.yaml"
-    path.write_text("own_id: 0x6001\nnodes:\n  - {id: 0x6001, x_m: 0, y_m: 0, hieght: 2}\n")
+    path.write_text("own_id: 0x6001\nnodes:\n  - {id: 0x6001, x_m: 0, y_m: 0, hieght: 2}\n"
+                    "  - {id: 0x6002, x_m: 4, y_m: 0}\n")
     result = sim("--scenario", path, "--ranges-csv", tmp_path / "r.csv", check=False)
     assert result.returncode == 2 and "nodes[0]: unknown key(s) hieght" in result.stderr
 

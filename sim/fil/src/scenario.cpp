@@ -5,7 +5,6 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <limits>
 #include <map>
 #include <set>
 #include <sstream>
@@ -123,6 +122,20 @@ public:
         throw ScenarioError(where(at, origin_) + ": " + path_ + (key.empty() ? "" : "." + key) + ": " + message);
     }
 
+    // What a key left out reads as: the .def's default, or an error for a required key.
+    double defaultOf(const std::string &key)
+    {
+        used_.insert(key);
+        const ScenarioKey &k = spec(key);
+        if (!std::isnan(k.fallback)) {
+            return k.fallback;
+        }
+        if (k.required()) {
+            fail(node_, key, "missing");
+        }
+        throw std::logic_error("scenario.cpp reads " + pattern(key) + ", which has no default, without a fallback");
+    }
+
     YAML::Node get(const std::string &key)
     {
         used_.insert(key);
@@ -136,13 +149,17 @@ public:
         return static_cast<bool>(lookup[key]);
     }
 
-    double number(const std::string &key, double fallback, double minimum, double maximum, bool required = false)
+    // The key's entry in sim/scenario_keys.def.
+    const ScenarioKey &spec(const std::string &key) const { return scenarioKey(pattern(key)); }
+
+    // A number with the .def's default and range; a required key left out is an error. A key
+    // whose default depends on other keys takes it as `fallback`.
+    double number(const std::string &key) { return has(key) ? number(key, 0.0) : defaultOf(key); }
+
+    double number(const std::string &key, double fallback)
     {
         const YAML::Node item = get(key);
         if (!item) {
-            if (required) {
-                fail(node_, key, "missing");
-            }
             return fallback;
         }
         double value = 0.0;
@@ -151,27 +168,25 @@ public:
         } catch (const YAML::Exception &) {
             fail(item, key, "expected a number, got '" + text(item) + "'");
         }
-        if (!std::isfinite(value) || value < minimum || value > maximum) {
-            std::ostringstream message;
-            message << "must be between " << minimum << " and " << maximum << ", got " << text(item);
-            fail(item, key, message.str());
-        }
+        check(item, key, value);
         return value;
     }
 
-    int64_t integer(const std::string &key, int64_t fallback, int64_t minimum, int64_t maximum, bool required = false)
+    int64_t integer(const std::string &key)
+    {
+        return has(key) ? integer(key, 0) : static_cast<int64_t>(defaultOf(key));
+    }
+
+    int64_t integer(const std::string &key, int64_t fallback)
     {
         const YAML::Node item = get(key);
         if (!item) {
-            if (required) {
-                fail(node_, key, "missing");
-            }
             return fallback;
         }
-        return integerOf(item, key, minimum, maximum);
+        return integerOf(item, key);
     }
 
-    int64_t integerOf(const YAML::Node &item, const std::string &key, int64_t minimum, int64_t maximum) const
+    int64_t integerOf(const YAML::Node &item, const std::string &key) const
     {
         int64_t value = 0;
         try {
@@ -179,19 +194,43 @@ public:
         } catch (const YAML::Exception &) {
             fail(item, key, "expected an integer (decimal or 0x hex), got '" + text(item) + "'");
         }
-        if (value < minimum || value > maximum) {
-            fail(item, key,
-                 "must be between " + std::to_string(minimum) + " and " + std::to_string(maximum) + ", got " +
-                     text(item));
-        }
+        check(item, key, static_cast<double>(value));
         return value;
     }
 
-    bool boolean(const std::string &key, bool fallback)
+    // A value outside the .def's range, in the words cdro-sim uses.
+    void check(const YAML::Node &item, const std::string &key, double value) const
+    {
+        const ScenarioKey &k = spec(key);
+        if (!k.admits(value)) {
+            fail(item, key, "must be " + k.requirement() + ", got " + text(item));
+        }
+    }
+
+    // A key whose need depends on other keys (a power_off's node and duration_s): the key, if given.
+    const std::string &require(const std::string &key) const
+    {
+        if (!has(key)) {
+            fail(node_, key, "missing");
+        }
+        return key;
+    }
+
+    // A list's number of entries, against the .def's range.
+    void count(const YAML::Node &list, const std::string &key) const
+    {
+        const ScenarioKey &k = spec(key);
+        if (!k.admits(static_cast<double>(list.size()))) {
+            fail(list, key,
+                 "the number of entries must be " + k.requirement() + ", got " + std::to_string(list.size()));
+        }
+    }
+
+    bool boolean(const std::string &key)
     {
         const YAML::Node item = get(key);
         if (!item) {
-            return fallback;
+            return spec(key).default_text == "true";
         }
         try {
             return item.as<bool>();
@@ -244,11 +283,8 @@ private:
     std::set<std::string> used_;
 };
 
-uint16_t nodeId(Map &map, const std::string &key, bool required)
-{
-    // 0 is not an address and 0xFFFF is the UWB broadcast (and the firmware's "no Pozyx" id).
-    return static_cast<uint16_t>(map.integer(key, 0, 1, 0xFFFE, required));
-}
+// An id key: its range (1..0xFFFE) is the .def's.
+uint16_t nodeId(Map &map, const std::string &key) { return static_cast<uint16_t>(map.integer(key)); }
 
 std::vector<Vec3> waypoints(Map &map, const std::string &key, double default_z_m)
 {
@@ -268,8 +304,9 @@ std::vector<Vec3> waypoints(Map &map, const std::string &key, double default_z_m
             } catch (const YAML::Exception &) {
                 map.fail(point[i], key, "waypoint coordinate '" + text(point[i]) + "' is not a number");
             }
-            if (!std::isfinite(v[i]) || std::fabs(v[i]) > 1000.0) {
-                map.fail(point[i], key, "waypoint coordinates must be within +-1000 m");
+            if (!std::isfinite(v[i]) || !map.spec(key).admits(v[i])) {
+                map.fail(point[i], key,
+                         "each coordinate must be " + map.spec(key).requirement() + ", got " + text(point[i]));
             }
         }
         points.push_back({v[0], v[1], v[2]});
@@ -292,6 +329,35 @@ double pathLength(const Vec3 &from, const std::vector<Vec3> &points)
 } // namespace
 
 const char *faultKindName(FaultKind kind) { return kFaultNames[static_cast<int>(kind)]; }
+
+bool ScenarioKey::admits(double value) const
+{
+    using scenario_keys::Bounds;
+    const bool open_min = bounds == Bounds::OPEN_MIN || bounds == Bounds::OPEN;
+    const bool open_max = bounds == Bounds::OPEN_MAX || bounds == Bounds::OPEN;
+    return std::isfinite(value) && (open_min ? value > minimum : value >= minimum) &&
+           (open_max ? value < maximum : value <= maximum);
+}
+
+std::string ScenarioKey::requirement() const
+{
+    using scenario_keys::Bounds;
+    const bool open_min = bounds == Bounds::OPEN_MIN || bounds == Bounds::OPEN;
+    const bool open_max = bounds == Bounds::OPEN_MAX || bounds == Bounds::OPEN;
+    const std::string low(minimum_text);
+    const std::string high(maximum_text);
+    const std::string in_unit = unit.empty() ? "" : " " + std::string(unit);
+    if (low != "-INF" && high != "INF") {
+        return "in " + std::string(open_min ? "(" : "[") + low + ", " + high + (open_max ? ")" : "]") + in_unit;
+    }
+    if (low != "-INF") {
+        return std::string(open_min ? "above " : "at least ") + low + in_unit;
+    }
+    if (high != "INF") {
+        return std::string(open_max ? "below " : "at most ") + high + in_unit;
+    }
+    return "a finite number";
+}
 
 const NodeSpec *Scenario::node(uint16_t id) const
 {
@@ -319,33 +385,30 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     Map top(root, "scenario", origin);
     s.name = top.string("name", std::filesystem::path(origin).stem().string());
     s.description = top.string("description", "");
-    s.seed = static_cast<uint64_t>(top.integer("seed", 1, 0, std::numeric_limits<int64_t>::max()));
-    s.duration_s = top.number("duration_s", s.duration_s, 0.0, 1e6);
+    s.seed = static_cast<uint64_t>(top.integer("seed"));
+    s.duration_s = top.number("duration_s");
 
     // ---- nodes
     const YAML::Node nodes = top.get("nodes");
-    if (!nodes || !nodes.IsSequence() || nodes.size() < 2) {
-        top.fail(nodes ? nodes : root, "nodes", "expected a list of at least 2 nodes (the shield's and remote ones)");
+    if (!nodes || !nodes.IsSequence()) {
+        top.fail(nodes ? nodes : root, "nodes", "expected a list of nodes (the shield's and remote ones)");
     }
-    if (nodes.size() > POZYX_SIM_MAX_NODES) {
-        top.fail(nodes, "nodes",
-                 "at most " + std::to_string(POZYX_SIM_MAX_NODES) + " nodes, got " + std::to_string(nodes.size()));
-    }
+    top.count(nodes, "nodes");
     for (size_t i = 0; i < nodes.size(); ++i) {
         Map n(nodes[i], "nodes[" + std::to_string(i) + "]", origin);
         NodeSpec spec;
-        spec.id = nodeId(n, "id", true);
-        spec.accelerometer = n.boolean("accelerometer", false);
-        spec.position.x_m = n.number("x_m", 0.0, -1000.0, 1000.0, true);
-        spec.position.y_m = n.number("y_m", 0.0, -1000.0, 1000.0, true);
-        spec.position.z_m = n.number("z_m", 0.0, -1000.0, 1000.0);
+        spec.id = nodeId(n, "id");
+        spec.accelerometer = n.boolean("accelerometer");
+        spec.position.x_m = n.number("x_m");
+        spec.position.y_m = n.number("y_m");
+        spec.position.z_m = n.number("z_m");
         n.finish();
         if (s.node(spec.id) != nullptr) {
             n.fail(nodes[i], "id", "node id " + std::to_string(spec.id) + " is listed twice");
         }
         s.nodes.push_back(spec);
     }
-    s.own_id = nodeId(top, "own_id", true);
+    s.own_id = nodeId(top, "own_id");
     if (s.node(s.own_id) == nullptr) {
         top.fail(top.get("own_id"), "own_id", "node " + std::to_string(s.own_id) + " is not in nodes");
     }
@@ -358,19 +421,19 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
         for (size_t i = 0; i < motion.size(); ++i) {
             Map m(motion[i], "motion[" + std::to_string(i) + "]", origin);
             MotionSpec spec;
-            spec.node = nodeId(m, "node", true);
+            spec.node = nodeId(m, "node");
             const NodeSpec *node = s.node(spec.node);
             if (node == nullptr) {
                 m.fail(m.get("node"), "node", "node " + std::to_string(spec.node) + " is not in nodes");
             }
-            spec.start_s = m.number("start_s", 0.0, 0.0, 1e6, true);
+            spec.start_s = m.number("start_s");
             if (m.has("speed_mps") == m.has("end_s")) {
                 m.fail(motion[i], "", "give exactly one of speed_mps and end_s");
             }
             if (m.has("speed_mps")) {
-                spec.speed_mps = m.number("speed_mps", 1.0, 0.01, 20.0, true);
+                spec.speed_mps = m.number("speed_mps");
             } else {
-                spec.end_s = m.number("end_s", 0.0, 0.0, 1e6, true);
+                spec.end_s = m.number("end_s");
                 if (spec.end_s <= spec.start_s) {
                     m.fail(m.get("end_s"), "end_s", "must be after start_s");
                 }
@@ -402,11 +465,12 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                 const double length_m = pathLength(at, m.waypoints);
                 if (m.speed_mps == 0.0) {
                     m.speed_mps = length_m / (m.end_s - m.start_s);
-                    if (m.speed_mps < 0.01 || m.speed_mps > 20.0) {
+                    const ScenarioKey &speed = scenarioKey("motion[].speed_mps");
+                    if (!speed.admits(m.speed_mps)) {
                         std::ostringstream message;
                         message << origin << ": motion[" << i << "].end_s: " << length_m << " m in "
-                                << m.end_s - m.start_s << " s is " << m.speed_mps
-                                << " m/s; the speed must be between 0.01 and 20 m/s";
+                                << m.end_s - m.start_s << " s is " << m.speed_mps << " m/s; the speed must be "
+                                << speed.requirement();
                         throw ScenarioError(message.str());
                     }
                 } else {
@@ -457,18 +521,18 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
                 }
                 f.fail(f.has("kind") ? f.get("kind") : faults[i], "kind", "'" + kind + "' is not one of: " + names);
             }
-            spec.at_s = f.number("at_s", 0.0, 0.0, 1e6, true);
+            spec.at_s = f.number("at_s");
             if (spec.kind == FaultKind::PowerOff) {
-                spec.node = nodeId(f, "node", true);
+                spec.node = nodeId(f, f.require("node"));
                 if (s.node(spec.node) == nullptr) {
                     f.fail(f.get("node"), "node", "node " + std::to_string(spec.node) + " is not in nodes");
                 }
-                spec.duration_s = f.number("duration_s", 0.0, 0.001, 1e6, true);
+                spec.duration_s = f.number(f.require("duration_s"));
                 spec.count = 1;
             } else {
-                spec.count = static_cast<uint32_t>(f.integer("count", 1, 1, 1000000));
+                spec.count = static_cast<uint32_t>(f.integer("count"));
                 if (spec.kind == FaultKind::ErrorCompletion) {
-                    spec.error_code = static_cast<uint8_t>(f.integer("error_code", 0x11, 1, 255));
+                    spec.error_code = static_cast<uint8_t>(f.integer("error_code"));
                 }
             }
             f.finish();
@@ -493,10 +557,9 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     // ---- models (the Pozyx model first: the UWB timings default to its own)
     if (top.has("pozyx")) {
         Map p(top.get("pozyx"), "pozyx", origin);
-        s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i", s.pozyx_who_am_i, 0, 255));
-        s.pozyx_firmware_version =
-            static_cast<uint8_t>(p.integer("firmware_version", s.pozyx_firmware_version, 0, 255));
-        const std::string model = p.string("model", "realistic");
+        s.pozyx_who_am_i = static_cast<uint8_t>(p.integer("who_am_i"));
+        s.pozyx_firmware_version = static_cast<uint8_t>(p.integer("firmware_version"));
+        const std::string model = p.string("model", std::string(scenarioKey("pozyx.model").default_text));
         if (model != "realistic" && model != "ideal") {
             p.fail(p.get("model"), "model", "'" + model + "' is not one of: realistic, ideal");
         }
@@ -516,19 +579,19 @@ Scenario parseScenario(const std::string &yaml_text, const std::string &origin)
     }
     if (top.has("uwb")) {
         Map u(top.get("uwb"), "uwb", origin);
-        s.uwb.noise_std_m = u.number("noise_std_m", s.uwb.noise_std_m, 0.0, 10.0);
-        s.uwb.bias_m = u.number("bias_m", s.uwb.bias_m, -10.0, 10.0);
-        s.uwb.max_range_m = u.number("max_range_m", s.uwb.max_range_m, 0.1, 10000.0);
-        s.uwb.ranging_us = static_cast<uint32_t>(u.integer("ranging_us", s.uwb.ranging_us, 1, 10000000));
-        s.uwb.message_us = static_cast<uint32_t>(u.integer("message_us", s.uwb.message_us, 1, 10000000));
-        s.uwb.processing_us = static_cast<uint32_t>(u.integer("processing_us", s.uwb.processing_us, 0, 10000000));
+        s.uwb.noise_std_m = u.number("noise_std_m");
+        s.uwb.bias_m = u.number("bias_m");
+        s.uwb.max_range_m = u.number("max_range_m");
+        s.uwb.ranging_us = static_cast<uint32_t>(u.integer("ranging_us", s.uwb.ranging_us));
+        s.uwb.message_us = static_cast<uint32_t>(u.integer("message_us", s.uwb.message_us));
+        s.uwb.processing_us = static_cast<uint32_t>(u.integer("processing_us", s.uwb.processing_us));
         u.finish();
     }
     if (top.has("accelerometer")) {
         Map a(top.get("accelerometer"), "accelerometer", origin);
-        s.accel.noise_std_mg = a.number("noise_std_mg", s.accel.noise_std_mg, 0.0, 16000.0);
-        s.accel.moving_amplitude_mg = a.number("moving_amplitude_mg", s.accel.moving_amplitude_mg, 0.0, 15000.0);
-        s.accel.moving_frequency_hz = a.number("moving_frequency_hz", s.accel.moving_frequency_hz, 0.01, 50.0);
+        s.accel.noise_std_mg = a.number("noise_std_mg");
+        s.accel.moving_amplitude_mg = a.number("moving_amplitude_mg");
+        s.accel.moving_frequency_hz = a.number("moving_frequency_hz");
         a.finish();
     }
     top.finish();

@@ -12,6 +12,8 @@
 #include <string>
 #include <vector>
 
+#include "scenario_keys.hpp"
+
 namespace cdro::fil {
 
 class ScenarioError : public std::runtime_error {
@@ -62,43 +64,44 @@ const char *faultKindName(FaultKind kind);
 struct FaultSpec {
     FaultKind kind = FaultKind::NackAddress;
     double at_s = 0.0;
-    uint32_t count = 1;        // counted faults
-    uint8_t error_code = 0x11; // error_completion: the Pozyx ERRORCODE (POZYX_ERROR_RANGING)
-    uint16_t node = 0;         // power_off
-    double duration_s = 0.0;   // power_off
+    uint32_t count = static_cast<uint32_t>(scenarioDefault("faults[].count")); // counted faults
+    // error_completion: the Pozyx ERRORCODE (POZYX_ERROR_RANGING)
+    uint8_t error_code = static_cast<uint8_t>(scenarioDefault("faults[].error_code"));
+    uint16_t node = 0;       // power_off
+    double duration_s = 0.0; // power_off
 };
 
-// The timings default to those of the Pozyx model in use (pozyx.model): realistic 40000 /
-// 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
+// The defaults are sim/scenario_keys.def's. The timings default to those of the Pozyx model in
+// use (pozyx.model): realistic 40000 / 3500 / 1000 us, ideal 15000 / 3000 / 1000 us.
 struct UwbSpec {
-    double noise_std_m = 0.1;      // Gaussian noise of each distance (the Pozyx's nominal accuracy)
-    double bias_m = 0.0;           // added to every distance
-    double max_range_m = 100.0;    // longer links fail
-    uint32_t ranging_us = 40000;   // one two-way ranging exchange
-    uint32_t message_us = 3500;    // one UWB message on air, turnaround included
-    uint32_t processing_us = 1000; // a remote node's handling of a request
+    double noise_std_m = scenarioDefault("uwb.noise_std_m"); // Gaussian noise of each distance
+    double bias_m = scenarioDefault("uwb.bias_m");           // added to every distance
+    double max_range_m = scenarioDefault("uwb.max_range_m"); // longer links fail
+    uint32_t ranging_us = 40000;                             // one two-way ranging exchange
+    uint32_t message_us = 3500;                              // one UWB message on air, turnaround included
+    uint32_t processing_us = 1000;                           // a remote node's handling of a request
 };
 
 struct AccelSpec {
-    double noise_std_mg = 8.0;          // per axis
-    double moving_amplitude_mg = 250.0; // vertical bounce of a carried node (walking)
-    double moving_frequency_hz = 1.8;   // step frequency
+    double noise_std_mg = scenarioDefault("accelerometer.noise_std_mg");               // per axis
+    double moving_amplitude_mg = scenarioDefault("accelerometer.moving_amplitude_mg"); // a carried node's bounce
+    double moving_frequency_hz = scenarioDefault("accelerometer.moving_frequency_hz"); // step frequency
 };
 
 struct Scenario {
     std::string source; // file it came from, for messages
     std::string name;   // default: the file's name without its extension, as cdro-sim's
     std::string description;
-    uint64_t seed = 1;
-    double duration_s = 60.0; // simulated seconds; 0 = until SIGTERM/SIGINT
-    uint16_t own_id = 0;      // the Pozyx on the shield (the I2C device); one of `nodes`
+    uint64_t seed = static_cast<uint64_t>(scenarioDefault("seed"));
+    double duration_s = scenarioDefault("duration_s"); // simulated seconds; 0 = until SIGTERM/SIGINT
+    uint16_t own_id = 0;                               // the Pozyx on the shield (the I2C device); one of `nodes`
     std::vector<NodeSpec> nodes;
     std::vector<MotionSpec> motion;
     std::vector<FaultSpec> faults;
     UwbSpec uwb;
     AccelSpec accel;
-    uint8_t pozyx_who_am_i = 0x43; // another value: the firmware reports POZYX_ABSENT
-    uint8_t pozyx_firmware_version = 0x11;
+    uint8_t pozyx_who_am_i = static_cast<uint8_t>(scenarioDefault("pozyx.who_am_i")); // else: POZYX_ABSENT
+    uint8_t pozyx_firmware_version = static_cast<uint8_t>(scenarioDefault("pozyx.firmware_version"));
     // The real device's behaviour (pozyx_sim_config_realistic: replies that raise RX_DATA with
     // FUNC, busy nodes, collisions, boot time, the real timings) or the ideal model.
     bool pozyx_realistic = true;

@@ -1,5 +1,6 @@
 """Scenario files: YAML, checked strictly (unknown keys, wrong types and impossible values are
-errors naming the key), with every default in one place. docs/tools.md documents each key.
+errors naming the key). Every key's default and valid range are sim/scenario_keys.def's, the one
+definition cdro-fil expands too (KEYS, generated from it; docs/tools.md's table is as well).
 
 The format is shared with cdro-fil (sim/fil/src/scenario.cpp, which reads the same keys):
 a key only cdro-fil can act on is refused with a message saying so, and a key spelled the way an
@@ -19,10 +20,17 @@ from typing import Any
 import yaml
 
 from ..codec import CONSTANTS as C
+from .scenario_keys import KEYS
 
 
 class ScenarioError(ValueError):
     """A scenario that cannot be used; the message names the file and the key."""
+
+
+def _default(key: str) -> Any:
+    """The default sim/scenario_keys.def gives the key (a pair as a tuple)."""
+    value = KEYS[key]["default"]
+    return tuple(value) if isinstance(value, list) else value
 
 
 # ---- the scenario, as dataclasses with the documented defaults -------------------------------
@@ -32,8 +40,8 @@ class Node:
     id: int
     x_m: float
     y_m: float
-    z_m: float = 0.0
-    accelerometer: bool = False            # tags have one, anchors do not
+    z_m: float = _default("nodes[].z_m")
+    accelerometer: bool = _default("nodes[].accelerometer")  # tags have one, anchors do not
     moving_amplitude_mg: float | None = None  # overrides accelerometer.moving_amplitude_mg
 
 
@@ -48,35 +56,35 @@ class MotionSegment:
 
 @dataclasses.dataclass
 class Odometry:
-    rate_hz: float = 10.0
-    distance_noise_frac: float = 0.02      # std of the relative error of each step's distance
-    heading_noise_rad: float = 0.002       # std of each moving step's heading change error (rad)
-    heading_drift_rad_s: float = 0.0       # constant heading drift (rad/s), also when standing still
+    rate_hz: float = _default("robot.odometry.rate_hz")
+    distance_noise_frac: float = _default("robot.odometry.distance_noise_frac")  # std of each step's relative error
+    heading_noise_rad: float = _default("robot.odometry.heading_noise_rad")      # std per moving step (rad)
+    heading_drift_rad_s: float = _default("robot.odometry.heading_drift_rad_s")  # rad/s, also standing still
 
 
 @dataclasses.dataclass
 class Robot:
     id: int
-    start_s: float = 0.0                   # drives from here on; before, it stands at its node position
+    start_s: float = _default("robot.start_s")  # drives from here on; before, it stands at its node position
     waypoints: list[tuple[float, float]] | None = None
-    speed_mps: float = 0.5
-    turn_rate_rad_s: float = 0.5           # turns in place at waypoints
+    speed_mps: float = _default("robot.speed_mps")
+    turn_rate_rad_s: float = _default("robot.turn_rate_rad_s")  # turns in place at waypoints
     heading_rad: float | None = None       # initial heading; default: towards the first waypoint
     poses: list[tuple[float, float, float]] | None = None  # alternative: (t_s, x_m, y_m), linear
     odometry: Odometry = dataclasses.field(default_factory=Odometry)
-    moving_amplitude_mg: float = 120.0     # vibration of a driving robot, mg
+    moving_amplitude_mg: float = _default("robot.moving_amplitude_mg")  # vibration of a driving robot, mg
 
 
 @dataclasses.dataclass
 class Schedule:
     """The SET_SCHEDULE fields the simulated host sends (CSV and capture modes)."""
 
-    mode: int = C["CDRO_SCHEDULE_ALL_PAIRS"]
-    slot_period_ms: int = 0
-    motion_poll_ms: int = 200
-    moving_boost: int = 2
-    status_period_ms: int = 1000
-    max_retries: int = 1
+    mode: int = C[f"CDRO_SCHEDULE_{_default('schedule.mode').upper()}"]
+    slot_period_ms: int = _default("schedule.slot_period_ms")
+    motion_poll_ms: int = _default("schedule.motion_poll_ms")
+    moving_boost: int = _default("schedule.moving_boost")
+    status_period_ms: int = _default("schedule.status_period_ms")
+    max_retries: int = _default("schedule.max_retries")
 
     def fields(self) -> dict[str, int]:
         return dataclasses.asdict(self)
@@ -92,28 +100,28 @@ class NlosLink:
 @dataclasses.dataclass
 class Nlos:
     links: list[NlosLink] = dataclasses.field(default_factory=list)
-    random_links: int = 0                  # this many further links get a persistent bias ...
-    random_bias_m: tuple[float, float] = (0.3, 1.5)  # ... drawn uniformly from this range
-    outlier_probability: float = 0.0       # per range: reads long by an exponential amount
-    outlier_mean_m: float = 0.5            # mean of that exponential tail
-    rss_loss_db: float = 6.0               # RSS lower on biased links
+    random_links: int = _default("uwb.nlos.random_links")  # this many further links get a persistent bias ...
+    random_bias_m: tuple[float, float] = _default("uwb.nlos.random_bias_m")  # ... drawn uniformly from this range
+    outlier_probability: float = _default("uwb.nlos.outlier_probability")  # per range: reads long by an exponential
+    outlier_mean_m: float = _default("uwb.nlos.outlier_mean_m")  # mean of that exponential tail
+    rss_loss_db: float = _default("uwb.nlos.rss_loss_db")  # RSS lower on biased links
 
 
 @dataclasses.dataclass
 class Uwb:
-    noise_std_m: float = 0.1                                # Pozyx nominal accuracy
+    noise_std_m: float = _default("uwb.noise_std_m")       # Pozyx nominal accuracy
     noise_variance_m2: tuple[float, float] | None = None    # per-link variance drawn uniformly (overrides)
-    scale: float = 1.0                                      # measured = scale x true (+ errors)
-    max_range_m: float = 100.0                              # beyond: the range fails (timeout)
-    dropout_probability: float = 0.0                        # per attempt: fails (Pozyx 0x11)
+    scale: float = _default("uwb.scale")                   # measured = scale x true (+ errors)
+    max_range_m: float = _default("uwb.max_range_m")       # beyond: the range fails (timeout)
+    dropout_probability: float = _default("uwb.dropout_probability")  # per attempt: fails (Pozyx 0x11)
     nlos: Nlos = dataclasses.field(default_factory=Nlos)
 
 
 @dataclasses.dataclass
 class Accelerometer:
-    noise_std_mg: float = 8.0              # std of the norm's noise
-    moving_amplitude_mg: float = 250.0     # swing of the norm while carried (walking)
-    moving_frequency_hz: float = 1.8       # step frequency
+    noise_std_mg: float = _default("accelerometer.noise_std_mg")  # std of the norm's noise
+    moving_amplitude_mg: float = _default("accelerometer.moving_amplitude_mg")  # swing while carried (walking)
+    moving_frequency_hz: float = _default("accelerometer.moving_frequency_hz")  # step frequency
 
 
 @dataclasses.dataclass
@@ -122,10 +130,10 @@ class Device:
     nodes it takes, its timing) is the firmware's own (firmware/core, run by cdro-sim).
     pozyx_firmware and pozyx_present are read from the scenario's pozyx section."""
 
-    pozyx_firmware: int = 0x11             # pozyx.firmware_version: FIRMWARE_VER, major << 4 | minor
-    pozyx_present: bool = True            # pozyx.present; False: the shield does not answer on I2C
-    free_ram_bytes: int = 612              # reported in STATUS
-    tx_buffer_bytes: int = 4096            # live mode: frames that do not fit are dropped
+    pozyx_firmware: int = _default("pozyx.firmware_version")  # FIRMWARE_VER, major << 4 | minor
+    pozyx_present: bool = _default("pozyx.present")  # False: the shield does not answer on I2C
+    free_ram_bytes: int = _default("device.free_ram_bytes")  # reported in STATUS
+    tx_buffer_bytes: int = _default("device.tx_buffer_bytes")  # live mode: frames that do not fit are dropped
 
 
 @dataclasses.dataclass
@@ -137,12 +145,12 @@ class Fault:
 
 FAULT_KINDS = {
     # kind: {parameter: default}
-    "garbage": {"bytes": 16},
+    "garbage": {"bytes": _default("faults[].bytes")},
     "bit_flip": {"frames": 1},
     "cut_frame": {"frames": 1},
     "absurd": {"frames": 6},
-    "vanish": {"duration_s": 3.0, "reboot": False},
-    "reset": {"cause": "watchdog"},
+    "vanish": {"duration_s": 3.0, "reboot": _default("faults[].reboot")},
+    "reset": {"cause": _default("faults[].cause")},
 }
 
 # The faults cdro-fil injects on the I2C bus and in the simulated Pozyx; cdro-sim's device is not
@@ -187,8 +195,8 @@ class Scenario:
     name: str
     own_id: int
     nodes: list[Node]
-    duration_s: float = 60.0
-    seed: int = 1
+    duration_s: float = _default("duration_s")
+    seed: int = _default("seed")
     description: str = ""
     motion: list[MotionSegment] = dataclasses.field(default_factory=list)
     robot: Robot | None = None
@@ -197,7 +205,7 @@ class Scenario:
     accelerometer: Accelerometer = dataclasses.field(default_factory=Accelerometer)
     device: Device = dataclasses.field(default_factory=Device)
     faults: list[Fault] = dataclasses.field(default_factory=list)
-    epoch_unix_s: float = 1_700_000_000.0  # host clock at the start, for capture files
+    epoch_unix_s: float = _default("epoch_unix_s")  # host clock at the start, for capture files
 
     def node(self, node_id: int) -> Node:
         for node in self.nodes:
@@ -264,27 +272,39 @@ class _Reader:
             raise self.fail(path, f"{value} is outside {low}..{high}")
         return value
 
-    def node_id(self, value: Any, path: str) -> int:
-        # 0 is not an address and 0xFFFF is the UWB broadcast (and the firmware's "no Pozyx" id).
-        return self.integer(value, path, 1, 0xFFFE)
+    def checked(self, value: Any, path: str, key: str | None = None) -> int | float:
+        """value as the key at `path` (or `key`, its place in sim/scenario_keys.def) takes it: of
+        its type and inside its range, said in the words cdro-fil uses."""
+        spec = KEYS[key or _pattern(path)]
+        number = self.integer(value, path) if spec["type"] == "INT" else self.number(value, path)
+        if not admits(spec, number):
+            raise self.fail(path, f"must be {spec['requirement']}, got {value}")
+        return number
 
-    def coordinate(self, value: Any, path: str) -> float:
-        return self.number(value, path, -1000.0, 1000.0)
+    def get(self, m: dict, key: str, path: str) -> Any:
+        """m[key] checked, or the key's default in sim/scenario_keys.def if m leaves it out."""
+        return self.checked(m[key], path) if key in m else _default(_pattern(path))
+
+    def count(self, value: list, path: str) -> None:
+        spec = KEYS[_pattern(path)]
+        if not admits(spec, len(value)):
+            raise self.fail(path, f"the number of entries must be {spec['requirement']}, got {len(value)}")
 
     def boolean(self, value: Any, path: str) -> bool:
         if not isinstance(value, bool):
             raise self.fail(path, f"expected true or false, got {value!r}")
         return value
 
-    def pair(self, value: Any, path: str, low: float | None = None) -> tuple[float, float]:
+    def pair(self, value: Any, path: str) -> tuple[float, float]:
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             raise self.fail(path, f"expected [low, high], got {value!r}")
-        lo, hi = (self.number(v, f"{path}[{i}]", low) for i, v in enumerate(value))
+        lo, hi = (self.checked(v, f"{path}[{i}]", _pattern(path)) for i, v in enumerate(value))
         if hi < lo:
             raise self.fail(path, f"high {hi} is below low {lo}")
         return lo, hi
 
-    def points(self, value: Any, path: str, size: int) -> list[tuple[float, ...]]:
+    def points(self, value: Any, path: str, size: int, key: str | None = None) -> list[tuple[float, ...]]:
+        """A list of points; with `key`, each coordinate checked as that key of sim/scenario_keys.def."""
         if not isinstance(value, list) or not value:
             raise self.fail(path, "expected a non-empty list of points")
         out = []
@@ -294,18 +314,26 @@ class _Reader:
                                                 "down); cdro-sim keeps each node at its z_m: give [x, y]")
             if not isinstance(point, (list, tuple)) or len(point) != size:
                 raise self.fail(f"{path}[{i}]", f"expected {size} numbers, got {point!r}")
-            out.append(tuple(self.number(v, f"{path}[{i}][{k}]") for k, v in enumerate(point)))
+            out.append(tuple(self.checked(v, f"{path}[{i}][{k}]", key) if key else self.number(v, f"{path}[{i}][{k}]")
+                             for k, v in enumerate(point)))
         return out
+
+
+def _pattern(path: str) -> str:
+    """A key's place with list indices written [], as sim/scenario_keys.def names it."""
+    return re.sub(r"\[\d+\]", "[]", path)
+
+
+def admits(spec: dict, value: float) -> bool:
+    """Whether value is inside the key's range (sim/scenario_keys.def; BOUNDS says which ends are open)."""
+    low_open = spec["bounds"] in ("OPEN_MIN", "OPEN")
+    high_open = spec["bounds"] in ("OPEN_MAX", "OPEN")
+    return ((value > spec["min"] if low_open else value >= spec["min"])
+            and (value < spec["max"] if high_open else value <= spec["max"]))
 
 
 def _fields(cls) -> set[str]:
     return {f.name for f in dataclasses.fields(cls)}
-
-
-def _given(m: dict, cls, key: str, field: str | None = None) -> Any:
-    """m[key] if the file gives it, else the default of the dataclass's field (`field`, or the key):
-    every default is written once, in the dataclasses above."""
-    return m.get(key, getattr(cls, field or key))
 
 
 def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Scenario:
@@ -314,23 +342,24 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
                                     "robot", "schedule", "uwb", "accelerometer", "pozyx", "device", "faults",
                                     "epoch_unix_s"}, {"own_id", "nodes"})
     nodes: list[Node] = []
-    if not isinstance(top["nodes"], list) or not top["nodes"]:
-        raise r.fail("nodes", "expected a non-empty list of nodes")
+    if not isinstance(top["nodes"], list):
+        raise r.fail("nodes", "expected a list of nodes")
+    r.count(top["nodes"], "nodes")
     for i, raw in enumerate(top["nodes"]):
         path = f"nodes[{i}]"
         m = r.mapping(raw, path, {"id", "x_m", "y_m", "z_m", "accelerometer", "moving_amplitude_mg"},
                       {"id", "x_m", "y_m"})
         nodes.append(Node(
-            id=r.node_id(m["id"], f"{path}.id"), x_m=r.coordinate(m["x_m"], f"{path}.x_m"),
-            y_m=r.coordinate(m["y_m"], f"{path}.y_m"), z_m=r.coordinate(_given(m, Node, "z_m"), f"{path}.z_m"),
-            accelerometer=r.boolean(_given(m, Node, "accelerometer"), f"{path}.accelerometer"),
+            id=r.get(m, "id", f"{path}.id"), x_m=r.get(m, "x_m", f"{path}.x_m"), y_m=r.get(m, "y_m", f"{path}.y_m"),
+            z_m=float(r.get(m, "z_m", f"{path}.z_m")),
+            accelerometer=r.boolean(m.get("accelerometer", Node.accelerometer), f"{path}.accelerometer"),
             moving_amplitude_mg=(None if m.get("moving_amplitude_mg") is None
-                                 else r.number(m["moving_amplitude_mg"], f"{path}.moving_amplitude_mg", 0))))
+                                 else r.get(m, "moving_amplitude_mg", f"{path}.moving_amplitude_mg"))))
     ids = [n.id for n in nodes]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise r.fail("nodes", "duplicate id(s) " + ", ".join(f"0x{i:04X}" for i in duplicates))
-    own_id = r.node_id(top["own_id"], "own_id")
+    own_id = r.get(top, "own_id", "own_id")
     if own_id not in ids:
         raise r.fail("own_id", f"0x{own_id:04X} is not among the nodes")
 
@@ -342,95 +371,78 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     if top.get("duration_s") == 0:
         raise r.fail("duration_s", "only cdro-fil supports 0 (run until stopped); cdro-sim needs a duration")
     scenario = Scenario(name=str(top.get("name", default_name)), own_id=own_id, nodes=nodes,
-                        duration_s=r.number(_given(top, Scenario, "duration_s"), "duration_s", 0, low_open=True),
-                        seed=r.integer(_given(top, Scenario, "seed"), "seed", 0, 2**63 - 1),
+                        duration_s=float(r.get(top, "duration_s", "duration_s")), seed=r.get(top, "seed", "seed"),
                         description=str(top.get("description", "")).strip(),
-                        epoch_unix_s=r.number(_given(top, Scenario, "epoch_unix_s"), "epoch_unix_s", 0, 4e9))
-    if len(nodes) - 1 > C["CDRO_MAX_NODES"]:
-        raise r.fail("nodes", f"{len(nodes) - 1} remote nodes; a device schedules at most {C['CDRO_MAX_NODES']}")
+                        epoch_unix_s=float(r.get(top, "epoch_unix_s", "epoch_unix_s")))
 
     for i, raw in enumerate(top.get("motion") or []):
         path = f"motion[{i}]"
         m = r.mapping(raw, path, {"node", "start_s", "waypoints_m", "speed_mps", "end_s"},
                       {"node", "start_s", "waypoints_m"})
-        segment = MotionSegment(node=known(r.node_id(m["node"], f"{path}.node"), f"{path}.node"),
-                                start_s=r.number(m["start_s"], f"{path}.start_s", 0),
-                                waypoints=r.points(m["waypoints_m"], f"{path}.waypoints_m", 2))
+        segment = MotionSegment(node=known(r.get(m, "node", f"{path}.node"), f"{path}.node"),
+                                start_s=float(r.get(m, "start_s", f"{path}.start_s")),
+                                waypoints=r.points(m["waypoints_m"], f"{path}.waypoints_m", 2, "motion[].waypoints_m"))
         if ("speed_mps" in m) == ("end_s" in m):
             raise r.fail(path, "give exactly one of speed_mps and end_s")
         if "speed_mps" in m:
-            segment.speed_mps = r.number(m["speed_mps"], f"{path}.speed_mps", 0, low_open=True)
+            segment.speed_mps = float(r.get(m, "speed_mps", f"{path}.speed_mps"))
         else:
-            segment.end_s = r.number(m["end_s"], f"{path}.end_s", segment.start_s, low_open=True)
+            segment.end_s = float(r.get(m, "end_s", f"{path}.end_s"))
+            if segment.end_s <= segment.start_s:
+                raise r.fail(f"{path}.end_s", "must be after start_s")
         scenario.motion.append(segment)
+    _check_implied_speeds(scenario, r)
 
     if top.get("robot") is not None:
         path = "robot"
         m = r.mapping(top["robot"], path, _fields(Robot) - {"waypoints"} | {"waypoints_m"}, {"id"})
-        robot = Robot(id=known(r.node_id(m["id"], "robot.id"), "robot.id"),
-                      start_s=r.number(_given(m, Robot, "start_s"), "robot.start_s", 0),
-                      speed_mps=r.number(_given(m, Robot, "speed_mps"), "robot.speed_mps", 0, low_open=True),
-                      turn_rate_rad_s=r.number(_given(m, Robot, "turn_rate_rad_s"), "robot.turn_rate_rad_s", 0,
-                                               low_open=True),
-                      moving_amplitude_mg=r.number(_given(m, Robot, "moving_amplitude_mg"),
-                                                   "robot.moving_amplitude_mg", 0))
+        robot = Robot(id=known(r.get(m, "id", "robot.id"), "robot.id"),
+                      start_s=float(r.get(m, "start_s", "robot.start_s")),
+                      speed_mps=float(r.get(m, "speed_mps", "robot.speed_mps")),
+                      turn_rate_rad_s=float(r.get(m, "turn_rate_rad_s", "robot.turn_rate_rad_s")),
+                      moving_amplitude_mg=float(r.get(m, "moving_amplitude_mg", "robot.moving_amplitude_mg")))
         if ("waypoints_m" in m) == ("poses" in m):
             raise r.fail(path, "give exactly one of waypoints_m and poses")
         if "waypoints_m" in m:
-            robot.waypoints = r.points(m["waypoints_m"], "robot.waypoints_m", 2)
+            robot.waypoints = r.points(m["waypoints_m"], "robot.waypoints_m", 2, "robot.waypoints_m")
         else:
             robot.poses = r.points(m["poses"], "robot.poses", 3)
             times = [p[0] for p in robot.poses]
             if any(b <= a for a, b in zip(times, times[1:])):
                 raise r.fail("robot.poses", "times must increase")
         if m.get("heading_rad") is not None:
-            robot.heading_rad = r.number(m["heading_rad"], "robot.heading_rad")
+            robot.heading_rad = float(r.get(m, "heading_rad", "robot.heading_rad"))
         o = r.mapping(m.get("odometry"), "robot.odometry", _fields(Odometry))
-        robot.odometry = Odometry(
-            rate_hz=r.number(_given(o, Odometry, "rate_hz"), "robot.odometry.rate_hz", 0, low_open=True),
-            distance_noise_frac=r.number(_given(o, Odometry, "distance_noise_frac"),
-                                         "robot.odometry.distance_noise_frac", 0),
-            heading_noise_rad=r.number(_given(o, Odometry, "heading_noise_rad"), "robot.odometry.heading_noise_rad", 0),
-            heading_drift_rad_s=r.number(_given(o, Odometry, "heading_drift_rad_s"),
-                                         "robot.odometry.heading_drift_rad_s"))
+        robot.odometry = Odometry(**{key: float(r.get(o, key, f"robot.odometry.{key}")) for key in _fields(Odometry)})
         if any(s.node == robot.id for s in scenario.motion):
             raise r.fail("motion", f"the robot 0x{robot.id:04X} moves by its path, not by motion segments")
         scenario.robot = robot
 
     s = r.mapping(top.get("schedule"), "schedule", _fields(Schedule))
     modes = {"direct_only": C["CDRO_SCHEDULE_DIRECT_ONLY"], "all_pairs": C["CDRO_SCHEDULE_ALL_PAIRS"]}
-    mode = s.get("mode", "all_pairs")
+    mode = s.get("mode", _default("schedule.mode"))
     if mode not in modes:
         raise r.fail("schedule.mode", f"{mode!r} is not one of {', '.join(modes)}")
-    scenario.schedule = Schedule(
-        mode=modes[mode],
-        slot_period_ms=r.integer(_given(s, Schedule, "slot_period_ms"), "schedule.slot_period_ms", 0, 60000),
-        motion_poll_ms=r.integer(_given(s, Schedule, "motion_poll_ms"), "schedule.motion_poll_ms", 0, 60000),
-        moving_boost=r.integer(_given(s, Schedule, "moving_boost"), "schedule.moving_boost", 1, 8),
-        status_period_ms=r.integer(_given(s, Schedule, "status_period_ms"), "schedule.status_period_ms", 100, 60000),
-        max_retries=r.integer(_given(s, Schedule, "max_retries"), "schedule.max_retries", 0, 10))
+    scenario.schedule = Schedule(mode=modes[mode], **{key: r.get(s, key, f"schedule.{key}")
+                                                      for key in _fields(Schedule) - {"mode"}})
 
     u = r.mapping(top.get("uwb"), "uwb", _fields(Uwb))
-    uwb = Uwb(noise_std_m=r.number(_given(u, Uwb, "noise_std_m"), "uwb.noise_std_m", 0),
-              scale=r.number(_given(u, Uwb, "scale"), "uwb.scale", 0, low_open=True),
-              max_range_m=r.number(_given(u, Uwb, "max_range_m"), "uwb.max_range_m", 0, low_open=True),
-              dropout_probability=r.number(_given(u, Uwb, "dropout_probability"), "uwb.dropout_probability", 0, 1))
+    uwb = Uwb(**{key: float(r.get(u, key, f"uwb.{key}"))
+                 for key in ("noise_std_m", "scale", "max_range_m", "dropout_probability")})
     if u.get("noise_variance_m2") is not None:
-        uwb.noise_variance_m2 = r.pair(u["noise_variance_m2"], "uwb.noise_variance_m2", 0)
+        uwb.noise_variance_m2 = r.pair(u["noise_variance_m2"], "uwb.noise_variance_m2")
     n = r.mapping(u.get("nlos"), "uwb.nlos", _fields(Nlos))
-    uwb.nlos = Nlos(random_links=r.integer(_given(n, Nlos, "random_links"), "uwb.nlos.random_links", 0),
-                    random_bias_m=r.pair(_given(n, Nlos, "random_bias_m"), "uwb.nlos.random_bias_m", 0),
-                    outlier_probability=r.number(_given(n, Nlos, "outlier_probability"), "uwb.nlos.outlier_probability",
-                                                 0, 1),
-                    outlier_mean_m=r.number(_given(n, Nlos, "outlier_mean_m"), "uwb.nlos.outlier_mean_m", 0,
-                                            low_open=True),
-                    rss_loss_db=r.number(_given(n, Nlos, "rss_loss_db"), "uwb.nlos.rss_loss_db", 0))
+    uwb.nlos = Nlos(random_links=r.get(n, "random_links", "uwb.nlos.random_links"),
+                    random_bias_m=(r.pair(n["random_bias_m"], "uwb.nlos.random_bias_m") if "random_bias_m" in n
+                                   else _default("uwb.nlos.random_bias_m")),
+                    **{key: float(r.get(n, key, f"uwb.nlos.{key}"))
+                       for key in ("outlier_probability", "outlier_mean_m", "rss_loss_db")})
     for i, link in enumerate(n.get("links") or []):
         path = f"uwb.nlos.links[{i}]"
         if not isinstance(link, (list, tuple)) or len(link) != 3:
             raise r.fail(path, f"expected [id_a, id_b, bias_m], got {link!r}")
-        a = known(r.node_id(link[0], f"{path}[0]"), f"{path}[0]")
-        b = known(r.node_id(link[1], f"{path}[1]"), f"{path}[1]")
+        a = known(r.checked(link[0], f"{path}[0]", "nodes[].id"), f"{path}[0]")
+        b = known(r.checked(link[1], f"{path}[1]", "nodes[].id"), f"{path}[1]")
         if a == b:
             raise r.fail(path, "a link needs two different nodes")
         uwb.nlos.links.append(NlosLink(a, b, r.number(link[2], f"{path}[2]", 0)))
@@ -440,21 +452,16 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
     scenario.uwb = uwb
 
     a = r.mapping(top.get("accelerometer"), "accelerometer", _fields(Accelerometer))
-    scenario.accelerometer = Accelerometer(
-        noise_std_mg=r.number(_given(a, Accelerometer, "noise_std_mg"), "accelerometer.noise_std_mg", 0),
-        moving_amplitude_mg=r.number(_given(a, Accelerometer, "moving_amplitude_mg"),
-                                     "accelerometer.moving_amplitude_mg", 0),
-        moving_frequency_hz=r.number(_given(a, Accelerometer, "moving_frequency_hz"),
-                                     "accelerometer.moving_frequency_hz", 0, low_open=True))
+    scenario.accelerometer = Accelerometer(**{key: float(r.get(a, key, f"accelerometer.{key}"))
+                                              for key in _fields(Accelerometer)})
 
     pz = r.mapping(top.get("pozyx"), "pozyx", {"firmware_version", "present"})
     dv = r.mapping(top.get("device"), "device", _fields(Device) - {"pozyx_firmware", "pozyx_present"})
     scenario.device = Device(
-        pozyx_firmware=r.integer(_given(pz, Device, "firmware_version", "pozyx_firmware"), "pozyx.firmware_version",
-                                 0, 0xFF),
-        pozyx_present=r.boolean(_given(pz, Device, "present", "pozyx_present"), "pozyx.present"),
-        free_ram_bytes=r.integer(_given(dv, Device, "free_ram_bytes"), "device.free_ram_bytes", 0, 0xFFFF),
-        tx_buffer_bytes=r.integer(_given(dv, Device, "tx_buffer_bytes"), "device.tx_buffer_bytes", 128, 1 << 24))
+        pozyx_firmware=r.get(pz, "firmware_version", "pozyx.firmware_version"),
+        pozyx_present=r.boolean(pz.get("present", _default("pozyx.present")), "pozyx.present"),
+        free_ram_bytes=r.get(dv, "free_ram_bytes", "device.free_ram_bytes"),
+        tx_buffer_bytes=r.get(dv, "tx_buffer_bytes", "device.tx_buffer_bytes"))
 
     faults = top.get("faults") or []
     if not isinstance(faults, list):
@@ -463,6 +470,25 @@ def parse_scenario(data: Any, source: str, default_name: str = "scenario") -> Sc
         scenario.faults.append(parse_fault_mapping(raw, f"faults[{i}]", r))
     scenario.faults.sort(key=lambda f: f.at_s)
     return scenario
+
+
+def _check_implied_speeds(scenario: Scenario, r: _Reader) -> None:
+    """A stretch given by its end: the speed it implies, from where the node is at its start (the
+    end of its stretch before), must be a speed motion[].speed_mps admits, as cdro-fil checks."""
+    spec = KEYS["motion[].speed_mps"]
+    at = {n.id: (n.x_m, n.y_m) for n in scenario.nodes}
+    order = sorted(range(len(scenario.motion)), key=lambda i: scenario.motion[i].start_s)
+    for i in order:
+        segment = scenario.motion[i]
+        points = [at[segment.node], *segment.waypoints]
+        at[segment.node] = segment.waypoints[-1]
+        if segment.end_s is None:
+            continue
+        length_m = sum(math.dist(a, b) for a, b in zip(points, points[1:]))
+        took_s = segment.end_s - segment.start_s
+        if not admits(spec, length_m / took_s):
+            raise r.fail(f"motion[{i}].end_s", f"{length_m:g} m in {took_s:g} s is {length_m / took_s:g} m/s; "
+                                               f"the speed must be {spec['requirement']}")
 
 
 def parse_fault_mapping(raw: Any, path: str, r: _Reader) -> Fault:
@@ -479,17 +505,15 @@ def parse_fault_mapping(raw: Any, path: str, r: _Reader) -> Fault:
     for key in FAULT_KINDS[kind]:
         if key not in m:
             continue
-        if key in ("bytes", "frames"):
-            params[key] = r.integer(m[key], f"{path}.{key}", 1, 4096)
-        elif key == "duration_s":
-            params[key] = r.number(m[key], f"{path}.{key}", 0, 3600, low_open=True)
-        elif key == "reboot":
+        if key == "reboot":
             params[key] = r.boolean(m[key], f"{path}.{key}")
         elif key == "cause":
             if m[key] not in RESET_CAUSES:
                 raise r.fail(f"{path}.cause", f"{m[key]!r} is not one of {', '.join(RESET_CAUSES)}")
             params[key] = m[key]
-    return Fault(at_s=r.number(m["at_s"], f"{path}.at_s", 0), kind=kind, params=params)
+        else:  # bytes, frames, duration_s: ranged in sim/scenario_keys.def
+            params[key] = r.checked(m[key], f"{path}.{key}", f"faults[].{key}")
+    return Fault(at_s=float(r.checked(m["at_s"], f"{path}.at_s", "faults[].at_s")), kind=kind, params=params)
 
 
 def parse_fault_option(text: str) -> Fault:
