@@ -32,36 +32,11 @@ struct KeyNote {
     const char *note;
 };
 
-// Keys of the one scenario format that only cdro-sim acts on (tools/cdro_tools/simulation/scenario.py).
-const KeyNote kSimOnlyKeys[] = {
-    {"robot", "a robot driving the own node, with wheel odometry"},
-    {"schedule", "the SET_SCHEDULE its simulated host sends"},
-    {"device", "the board's free RAM and transmit buffer"},
-    {"epoch_unix_s", "the host clock of its capture files"},
-    {"nodes[].moving_amplitude_mg", "a node's own walking swing"},
-    {"uwb.noise_variance_m2", "per-link noise variances"},
-    {"uwb.scale", "a range scale error"},
-    {"uwb.dropout_probability", "failed attempts at random"},
-    {"uwb.nlos", "biased links and outliers"},
-    {"pozyx.present", "a shield silent on I2C; here pozyx.who_am_i makes the firmware report POZYX_ABSENT"},
-};
-
-// Spellings of earlier scenario files (cdro-fil's and cdro-sim's) and what they are called now.
-// The keys are refused rather than read, so that a file has one spelling.
-const KeyNote kRenamedKeys[] = {
-    {"own", "own_id"},
-    {"nodes[].x", "x_m"},
-    {"nodes[].y", "y_m"},
-    {"nodes[].z", "z_m"},
-    {"nodes[].tag", "accelerometer"},
-    {"motion[].waypoints", "waypoints_m"},
-    {"robot.waypoints", "waypoints_m"},
-    {"uwb.noise_std_mm", "noise_std_m (in metres)"},
-    {"uwb.bias_mm", "bias_m (in metres)"},
-    {"accelerometer.noise_mg", "noise_std_mg"},
-    {"device.pozyx_firmware", "pozyx.firmware_version"},
-    {"device.pozyx_present", "pozyx.present"},
-};
+// Spellings of earlier scenario files (cdro-fil's and cdro-sim's) and what they are called now
+// (sim/scenario_keys.def). The keys are refused rather than read, so that a file has one spelling.
+#define CDRO_RENAMED_KEY(OLD, NOW) KeyNote{OLD, NOW},
+const KeyNote kRenamedKeys[] = {CDRO_SCENARIO_RENAMED_KEYS(CDRO_RENAMED_KEY)};
+#undef CDRO_RENAMED_KEY
 
 std::string where(const YAML::Node &node, const std::string &origin)
 {
@@ -257,10 +232,11 @@ public:
             const std::string key = entry.first.as<std::string>();
             if (used_.count(key) == 0) {
                 const std::string generic = pattern(key);
-                for (const KeyNote &sim_only : kSimOnlyKeys) {
-                    if (generic == sim_only.pattern) {
+                // A key only cdro-sim acts on (sim/scenario_keys.def): refused with its meaning.
+                for (const ScenarioKey &k : scenario_keys::kKeys) {
+                    if (generic == k.path && k.tool == scenario_keys::Tool::SIM) {
                         fail(entry.first, key,
-                             std::string("only cdro-sim supports this key (") + sim_only.note +
+                             "only cdro-sim supports this key (" + std::string(k.meaning) +
                                  "); cdro-fil cannot act on it");
                     }
                 }

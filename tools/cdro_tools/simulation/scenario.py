@@ -20,7 +20,7 @@ from typing import Any
 import yaml
 
 from ..codec import CONSTANTS as C
-from .scenario_keys import KEYS
+from .scenario_keys import KEYS, RENAMED
 
 
 class ScenarioError(ValueError):
@@ -158,33 +158,13 @@ FAULT_KINDS = {
 FIL_FAULT_KINDS = ("nack_address", "nack_write", "no_completion", "error_completion", "garbage_range",
                    "stale_range", "drop_remote_reply", "refuse_function", "late_reply", "power_off")
 
-# Keys of the one scenario format that only cdro-fil acts on (sim/fil/src/scenario.cpp), by
-# path with list indices written [].
-FIL_ONLY_KEYS = {
-    "uwb.bias_m": "a constant added to every range",
-    "uwb.ranging_us": "the simulated Pozyx's timing",
-    "uwb.message_us": "the simulated Pozyx's timing",
-    "uwb.processing_us": "the simulated Pozyx's timing",
-    "pozyx.who_am_i": "the simulated Pozyx's WHO_AM_I register",
-    "pozyx.model": "the simulated Pozyx's behaviour, realistic or ideal",
-}
+# Keys of the one scenario format that only cdro-fil acts on, by path with list indices written [],
+# and the note the refusal gives: sim/scenario_keys.def's tool and meaning.
+FIL_ONLY_KEYS = {path: spec["meaning"] for path, spec in KEYS.items() if spec["tool"] == "cdro-fil"}
 
-# Spellings of earlier scenario files (cdro-sim's and cdro-fil's) and what they are called now.
-# The keys are refused rather than read, so that a file has one spelling.
-RENAMED_KEYS = {
-    "own": "own_id",
-    "nodes[].x": "x_m",
-    "nodes[].y": "y_m",
-    "nodes[].z": "z_m",
-    "nodes[].tag": "accelerometer",
-    "motion[].waypoints": "waypoints_m",
-    "robot.waypoints": "waypoints_m",
-    "uwb.noise_std_mm": "noise_std_m (in metres)",
-    "uwb.bias_mm": "bias_m (in metres)",
-    "accelerometer.noise_mg": "noise_std_mg",
-    "device.pozyx_firmware": "pozyx.firmware_version",
-    "device.pozyx_present": "pozyx.present",
-}
+# Spellings of earlier scenario files (cdro-sim's and cdro-fil's) and what they are called now
+# (sim/scenario_keys.def). The keys are refused rather than read, so that a file has one spelling.
+RENAMED_KEYS = RENAMED
 
 RESET_CAUSES = {"power_on": C["CDRO_RESET_POWER_ON"], "external": C["CDRO_RESET_EXTERNAL"],
                 "brown_out": C["CDRO_RESET_BROWN_OUT"], "watchdog": C["CDRO_RESET_WATCHDOG"]}
