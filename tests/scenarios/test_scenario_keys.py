@@ -14,7 +14,7 @@ import yaml
 from cdro_tools import scenario_codegen
 from cdro_tools.codec import CONSTANTS as C
 from cdro_tools.simulation import scenario_keys
-from cdro_tools.simulation.scenario import KEYS, ScenarioError, load_scenario
+from cdro_tools.simulation.scenario import FAULT_KINDS, FIL_FAULT_KINDS, KEYS, ScenarioError, load_scenario
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 DEF = REPO / "sim" / "scenario_keys.def"
@@ -174,3 +174,10 @@ def test_both_tools_refuse_a_value_just_outside_the_range_naming_the_key(fil_bin
             if path == "seed" and value > spec["max"] and tool == "cdro-fil":
                 words = "expected an integer"  # beyond int64: yaml-cpp cannot read it as an integer at all
             assert shown(path) in message and words in message, f"{tool}, {path} = {given}: {message!r}"
+
+
+def test_the_fault_kinds_the_table_names_are_each_tools():
+    """faults[].kind's meaning lists each tool's kinds; the kinds themselves are each reader's code."""
+    sim_part, fil_part = KEYS["faults[].kind"]["meaning"].split("; cdro-fil's: ")
+    named = [part.split(" (")[0].split(", ") for part in (sim_part.removeprefix("cdro-sim's: "), fil_part)]
+    assert named == [list(FAULT_KINDS), list(FIL_FAULT_KINDS)]
