@@ -21,6 +21,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "cdro/engine/map_connectivity.hpp"
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/global_solve.hpp"
 #include "cdro/engine/global_step.hpp"
@@ -123,8 +124,8 @@ static int runMain(int argc, char **argv)
                 for (size_t k = 0; k < source.size(); ++k) {
                     sum_m2 += (fit.apply(source[k]) - target[k]).squaredNorm();
                 }
-                std::printf("hypothesis cost_nats %.3f placed %u rmse_m %.3f origin %s\n", h.cost,
-                            h.estimate.placedCount(),
+                std::printf("hypothesis cost_nats %.3f connectivity_nats %.3f placed %u rmse_m %.3f origin %s\n",
+                            h.cost, engine::connectivityCost(problem, h.estimate).cost_nats, h.estimate.placedCount(),
                             source.empty() ? 0.0 : std::sqrt(sum_m2 / static_cast<double>(source.size())),
                             h.origin.c_str());
             }
@@ -161,11 +162,12 @@ static int runMain(int argc, char **argv)
                          estimate.position_m[i].x(), estimate.position_m[i].y(), c(0, 0), c(0, 1), c(1, 1));
         }
         std::fclose(out);
-        std::printf(
-            "cost_nats %.6f\nnlos_fraction %.4f\nnlos_mean_excess_m %.4f\nvariance_factor %.4f\nnodes %u\nlinks %zu\n",
-            engine::mapCost(problem, estimate, likelihood), likelihood.params().nlos_fraction,
-            likelihood.params().nlos_mean_excess_m, confidence.variance_factor, problem.nodeCount(),
-            problem.links.size());
+        std::printf("cost_nats %.6f\nconnectivity_nats %.3f\nnlos_fraction %.4f\nnlos_mean_excess_m "
+                    "%.4f\nvariance_factor %.4f\nnodes %u\nlinks %zu\n",
+                    engine::mapCost(problem, estimate, likelihood),
+                    engine::connectivityCost(problem, estimate).cost_nats, likelihood.params().nlos_fraction,
+                    likelihood.params().nlos_mean_excess_m, confidence.variance_factor, problem.nodeCount(),
+                    problem.links.size());
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-reference: %s\n", error.what());
         return 1;

@@ -1,4 +1,5 @@
 #include "cdro/engine/global_solve.hpp"
+#include "cdro/engine/map_connectivity.hpp"
 
 #include <algorithm>
 #include <atomic>
@@ -312,7 +313,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             const bool b = h.estimate.placed[link.b] != 0;
             open += (a != b || (!a && !b && std::binary_search(part.begin(), part.end(), link.a))) ? 1U : 0U;
         }
-        return h.cost + unexplained * static_cast<double>(open);
+        return h.cost + unexplained * static_cast<double>(open) + h.connectivity_nats;
     };
     auto rank = [&]() {
         std::stable_sort(hypotheses.begin(), hypotheses.end(),
@@ -336,10 +337,25 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             hypothesis.nlos_fraction = own.params().nlos_fraction;
             hypothesis.nlos_mean_excess_m = own.params().nlos_mean_excess_m;
         });
-        rank();
-        result.learnt_nlos_fraction = hypotheses.front().nlos_fraction;
-        result.learnt_nlos_mean_excess_m = hypotheses.front().nlos_mean_excess_m;
     }
+    if (params.connectivity && hypotheses.size() > 1) {
+        std::vector<uint8_t> everywhere(problem.nodeCount(), 1);
+        for (const MapHypothesis &hypothesis : hypotheses) {
+            for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                everywhere[node] = static_cast<uint8_t>(everywhere[node] & hypothesis.estimate.placed[node]);
+            }
+        }
+        forEachIndex(hypotheses.size(), params.threads, [&](size_t i) {
+            MapEstimate common = hypotheses[i].estimate;
+            common.placed = everywhere;
+            hypotheses[i].connectivity_nats = connectivityCost(problem, common).cost_nats;
+        });
+    }
+    if (params.learn_rounds > 0 || params.connectivity) {
+        rank();
+    }
+    result.learnt_nlos_fraction = params.learn_rounds > 0 ? hypotheses.front().nlos_fraction : -1.0;
+    result.learnt_nlos_mean_excess_m = params.learn_rounds > 0 ? hypotheses.front().nlos_mean_excess_m : -1.0;
     result.best = hypotheses.front();
     result.all = hypotheses;
     for (size_t i = 1; i < hypotheses.size(); ++i) {

@@ -139,7 +139,8 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
     for (const MapHypothesis &hypothesis : solved.all) {
         if (!job.settling && hypothesis.origin == "current" && hypothesis.origin != solved.best.origin &&
             !rival(hypothesis) && hypothesis.estimate.placedCount() == solved.best.estimate.placedCount() &&
-            hypothesis.cost < solved.best.cost + min_gain_nats) {
+            hypothesis.cost + hypothesis.connectivity_nats <
+                solved.best.cost + solved.best.connectivity_nats + min_gain_nats) {
             chosen = &hypothesis;
         }
     }
@@ -182,6 +183,7 @@ GlobalStep::GlobalStep(const EngineParams &params, const StructureCheck &check)
     : params_(params), likelihood_(mapLikelihood(params.likelihood)), check_(check)
 {
     solve_.range_offsets = params.solve.range_offsets;
+    solve_.connectivity = params.solve.connectivity;
     solve_.threads =
         params.solve.threads > 0 ? params.solve.threads : std::max(std::thread::hardware_concurrency(), 1U);
 }

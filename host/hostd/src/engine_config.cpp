@@ -102,6 +102,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_REAL("solve", "min_gain_nats", 0.0, kHuge, solve.min_gain_nats),
         CDRO_REAL("solve", "adopt_after_sweeps", 0.0, kHuge, solve.adopt_after_sweeps),
         CDRO_FLAG("solve", "range_offsets", solve.range_offsets),
+        CDRO_FLAG("solve", "connectivity", solve.connectivity),
         CDRO_COUNT("solve", "threads", 0, 256, solve.threads),
         CDRO_FLAG("motion", "reset", motion.reset),
         CDRO_FLAG("motion", "infer_from_ranges", motion.infer_from_ranges),

@@ -7,6 +7,10 @@
 // Then each node's range offset (its radio's antenna delay) with the best map, adopted when it
 // explains the links clearly better (range_offsets.hpp).
 //
+// The maps are compared by their cost under the NLOS model that suits each (a profile
+// likelihood), plus the cost of leaving linked nodes unplaced, plus how well each explains which
+// pairs heard each other (map_connectivity.hpp), over the nodes that every map places.
+//
 // Starts: the map grown from each of `growth_seeds` seed triangles spread over the network
 // (map_growth.hpp), MDS-MAP (map_mds.hpp), and the caller's current map if it has one. Only
 // the largest connected part of the link graph is solved; a node outside it has no range that
@@ -37,6 +41,7 @@ struct GlobalSolveParams {
     bool lift = true;             // refine every start through the lifted space (map_lift.hpp)
     bool lifted_mds_start = true; // and start from MDS-MAP in D dimensions too
     bool range_offsets = true;    // estimate each node's range offset with the best map (range_offsets.hpp)
+    bool connectivity = true;     // judge the maps by which pairs heard each other too (map_connectivity.hpp)
     bool only_current = false;    // the caller's map the only start (its links were all
                                   // solved from every start before: a refresh)
     uint32_t threads = 1;         // starts refined at once (the result is the same for any)
@@ -51,6 +56,7 @@ struct MapHypothesis {
     std::string origin;               // "grown from <ids>", "MDS-MAP", "current"
     double nlos_fraction = -1.0;      // the NLOS model it was judged under (< 0: the prior)
     double nlos_mean_excess_m = -1.0; // m
+    double connectivity_nats = 0.0;   // map_connectivity.hpp's cost over the nodes every map places
 };
 
 struct GlobalSolveCounters {

@@ -71,6 +71,9 @@ struct SolveParams {
                                         // the addRange that makes it due, adopted at once
     bool range_offsets = true;          // estimate each node's range offset (uncalibrated antenna
                                         // delays, range_offsets.hpp); false: radios known calibrated
+    bool connectivity = true;           // judge rival maps by which pairs heard each other too
+                                        // (map_connectivity.hpp); false when pairs were left unranged
+                                        // by choice, not because they could not hear each other
     uint32_t threads = 0;               // threads a solve refines its starts on (0: one per core); the
                                         // estimates are the same for any number, only the time differs
 };
