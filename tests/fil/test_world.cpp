@@ -1,5 +1,6 @@
-// The simulated network of cdro-fil without an AVR: tracks and accelerometer traces that match
-// them, faults applied at their times and accounted when the simulator injects them, rangings
+// The simulated network of cdro-fil without an AVR: the scenario's nodes on their tracks and
+// accelerometer traces (host/netgen's model, tested itself in tests/netgen/test_track.cpp),
+// faults applied at their times and accounted when the simulator injects them, rangings
 // accounted by kind with the true distance, and the truth file.
 #include <gtest/gtest.h>
 
@@ -15,8 +16,10 @@
 using cdro::fil::FaultKind;
 using cdro::fil::parseScenario;
 using cdro::fil::Scenario;
-using cdro::fil::Track;
+using cdro::fil::trackOf;
 using cdro::fil::World;
+using cdro::netgen::Track;
+using cdro::netgen::Vector3;
 
 namespace {
 
@@ -68,24 +71,22 @@ uint8_t doRanging(World &world, uint16_t partner, uint64_t at_us)
                 at_us);
 }
 
-double norm(const cdro::fil::Vec3 &a) { return std::sqrt(a.x_m * a.x_m + a.y_m * a.y_m + a.z_m * a.z_m); }
-
 } // namespace
 
 TEST(FilTrack, PositionFollowsTheWaypointsAtTheSpeed)
 {
     const Scenario s = scenario("  - {node: 0x6B02, start_s: 5, speed_mps: 1, waypoints_m: [[4, 6], [4, 3, 2]]}\n");
-    const Track track(*s.node(0x6B02), s.motion, s.accel);
-    auto at = [&](double t) { return track.position(t); };
-    EXPECT_DOUBLE_EQ(at(0.0).x_m, 0.0);
-    EXPECT_DOUBLE_EQ(at(1.0).x_m, 0.0);
-    EXPECT_DOUBLE_EQ(at(2.0).x_m, 2.0) << "2 m/s along x";
-    EXPECT_DOUBLE_EQ(at(2.0).z_m, 1.0) << "waypoints without z keep the height";
-    EXPECT_DOUBLE_EQ(at(4.0).x_m, 4.0) << "stays at the last waypoint";
-    EXPECT_DOUBLE_EQ(at(6.5).y_m, 4.5) << "second stretch, first leg at 1 m/s";
-    const cdro::fil::Vec3 end = at(100.0);
-    EXPECT_DOUBLE_EQ(end.y_m, 3.0);
-    EXPECT_DOUBLE_EQ(end.z_m, 2.0);
+    const Track track = trackOf(*s.node(0x6B02), s.motion, s.accel);
+    auto at = [&](double t) { return track.positionM(t); };
+    EXPECT_DOUBLE_EQ(at(0.0).x(), 0.0);
+    EXPECT_DOUBLE_EQ(at(1.0).x(), 0.0);
+    EXPECT_DOUBLE_EQ(at(2.0).x(), 2.0) << "2 m/s along x";
+    EXPECT_DOUBLE_EQ(at(2.0).z(), 1.0) << "waypoints without z keep the height";
+    EXPECT_DOUBLE_EQ(at(4.0).x(), 4.0) << "stays at the last waypoint";
+    EXPECT_DOUBLE_EQ(at(6.5).y(), 4.5) << "second stretch, first leg at 1 m/s";
+    const Vector3 end = at(100.0);
+    EXPECT_DOUBLE_EQ(end.y(), 3.0);
+    EXPECT_DOUBLE_EQ(end.z(), 2.0);
     EXPECT_FALSE(track.moving(0.99));
     EXPECT_TRUE(track.moving(1.0));
     EXPECT_TRUE(track.moving(2.99));
@@ -102,11 +103,10 @@ TEST(FilTrack, PositionFollowsTheWaypointsAtTheSpeed)
 TEST(FilTrack, AccelerometerTraceMovesExactlyWhileCarried)
 {
     const Scenario s = scenario();
-    const Track track(*s.node(0x6B02), s.motion, s.accel);
+    const Track track = trackOf(*s.node(0x6B02), s.motion, s.accel);
     std::vector<double> deviations;
     for (double t = 0.0; t < 6.0; t += 0.2) {
-        const cdro::fil::Vec3 a = track.accelMg(t);
-        deviations.push_back(std::fabs(norm(a) - 1000.0));
+        deviations.push_back(std::fabs(track.accelMg(t).norm() - 1000.0));
         const size_t from = deviations.size() > 8 ? deviations.size() - 8 : 0;
         const double window = *std::max_element(deviations.begin() + static_cast<long>(from), deviations.end());
         if (!track.moving(t) && t > 0.0 && (t < 1.0 || t >= 3.0 + 8 * 0.2)) {
@@ -116,9 +116,9 @@ TEST(FilTrack, AccelerometerTraceMovesExactlyWhileCarried)
             EXPECT_GT(window, 80.0) << "carried at " << t << " s";
         }
     }
-    const cdro::fil::Vec3 rest = track.accelMg(0.5);
-    EXPECT_DOUBLE_EQ(rest.z_m, 1000.0);
-    EXPECT_DOUBLE_EQ(rest.x_m, 0.0);
+    const Vector3 rest = track.accelMg(0.5);
+    EXPECT_DOUBLE_EQ(rest.z(), 1000.0);
+    EXPECT_DOUBLE_EQ(rest.x(), 0.0);
 }
 
 TEST(FilWorld, DirectRangingIsAccountedWithTheTrueDistance)

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <utility>
 
 #include "cdro_fw/pozyx_regs.h"
 
@@ -12,113 +13,42 @@ namespace cdro::fil {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kOneGMg = 1000.0; // mg
-
 uint64_t toUs(double t_s) { return static_cast<uint64_t>(std::llround(t_s * 1e6)); }
 
-double distanceM(const Vec3 &a, const Vec3 &b)
+pozyx_sim_vec3_t trackPosition(void *context, double t_s)
 {
-    const double dx = a.x_m - b.x_m;
-    const double dy = a.y_m - b.y_m;
-    const double dz = a.z_m - b.z_m;
-    return std::sqrt(dx * dx + dy * dy + dz * dz);
+    const netgen::Vector3 p = static_cast<const netgen::Track *>(context)->positionM(t_s);
+    return {p.x(), p.y(), p.z()};
+}
+
+pozyx_sim_vec3_t trackAccel(void *context, double t_s)
+{
+    const netgen::Vector3 a = static_cast<const netgen::Track *>(context)->accelMg(t_s);
+    return {a.x(), a.y(), a.z()}; // mg
 }
 
 } // namespace
 
-// ---- Track ------------------------------------------------------------------------------------
-
-Track::Track(const NodeSpec &node, const std::vector<MotionSpec> &motion, const AccelSpec &accel)
-    : start_(node.position), accel_(accel)
+netgen::Track trackOf(const NodeSpec &node, const std::vector<MotionSpec> &motion, const AccelSpec &accel)
 {
-    std::vector<const MotionSpec *> mine;
+    // The reader has filled in every waypoint's z and every stretch's speed (docs/tools.md,
+    // "Scenario files"): the track walks exactly what --print-scenario shows.
+    std::vector<netgen::Stretch> stretches;
     for (const MotionSpec &m : motion) {
-        if (m.node == node.id) {
-            mine.push_back(&m);
-        }
-    }
-    std::sort(mine.begin(), mine.end(), [](auto *a, auto *b) { return a->start_s < b->start_s; });
-    Vec3 at = node.position;
-    for (const MotionSpec *m : mine) {
-        double t_s = m->start_s;
-        for (const Vec3 &p : m->waypoints) {
-            const double leg_s = distanceM(at, p) / m->speed_mps;
-            if (leg_s > 0.0) {
-                legs_.push_back({t_s, t_s + leg_s, at, p, m->start_s});
-            }
-            t_s += leg_s;
-            at = p;
-        }
-    }
-}
-
-const Track::Leg *Track::legAt(double t_s) const
-{
-    for (const Leg &leg : legs_) {
-        if (t_s >= leg.t0_s && t_s < leg.t1_s) {
-            return &leg;
-        }
-    }
-    return nullptr;
-}
-
-Vec3 Track::position(double t_s) const
-{
-    Vec3 at = start_;
-    for (const Leg &leg : legs_) {
-        if (t_s < leg.t0_s) {
-            break;
-        }
-        if (t_s >= leg.t1_s) {
-            at = leg.to;
+        if (m.node != node.id) {
             continue;
         }
-        const double f = (t_s - leg.t0_s) / (leg.t1_s - leg.t0_s);
-        return {leg.from.x_m + f * (leg.to.x_m - leg.from.x_m), leg.from.y_m + f * (leg.to.y_m - leg.from.y_m),
-                leg.from.z_m + f * (leg.to.z_m - leg.from.z_m)};
+        netgen::Stretch stretch;
+        stretch.start_s = m.start_s;
+        stretch.speed_mps = m.speed_mps;
+        stretch.end_s = m.end_s;
+        for (const Vec3 &p : m.waypoints) {
+            stretch.waypoints.push_back({p.x_m, p.y_m, p.z_m});
+        }
+        stretches.push_back(std::move(stretch));
     }
-    return at;
-}
-
-// A carried node: the vertical bounce of a walking person at the step frequency, a smaller
-// surge along the walking direction and a sway across it at half the step frequency. The
-// norm then swings by about the bounce amplitude around 1 g, which the firmware's detector
-// (deviation above 80 mg -> moving, below 40 mg for 16 samples -> still) sees only while the
-// node is carried: at rest the trace is exactly 1 g (the simulator adds the sensor noise).
-Vec3 Track::accelMg(double t_s) const
-{
-    const Leg *leg = legAt(t_s);
-    if (leg == nullptr) {
-        return {0.0, 0.0, kOneGMg};
-    }
-    const double phase = 2.0 * kPi * accel_.moving_frequency_hz * (t_s - leg->stretch_start_s);
-    double dx = leg->to.x_m - leg->from.x_m;
-    double dy = leg->to.y_m - leg->from.y_m;
-    const double horizontal_m = std::sqrt(dx * dx + dy * dy);
-    if (horizontal_m > 0.0) {
-        dx /= horizontal_m;
-        dy /= horizontal_m;
-    } else {
-        dx = 1.0; // a vertical leg: any horizontal axis will do
-        dy = 0.0;
-    }
-    const double amplitude = accel_.moving_amplitude_mg;
-    const double surge = 0.3 * amplitude * std::sin(phase + kPi / 2.0);
-    const double sway = 0.2 * amplitude * std::sin(0.5 * phase);
-    return {surge * dx - sway * dy, surge * dy + sway * dx, kOneGMg + amplitude * std::sin(phase)};
-}
-
-pozyx_sim_vec3_t Track::positionFn(void *context, double t_s)
-{
-    const Vec3 p = static_cast<const Track *>(context)->position(t_s);
-    return {p.x_m, p.y_m, p.z_m};
-}
-
-pozyx_sim_vec3_t Track::accelFn(void *context, double t_s)
-{
-    const Vec3 a = static_cast<const Track *>(context)->accelMg(t_s);
-    return {a.x_m, a.y_m, a.z_m}; // (the Vec3 fields carry mg here)
+    const netgen::Vector3 start_m(node.position.x_m, node.position.y_m, node.position.z_m);
+    return netgen::Track(start_m, std::move(stretches), {accel.moving_amplitude_mg, accel.moving_frequency_hz});
 }
 
 // ---- World ------------------------------------------------------------------------------------
@@ -152,13 +82,13 @@ World::World(const Scenario &scenario) : scenario_(scenario), sim_(std::make_uni
         }
     }
     for (const NodeSpec *n : order) {
-        tracks_.push_back(std::make_unique<Track>(*n, scenario_.motion, scenario_.accel));
+        tracks_.push_back(std::make_unique<netgen::Track>(trackOf(*n, scenario_.motion, scenario_.accel)));
         pozyx_sim_node_config_t node;
         pozyx_sim_node_config_default(&node, n->id, n->accelerometer ? 1 : 0);
         node.position_m = {n->position.x_m, n->position.y_m, n->position.z_m};
-        node.position_fn = &Track::positionFn;
+        node.position_fn = &trackPosition;
         node.position_context = tracks_.back().get();
-        node.accel_fn = &Track::accelFn;
+        node.accel_fn = &trackAccel;
         node.accel_context = tracks_.back().get();
         if (pozyx_sim_add_node(sim_.get(), &node) < 0) {
             throw ScenarioError(scenario_.source + ": node " + std::to_string(n->id) + " could not be added");
@@ -321,8 +251,8 @@ void World::writeTruth(uint64_t now_us)
     while (truth_ != nullptr && now_us >= next_truth_us_) {
         const double t_s = static_cast<double>(next_truth_us_) / 1e6;
         for (uint8_t i = 0; i < sim_->node_count; ++i) {
-            const Vec3 p = tracks_[i]->position(t_s);
-            std::fprintf(truth_, "%.3f,%u,%.4f,%.4f,%.4f\n", t_s, sim_->nodes[i].config.id, p.x_m, p.y_m, p.z_m);
+            const netgen::Vector3 p = tracks_[i]->positionM(t_s);
+            std::fprintf(truth_, "%.3f,%u,%.4f,%.4f,%.4f\n", t_s, sim_->nodes[i].config.id, p.x(), p.y(), p.z());
         }
         next_truth_us_ += truth_period_us_;
     }
@@ -470,24 +400,14 @@ void World::report(nlohmann::ordered_json &out, double simulated_s) const
         {"boot_refusals", st.boot_refusals},
         {"list_full_errors", st.list_full_errors},
     };
-    // When each node was carried: back-to-back legs make one stretch.
+    // When each node was carried: back-to-back legs make one span.
     json motion = json::array();
     for (size_t i = 0; i < tracks_.size(); ++i) {
-        const std::vector<Track::Leg> &legs = tracks_[i]->legs();
-        for (size_t l = 0; l < legs.size();) {
-            size_t last = l;
-            while (last + 1 < legs.size() && legs[last + 1].t0_s <= legs[last].t1_s) {
-                ++last;
-            }
-            double length_m = 0.0;
-            for (size_t k = l; k <= last; ++k) {
-                length_m += distanceM(legs[k].from, legs[k].to);
-            }
+        for (const netgen::Track::Span &span : tracks_[i]->spans()) {
             motion.push_back({{"node", sim_->nodes[i].config.id},
-                              {"from_s", legs[l].t0_s},
-                              {"to_s", legs[last].t1_s},
-                              {"length_m", length_m}});
-            l = last + 1;
+                              {"from_s", span.from_s},
+                              {"to_s", span.to_s},
+                              {"length_m", span.length_m}});
         }
     }
     out["motion"] = motion;

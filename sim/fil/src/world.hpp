@@ -1,7 +1,7 @@
-// world.hpp: the simulated Pozyx network of a firmware-in-the-loop run. It owns the simulated
-// Pozyx (cdro_pozyx_sim) set up from a Scenario: the local device first, then the remote nodes,
-// each with a track (position over time: standing, or carried along its waypoints) and an
-// accelerometer trace that matches the track (1 g at rest, a walking bounce while carried). It
+// world.hpp: the firmware-in-the-loop harness around the simulated Pozyx network of a run. It
+// owns the simulated Pozyx (cdro_pozyx_sim) set up from a Scenario: the local device first, then
+// the remote nodes, each moving along its host/netgen track (cdro/netgen/track.hpp: where a node
+// is and what its accelerometer reads; this file only wires the tracks to the simulator). It
 // applies the scenario's faults at their times, accounts for every ranging the simulator
 // performs (by kind and pair, with the true distance at that moment) and for every fault it
 // actually injected, and writes the truth files.
@@ -20,38 +20,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include "cdro/netgen/track.hpp"
 #include "pozyx_sim/pozyx_sim.h"
 #include "scenario.hpp"
 
 namespace cdro::fil {
 
-// A node's position over time: piecewise linear along its carried stretches.
-class Track {
-public:
-    struct Leg {
-        double t0_s, t1_s; // s: leaves `from` at t0, reaches `to` at t1
-        Vec3 from, to;
-        double stretch_start_s; // s: start of the stretch this leg belongs to (phase of the gait)
-    };
-
-    Track(const NodeSpec &node, const std::vector<MotionSpec> &motion, const AccelSpec &accel);
-
-    Vec3 position(double t_s) const;
-    // The leg being walked at t_s, or nullptr when the node stands still.
-    const Leg *legAt(double t_s) const;
-    bool moving(double t_s) const { return legAt(t_s) != nullptr; }
-    // mg, body frame = world frame, gravity included: (0, 0, 1000) at rest.
-    Vec3 accelMg(double t_s) const;
-    const std::vector<Leg> &legs() const { return legs_; }
-
-    static pozyx_sim_vec3_t positionFn(void *context, double t_s);
-    static pozyx_sim_vec3_t accelFn(void *context, double t_s);
-
-private:
-    Vec3 start_;
-    std::vector<Leg> legs_;
-    AccelSpec accel_;
-};
+// A node's track as the scenario gives it: where it stands, its motion[] stretches, the gait of
+// the accelerometer section.
+netgen::Track trackOf(const NodeSpec &node, const std::vector<MotionSpec> &motion, const AccelSpec &accel);
 
 struct RangingRecord {
     uint64_t at_us;
@@ -114,7 +91,7 @@ private:
 
     Scenario scenario_;
     std::unique_ptr<pozyx_sim_t> sim_;
-    std::vector<std::unique_ptr<Track>> tracks_; // by sim node index
+    std::vector<std::unique_ptr<netgen::Track>> tracks_; // by sim node index
 
     // Shadow of each node's stored range entries, to see which one a ranging changed.
     std::vector<std::vector<pozyx_sim_range_entry_t>> shadow_;
