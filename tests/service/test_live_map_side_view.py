@@ -442,6 +442,10 @@ def test_grid_labels_have_the_decimals_of_the_grid_step(served):
     assert "4.5 m" in texts[0.5] and "1.5 m" in texts[0.5] and "4.0 m" in texts[0.5]
     assert "4 m" in texts[1.0] and "4 m" in texts[2.0]
     assert "4.2 m" in texts[0.2] or "3.8 m" in texts[0.2]
+    # Steps the zoom does not reach today (the grid's are 1, 2 or 5 x 10^k m) by the page's own rule.
+    for value_m, step_m, text in ((4.25, 0.25, "4.25 m"), (-4.5, 0.5, "-4.5 m"), (0.3, 0.1, "0.3 m"),
+                                  (3 * 0.1, 0.1, "0.3 m"), (20.0, 10.0, "20 m"), (0.075, 0.025, "0.075 m")):
+        assert browser.run("return window.cdroLiveMap.gridLabel(arguments[0], arguments[1])", value_m, step_m) == text
 
     side = browser.run(SIDE_STATE)
     assert not side["hidden"]
