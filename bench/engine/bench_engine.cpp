@@ -160,10 +160,9 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
     Accuracy result;
     result.total = truth_m.size();
     const std::vector<cdro::engine::NodeOutput> estimates = engine.estimates();
-    std::vector<Vector2> estimated;
-    std::vector<Vector2> truth;
-    std::vector<Vector2> converged_estimated;
-    std::vector<Vector2> converged_truth;
+    std::vector<cdro::engine::MapPoint> estimated;
+    std::vector<cdro::engine::MapPoint> converged;
+    std::map<NodeId, uint32_t> links_of;
     for (const cdro::engine::NodeOutput &node : estimates) {
         const auto known = truth_m.find(node.id);
         if (known == truth_m.end() || !node.placed()) {
@@ -175,38 +174,28 @@ Accuracy accuracy(const Engine &engine, const std::map<NodeId, Vector2> &truth_m
             result.finite = false;
             continue;
         }
-        estimated.push_back(node.position_m);
-        truth.push_back(known->second);
+        estimated.push_back({node.id, node.position_m});
+        links_of[node.id] = node.link_count;
         if (node.converged()) {
-            converged_estimated.push_back(node.position_m);
-            converged_truth.push_back(known->second);
+            converged.push_back({node.id, node.position_m});
         }
     }
-    if (converged_estimated.size() >= 2) {
-        const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(converged_estimated, converged_truth, true);
-        result.converged_rmse_m = fit.rms_error_m;
-        for (size_t i = 0; i < converged_estimated.size(); ++i) {
-            result.converged_over_1m += (fit.apply(converged_estimated[i]) - converged_truth[i]).norm() > 1.0 ? 1U : 0U;
-        }
+    if (converged.size() >= 2) {
+        const cdro::engine::AlignedErrors aligned = cdro::engine::alignedErrors(converged, truth_m, true);
+        result.converged_rmse_m = aligned.rmse_m;
+        result.converged_over_1m = aligned.countOver(1.0);
     }
     if (estimated.size() >= 2) {
-        const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(estimated, truth, true);
-        result.rmse_m = fit.rms_error_m;
+        const cdro::engine::AlignedErrors aligned = cdro::engine::alignedErrors(estimated, truth_m, true);
+        result.rmse_m = aligned.rmse_m;
+        result.over_1m = aligned.countOver(1.0);
+        result.median_error_m = median(aligned.error_m);
         std::vector<Accuracy::Worst> errors;
-        for (const cdro::engine::NodeOutput &node : estimates) {
-            const auto known = truth_m.find(node.id);
-            if (known != truth_m.end() && node.placed() && node.position_m.allFinite()) {
-                errors.push_back({(fit.apply(node.position_m) - known->second).norm(), node.id, node.link_count});
-            }
+        for (size_t k = 0; k < aligned.compared(); ++k) {
+            errors.push_back({aligned.error_m[k], aligned.ids[k], links_of[aligned.ids[k]]});
         }
         std::sort(errors.begin(), errors.end(),
                   [](const Accuracy::Worst &x, const Accuracy::Worst &y) { return x.error_m > y.error_m; });
-        std::vector<double> magnitudes;
-        for (const Accuracy::Worst &e : errors) {
-            magnitudes.push_back(e.error_m);
-            result.over_1m += e.error_m > 1.0 ? 1U : 0U;
-        }
-        result.median_error_m = median(magnitudes);
         errors.resize(std::min<size_t>(errors.size(), 5));
         result.worst = errors;
     }

@@ -47,14 +47,10 @@ Fit fitToTruth(const std::vector<Vector2> &estimate, const std::vector<Vector2> 
     if (estimate.size() < 2) {
         return fit;
     }
-    const engine::RigidTransform transform = engine::fitRigid(estimate, truth, true);
-    fit.rmse_m = transform.rms_error_m;
-    fit.worst_m = 0.0;
-    for (size_t i = 0; i < estimate.size(); ++i) {
-        const double e = (transform.apply(estimate[i]) - truth[i]).norm();
-        fit.worst_m = std::max(fit.worst_m, e);
-        fit.over_1m += e > 1.0 ? 1U : 0U;
-    }
+    const engine::AlignedErrors aligned = engine::alignedErrors(estimate, truth, true);
+    fit.rmse_m = aligned.rmse_m;
+    fit.worst_m = aligned.worst_m;
+    fit.over_1m = static_cast<uint32_t>(aligned.countOver(1.0));
     return fit;
 }
 
@@ -484,12 +480,12 @@ static int runMain(int argc, char **argv)
             uint32_t covered2 = 0, covered95 = 0, wrong = 0;
             double crmse = std::numeric_limits<double>::quiet_NaN();
             if (ce.size() >= 3) {
-                const engine::RigidTransform fitc = engine::fitRigid(ce, ct, true);
-                crmse = fitc.rms_error_m;
+                const engine::AlignedErrors aligned = engine::alignedErrors(ce, ct, true);
+                crmse = aligned.rmse_m;
+                wrong = static_cast<uint32_t>(aligned.countOver(1.0));
                 for (size_t i = 0; i < converged.size(); ++i) {
-                    const Vector2 e = fitc.apply(ce[i]) - ct[i];
-                    wrong += e.norm() > 1.0 ? 1U : 0U;
-                    const engine::Matrix2 c = fitc.applyToCovariance(confidence.covariance_m2[converged[i]]);
+                    const Vector2 e = aligned.fit.apply(ce[i]) - ct[i];
+                    const engine::Matrix2 c = aligned.fit.applyToCovariance(confidence.covariance_m2[converged[i]]);
                     const double m2 = e.dot(c.inverse() * e);
                     covered2 += m2 <= 4.0 ? 1U : 0U;
                     covered95 += m2 <= 5.991 ? 1U : 0U;

@@ -12,7 +12,6 @@
 // truth: id,x,y[,z] (m); the output has the estimates' columns (id,x,y,var_x,cov_xy,var_y,converged;
 // covariances from the map's information, converged = 1 for every solved node) and the
 // solve's cost is printed on stdout (nats).
-#include <cmath>
 #include <cstdio>
 #include <limits>
 #include <stdexcept>
@@ -111,23 +110,16 @@ static int runMain(int argc, char **argv)
             const engine::GlobalSolveResult solved =
                 engine::solveGlobally(problem, engine::mapLikelihood(params.likelihood), solve);
             for (const engine::MapHypothesis &h : solved.all) {
-                std::vector<engine::Vector2> source;
-                std::vector<engine::Vector2> target;
+                std::vector<engine::MapPoint> placed;
                 for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
                     if (h.estimate.placed[i] != 0) {
-                        source.push_back(h.estimate.position_m[i]);
-                        target.push_back(true_position[problem.ids[i]]);
+                        placed.push_back({problem.ids[i], h.estimate.position_m[i]});
                     }
                 }
-                const engine::RigidTransform fit = engine::fitRigid(source, target, true);
-                double sum_m2 = 0.0;
-                for (size_t k = 0; k < source.size(); ++k) {
-                    sum_m2 += (fit.apply(source[k]) - target[k]).squaredNorm();
-                }
+                const engine::AlignedErrors aligned = engine::alignedErrors(placed, true_position, true);
                 std::printf("hypothesis cost_nats %.3f connectivity_nats %.3f placed %u rmse_m %.3f origin %s\n",
                             h.cost, engine::connectivityCost(problem, h.estimate).cost_nats, h.estimate.placedCount(),
-                            source.empty() ? 0.0 : std::sqrt(sum_m2 / static_cast<double>(source.size())),
-                            h.origin.c_str());
+                            aligned.compared() == 0 ? 0.0 : aligned.rmse_m, h.origin.c_str());
             }
         }
         // As the global solve treats each of its maps: refined, then judged under the NLOS model

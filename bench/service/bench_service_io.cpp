@@ -403,8 +403,7 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
 {
     MapScore score;
     score.nodes = truth_m.size();
-    std::vector<cdro::engine::Vector2> estimated;
-    std::vector<cdro::engine::Vector2> truth;
+    std::vector<cdro::engine::MapPoint> estimated;
     for (const cdro::engine::NodeOutput &node : engine.estimates()) {
         const auto known = truth_m.find(node.id);
         if (known == truth_m.end() || !node.placed()) {
@@ -413,17 +412,13 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
         ++score.placed;
         score.converged += node.converged() ? 1U : 0U;
         if (node.position_m.allFinite()) {
-            estimated.push_back(node.position_m);
-            truth.push_back(known->second);
+            estimated.push_back({node.id, node.position_m});
         }
     }
     if (estimated.size() >= 2) {
-        const cdro::engine::RigidTransform fit = cdro::engine::fitRigid(estimated, truth, true);
-        score.rmse_m = fit.rms_error_m;
-        score.worst_m = 0.0;
-        for (size_t i = 0; i < estimated.size(); ++i) {
-            score.worst_m = std::max(score.worst_m, (fit.apply(estimated[i]) - truth[i]).norm());
-        }
+        const cdro::engine::AlignedErrors aligned = cdro::engine::alignedErrors(estimated, truth_m, true);
+        score.rmse_m = aligned.rmse_m;
+        score.worst_m = aligned.worst_m;
     }
     return score;
 }

@@ -138,8 +138,7 @@ AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, cons
         truth[ids[i]] = truth_m[i];
     }
     AlignedError error;
-    std::vector<Vector2> source;
-    std::vector<Vector2> target;
+    std::vector<engine::MapPoint> placed;
     for (const engine::NodeOutput &node : estimates) {
         if (node.link_count == 0 && !node.fixed()) {
             continue;
@@ -150,19 +149,16 @@ AlignedError alignedError(const std::vector<engine::NodeOutput> &estimates, cons
             continue;
         }
         ++error.placed;
-        source.push_back(node.position_m);
-        target.push_back(truth[node.id]);
+        placed.push_back({node.id, node.position_m});
     }
-    if (source.size() < 2) {
+    if (placed.size() < 2) {
         error.rmse_m = std::numeric_limits<double>::infinity();
         error.max_m = std::numeric_limits<double>::infinity();
         return error;
     }
-    const engine::RigidTransform transform = engine::fitRigid(source, target, true);
-    error.rmse_m = transform.rms_error_m;
-    for (size_t i = 0; i < source.size(); ++i) {
-        error.max_m = std::max(error.max_m, (transform.apply(source[i]) - target[i]).norm());
-    }
+    const engine::AlignedErrors aligned = engine::alignedErrors(placed, truth, true);
+    error.rmse_m = aligned.rmse_m;
+    error.max_m = aligned.worst_m;
     return error;
 }
 

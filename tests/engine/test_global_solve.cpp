@@ -73,17 +73,20 @@ Exact problemOf(const netgen::World &world, double noise_sigma_m = 0.0, uint64_t
     return out;
 }
 
+// The map's RMSE against the truth over the nodes it places (NaN when it places none); the node's
+// number in the problem stands for its id.
 double alignedRmse(const MapEstimate &estimate, const std::vector<Vector2> &truth)
 {
-    std::vector<Vector2> a;
-    std::vector<Vector2> b;
+    std::vector<MapPoint> placed;
+    std::map<NodeId, Vector2> reference;
     for (size_t i = 0; i < truth.size(); ++i) {
+        const auto number = static_cast<NodeId>(i);
+        reference[number] = truth[i];
         if (estimate.placed[i] != 0) {
-            a.push_back(estimate.position_m[i]);
-            b.push_back(truth[i]);
+            placed.push_back({number, estimate.position_m[i]});
         }
     }
-    return fitRigid(a, b, true).rms_error_m;
+    return alignedErrors(placed, reference, true).rmse_m;
 }
 
 MapEstimate truthEstimate(const Exact &exact)

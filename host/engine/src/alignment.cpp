@@ -1,6 +1,11 @@
 #include "cdro/engine/alignment.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <utility>
 
 #include <Eigen/LU>
 #include <Eigen/SVD>
@@ -83,6 +88,60 @@ RigidTransform fitRigid(const std::vector<Vector2> &source_m, const std::vector<
     RigidTransform mirrored = fitProper(source_m, target_m, true);
     const double tie_m = kReflectionTie * (spreadOf(source_m) + spreadOf(target_m));
     return mirrored.rms_error_m < proper.rms_error_m - tie_m ? mirrored : proper;
+}
+
+size_t AlignedErrors::countOver(double limit_m) const
+{
+    return static_cast<size_t>(
+        std::count_if(error_m.begin(), error_m.end(), [limit_m](double error) { return error > limit_m; }));
+}
+
+AlignedErrors alignedErrors(const std::vector<MapPoint> &map_m, const std::map<NodeId, Vector2> &reference_m,
+                            bool allow_reflection)
+{
+    std::set<NodeId> seen;
+    std::vector<NodeId> ids;
+    std::vector<Vector2> placed_m;
+    std::vector<Vector2> wanted_m;
+    for (const MapPoint &point : map_m) {
+        if (!seen.insert(point.id).second) {
+            throw std::invalid_argument("alignedErrors: node " + std::to_string(point.id) +
+                                        " is listed twice in the map (each node once)");
+        }
+        const auto reference = reference_m.find(point.id);
+        if (reference != reference_m.end()) {
+            ids.push_back(point.id);
+            placed_m.push_back(point.position_m);
+            wanted_m.push_back(reference->second);
+        }
+    }
+    AlignedErrors aligned = alignedErrors(placed_m, wanted_m, allow_reflection);
+    aligned.ids = std::move(ids);
+    return aligned;
+}
+
+AlignedErrors alignedErrors(const std::vector<Vector2> &map_m, const std::vector<Vector2> &reference_m,
+                            bool allow_reflection)
+{
+    if (map_m.size() != reference_m.size()) {
+        throw std::invalid_argument("alignedErrors: " + std::to_string(map_m.size()) + " map positions but " +
+                                    std::to_string(reference_m.size()) +
+                                    " reference positions (the paired form takes one of each per node)");
+    }
+    AlignedErrors aligned;
+    if (map_m.empty()) {
+        return aligned;
+    }
+    aligned.fit = fitRigid(map_m, reference_m, allow_reflection);
+    aligned.rmse_m = aligned.fit.rms_error_m;
+    aligned.worst_m = 0.0;
+    aligned.error_m.reserve(map_m.size());
+    for (size_t i = 0; i < map_m.size(); ++i) {
+        const double error_m = (aligned.fit.apply(map_m[i]) - reference_m[i]).norm();
+        aligned.error_m.push_back(error_m);
+        aligned.worst_m = std::max(aligned.worst_m, error_m);
+    }
+    return aligned;
 }
 
 } // namespace cdro::engine

@@ -93,6 +93,7 @@ window.cdroLiveMap = {
   view: () => ({ follow: viewState.follow, center_x_m: viewState.cx, center_y_m: viewState.cy,
                  scale_px_per_m: viewState.scale, width_px: WIDTH, height_px: HEIGHT }),
   map: () => lastMap, // the map drawn now (/api/map's object)
+  gridLabel: (valueM, stepM) => `${gridNumber(valueM, stepM)} m`, // a grid line's label
 };
 
 // The nicest step of 1, 2 or 5 x 10^k metres that is at least min_px on screen.
@@ -107,6 +108,19 @@ function metresText(value) {
   const digits = Math.max(0, -Math.floor(Math.log10(Math.abs(value) || 1)));
   return `${value.toFixed(Math.min(digits, 3))} m`;
 }
+
+// The decimals that write every multiple of a grid step as it is: 1 m -> 0, 0.5 m -> 1, 0.25 m -> 2.
+function stepDigits(stepM) {
+  for (let digits = 0; digits < 6; ++digits) {
+    const scaled = stepM * Math.pow(10, digits);
+    if (Math.abs(scaled - Math.round(scaled)) < 1e-9 * Math.max(1, scaled)) return digits;
+  }
+  return 6;
+}
+
+// A grid line's value (m) with its step's decimals: 4.5 on a 0.5 m grid is "4.5", not "5" (the
+// value's own size says nothing about the decimals the grid needs), 4 on it "4.0".
+function gridNumber(valueM, stepM) { return valueM.toFixed(stepDigits(stepM)); }
 
 function drawEllipse(parent, view, x, y, vxx, vxy, vyy, sigmas, cls, opacity) {
   const e = covarianceEllipse(vxx, vxy, vyy);
@@ -131,12 +145,12 @@ function drawGrid(view) {
   for (let k = Math.ceil(x0 / step); k <= Math.floor(x1 / step); ++k) {
     const px = view.x(k * step);
     el('line', { class: k === 0 ? 'grid axis' : 'grid', x1: px, y1: 0, x2: px, y2: HEIGHT }, g);
-    el('text', { class: 'grid-label', x: px + 2, y: HEIGHT - 4 }, labels).textContent = metresText(k * step);
+    el('text', { class: 'grid-label', x: px + 2, y: HEIGHT - 4 }, labels).textContent = `${gridNumber(k * step, step)} m`;
   }
   for (let k = Math.ceil(y0 / step); k <= Math.floor(y1 / step); ++k) {
     const py = view.y(k * step);
     el('line', { class: k === 0 ? 'grid axis' : 'grid', x1: 0, y1: py, x2: WIDTH, y2: py }, g);
-    el('text', { class: 'grid-label', x: 2, y: py - 2 }, labels).textContent = metresText(k * step);
+    el('text', { class: 'grid-label', x: 2, y: py - 2 }, labels).textContent = `${gridNumber(k * step, step)} m`;
   }
 }
 
@@ -348,14 +362,12 @@ function drawSideView(view, map) {
     el('line', { class: 'grid', x1: px, y1: 0, x2: px, y2: SIDE_HEIGHT }, grid);
   }
   const zStep = niceStep(zScale, 30); // m
-  // Labels with the step's decimals: 1.5 m on a 0.5 m step must not read 2 m.
-  const zDigits = Math.max(0, -Math.floor(Math.log10(zStep)));
   for (let k = Math.ceil(z0 / zStep); k <= Math.floor(z1 / zStep); ++k) {
     const py = zPx(k * zStep);
     el('line', { class: k === 0 ? 'side-z-line side-ground' : 'grid side-z-line', 'data-z-m': k * zStep,
       x1: 0, y1: py, x2: WIDTH, y2: py }, grid);
     el('text', { class: 'grid-label side-z-label', x: 2, y: py - 2, 'data-z-m': k * zStep }, labels).textContent =
-      k === 0 ? 'ground, z = 0 m' : `z ${(k * zStep).toFixed(zDigits)} m`;
+      k === 0 ? 'ground, z = 0 m' : `z ${gridNumber(k * zStep, zStep)} m`;
   }
 
   for (const n of others) {
