@@ -4,8 +4,8 @@ likelihood against kolakowski-nlos").
 
 kolakowski-nlos (../shared/data, its README): 36 static DW1000 pairs in a furnished flat, each
 labelled LOS, NLOS or NDP-NLOS (no direct path), with the true 2D distance. The engine's model
-(host/engine/range_likelihood.hpp) says: a line-of-sight reading is Gaussian around the truth; an
-NLOS one is long by a persistent excess X ~ Exp(mean 1/lambda) plus the noise; readings short by
+(host/engine/include/cdro/engine/range_likelihood.hpp) says: a line-of-sight reading is Gaussian
+around the truth; an NLOS one is long by a persistent excess X ~ Exp(mean 1/lambda) plus the noise; readings short by
 more than the noise are all but impossible; and each radio may add its own offset (an uncalibrated
 antenna delay, range_offsets.hpp). This script measures each claim on the data, pair by pair (the
 engine sees a link's median, so the pair is the unit):

@@ -3,7 +3,7 @@
 building family (host/netgen), next to the batch baselines on the same ranges and the reference
 no user has (the engine's robust map solve started at the truth), with what matters to a user:
 how far the map is, whether the nodes it calls converged are right, whether its ellipses hold the
-truth, and whether the order the ranges came in changes the answer. Run through scripts/scorecard.sh.
+truth, and whether the order the ranges came in changes the answer. docs/results.md shows the command lines.
 
 For each family and seed: cdro-netgen writes the network (its seed printed); cdro-hostd maps it
 as a user would (defaults, offline mode) in file order, in --shuffles shuffled orders, with the

@@ -32,7 +32,7 @@ RUNTIME_PACKAGES=(
   python3-numpy python3-scipy python3-matplotlib python3-serial python3-yaml python3-paho-mqtt
   libeigen3-dev
   libserial-dev libcli11-dev libspdlog-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
-  # sd_notify (Type=notify, the watchdog): config/cdro-hostd.service
+  # sd_notify (Type=notify, the watchdog): config/systemd/cdro-hostd.service.in
   libmosquitto-dev
   libsystemd-dev
 )

@@ -1,5 +1,5 @@
-// A carried node's track (host/netgen/track.hpp): where it is at the ends of its legs and in
-// between, a stretch given by its speed walks as the same stretch given by its end time,
+// A carried node's track (host/netgen/include/cdro/netgen/track.hpp): where it is at the ends of
+// its legs and in between, a stretch given by its speed walks as the same stretch given by its end time,
 // waypoints without z keep the node's height, and the accelerometer reads exactly 1 g at rest
 // and the gait while carried.
 #include <gtest/gtest.h>

@@ -1,7 +1,7 @@
 """Readers for the tests of cdro-foxglove and cdro-export, written from the published specs and
 independent of the code under test (which writes through foxglove-sdk and mcap-ros2-support):
 
-- a Foxglove WebSocket client (github.com/foxglove/ws-protocol docs/spec.md, subprotocol
+- a Foxglove WebSocket client (github.com/foxglove/ws-protocol/blob/main/docs/spec.md, subprotocol
   `foxglove.websocket.v1`; foxglove-sdk's server names the same protocol `foxglove.sdk.v1` and
   accepts only that name, so the client offers both): JSON text messages `serverInfo`, `advertise` (channels with `id`,
   `topic`, `encoding`, `schemaName`, `schema`, `schemaEncoding`); the client sends `subscribe`

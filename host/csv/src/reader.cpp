@@ -487,7 +487,7 @@ bool parseNodeId(std::string_view text, uint16_t *id)
         }
     }
     if (value == 0) {
-        return false; // 0 is not a node (the frame check of common/frames.c: it means "none")
+        return false; // 0 is not a node (the frame check of common/src/frames.c: it means "none")
     }
     *id = static_cast<uint16_t>(value);
     return true;

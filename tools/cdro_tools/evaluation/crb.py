@@ -1,4 +1,4 @@
-"""The anchor-free Cramer-Rao bound of a range network (docs/algorithm.md, "Frames of
+"""The anchor-free Cramer-Rao bound of a range network (../shared/docs/algorithm.md, "Frames of
 reference and evaluation").
 
 Each range on link (i, j) with Gaussian noise of std sigma adds u u^T / sigma^2 to the

@@ -152,8 +152,9 @@ def parse_number(text: str) -> float | None:
 
 def parse_node_id(text: str) -> int | None:
     """A node id as csv::parseNodeId reads it: "42" (or "+42") or "0x2A" (or "0X2a"), in 1..65535;
-    None otherwise. Ids follow the live link's rule (common/frames.h): 0 is not a node (it means
-    "none" in the protocol), so a file and a capture of the same network name the same nodes."""
+    None otherwise. Ids follow the live link's rule (common/include/cdro/frames.h): 0 is not a node
+    (it means "none" in the protocol), so a file and a capture of the same network name the same
+    nodes."""
     match = _NODE_ID.fullmatch(text)
     if match is None:
         return None

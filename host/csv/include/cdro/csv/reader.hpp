@@ -185,8 +185,8 @@ private:
 };
 
 // "42" (or "+42") or "0x2A" (or "0X2a") -> 42, in 1..65535; false otherwise. Ids follow the live link's
-// rule (common/frames.h): 0 is not a node (it means "none" in the protocol), so a file and a
-// capture of the same network name the same nodes.
+// rule (common/include/cdro/frames.h): 0 is not a node (it means "none" in the protocol), so a file
+// and a capture of the same network name the same nodes.
 bool parseNodeId(std::string_view text, uint16_t *id);
 // The whole text as a finite double (strtod); false otherwise.
 bool parseNumber(const std::string &text, double *value);

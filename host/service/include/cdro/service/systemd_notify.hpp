@@ -1,5 +1,5 @@
 // systemd_notify.hpp: the service's side of systemd's notification protocol (sd_notify(3)),
-// for a unit with Type=notify and WatchdogSec= (config/cdro-hostd.service):
+// for a unit with Type=notify and WatchdogSec= (config/systemd/cdro-hostd.service.in):
 //   READY=1     once the service is up: outputs open, the live map listening, the serial port
 //               open or being retried (a missing board is a state the service reports, not a
 //               failed start), so that units ordered after it start when it can serve;

@@ -1,7 +1,7 @@
 // yaml_section.hpp: one section of cdro-hostd's YAML configuration (a map), read key by key
 // with types and ranges, and a final check that every key in it was known, so that a typo is
 // an error naming the file, line, key and the keys that exist, never a silent default. Shared
-// by the service's sections (config.cpp) and the engine's (host/hostd/engine_config.cpp).
+// by the service's sections (config.cpp) and the engine's (host/hostd/src/engine_config.cpp).
 #pragma once
 
 #include <cmath>
