@@ -155,6 +155,9 @@ TEST(HostDevice, UnknownConstantsAreNotFound)
     EXPECT_EQ(found, 0U);
     EXPECT_EQ(cdro_hd_constant("MOVING_ABOVE_MG", &found), 80);
     EXPECT_EQ(found, 1U);
+    const Device device; // created, before its Pozyx is up
+    EXPECT_EQ(cdro_hd_state(device.hd), cdro_hd_constant("STATE_BOOT", &found));
+    EXPECT_EQ(found, 1U);
 }
 
 } // namespace

@@ -107,6 +107,16 @@ def test_that_the_constants_are_the_firmwares():
         host_device.constant("NO_SUCH_CONSTANT")
 
 
+def test_that_the_device_is_booting_until_the_firmware_leaves_its_boot_state():
+    # the state is the firmware's (cdro_fw_state_t), read from the library like the constants
+    device, sink = make_device(scenario())
+    boot_us = host_device.constant("POZYX_BOOT_MS") * 1000
+    advance(device, device.boot_us + boot_us // 2)
+    assert device.booting and not sink.frames("HELLO")
+    advance(device, 1_000_000)
+    assert sink.frames("HELLO") and not device.booting
+
+
 def test_that_the_structures_match_the_c_structs_and_a_wrong_one_is_named():
     # Fixture: the same fields in the wrong order, and one field too few
     lib = host_device.library()  # loading checks the real ones

@@ -475,6 +475,7 @@ static const hd_constant_t kConstants[] = {
     {"MOTION_PERIODIC_MS", (int64_t)CDRO_FW_MOTION_PERIODIC_MS},
     {"WATCHDOG_MS", CDRO_FW_WATCHDOG_MS},
     {"LONGEST_OPERATION_MS", CDRO_FW_LONGEST_OPERATION_MS},
+    {"STATE_BOOT", CDRO_FW_STATE_BOOT},
 };
 
 int64_t cdro_hd_constant(const char *name, uint8_t *found)

@@ -26,8 +26,6 @@ from .scenario import Scenario
 from .uwb import UwbModel
 from .world import World
 
-STATE_BOOT = 0        # cdro_fw_state_t: before HELLO
-
 
 class Sink(Protocol):
     def offer(self, time_us: int, data: bytes, frame: Frame | None) -> bool:
@@ -161,7 +159,7 @@ class FirmwareDevice:
     @property
     def booting(self) -> bool:
         """Before HELLO."""
-        return self.lib.cdro_hd_state(self._hd) == STATE_BOOT
+        return self.lib.cdro_hd_state(self._hd) == host_device.constant("STATE_BOOT")
 
     def flagged_moving(self, node_id: int) -> bool:
         return bool(self.lib.cdro_hd_moving(self._hd, node_id))

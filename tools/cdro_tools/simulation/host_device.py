@@ -151,7 +151,8 @@ def check_layouts(lib: ctypes.CDLL, structures: dict[str, type[ctypes.Structure]
 
 
 def constant(name: str) -> int:
-    """A compile-time constant of the firmware (config.h, without CDRO_FW_), e.g. MOVING_ABOVE_MG."""
+    """A compile-time constant of the firmware (config.h, or a state of cdro_fw_state_t, without
+    CDRO_FW_), e.g. MOVING_ABOVE_MG, STATE_BOOT."""
     found = ctypes.c_uint8(0)
     value = library().cdro_hd_constant(name.encode(), ctypes.byref(found))
     if not found.value:

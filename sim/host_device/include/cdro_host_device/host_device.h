@@ -126,8 +126,9 @@ void cdro_hd_injected_frame(cdro_hd_t *hd, uint8_t sent);
 /* Bytes the transmit path takes now (the UART's free space, and the room callback's). */
 uint16_t cdro_hd_tx_free(cdro_hd_t *hd);
 
-/* The firmware's compile-time constants (firmware/core/include/cdro_fw/config.h) by name
- * without the CDRO_FW_ prefix, e.g. "MOVING_ABOVE_MG"; *found = 0 for an unknown name. */
+/* The firmware's compile-time constants (firmware/core/include/cdro_fw/config.h, and the states
+ * of cdro_fw_state_t) by name without the CDRO_FW_ prefix, e.g. "MOVING_ABOVE_MG",
+ * "STATE_BOOT"; *found = 0 for an unknown name. */
 int64_t cdro_hd_constant(const char *name, uint8_t *found);
 
 /* The layout of the structs above, in bytes, for a binding that declares them by hand (ctypes,
