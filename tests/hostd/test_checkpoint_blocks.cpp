@@ -92,7 +92,10 @@ TEST(CheckpointBlocks, ADamagedBlockIsRefusedSayingWhatIsWrong)
     frame[1] = 2; // ENGINE_BLOCK.has_frame: 0..1
     EXPECT_EQ(refusal(frame), "the checkpoint's engine block has has_frame 2, outside 0..1");
     std::vector<uint8_t> absurd = bytes;
-    absurd[11] = 0x7F; // ENGINE_BLOCK.nodes' count, bytes 8..11
+    const uint32_t too_many = CDRO_CHECKPOINT_MAX_LIST_COUNT + 1U; // ENGINE_BLOCK.nodes' count, bytes 8..11
+    for (size_t i = 0; i < 4; ++i) {
+        absurd[8 + i] = static_cast<uint8_t>(too_many >> (8U * i));
+    }
     EXPECT_EQ(refusal(absurd).rfind("the checkpoint's engine block gives nodes a count of ", 0), 0U) << refusal(absurd);
 }
 

@@ -17,6 +17,8 @@ typedef char
     cdro_capture_record_overhead_agrees[(CDRO_CAPTURE_RECORD_OVERHEAD == CDRO_CAPTURE_RECORD_HEAD_MAX_SIZE + 2U) ? 1
                                                                                                                  : -1];
 typedef char cdro_capture_magic_agrees[(sizeof CDRO_CAPTURE_MAGIC == CDRO_CAPTURE_MAGIC_SIZE) ? 1 : -1];
+typedef char cdro_capture_max_context_agrees
+    [(CDRO_CAPTURE_MAX_CONTEXT == 65535U - CDRO_CAPTURE_HEADER_FIXED - CDRO_CAPTURE_MAX_SOURCE - 2U) ? 1 : -1];
 
 /* Appends n bytes (n may be 0, src then may be NULL); returns the position after them. */
 static uint8_t *put_bytes(uint8_t *p, const void *src, size_t n)

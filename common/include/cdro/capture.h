@@ -65,9 +65,6 @@ extern "C" {
 CDRO_CAPTURE_RECORD_LIST(CDRO_X_STRUCT)
 CDRO_CAPTURE_RECORD_LIST(CDRO_X_SIZES)
 
-/* Bytes of the header's context at most (the header size is a u16). */
-#define CDRO_CAPTURE_MAX_CONTEXT (65535U - CDRO_CAPTURE_HEADER_FIXED - CDRO_CAPTURE_MAX_SOURCE - 2U)
-
 typedef struct cdro_capture_header {
     uint16_t format_version;              /* decode: the file's; encode: 0 = CDRO_CAPTURE_FORMAT_VERSION */
     int64_t created_unix_us;              /* us since the Unix epoch */

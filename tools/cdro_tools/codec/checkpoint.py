@@ -24,8 +24,8 @@ FLIGHT_VERSION = CONSTANTS["CDRO_CHECKPOINT_FLIGHT_VERSION"]
 _STRUCT = {"U8": "<B", "U16": "<H", "U32": "<I", "U64": "<Q", "I16": "<h", "I32": "<i", "I64": "<q", "F64": "<d"}
 _COUNT = "<I"      # the count before an L or a V
 _ARRAY_COUNT = "<B"  # the count before an A
-# Far more than any block holds (the movement EKF takes at most 120 nodes): a bigger count is damage.
-MAX_COUNT = 1 << 20
+# Far more than any block holds: a bigger count is damage, refused before it is read.
+MAX_COUNT = CONSTANTS["CDRO_CHECKPOINT_MAX_LIST_COUNT"]
 
 
 class _Reader:

@@ -76,9 +76,9 @@ private:
 
 class BlockReader {
 public:
-    // Far more than any block holds (the movement EKF takes at most 120 nodes): a bigger count
-    // is damage, refused before anything is allocated for it.
-    static constexpr uint32_t kMaxCount = 1U << 20U;
+    // Far more than any block holds: a bigger count is damage, refused before anything is
+    // allocated for it.
+    static constexpr uint32_t kMaxCount = CDRO_CHECKPOINT_MAX_LIST_COUNT;
 
     BlockReader(const std::vector<uint8_t> &bytes, const char *block) : bytes_(bytes), block_(block) {}
     void value(uint8_t &v) { v = static_cast<uint8_t>(get(1)); }
