@@ -7,8 +7,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <string>
 
+#include "cdro/csv/reader.hpp"
 #include "cdro_fw/pozyx_regs.h"
 #include "scenario.hpp"
 #include "world.hpp"
@@ -24,6 +26,23 @@ using cdro::netgen::Vector3;
 namespace {
 
 constexpr uint8_t kAddress = POZYX_SIM_DEFAULT_I2C_ADDRESS;
+
+// A file for the world to write its CSV into, read back afterwards by the C++ side's one CSV
+// reader (cdro_csv, Strict: a row that does not read as its columns say fails the test).
+std::FILE *openCsv(const std::string &path)
+{
+    std::FILE *file = std::fopen(path.c_str(), "w");
+    EXPECT_NE(file, nullptr) << path;
+    return file;
+}
+
+std::string firstLine(const std::string &path)
+{
+    std::ifstream in(path);
+    std::string line;
+    std::getline(in, line);
+    return line;
+}
 
 // Own tag at the origin, anchor 0x6A01 at (4, 0, 2) m, tag 0x6B02 carried from (0, 3) to (4, 3)
 // at 2 m/s from 1 s (so moving during [1, 3) s). The ideal Pozyx model: these tests check the
@@ -124,7 +143,9 @@ TEST(FilTrack, AccelerometerTraceMovesExactlyWhileCarried)
 TEST(FilWorld, DirectRangingIsAccountedWithTheTrueDistance)
 {
     World world(scenario());
-    std::FILE *csv = std::tmpfile();
+    const std::string path = testing::TempDir() + "fil_world_ranges.csv";
+    std::FILE *csv = openCsv(path);
+    ASSERT_NE(csv, nullptr);
     world.setRangesCsv(csv);
     ASSERT_EQ(doRanging(world, 0x6A01, us(0.5)), 1);
     world.advance(us(0.5) + 14000);
@@ -133,26 +154,27 @@ TEST(FilWorld, DirectRangingIsAccountedWithTheTrueDistance)
     EXPECT_EQ(world.rangingsDirect(), 1U);
     EXPECT_EQ(world.rangingsRemote(), 0U);
 
-    std::rewind(csv);
-    char header[128];
-    char line[128];
-    ASSERT_NE(std::fgets(header, sizeof header, csv), nullptr);
-    ASSERT_NE(std::fgets(line, sizeof line, csv), nullptr);
     std::fclose(csv);
-    EXPECT_EQ(std::string(header), "t,kind,from,to,distance_mm,true_distance_mm,result\n");
-    double t_s = 0, true_mm = 0;
-    char kind[16] = {}, result[16] = {};
-    unsigned from = 0, to = 0, distance_mm = 0;
-    ASSERT_EQ(std::sscanf(line, "%lf,%15[^,],%u,%u,%u,%lf,%15s", &t_s, kind, &from, &to, &distance_mm, &true_mm,
-                          result),
-              7)
-        << line;
-    EXPECT_STREQ(kind, "direct");
-    EXPECT_EQ(from, 0x6000U);
-    EXPECT_EQ(to, 0x6A01U);
-    EXPECT_NEAR(true_mm, std::sqrt(16.0 + 4.0) * 1000.0, 0.1);
-    EXPECT_NEAR(static_cast<double>(distance_mm), true_mm, 5 * 30.0) << "30 mm noise";
-    EXPECT_STREQ(result, "ok");
+    EXPECT_EQ(firstLine(path), "t,kind,from,to,distance_mm,true_distance_mm,result");
+    cdro::csv::Reader reader(path, {{"t", "kind", "from", "to", "distance_mm", "true_distance_mm", "result"}, {}, {}},
+                             cdro::csv::Policy::Strict);
+    int rows = 0;
+    reader.forEach([&](const cdro::csv::Row &row) {
+        ++rows;
+        double t_s = 0, distance_mm = 0, true_mm = 0;
+        uint16_t from = 0, to = 0;
+        std::string_view kind, result;
+        ASSERT_TRUE(row.number("t", &t_s) && row.text("kind", &kind) && row.nodeId("from", &from) &&
+                    row.nodeId("to", &to) && row.number("distance_mm", &distance_mm) &&
+                    row.number("true_distance_mm", &true_mm) && row.text("result", &result));
+        EXPECT_EQ(kind, "direct");
+        EXPECT_EQ(from, 0x6000U);
+        EXPECT_EQ(to, 0x6A01U);
+        EXPECT_NEAR(true_mm, std::sqrt(16.0 + 4.0) * 1000.0, 0.1);
+        EXPECT_NEAR(distance_mm, true_mm, 5 * 30.0) << "30 mm noise";
+        EXPECT_EQ(result, "ok");
+    });
+    EXPECT_EQ(rows, 1);
 }
 
 TEST(FilWorld, FaultsApplyAtTheirTimeAndAreCountedWhenInjected)
@@ -211,25 +233,27 @@ TEST(FilWorld, FaultsApplyAtTheirTimeAndAreCountedWhenInjected)
 TEST(FilWorld, TruthFileSamplesEveryNodeOnItsTrack)
 {
     World world(scenario());
-    std::FILE *csv = std::tmpfile();
+    const std::string path = testing::TempDir() + "fil_world_truth.csv";
+    std::FILE *csv = openCsv(path);
+    ASSERT_NE(csv, nullptr);
     world.setTruthCsv(csv, 500000);
     world.advance(us(2.0));
-    std::rewind(csv);
-    char line[128];
-    ASSERT_NE(std::fgets(line, sizeof line, csv), nullptr);
-    EXPECT_EQ(std::string(line), "t,id,x,y,z\n");
+    std::fclose(csv);
+    EXPECT_EQ(firstLine(path), "t,id,x,y,z");
     int rows = 0;
     double carried_x_at_2 = -1;
-    while (std::fgets(line, sizeof line, csv) != nullptr) {
+    cdro::csv::Reader reader(path, {{"t", "id", "x", "y", "z"}, {}, {}}, cdro::csv::Policy::Strict);
+    reader.forEach([&](const cdro::csv::Row &row) {
         double t = 0, x = 0, y = 0, z = 0;
-        unsigned id = 0;
-        ASSERT_EQ(std::sscanf(line, "%lf,%u,%lf,%lf,%lf", &t, &id, &x, &y, &z), 5) << line;
+        uint16_t id = 0;
+        ASSERT_TRUE(row.number("t", &t) && row.nodeId("id", &id) && row.number("x", &x) && row.number("y", &y) &&
+                    row.number("z", &z))
+            << "line " << row.line();
         if (id == 0x6B02 && t == 2.0) {
             carried_x_at_2 = x;
         }
         ++rows;
-    }
-    std::fclose(csv);
+    });
     EXPECT_EQ(rows, 3 * 5) << "3 nodes at 0, 0.5, 1, 1.5, 2 s";
     EXPECT_DOUBLE_EQ(carried_x_at_2, 2.0);
 }

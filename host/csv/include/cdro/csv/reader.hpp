@@ -1,8 +1,9 @@
 // reader.hpp: the one CSV reader of the C++ side. cdro-hostd's input files (csv_input.hpp), the
-// benchmarks' PLANT loader (bench/common/plant_data.hpp) and the engine tests' one all read
-// through it, so that a file means the same thing to every program that takes it. The Python
-// tools read by the same rules (tools/cdro_tools/evaluation/inputs.py): the files of
-// tests/data/csv_rules/ and the answers of its cases.json hold both readers to them
+// benchmarks' PLANT loader (bench/common/plant_data.hpp), the engine tests' one and the FIL
+// world's tests (cdro-fil's truth and ranges files) all read through it, so that a file means
+// the same thing to every program that takes it. The Python tools read by the same rules
+// (tools/cdro_tools/evaluation/inputs.py): the files of tests/data/csv_rules/ and the answers of
+// its cases.json hold both readers to them
 // (tests/csv/test_csv_rules.cpp, tests/tools/test_csv_rules.py); a rule changed here is changed
 // there and in the manifest.
 //
