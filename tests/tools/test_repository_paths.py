@@ -29,11 +29,7 @@ NOT_MEANT_TO_EXIST = {
 }
 # (file, path): stale names this branch may not mend; each goes when its file is mended (the test
 # then fails until it is removed here, so that the list cannot hold a name that is right).
-KNOWN_STALE = {
-    # host/engine is changed on its own branch: its params.hpp is to name
-    # host/hostd/include/cdro/hostd/engine_config.hpp
-    ("host/engine/include/cdro/engine/params.hpp", "host/hostd/engine_config.hpp"),
-}
+KNOWN_STALE: set = set()
 
 
 def tracked_files() -> list[str]:

@@ -1,6 +1,6 @@
 // params.hpp: every parameter of the engine, with its default and unit. docs/engine.md lists
 // them with the reasons for the defaults; the config file's `engine:` section and the command
-// line set them (host/hostd/engine_config.hpp).
+// line set them (host/hostd/include/cdro/hostd/engine_config.hpp).
 #pragma once
 
 #include <cstdint>
