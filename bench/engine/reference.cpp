@@ -60,6 +60,10 @@ static int runMain(int argc, char **argv)
                  "refine from the given positions at the nominal noise only (no annealing from wide noise): "
                  "the cost of the basin the positions are in, e.g. of a map an engine run ended in");
     bool hypotheses = false;
+    uint32_t growth_seeds = engine::GlobalSolveParams{}.growth_seeds;
+    app.add_option("--growth-seeds", growth_seeds,
+                   "with --hypotheses: maps grown from this many seed triangles (the engine's solve: 3)")
+        ->check(CLI::Range(1U, 1000U));
     app.add_flag("--hypotheses", hypotheses,
                  "also solve from scratch (the settle's starts, no truth used) and print each start's map: "
                  "origin, cost (nats) and RMSE against the truth (m, rigid fit with reflection)");
@@ -107,6 +111,7 @@ static int runMain(int argc, char **argv)
         if (hypotheses) {
             engine::GlobalSolveParams solve;
             solve.range_offsets = params.solve.range_offsets;
+            solve.growth_seeds = growth_seeds;
             const engine::GlobalSolveResult solved =
                 engine::solveGlobally(problem, engine::mapLikelihood(params.likelihood), solve);
             for (const engine::MapHypothesis &h : solved.all) {
