@@ -14,7 +14,13 @@ constexpr uint32_t kRungs = 12;  // ladder rungs, 1 m apart
 constexpr double kReachM = 1.6;  // m, pairs closer than this heard each other
 constexpr double kRowGapM = 1.0; // m, between the two rows
 
-Vector2 truePosition(uint32_t node) { return Vector2(static_cast<double>(node / 2), (node % 2) * kRowGapM); }
+constexpr uint32_t kFoldRung = kRungs / 2; // the folded corridor turns back after this rung
+
+Vector2 truePosition(uint32_t node)
+{
+    const uint32_t rung = node / 2;
+    return Vector2(static_cast<double>(rung), (node % 2) * kRowGapM);
+}
 
 MapProblem ladder()
 {
@@ -53,11 +59,11 @@ Vector2 foldedPosition(uint32_t node)
 {
     const uint32_t rung = node / 2;
     const double across_m = (node % 2) * kRowGapM;
-    if (rung < kRungs / 2) {
+    if (rung < kFoldRung) {
         return Vector2(static_cast<double>(rung), across_m);
     }
-    const double back_m = static_cast<double>(rung - kRungs / 2);
-    return Vector2(static_cast<double>(kRungs / 2) - back_m - 0.5, 2.5 + kRowGapM - across_m);
+    const double back_m = static_cast<double>(rung - kFoldRung);
+    return Vector2(static_cast<double>(kFoldRung) - back_m - 0.5, 2.5 + kRowGapM - across_m);
 }
 
 TEST(MapConnectivity, TheTrueMapExplainsWhoHeardWhomBetterThanAFoldedOne)
