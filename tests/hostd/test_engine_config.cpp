@@ -78,6 +78,7 @@ engine::EngineParams unusual()
     p.solve.min_gain_nats = 0.5;
     p.solve.adopt_after_sweeps = 1.5;
     p.solve.range_offsets = false;
+    p.solve.connectivity = false;
     p.solve.threads = 3;
     p.convergence.reliable_m = 0.75;
     p.convergence.common_excess_m = 0.125;
