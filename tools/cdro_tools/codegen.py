@@ -399,14 +399,20 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
     return "\n".join(out)
 
 
-def update_docs(include_dir: pathlib.Path, doc_path: pathlib.Path) -> bool:
-    """Rewrites the generated section of doc_path; returns True if it changed."""
+def replace_generated_section(doc_path: pathlib.Path, section: str, begin_marker: str, end_marker: str) -> bool:
+    """Puts section (which starts with begin_marker and ends with end_marker) where doc_path has
+    those markers; returns True if the file changed."""
     text = doc_path.read_text()
-    begin, end = text.index(DOC_BEGIN), text.index(DOC_END) + len(DOC_END)
-    updated = text[:begin] + protocol_tables(include_dir) + text[end:]
+    begin, end = text.index(begin_marker), text.index(end_marker) + len(end_marker)
+    updated = text[:begin] + section + text[end:]
     if updated != text:
         doc_path.write_text(updated)
     return updated != text
+
+
+def update_docs(include_dir: pathlib.Path, doc_path: pathlib.Path) -> bool:
+    """Rewrites the generated section of doc_path; returns True if it changed."""
+    return replace_generated_section(doc_path, protocol_tables(include_dir), DOC_BEGIN, DOC_END)
 
 
 def main(argv: list[str] | None = None) -> int:

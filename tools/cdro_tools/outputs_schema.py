@@ -12,6 +12,8 @@ import argparse
 import json
 import pathlib
 
+from cdro_tools.codegen import replace_generated_section
+
 DOC_BEGIN = ("<!-- BEGIN GENERATED KEY TABLES "
              "(python -m cdro_tools.outputs_schema docs/outputs.schema.json --docs docs/outputs.md) -->")
 DOC_END = "<!-- END GENERATED KEY TABLES -->"
@@ -110,12 +112,7 @@ def key_tables(schema: dict) -> str:
 
 def update_docs(schema_path: pathlib.Path, doc_path: pathlib.Path) -> bool:
     """Rewrites the generated section of doc_path; returns True if it changed."""
-    text = doc_path.read_text()
-    begin, end = text.index(DOC_BEGIN), text.index(DOC_END) + len(DOC_END)
-    updated = text[:begin] + key_tables(load(schema_path)) + text[end:]
-    if updated != text:
-        doc_path.write_text(updated)
-    return updated != text
+    return replace_generated_section(doc_path, key_tables(load(schema_path)), DOC_BEGIN, DOC_END)
 
 
 def main(argv: list[str] | None = None) -> int:

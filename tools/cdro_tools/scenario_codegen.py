@@ -21,6 +21,8 @@ import sys
 
 import yaml
 
+from cdro_tools.codegen import replace_generated_section
+
 BODY = re.compile(r"#define\s+CDRO_SCENARIO_KEYS\(N, O, T\)((?:[^\n]*\\\n)*[^\n]*)")
 RENAMED_BODY = re.compile(r"#define\s+CDRO_SCENARIO_RENAMED_KEYS\(R\)((?:[^\n]*\\\n)*[^\n]*)")
 RENAME = re.compile(r'\bR\("([^"\\]*)",\s*"([^"\\]*)"\)')
@@ -193,12 +195,7 @@ def docs_table(def_path: pathlib.Path) -> str:
 
 def update_docs(def_path: pathlib.Path, doc_path: pathlib.Path) -> bool:
     """Rewrites the generated section of doc_path; returns True if it changed."""
-    text = doc_path.read_text()
-    begin, end = text.index(DOC_BEGIN), text.index(DOC_END) + len(DOC_END)
-    updated = text[:begin] + docs_table(def_path) + text[end:]
-    if updated != text:
-        doc_path.write_text(updated)
-    return updated != text
+    return replace_generated_section(doc_path, docs_table(def_path), DOC_BEGIN, DOC_END)
 
 
 def main(argv: list[str] | None = None) -> int:
