@@ -211,6 +211,75 @@ TEST(GlobalSolve, RecoversExactNetworksWhateverTheOrder)
     }
 }
 
+// Two rigid parts that share only two nodes (a hinge): reflecting the right part across the line
+// through the two keeps every range, and lays it over the left part, whose nodes it never heard.
+struct HingedMap {
+    Exact exact;
+    MapEstimate folded; // the right part reflected across the hinge
+};
+
+HingedMap hingedMap()
+{
+    // The hinge on the y axis, the left part at x < 0, the right one at x > 0 (not a mirror image
+    // of the left, so that the folded nodes do not fall on the left ones).
+    const std::vector<Vector2> positions_m = {{0.0, 0.0},  {0.0, 4.0}, // the hinge
+                                              {-3.0, 1.0}, {-3.0, 3.0}, {-5.0, 0.0}, {-5.0, 4.0}, {-6.0, 2.0}, // left
+                                              {2.5, 1.5},  {3.5, 3.0},  {5.0, 0.5},  {5.5, 3.5},  {6.5, 2.0}}; // right
+    constexpr double kReachM = 4.5; // m, pairs on one side closer than this heard each other
+    HingedMap map;
+    Exact &exact = map.exact;
+    exact.truth_m = positions_m;
+    const auto count = static_cast<uint32_t>(positions_m.size());
+    for (uint32_t node = 0; node < count; ++node) {
+        exact.problem.ids.push_back(static_cast<NodeId>(node));
+    }
+    const auto side = [&positions_m](uint32_t node) { return node < 2 ? 0 : (positions_m[node].x() < 0.0 ? -1 : 1); };
+    for (uint32_t a = 0; a < count; ++a) {
+        for (uint32_t b = a + 1; b < count; ++b) {
+            const double distance_m = (positions_m[a] - positions_m[b]).norm();
+            if (side(a) * side(b) >= 0 && distance_m < kReachM) {
+                exact.problem.links.push_back(MapLink{a, b, distance_m});
+            }
+        }
+    }
+    exact.problem.listens.assign(count, 1);
+    exact.problem.finish();
+    map.folded = truthEstimate(exact);
+    for (uint32_t node = 0; node < count; ++node) {
+        if (side(node) > 0) {
+            map.folded.position_m[node].x() = -positions_m[node].x();
+        }
+    }
+    return map;
+}
+
+TEST(GlobalSolve, WhoHeardWhomUnfoldsAMapItsRangesCannot)
+{
+    const HingedMap map = hingedMap();
+    const auto folded_rmse_m = alignedRmse(map.folded, map.exact.truth_m);
+    ASSERT_GT(folded_rmse_m, 1.0) << "the fold is a different map";
+    // The ranges alone: the folded map, given as the caller's, explains them as well as the truth.
+    GlobalSolveParams ranges_only;
+    ranges_only.connectivity = false;
+    const GlobalSolveResult blind = solveGlobally(map.exact.problem, likelihood(), ranges_only, &map.folded);
+    const auto current =
+        std::find_if(blind.all.begin(), blind.all.end(), [](const MapHypothesis &h) { return h.origin == "current"; });
+    ASSERT_NE(current, blind.all.end());
+    EXPECT_GT(alignedRmse(current->estimate, map.exact.truth_m), 1.0) << "the folded start stays folded";
+    EXPECT_NEAR(current->cost, blind.best.cost, 0.05) << "the ranges cannot tell the fold";
+    // Who heard whom can: the folded map brings unheard pairs close.
+    const GlobalSolveResult seen = solveGlobally(map.exact.problem, likelihood(), GlobalSolveParams{}, &map.folded);
+    std::printf("folded %.2f m; ranges only: best %.3f m; with who heard whom: best %.3f m (%s)\n", folded_rmse_m,
+                alignedRmse(blind.best.estimate, map.exact.truth_m), alignedRmse(seen.best.estimate, map.exact.truth_m),
+                seen.best.origin.c_str());
+    EXPECT_LT(alignedRmse(seen.best.estimate, map.exact.truth_m), kExactM);
+    for (const MapHypothesis &h : seen.all) {
+        if (alignedRmse(h.estimate, map.exact.truth_m) > 1.0) {
+            EXPECT_GT(h.cost + h.connectivity_nats, seen.best.cost + seen.best.connectivity_nats + 5.0) << h.origin;
+        }
+    }
+}
+
 TEST(GlobalSolve, AnyNumberOfThreadsGivesTheSameMapsBitForBit)
 {
     // Noisy NLOS networks, so that the starts end in different maps and the rivals matter.

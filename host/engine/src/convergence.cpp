@@ -146,7 +146,59 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
         }
         verdict.doubt[node] = doubt;
     }
+    peelUnheld(problem, estimate, nodes, verdict);
     return verdict;
+}
+
+void StructureCheck::peelUnheld(const MapProblem &problem, const MapEstimate &estimate,
+                                const std::vector<StructureNode> &nodes, StructureVerdict &verdict) const
+{
+    // A node is determined only by nodes that are themselves determined: the ones the checks above
+    // pass (with the fixed and pinned ones) must hold each other. Peeled until none is left to
+    // peel: a free node with fewer than three links to the rest of them, or whose links to them
+    // leave a direction along which an excess of `common_excess_m` (the noise at least) on those
+    // links would move it 2 sigma by `reliable_m` or more (the smallest eigenvalue of sum u u^T
+    // below (2 sigma / reliable_m)^2), is flexible: its links to nodes the map cannot vouch for
+    // are what puts it where it is. A corridor's junction node whose converged neighbours are all
+    // along the corridor, and the map around it bent by walls, would otherwise be called converged
+    // however wrong that map is.
+    const uint32_t count = problem.nodeCount();
+    const double sigma_m = std::hypot(params_.common_excess_m, solver_.range_sigma_m);
+    const double least_eigenvalue = std::pow(2.0 * sigma_m / params_.reliable_m, 2);
+    std::vector<uint8_t> held(count, 0);
+    for (uint32_t node = 0; node < count; ++node) {
+        held[node] =
+            estimate.placed[node] != 0 && (!nodes[node].free || verdict.doubt[node] == NodeDoubt::None) ? 1 : 0;
+    }
+    for (bool peeled = true; peeled;) {
+        peeled = false;
+        std::vector<uint32_t> unheld;
+        for (uint32_t node = 0; node < count; ++node) {
+            if (held[node] == 0 || !nodes[node].free) {
+                continue;
+            }
+            Matrix2 directions = Matrix2::Zero(); // sum of u u^T over its links to held nodes
+            uint32_t links = 0;
+            for (const uint32_t neighbour : problem.neighbours[node]) {
+                const Vector2 delta = estimate.position_m[neighbour] - estimate.position_m[node];
+                const double distance_m = delta.norm();
+                if (held[neighbour] == 0 || distance_m < 1e-9) {
+                    continue;
+                }
+                const Vector2 u = delta / distance_m;
+                directions += u * u.transpose();
+                ++links;
+            }
+            if (links < 3 || minEigenvalue(directions) < least_eigenvalue) {
+                unheld.push_back(node);
+            }
+        }
+        for (const uint32_t node : unheld) {
+            held[node] = 0;
+            verdict.doubt[node] = NodeDoubt::Flexible;
+            peeled = true;
+        }
+    }
 }
 
 void Convergence::assess(MapState &map)

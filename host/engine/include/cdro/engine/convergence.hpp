@@ -10,7 +10,9 @@
 //                  without changing a range;
 //   flexible       outside the part of the map joined by links that others check, or one error
 //                  in a link, too small to be noticed, could move it `reliable_m` or more, or its
-//                  2-sigma ellipse (the global solve's covariance) reaches that far;
+//                  2-sigma ellipse (the global solve's covariance) reaches that far, or the
+//                  undoubted nodes it has links to do not determine it (fewer than three, or
+//                  all along one line);
 //   unsettled      the global solve has not placed it yet, or the filter has since moved it half of
 //                  `reliable_m` from where the solve put it (without the solve, or without
 //                  refinement, the checks that need it are left out).
@@ -65,6 +67,10 @@ public:
                          const std::vector<StructureNode> &nodes) const;
 
 private:
+    // Marks flexible the nodes that the undoubted nodes around them do not determine.
+    void peelUnheld(const MapProblem &problem, const MapEstimate &estimate, const std::vector<StructureNode> &nodes,
+                    StructureVerdict &verdict) const;
+
     ConvergenceParams params_;
     PlacementParams placement_;
     RangeLikelihood likelihood_;
