@@ -339,17 +339,45 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
         });
     }
     if (params.connectivity && hypotheses.size() > 1) {
+        // Judged over the nodes that every map placing the most nodes places: a start that grew
+        // over one wing only must not narrow the comparison of the whole maps to that wing, where
+        // they agree.
+        const auto placedCount = [](const MapHypothesis &h) {
+            return std::count(h.estimate.placed.begin(), h.estimate.placed.end(), uint8_t{1});
+        };
+        std::ptrdiff_t most = 0;
+        for (const MapHypothesis &hypothesis : hypotheses) {
+            most = std::max(most, placedCount(hypothesis));
+        }
         std::vector<uint8_t> everywhere(problem.nodeCount(), 1);
         for (const MapHypothesis &hypothesis : hypotheses) {
+            if (placedCount(hypothesis) < most) {
+                continue;
+            }
             for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
                 everywhere[node] = static_cast<uint8_t>(everywhere[node] & hypothesis.estimate.placed[node]);
             }
         }
         forEachIndex(hypotheses.size(), params.threads, [&](size_t i) {
-            MapEstimate common = hypotheses[i].estimate;
-            common.placed = everywhere;
-            hypotheses[i].connectivity_nats = connectivityCost(problem, common).cost_nats;
+            if (placedCount(hypotheses[i]) == most) {
+                MapEstimate common = hypotheses[i].estimate;
+                common.placed = everywhere;
+                hypotheses[i].connectivity_nats = connectivityCost(problem, common).cost_nats;
+            }
         });
+        // A map that places fewer nodes cannot show who heard whom among those it leaves out: it
+        // is given the worst of the fullest maps' costs, so that it cannot win by pricing fewer pairs.
+        double worst = -std::numeric_limits<double>::infinity();
+        for (const MapHypothesis &hypothesis : hypotheses) {
+            if (placedCount(hypothesis) == most) {
+                worst = std::max(worst, hypothesis.connectivity_nats);
+            }
+        }
+        for (MapHypothesis &hypothesis : hypotheses) {
+            if (placedCount(hypothesis) < most) {
+                hypothesis.connectivity_nats = worst;
+            }
+        }
     }
     if (params.learn_rounds > 0 || params.connectivity) {
         rank();

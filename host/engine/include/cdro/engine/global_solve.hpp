@@ -9,7 +9,8 @@
 //
 // The maps are compared by their cost under the NLOS model that suits each (a profile
 // likelihood), plus the cost of leaving linked nodes unplaced, plus how well each explains which
-// pairs heard each other (map_connectivity.hpp), over the nodes that every map places.
+// pairs heard each other (map_connectivity.hpp), over the nodes that every map placing the most
+// nodes places.
 //
 // Starts: the map grown from each of `growth_seeds` seed triangles spread over the network
 // (map_growth.hpp), MDS-MAP (map_mds.hpp), and the caller's current map if it has one. Only
@@ -56,7 +57,7 @@ struct MapHypothesis {
     std::string origin;               // "grown from <ids>", "MDS-MAP", "current"
     double nlos_fraction = -1.0;      // the NLOS model it was judged under (< 0: the prior)
     double nlos_mean_excess_m = -1.0; // m
-    double connectivity_nats = 0.0;   // map_connectivity.hpp's cost over the nodes every map places
+    double connectivity_nats = 0.0;   // map_connectivity.hpp's cost over the nodes every fullest map places
 };
 
 struct GlobalSolveCounters {
