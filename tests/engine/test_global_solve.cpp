@@ -14,6 +14,7 @@
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/global_solve.hpp"
+#include "cdro/engine/map_connectivity.hpp"
 #include "cdro/engine/map_growth.hpp"
 #include "cdro/engine/map_lift.hpp"
 #include "cdro/engine/map_mds.hpp"
@@ -278,6 +279,38 @@ TEST(GlobalSolve, WhoHeardWhomUnfoldsAMapItsRangesCannot)
             EXPECT_GT(h.cost + h.connectivity_nats, seen.best.cost + seen.best.connectivity_nats + 5.0) << h.origin;
         }
     }
+}
+
+TEST(GlobalSolve, WhoHeardWhomIsPricedOverTheWholeMaps)
+{
+    // The truth and its folded twin place every node; a third map is the truth with the right
+    // wing left out. Priced over its own nodes that third map would be the cheapest (it prices
+    // fewer pairs); it must get the worst of the whole maps' costs instead, the fold's.
+    const HingedMap map = hingedMap();
+    MapHypothesis truth;
+    truth.estimate = truthEstimate(map.exact);
+    MapHypothesis folded;
+    folded.estimate = map.folded;
+    MapHypothesis left_only = truth;
+    for (uint32_t node = 0; node < map.exact.problem.nodeCount(); ++node) {
+        if (map.exact.truth_m[node].x() > 0.0) {
+            left_only.estimate.placed[node] = 0;
+        }
+    }
+    std::vector<MapHypothesis> maps = {left_only, folded, truth};
+    priceWhoHeardWhom(map.exact.problem, maps, 1);
+    const double truth_nats = maps[2].connectivity_nats;
+    const double folded_nats = maps[1].connectivity_nats;
+    const double left_only_own_nats = connectivityCost(map.exact.problem, left_only.estimate).cost_nats;
+    std::printf("who heard whom: truth %.2f, folded %.2f, the left wing alone %.2f (over its own nodes %.2f) nats\n",
+                truth_nats, folded_nats, maps[0].connectivity_nats, left_only_own_nats);
+    EXPECT_LT(truth_nats + 5.0, folded_nats);
+    EXPECT_LT(left_only_own_nats, truth_nats) << "over its own nodes the partial map would win";
+    EXPECT_EQ(maps[0].connectivity_nats, folded_nats);
+    // One map alone is not priced.
+    std::vector<MapHypothesis> alone = {folded};
+    priceWhoHeardWhom(map.exact.problem, alone, 1);
+    EXPECT_EQ(alone[0].connectivity_nats, 0.0);
 }
 
 TEST(GlobalSolve, AnyNumberOfThreadsGivesTheSameMapsBitForBit)

@@ -175,6 +175,48 @@ std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &refe
 
 } // namespace
 
+void priceWhoHeardWhom(const MapProblem &problem, std::vector<MapHypothesis> &hypotheses, uint32_t threads)
+{
+    if (hypotheses.size() < 2) {
+        return;
+    }
+    // Judged over the nodes that every map placing the most nodes places: a start that grew over
+    // one wing only must not narrow the comparison of the whole maps to that wing, where they agree.
+    std::vector<uint32_t> placed(hypotheses.size());
+    for (size_t i = 0; i < hypotheses.size(); ++i) {
+        placed[i] = hypotheses[i].estimate.placedCount();
+    }
+    const uint32_t most = *std::max_element(placed.begin(), placed.end());
+    std::vector<uint8_t> everywhere(problem.nodeCount(), 1);
+    for (size_t i = 0; i < hypotheses.size(); ++i) {
+        if (placed[i] == most) {
+            for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+                everywhere[node] = static_cast<uint8_t>(everywhere[node] & hypotheses[i].estimate.placed[node]);
+            }
+        }
+    }
+    forEachIndex(hypotheses.size(), threads, [&](size_t i) {
+        if (placed[i] == most) {
+            MapEstimate common = hypotheses[i].estimate;
+            common.placed = everywhere;
+            hypotheses[i].connectivity_nats = connectivityCost(problem, common).cost_nats;
+        }
+    });
+    // A map that places fewer nodes cannot show who heard whom among those it leaves out: it is
+    // given the worst of the fullest maps' costs, so that it cannot win by pricing fewer pairs.
+    double worst = -std::numeric_limits<double>::infinity();
+    for (size_t i = 0; i < hypotheses.size(); ++i) {
+        if (placed[i] == most) {
+            worst = std::max(worst, hypotheses[i].connectivity_nats);
+        }
+    }
+    for (size_t i = 0; i < hypotheses.size(); ++i) {
+        if (placed[i] < most) {
+            hypotheses[i].connectivity_nats = worst;
+        }
+    }
+}
+
 GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood &likelihood,
                                 const GlobalSolveParams &params, const MapEstimate *current)
 {
@@ -338,46 +380,8 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             hypothesis.nlos_mean_excess_m = own.params().nlos_mean_excess_m;
         });
     }
-    if (params.connectivity && hypotheses.size() > 1) {
-        // Judged over the nodes that every map placing the most nodes places: a start that grew
-        // over one wing only must not narrow the comparison of the whole maps to that wing, where
-        // they agree.
-        const auto placedCount = [](const MapHypothesis &h) {
-            return std::count(h.estimate.placed.begin(), h.estimate.placed.end(), uint8_t{1});
-        };
-        std::ptrdiff_t most = 0;
-        for (const MapHypothesis &hypothesis : hypotheses) {
-            most = std::max(most, placedCount(hypothesis));
-        }
-        std::vector<uint8_t> everywhere(problem.nodeCount(), 1);
-        for (const MapHypothesis &hypothesis : hypotheses) {
-            if (placedCount(hypothesis) < most) {
-                continue;
-            }
-            for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-                everywhere[node] = static_cast<uint8_t>(everywhere[node] & hypothesis.estimate.placed[node]);
-            }
-        }
-        forEachIndex(hypotheses.size(), params.threads, [&](size_t i) {
-            if (placedCount(hypotheses[i]) == most) {
-                MapEstimate common = hypotheses[i].estimate;
-                common.placed = everywhere;
-                hypotheses[i].connectivity_nats = connectivityCost(problem, common).cost_nats;
-            }
-        });
-        // A map that places fewer nodes cannot show who heard whom among those it leaves out: it
-        // is given the worst of the fullest maps' costs, so that it cannot win by pricing fewer pairs.
-        double worst = -std::numeric_limits<double>::infinity();
-        for (const MapHypothesis &hypothesis : hypotheses) {
-            if (placedCount(hypothesis) == most) {
-                worst = std::max(worst, hypothesis.connectivity_nats);
-            }
-        }
-        for (MapHypothesis &hypothesis : hypotheses) {
-            if (placedCount(hypothesis) < most) {
-                hypothesis.connectivity_nats = worst;
-            }
-        }
+    if (params.connectivity) {
+        priceWhoHeardWhom(problem, hypotheses, params.threads);
     }
     if (params.learn_rounds > 0 || params.connectivity) {
         rank();

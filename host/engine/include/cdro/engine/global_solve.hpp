@@ -83,6 +83,11 @@ struct GlobalSolveResult {
 GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood &likelihood,
                                 const GlobalSolveParams &params, const MapEstimate *current = nullptr);
 
+// Sets each map's `connectivity_nats` (who heard whom, map_connectivity.hpp), priced over the
+// nodes that every map placing the most nodes places; a map placing fewer is given the worst of
+// those maps' costs. With fewer than two maps nothing is priced.
+void priceWhoHeardWhom(const MapProblem &problem, std::vector<MapHypothesis> &hypotheses, uint32_t threads);
+
 // The NLOS share and mean excess that best explain the residuals of `estimate` (EM, the
 // positions held).
 RangeLikelihoodParams learnNlosModel(const MapProblem &problem, const MapEstimate &estimate,
