@@ -17,6 +17,7 @@
 #include "cdro/hostd/engine_adapter.hpp"
 #include "cdro/service/checkpoint.hpp"
 #include "robot_world.hpp"
+#include "simulated_flight.hpp"
 #include "support.hpp"
 
 namespace cdro::enginetest {
@@ -519,52 +520,20 @@ TEST(Checkpoint, AMovementBlockOfAnotherRobotOrCutShortIsRefused)
 
 namespace flight {
 
-// Two tags flying among six anchors at 1.6-1.9 m (the room of tests/engine/test_motion_track_3d.cpp),
-// ranged in turn every 0.1 s, one range in five between the tags; noise 0.1 m.
-const std::array<engine::Vector3, 6> kAnchors = {engine::Vector3(0.0, 0.0, 1.60),  engine::Vector3(4.0, 0.0, 1.90),
-                                                 engine::Vector3(4.0, 4.0, 1.70),  engine::Vector3(0.0, 4.0, 1.85),
-                                                 engine::Vector3(2.0, -0.2, 1.75), engine::Vector3(2.0, 4.2, 1.65)};
+// Two tags flying among six anchors (enginetest's simulated flight).
 const std::vector<uint16_t> kTags = {10, 20};
-
-struct FlightRange {
-    double t_s;
-    NodeId from;
-    NodeId to;
-    double range_m;
-};
-
-engine::Vector3 tagAt(size_t k, double t_s)
-{
-    const double phase = 1.7 * static_cast<double>(k);
-    return {2.0 + 1.3 * std::cos(0.45 * t_s + phase), 2.0 + 1.3 * std::sin(0.36 * t_s + phase),
-            0.8 + 0.5 * std::sin(0.225 * t_s + phase)};
-}
 
 std::vector<FlightRange> fly(uint64_t seed, double duration_s)
 {
-    Random random(seed);
-    std::vector<FlightRange> out;
-    for (size_t slot = 0; static_cast<double>(slot) * 0.1 < duration_s; ++slot) {
-        const double t_s = static_cast<double>(slot) * 0.1;
-        if (slot % 5 == 4) {
-            out.push_back({t_s, kTags[0], kTags[1], (tagAt(0, t_s) - tagAt(1, t_s)).norm() + 0.1 * random.normal()});
-            continue;
-        }
-        const size_t k = slot % 2;
-        const size_t a = (slot / 2) % kAnchors.size();
-        out.push_back(
-            {t_s, kTags[k], static_cast<NodeId>(a + 1), (tagAt(k, t_s) - kAnchors[a]).norm() + 0.1 * random.normal()});
-    }
-    return out;
+    FlightSchedule schedule;
+    schedule.duration_s = duration_s;
+    return simulateFlight(seed, {kTags.begin(), kTags.end()}, schedule);
 }
 
 struct Flight {
     explicit Flight(const std::vector<uint16_t> &moving) : adapter(engine, nullptr, moving)
     {
-        for (size_t a = 0; a < kAnchors.size(); ++a) {
-            engine.setFixed(static_cast<NodeId>(a + 1), kAnchors[a].head<2>());
-            engine.setHeight(static_cast<NodeId>(a + 1), kAnchors[a].z());
-        }
+        fixFlightAnchors(engine);
         for (const uint16_t id : moving) {
             engine.trackMoving3D(id);
         }
