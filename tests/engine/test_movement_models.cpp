@@ -15,7 +15,7 @@
 #include "cdro/engine/odometry_model.hpp"
 #include "cdro/engine/range_likelihood.hpp"
 #include "cdro/engine/robot_filter.hpp"
-#include "cdro/engine/scaled_range_model.hpp"
+#include "cdro/engine/range_model.hpp"
 #include "support.hpp"
 
 namespace cdro::enginetest {
@@ -25,7 +25,7 @@ using engine::Matrix2;
 using engine::OdometryStep;
 using engine::Pose2;
 using engine::predictOdometry;
-using engine::predictScaledRange;
+using engine::predictRange;
 using engine::RangeLikelihood;
 using engine::RobotFilter;
 using engine::RobotFilterNoise;
@@ -43,7 +43,7 @@ struct RangeArguments {
     double dz_m = 0.0;
     double scale = 1.0;
     double offset_m = 0.0;
-    double range() const { return predictScaledRange(a_m, b_m, dz_m, scale, offset_m).range_m; }
+    double range() const { return predictRange(a_m, b_m, dz_m, scale, offset_m).range_m; }
 };
 
 // Central difference of h along parameter `which`: 0-1 a (x, y), 2-3 b (x, y), 4 scale, 5 offset.
@@ -72,18 +72,18 @@ double numericalRangeDerivative(const RangeArguments &at, int which)
 TEST(ScaledRangeModel, PredictionIsTheScaledThreeDimensionalDistancePlusTheOffset)
 {
     // |a - b| = 5 m in the plane, dz = 12 m: 13 m in 3D.
-    const auto prediction = predictScaledRange(Vector2(4.0, 6.0), Vector2(1.0, 2.0), 12.0, 1.05, 0.2);
+    const auto prediction = predictRange(Vector2(4.0, 6.0), Vector2(1.0, 2.0), 12.0, 1.05, 0.2);
     EXPECT_FALSE(prediction.singular);
     EXPECT_DOUBLE_EQ(prediction.distance_m, 13.0);
     EXPECT_DOUBLE_EQ(prediction.range_m, 1.05 * 13.0 + 0.2);
     EXPECT_DOUBLE_EQ(prediction.jacobian_scale, 13.0);
     EXPECT_DOUBLE_EQ(prediction.jacobian_offset, 1.0);
     // dh/da = s (a - b)^T / d: the height difference shortens the planar gradient.
-    EXPECT_DOUBLE_EQ(prediction.jacobian_a(0), 1.05 * 3.0 / 13.0);
-    EXPECT_DOUBLE_EQ(prediction.jacobian_a(1), 1.05 * 4.0 / 13.0);
-    EXPECT_EQ(prediction.jacobian_b, -prediction.jacobian_a);
+    EXPECT_DOUBLE_EQ(prediction.jacobian_point(0), 1.05 * 3.0 / 13.0);
+    EXPECT_DOUBLE_EQ(prediction.jacobian_point(1), 1.05 * 4.0 / 13.0);
+    EXPECT_EQ(prediction.jacobian_center, -prediction.jacobian_point);
     // The sign of dz does not matter.
-    const auto below = predictScaledRange(Vector2(4.0, 6.0), Vector2(1.0, 2.0), -12.0, 1.05, 0.2);
+    const auto below = predictRange(Vector2(4.0, 6.0), Vector2(1.0, 2.0), -12.0, 1.05, 0.2);
     EXPECT_EQ(below.range_m, prediction.range_m);
 }
 
@@ -104,19 +104,20 @@ TEST(ScaledRangeModel, JacobiansMatchCentralDifferences)
         at.dz_m = trial % 2 == 0 ? 0.0 : random.uniform(-4.0, 4.0);
         at.scale = random.uniform(0.9, 1.1);
         at.offset_m = random.uniform(-0.5, 0.5);
-        const auto prediction = predictScaledRange(at.a_m, at.b_m, at.dz_m, at.scale, at.offset_m);
+        const auto prediction = predictRange(at.a_m, at.b_m, at.dz_m, at.scale, at.offset_m);
         ASSERT_FALSE(prediction.singular);
         const double distance_m = std::sqrt(planar_m * planar_m + at.dz_m * at.dz_m);
         EXPECT_NEAR(prediction.distance_m, distance_m, 1e-12 * (1.0 + distance_m));
-        const double analytic[6] = {prediction.jacobian_a(0), prediction.jacobian_a(1),  prediction.jacobian_b(0),
-                                    prediction.jacobian_b(1), prediction.jacobian_scale, prediction.jacobian_offset};
+        const double analytic[6] = {prediction.jacobian_point(0),  prediction.jacobian_point(1),
+                                    prediction.jacobian_center(0), prediction.jacobian_center(1),
+                                    prediction.jacobian_scale,     prediction.jacobian_offset};
         for (int which = 0; which < 6; ++which) {
             const double error = std::abs(analytic[which] - numericalRangeDerivative(at, which));
             worst = std::max(worst, error);
             EXPECT_LT(error, 1e-7) << "trial " << trial << " parameter " << which;
         }
         // The planar gradient is s times the planar share of the 3D unit vector.
-        EXPECT_NEAR(prediction.jacobian_a.norm(), at.scale * planar_m / distance_m, 1e-12);
+        EXPECT_NEAR(prediction.jacobian_point.norm(), at.scale * planar_m / distance_m, 1e-12);
     }
     std::printf("largest scaled-range Jacobian error against central differences: %.3g\n", worst);
 }
@@ -124,18 +125,18 @@ TEST(ScaledRangeModel, JacobiansMatchCentralDifferences)
 TEST(ScaledRangeModel, CoincidentPointsAreSingularOnlyWithoutAHeightDifference)
 {
     const Vector2 c_m(3.0, -2.0);
-    const auto same = predictScaledRange(c_m, c_m, 0.0, 1.07, 0.3);
+    const auto same = predictRange(c_m, c_m, 0.0, 1.07, 0.3);
     EXPECT_TRUE(same.singular);
     EXPECT_EQ(same.distance_m, 0.0);
     EXPECT_DOUBLE_EQ(same.range_m, 0.3);
-    EXPECT_TRUE(same.jacobian_a.isZero(0.0));
-    EXPECT_TRUE(same.jacobian_b.isZero(0.0));
+    EXPECT_TRUE(same.jacobian_point.isZero(0.0));
+    EXPECT_TRUE(same.jacobian_center.isZero(0.0));
     // One above the other: 2 m apart, not singular, and moving either in the plane changes
     // nothing to first order.
-    const auto stacked = predictScaledRange(c_m, c_m, 2.0, 1.07, 0.3);
+    const auto stacked = predictRange(c_m, c_m, 2.0, 1.07, 0.3);
     EXPECT_FALSE(stacked.singular);
     EXPECT_DOUBLE_EQ(stacked.range_m, 1.07 * 2.0 + 0.3);
-    EXPECT_TRUE(stacked.jacobian_a.isZero(0.0));
+    EXPECT_TRUE(stacked.jacobian_point.isZero(0.0));
     EXPECT_DOUBLE_EQ(stacked.jacobian_scale, 2.0);
 }
 

@@ -39,6 +39,25 @@ TEST(RangeModel, PredictionIsTheDistance)
     EXPECT_DOUBLE_EQ(prediction.jacobian_center(1), -0.8);
 }
 
+TEST(RangeModel, ThePlanarCaseIsThePlainDistanceToTheBit)
+{
+    // Stage 1 calls the model without a height difference, scale or offset: what it gets must be
+    // exactly |a - b| and its unit vector, so that the one model serves both stages.
+    const uint64_t seed = testSeed(3002);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    for (int i = 0; i < 1000; ++i) {
+        const Vector2 a_m = uniformPoint(random, -50.0, 50.0);
+        const Vector2 b_m = uniformPoint(random, -50.0, 50.0);
+        const auto prediction = predictRange(a_m, b_m);
+        const Vector2 unit = (a_m - b_m) / (a_m - b_m).norm();
+        ASSERT_EQ(prediction.range_m, (a_m - b_m).norm());
+        ASSERT_EQ(prediction.distance_m, prediction.range_m);
+        ASSERT_EQ(prediction.jacobian_point, unit.transpose());
+        ASSERT_EQ(prediction.jacobian_center, (-unit).transpose());
+    }
+}
+
 TEST(RangeModel, JacobiansMatchCentralDifferences)
 {
     const uint64_t seed = testSeed(3001);

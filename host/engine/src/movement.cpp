@@ -4,7 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#include "cdro/engine/scaled_range_model.hpp"
+#include "cdro/engine/range_model.hpp"
 
 namespace cdro::engine {
 
@@ -382,12 +382,11 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &ce
     sog.baseline_m = std::max(sog.baseline_m, (centre_m - sog.first_robot_m).norm());
     double best_weight = 0.0;
     for (BeaconComponent &component : sog.components) {
-        const ScaledRangePrediction prediction =
-            predictScaledRange(component.mean_m, centre_m, height_difference_m, scale, offset);
+        const RangePrediction prediction = predictRange(component.mean_m, centre_m, height_difference_m, scale, offset);
         if (prediction.singular) {
             continue;
         }
-        const Eigen::RowVector2d h = prediction.jacobian_a;
+        const Eigen::RowVector2d h = prediction.jacobian_point;
         const double variance = (h * component.covariance_m2 * h.transpose()).value() +
                                 (h * centre_covariance_m2 * h.transpose()).value() + noise;
         const double innovation = range_m - prediction.range_m;

@@ -4,18 +4,21 @@
 
 namespace cdro::engine {
 
-RangePrediction predictRange(const Vector2 &point_m, const Vector2 &center_m)
+RangePrediction predictRange(const Vector2 &point_m, const Vector2 &center_m, double height_difference_m, double scale,
+                             double offset_m)
 {
     RangePrediction prediction;
     const Vector2 offset = point_m - center_m;
-    prediction.range_m = offset.norm();
-    if (prediction.range_m < kSingularDistanceM) {
+    prediction.distance_m = std::sqrt(offset.squaredNorm() + height_difference_m * height_difference_m);
+    prediction.range_m = scale * prediction.distance_m + offset_m;
+    prediction.jacobian_scale = prediction.distance_m;
+    if (prediction.distance_m < kSingularDistanceM) {
         prediction.singular = true;
         return prediction;
     }
-    const Vector2 unit = offset / prediction.range_m;
-    prediction.jacobian_point = unit.transpose();
-    prediction.jacobian_center = -unit.transpose();
+    const Eigen::RowVector2d unit = (offset / prediction.distance_m).transpose();
+    prediction.jacobian_point = scale * unit;
+    prediction.jacobian_center = -scale * unit;
     return prediction;
 }
 

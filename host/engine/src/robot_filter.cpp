@@ -4,7 +4,7 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "cdro/engine/scaled_range_model.hpp"
+#include "cdro/engine/range_model.hpp"
 
 namespace cdro::engine {
 
@@ -187,14 +187,14 @@ double RobotFilter::robotRangeInnovation(NodeId node, double range_m, double hei
     const Eigen::Index slot = static_cast<Eigen::Index>(slotOf(node));
     const Vector2 robot(state_(kPose), state_(kPose + 1));
     const Vector2 target(state_(slot), state_(slot + 1));
-    return range_m - predictScaledRange(robot, target, height_difference_m, scale(), offset()).range_m;
+    return range_m - predictRange(robot, target, height_difference_m, scale(), offset()).range_m;
 }
 
 double RobotFilter::nodeRangeInnovation(NodeId a, NodeId b, double range_m, double height_difference_m) const
 {
     const Vector2 position_a = nodePosition(a);
     const Vector2 position_b = nodePosition(b);
-    return range_m - predictScaledRange(position_a, position_b, height_difference_m, scale(), offset()).range_m;
+    return range_m - predictRange(position_a, position_b, height_difference_m, scale(), offset()).range_m;
 }
 
 RangeUpdateOutcome RobotFilter::updateRobotRange(NodeId node, double range_m, double height_difference_m,
@@ -204,16 +204,16 @@ RangeUpdateOutcome RobotFilter::updateRobotRange(NodeId node, double range_m, do
     // Element by element: gcc 12 sees a possible null in fixed-size views of a dynamic vector.
     const Vector2 robot(state_(kPose), state_(kPose + 1));
     const Vector2 target(state_(slot), state_(slot + 1));
-    const ScaledRangePrediction prediction = predictScaledRange(robot, target, height_difference_m, scale(), offset());
+    const RangePrediction prediction = predictRange(robot, target, height_difference_m, scale(), offset());
     if (prediction.singular) {
         return {};
     }
     auto &h = jacobian_;
     h.setZero(state_.size());
-    h(kPose) = prediction.jacobian_a(0);
-    h(kPose + 1) = prediction.jacobian_a(1);
-    h(slot) = prediction.jacobian_b(0);
-    h(slot + 1) = prediction.jacobian_b(1);
+    h(kPose) = prediction.jacobian_point(0);
+    h(kPose + 1) = prediction.jacobian_point(1);
+    h(slot) = prediction.jacobian_center(0);
+    h(slot + 1) = prediction.jacobian_center(1);
     h(kScale) = scale_fixed_ ? 0.0 : prediction.jacobian_scale;
     h(kOffset) = offset_fixed_ ? 0.0 : prediction.jacobian_offset;
     return scalarUpdate(h, range_m - prediction.range_m, sigma_m, gate_sigma, likelihood);
@@ -226,17 +226,16 @@ RangeUpdateOutcome RobotFilter::updateNodeRange(NodeId a, NodeId b, double range
     const Eigen::Index slot_b = static_cast<Eigen::Index>(slotOf(b));
     const Vector2 position_a(state_(slot_a), state_(slot_a + 1));
     const Vector2 position_b(state_(slot_b), state_(slot_b + 1));
-    const ScaledRangePrediction prediction =
-        predictScaledRange(position_a, position_b, height_difference_m, scale(), offset());
+    const RangePrediction prediction = predictRange(position_a, position_b, height_difference_m, scale(), offset());
     if (prediction.singular) {
         return {};
     }
     auto &h = jacobian_;
     h.setZero(state_.size());
-    h(slot_a) = prediction.jacobian_a(0);
-    h(slot_a + 1) = prediction.jacobian_a(1);
-    h(slot_b) = prediction.jacobian_b(0);
-    h(slot_b + 1) = prediction.jacobian_b(1);
+    h(slot_a) = prediction.jacobian_point(0);
+    h(slot_a + 1) = prediction.jacobian_point(1);
+    h(slot_b) = prediction.jacobian_center(0);
+    h(slot_b + 1) = prediction.jacobian_center(1);
     h(kScale) = scale_fixed_ ? 0.0 : prediction.jacobian_scale;
     h(kOffset) = offset_fixed_ ? 0.0 : prediction.jacobian_offset;
     return scalarUpdate(h, range_m - prediction.range_m, sigma_m, gate_sigma, likelihood);

@@ -6,7 +6,7 @@
 //
 // with a dense covariance (M is tens of nodes, not thousands). Odometry predicts the pose
 // (odometry_model.hpp); each range, robot-node or node-node, is a sequential scalar update
-// through scaled_range_model.hpp. Ranges are robust: the innovation's line-of-sight
+// through range_model.hpp. Ranges are robust: the innovation's line-of-sight
 // probability under the mixture of range_likelihood.hpp widens the measurement noise
 // (R / w), and an innovation beyond the gate is refused and counted.
 #pragma once
