@@ -122,9 +122,12 @@ static int runMain(int argc, char **argv)
                     }
                 }
                 const engine::AlignedErrors aligned = engine::alignedErrors(placed, true_position, true);
-                std::printf("hypothesis cost_nats %.3f connectivity_nats %.3f placed %u rmse_m %.3f origin %s\n",
-                            h.cost, engine::connectivityCost(problem, h.estimate).cost_nats, h.estimate.placedCount(),
-                            aligned.compared() == 0 ? 0.0 : aligned.rmse_m, h.origin.c_str());
+                // connectivity_nats as the solve ranked it (a map placing fewer nodes than the
+                // fullest gets their worst); own_nats over the map's own placed nodes.
+                std::printf("hypothesis cost_nats %.3f connectivity_nats %.3f own_nats %.3f placed %u rmse_m %.3f "
+                            "origin %s\n",
+                            h.cost, h.connectivity_nats, engine::connectivityCost(problem, h.estimate).cost_nats,
+                            h.estimate.placedCount(), aligned.compared() == 0 ? 0.0 : aligned.rmse_m, h.origin.c_str());
             }
         }
         // As the global solve treats each of its maps: refined, then judged under the NLOS model
