@@ -20,6 +20,7 @@
 #include "cdro/engine/map_mds.hpp"
 #include "cdro/engine/map_patches.hpp"
 #include "cdro/engine/map_refine.hpp"
+#include "cdro/engine/map_stitch.hpp"
 #include "cdro/engine/params.hpp"
 #include "cdro/engine/range_offsets.hpp"
 #include "cdro/netgen/families.hpp"
@@ -311,6 +312,123 @@ TEST(GlobalSolve, WhoHeardWhomIsPricedOverTheWholeMaps)
     std::vector<MapHypothesis> alone = {folded};
     priceWhoHeardWhom(map.exact.problem, alone, 1);
     EXPECT_EQ(alone[0].connectivity_nats, 0.0);
+}
+
+// Two wings of 9 nodes each, 16 m apart, linked within a wing where closer than 6 m, and joined
+// by `bridges` of three links: each wing's exact map in a frame of its own (the second turned,
+// reflected and moved), as the grown maps of the solve are.
+struct TwoWings {
+    Exact exact;
+    std::vector<MapEstimate> patches;
+};
+
+TwoWings twoWings(size_t bridges)
+{
+    TwoWings out;
+    Exact &exact = out.exact;
+    for (int wing = 0; wing < 2; ++wing) {
+        for (int row = 0; row < 3; ++row) {
+            for (int column = 0; column < 3; ++column) {
+                const double jitter_m = 0.37 * ((row * 3 + column) % 4); // m, no two links parallel
+                exact.truth_m.emplace_back(16.0 * wing + 4.0 * column + jitter_m, 4.0 * row - 0.5 * jitter_m);
+            }
+        }
+    }
+    const auto count = static_cast<uint32_t>(exact.truth_m.size());
+    for (uint32_t node = 0; node < count; ++node) {
+        exact.problem.ids.push_back(static_cast<NodeId>(node));
+    }
+    for (uint32_t a = 0; a < count; ++a) {
+        for (uint32_t b = a + 1; b < count; ++b) {
+            const double distance_m = (exact.truth_m[a] - exact.truth_m[b]).norm();
+            if ((a < 9) == (b < 9) && distance_m < 6.0) {
+                exact.problem.links.push_back(MapLink{a, b, distance_m});
+            }
+        }
+    }
+    // The right column of the first wing (2, 5, 8) to the left column of the second (9, 12, 15).
+    const std::vector<std::pair<uint32_t, uint32_t>> joins = {{2, 12}, {5, 9}, {8, 15}};
+    for (size_t k = 0; k < bridges; ++k) {
+        const auto [a, b] = joins[k];
+        exact.problem.links.push_back(MapLink{a, b, (exact.truth_m[a] - exact.truth_m[b]).norm()});
+    }
+    exact.problem.listens.assign(count, 1);
+    exact.problem.finish();
+    const double angle = 1.0; // rad
+    Matrix2 turned;
+    turned << std::cos(angle), std::sin(angle), std::sin(angle), -std::cos(angle); // a reflection
+    for (uint32_t wing = 0; wing < 2; ++wing) {
+        MapEstimate patch = MapEstimate::unplaced(count);
+        for (uint32_t node = 9 * wing; node < 9 * (wing + 1); ++node) {
+            patch.placed[node] = 1;
+            patch.position_m[node] =
+                wing == 0 ? exact.truth_m[node] : Vector2(turned * exact.truth_m[node]) + Vector2(50.0, -20.0);
+        }
+        out.patches.push_back(patch);
+    }
+    return out;
+}
+
+TEST(MapStitch, WingsJoinedByTheirLinksComeBackExactly)
+{
+    const TwoWings wings = twoWings(3);
+    MapStitchStats stats;
+    const std::optional<MapEstimate> stitched =
+        stitchPatches(wings.exact.problem, wings.patches, nullptr, likelihood(), MapStitchParams{}, &stats);
+    ASSERT_TRUE(stitched.has_value());
+    EXPECT_EQ(stitched->placedCount(), wings.exact.problem.nodeCount());
+    EXPECT_EQ(stats.linked, 1U);
+    EXPECT_LT(alignedRmse(*stitched, wings.exact.truth_m), 1e-6);
+    // Patches sharing three nodes are fitted on them instead.
+    std::vector<MapEstimate> overlapping = wings.patches;
+    for (const uint32_t node : {9U, 12U, 15U}) {
+        overlapping[0].placed[node] = 1;
+        overlapping[0].position_m[node] = wings.exact.truth_m[node];
+    }
+    MapStitchStats fitted;
+    const std::optional<MapEstimate> joined =
+        stitchPatches(wings.exact.problem, overlapping, nullptr, likelihood(), MapStitchParams{}, &fitted);
+    ASSERT_TRUE(joined.has_value());
+    EXPECT_EQ(fitted.fitted, 1U);
+    EXPECT_LT(alignedRmse(*joined, wings.exact.truth_m), 1e-9);
+}
+
+TEST(MapStitch, IsAStartOfTheGlobalSolveWhenAskedFor)
+{
+    const TwoWings wings = twoWings(3);
+    GlobalSolveParams params;
+    params.stitch_start = true;
+    const GlobalSolveResult solved = solveGlobally(wings.exact.problem, likelihood(), params);
+    const auto stitched = std::find_if(solved.all.begin(), solved.all.end(),
+                                       [](const MapHypothesis &h) { return h.origin == "stitched"; });
+    ASSERT_NE(stitched, solved.all.end());
+    EXPECT_EQ(stitched->estimate.placedCount(), wings.exact.problem.nodeCount());
+    EXPECT_LT(alignedRmse(stitched->estimate, wings.exact.truth_m), kExactM);
+    EXPECT_LT(alignedRmse(solved.best.estimate, wings.exact.truth_m), kExactM);
+    // Off by default: no stitched start.
+    const GlobalSolveResult plain = solveGlobally(wings.exact.problem, likelihood(), GlobalSolveParams{});
+    EXPECT_TRUE(std::none_of(plain.all.begin(), plain.all.end(),
+                             [](const MapHypothesis &h) { return h.origin == "stitched"; }));
+}
+
+TEST(MapStitch, OneLinkLeavesThePatchesApart)
+{
+    const TwoWings wings = twoWings(1);
+    EXPECT_FALSE(stitchPatches(wings.exact.problem, wings.patches, nullptr, likelihood()).has_value());
+    // The nodes no patch places come from the fill map, fitted onto the joined one.
+    const TwoWings three = twoWings(3);
+    std::vector<MapEstimate> short_of_one = three.patches;
+    short_of_one[1].placed[17] = 0;
+    MapEstimate fill = truthEstimate(three.exact);
+    for (Vector2 &position : fill.position_m) {
+        position = Vector2(-position.y(), position.x()) + Vector2(3.0, 4.0); // another frame
+    }
+    MapStitchStats stats;
+    const std::optional<MapEstimate> stitched =
+        stitchPatches(three.exact.problem, short_of_one, &fill, likelihood(), MapStitchParams{}, &stats);
+    ASSERT_TRUE(stitched.has_value());
+    EXPECT_EQ(stats.filled, 1U);
+    EXPECT_LT(alignedRmse(*stitched, three.exact.truth_m), 1e-6);
 }
 
 TEST(GlobalSolve, AnyNumberOfThreadsGivesTheSameMapsBitForBit)

@@ -344,6 +344,34 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     if (hypotheses.empty()) {
         return result;
     }
+    if (params.stitch_start && more_starts && problem.fixedCount() < 2) {
+        // The grown maps that stop short of the fullest, each exact over its part, joined by the
+        // links between the parts; the nodes none of them places from the cheapest fullest map.
+        uint32_t most = 0;
+        for (const MapHypothesis &h : hypotheses) {
+            most = std::max(most, h.estimate.placedCount());
+        }
+        std::vector<MapEstimate> patches;
+        const MapHypothesis *fill = nullptr;
+        for (const MapHypothesis &h : hypotheses) {
+            if (h.estimate.placedCount() < most && h.origin.rfind("grown from", 0) == 0) {
+                patches.push_back(h.estimate);
+            } else if (h.estimate.placedCount() == most && (fill == nullptr || h.cost < fill->cost)) {
+                fill = &h;
+            }
+        }
+        if (std::optional<MapEstimate> stitched =
+                stitchPatches(problem, patches, fill != nullptr ? &fill->estimate : nullptr, likelihood)) {
+            MapHypothesis start;
+            start.estimate = std::move(*stitched);
+            start.origin = "stitched";
+            GlobalSolveCounters counters;
+            hypotheses.push_back(finish(std::move(start), false, counters));
+            result.counters.starts += counters.starts;
+            result.counters.escapes += counters.escapes;
+            result.counters.refine_iterations += counters.refine_iterations;
+        }
+    }
     // The best map places the most nodes, then costs the least.
     // A map that leaves a node unplaced has not explained its links: each is priced a little
     // above a perfect fit, so that leaving a node out is never cheaper than placing it well.
