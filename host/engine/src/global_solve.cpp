@@ -334,9 +334,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     forEachIndex(starts.size(), params.threads, [&](size_t i) { starts[i](refined[i]); });
     std::vector<MapHypothesis> hypotheses;
     for (Refined &one : refined) {
-        result.counters.starts += one.counters.starts;
-        result.counters.escapes += one.counters.escapes;
-        result.counters.refine_iterations += one.counters.refine_iterations;
+        result.counters += one.counters;
         if (one.hypothesis) {
             hypotheses.push_back(std::move(*one.hypothesis));
         }
@@ -367,9 +365,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             start.origin = "stitched";
             GlobalSolveCounters counters;
             hypotheses.push_back(finish(std::move(start), false, counters));
-            result.counters.starts += counters.starts;
-            result.counters.escapes += counters.escapes;
-            result.counters.refine_iterations += counters.refine_iterations;
+            result.counters += counters;
         }
     }
     // The best map places the most nodes, then costs the least.

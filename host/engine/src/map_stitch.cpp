@@ -106,6 +106,32 @@ Placement solveBridges(const std::vector<Bridge> &bridges, double mirror, double
     return p;
 }
 
+// Fits `other` onto `joined` on the nodes both place (three at least: else nothing is done and
+// false returned) and places there the nodes only `other` places; returns whether it did.
+bool joinByFit(MapEstimate &joined, const MapEstimate &other, uint32_t *added)
+{
+    std::vector<Vector2> source;
+    std::vector<Vector2> target;
+    for (size_t node = 0; node < joined.placed.size(); ++node) {
+        if (other.placed[node] != 0 && joined.placed[node] != 0) {
+            source.push_back(other.position_m[node]);
+            target.push_back(joined.position_m[node]);
+        }
+    }
+    if (source.size() < 3) {
+        return false;
+    }
+    const RigidTransform fit = fitRigid(source, target, true);
+    for (size_t node = 0; node < joined.placed.size(); ++node) {
+        if (other.placed[node] != 0 && joined.placed[node] == 0) {
+            joined.placed[node] = 1;
+            joined.position_m[node] = fit.apply(other.position_m[node]);
+            ++*added;
+        }
+    }
+    return true;
+}
+
 } // namespace
 
 std::optional<MapEstimate> stitchPatches(const MapProblem &problem, const std::vector<MapEstimate> &patches,
@@ -133,30 +159,24 @@ std::optional<MapEstimate> stitchPatches(const MapProblem &problem, const std::v
                 continue;
             }
             const MapEstimate &patch = patches[k];
-            std::vector<uint32_t> common;
+            uint32_t common = 0;
             std::vector<uint32_t> fresh;
             for (uint32_t node = 0; node < count; ++node) {
                 if (patch.placed[node] == 0) {
                     continue;
                 }
-                (joined.placed[node] != 0 ? common : fresh).push_back(node);
+                if (joined.placed[node] != 0) {
+                    ++common;
+                } else {
+                    fresh.push_back(node);
+                }
             }
             if (fresh.empty()) {
                 merged[k] = 1; // nothing to add
                 continue;
             }
-            if (common.size() >= 3) {
-                std::vector<Vector2> source;
-                std::vector<Vector2> target;
-                for (const uint32_t node : common) {
-                    source.push_back(patch.position_m[node]);
-                    target.push_back(joined.position_m[node]);
-                }
-                const RigidTransform fit = fitRigid(source, target, true);
-                for (const uint32_t node : fresh) {
-                    joined.placed[node] = 1;
-                    joined.position_m[node] = fit.apply(patch.position_m[node]);
-                }
+            uint32_t added = 0;
+            if (common >= 3 && joinByFit(joined, patch, &added)) {
                 merged[k] = 1;
                 ++counted.fitted;
                 ++joined_patches;
@@ -212,24 +232,7 @@ std::optional<MapEstimate> stitchPatches(const MapProblem &problem, const std::v
         return std::nullopt;
     }
     if (fill != nullptr) {
-        std::vector<Vector2> source;
-        std::vector<Vector2> target;
-        for (uint32_t node = 0; node < count; ++node) {
-            if (fill->placed[node] != 0 && joined.placed[node] != 0) {
-                source.push_back(fill->position_m[node]);
-                target.push_back(joined.position_m[node]);
-            }
-        }
-        if (source.size() >= 3) {
-            const RigidTransform fit = fitRigid(source, target, true);
-            for (uint32_t node = 0; node < count; ++node) {
-                if (fill->placed[node] != 0 && joined.placed[node] == 0) {
-                    joined.placed[node] = 1;
-                    joined.position_m[node] = fit.apply(fill->position_m[node]);
-                    ++counted.filled;
-                }
-            }
-        }
+        joinByFit(joined, *fill, &counted.filled);
     }
     return joined;
 }

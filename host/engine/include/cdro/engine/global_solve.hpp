@@ -71,6 +71,15 @@ struct GlobalSolveCounters {
     uint32_t escapes = 0; // single nodes moved to a better local optimum
     uint32_t refine_iterations = 0;
     uint32_t offset_evaluations = 0; // maps refined searching the range offsets
+
+    GlobalSolveCounters &operator+=(const GlobalSolveCounters &other)
+    {
+        starts += other.starts;
+        escapes += other.escapes;
+        refine_iterations += other.refine_iterations;
+        offset_evaluations += other.offset_evaluations;
+        return *this;
+    }
 };
 
 struct GlobalSolveResult {
