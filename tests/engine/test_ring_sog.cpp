@@ -105,7 +105,8 @@ TEST(RingSog, GeneratedComponentsSitOnTheCircleWithTheDocumentedSpreads)
         EXPECT_EQ(ring.center(), 11);
         EXPECT_EQ(ring.target(), 12);
         const uint32_t n = ring.size();
-        const double sigma_t = std::max(kTwoPi * range_m / n / params.tangential_overlap, params.radial_sigma_m);
+        const double sigma_t =
+            std::max(kTwoPi * range_m / n / params.tangential_overlap, params.min_tangential_sigma_m);
         const std::vector<SogComponentState> components = ring.components();
         for (uint32_t k = 0; k < n; ++k) {
             const double angle = kTwoPi * k / n;
@@ -130,12 +131,18 @@ TEST(RingSog, GeneratedComponentsSitOnTheCircleWithTheDocumentedSpreads)
     EXPECT_NEAR(std::sqrt(c0(0, 0)), 0.10, 1e-12);
 }
 
-TEST(RingSog, SmallRingsKeepATangentialSpreadAtLeastTheRadialOne)
+TEST(RingSog, SmallRingsKeepTheLeastTangentialSpread)
 {
     // 30 components on a 0.2 m ring: 0.04 m / 2.5 would be far below the range noise.
     const RingSog ring = RingSog::generate(1, 2, Vector2::Zero(), 0.2, RingSogParams{});
     const Matrix2 c0 = ring.component(0).covariance_m2;
     EXPECT_NEAR(c0(1, 1), 0.01, 1e-15);
+    // Without a least spread (the movement stage's beacons), eq. 7 alone.
+    RingSogParams eq7;
+    eq7.min_tangential_sigma_m = 0.0;
+    const double sigma_t = kTwoPi * 0.2 / 30.0 / 2.5;
+    EXPECT_NEAR(RingSog::generate(1, 2, Vector2::Zero(), 0.2, eq7).component(0).covariance_m2(1, 1), sigma_t * sigma_t,
+                1e-15);
     // A ring of radius 0 (a clamped projection): every mean on the centre, still a usable spread.
     const RingSog point = RingSog::generate(1, 2, Vector2(4.0, 4.0), 0.0, RingSogParams{});
     for (const SogComponentState &c : point.components()) {
@@ -194,6 +201,81 @@ TEST(RingSog, TheCentresUncertaintyAndPositionAreUsed)
     unsure.updateWithRange(Vector2::Zero(), 0.04 * Matrix2::Identity(), 5.2, 0.1, 4.0, 0.0);
     EXPECT_NEAR(sure.component(0).mean_m.norm(), 5.1, 1e-9);               // gain 0.01 / (0.01 + 0.01)
     EXPECT_NEAR(unsure.component(0).mean_m.norm(), 5.0 + 0.2 / 6.0, 1e-9); // 0.01 / (0.01 + 0.04 + 0.01)
+}
+
+TEST(RingSog, TheRangeTermsAreTheRangeModels)
+{
+    // A ring of the planar radius; ranges read long by the radios' scale and offset, from a
+    // node 1.5 m higher: at the truth, h = s sqrt(d^2 + dz^2) + b predicts them exactly, so the
+    // component there does not move, and the ring is pulled to the planar radius, not the range.
+    const engine::RangeTerms terms{1.5, 1.07, 0.12};
+    const Vector2 target_m(6.0, 0.0);
+    const double range_m = terms.scale * std::hypot(6.0, terms.height_difference_m) + terms.offset_m;
+    RingSog ring = RingSog::generate(1, 2, Vector2::Zero(), 5.5, RingSogParams{});
+    engine::RingUpdateRule rule;
+    for (int i = 0; i < 60; ++i) {
+        ring.updateWithRange(Vector2::Zero(), Matrix2::Zero(), range_m, 0.01, terms, rule);
+    }
+    for (const SogComponentState &c : ring.components()) {
+        EXPECT_NEAR(c.mean_m.norm(), 6.0, 0.01);
+    }
+    EXPECT_NEAR((ring.component(0).mean_m - target_m).norm(), 0.0, 0.01);
+}
+
+TEST(RingSog, RangesFromAnotherPlaceWeighTheRingAndPruningKeepsTheSideTheyPredict)
+{
+    // The movement stage's beacon: a ring around the robot's first pose, ranged again from a
+    // pose 3 m on. Weighed by those ranges, the side of the ring near the truth takes the
+    // weight; pruning drops the rest and the moments sit at the truth.
+    const Vector2 target_m(3.0, 4.0);
+    RingSogParams shape;
+    shape.weight_floor = 0.0;
+    RingSog ring = RingSog::generate(1, 2, Vector2::Zero(), 5.0, shape);
+    const size_t generated = ring.size();
+    const RangeLikelihood likelihood;
+    engine::RingUpdateRule rule;
+    rule.weigh_by = &likelihood;
+    const Vector2 second_m(3.0, 0.0);
+    for (int i = 0; i < 5; ++i) {
+        ring.updateWithRange(second_m, Matrix2::Zero(), (target_m - second_m).norm(), 0.01, engine::RangeTerms{}, rule);
+        ring.updateWithRange(Vector2::Zero(), Matrix2::Zero(), target_m.norm(), 0.01, engine::RangeTerms{}, rule);
+    }
+    const uint32_t dropped = ring.prune(1e-3);
+    EXPECT_EQ(dropped + ring.size(), generated);
+    EXPECT_GT(dropped, generated / 2); // the far side and the mirror across the baseline's line stay
+    double total = 0.0;
+    for (const SogComponentState &c : ring.components()) {
+        total += c.weight;
+    }
+    EXPECT_NEAR(total, 1.0, 1e-12);
+    // Two ranges cannot tell (3, 4) from its mirror (3, -4) across the line of the two poses.
+    const Gaussian2 merged = ring.moments();
+    EXPECT_NEAR(merged.mean_m.x(), 3.0, 0.05);
+    EXPECT_NEAR(std::abs(ring.component(ring.heaviest()).mean_m.y()), 4.0, 0.05);
+    // A third place off that line decides it.
+    const Vector2 third_m(0.0, 3.0);
+    for (int i = 0; i < 3; ++i) {
+        ring.updateWithRange(third_m, Matrix2::Zero(), (target_m - third_m).norm(), 0.01, engine::RangeTerms{}, rule);
+    }
+    ring.prune(1e-3);
+    EXPECT_NEAR((ring.moments().mean_m - target_m).norm(), 0.0, 0.05);
+}
+
+TEST(RingSog, AbsoluteComponentsComeBackToTheBit)
+{
+    std::vector<SogComponentState> components(3);
+    components[0] = {Vector2(1234.5678901, -98.7654321), 0.013 * Matrix2::Identity(), 0.2};
+    components[1] = {Vector2(-0.1 / 3.0, 1.0 / 7.0), 0.5 * Matrix2::Identity(), 0.3};
+    components[2] = {Vector2(7.0e5 / 3.0, 2.0 / 3.0), Matrix2::Identity(), 0.49999999999999994};
+    RingSog ring;
+    ring.setAbsoluteComponents(components);
+    const std::vector<SogComponentState> back = ring.components();
+    ASSERT_EQ(back.size(), components.size());
+    for (size_t k = 0; k < back.size(); ++k) {
+        EXPECT_EQ(back[k].mean_m, components[k].mean_m);
+        EXPECT_EQ(back[k].covariance_m2, components[k].covariance_m2);
+        EXPECT_EQ(back[k].weight, components[k].weight); // taken as they are, not normalised
+    }
 }
 
 TEST(RingSog, GatingCountsAndLeavesAnOutlierAlone)

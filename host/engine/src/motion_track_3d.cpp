@@ -4,6 +4,8 @@
 #include <cmath>
 #include <string>
 
+#include "cdro/engine/range_model.hpp"
+
 namespace cdro::engine {
 
 namespace {
@@ -241,9 +243,9 @@ FlightRangeUse FlightTracks::update(uint32_t end_a, uint32_t end_b, const Vector
     const Eigen::Index ba = 6 * static_cast<Eigen::Index>(end_a);
     const Eigen::Index bb = end_b == kNone ? -1 : 6 * static_cast<Eigen::Index>(end_b);
     const Vector3 other = bb < 0 ? anchor_m : Vector3(state_.segment<3>(bb));
-    const Vector3 d = state_.segment<3>(ba) - other;
-    const double distance = std::max(d.norm(), 1e-9);
-    const Vector3 unit = d / distance;
+    const RangePrediction3 prediction = predictRange(Vector3(state_.segment<3>(ba)), other);
+    const Vector3 unit = prediction.jacobian_point.transpose();
+    const double distance = std::max(prediction.range_m, kSingularDistanceM); // m, kept off 0 below
     const Eigen::Index n = state_.size();
     Eigen::VectorXd h = Eigen::VectorXd::Zero(n);
     h.segment<3>(ba) = unit;
@@ -260,7 +262,7 @@ FlightRangeUse FlightTracks::update(uint32_t end_a, uint32_t end_b, const Vector
     const double noise_m2 = range_sigma_m_ * range_sigma_m_ + curvature_m2;
     const Eigen::VectorXd ph = covariance_ * h;
     const double hph = h.dot(ph);
-    const double innovation = range_m - distance;
+    const double innovation = range_m - prediction.range_m;
     const double inlier = likelihood_.inlierProbability(innovation, hph + noise_m2);
     if (!force && innovation * innovation > gate_sigma_ * gate_sigma_ * (hph + noise_m2) && inlier < 0.01) {
         return FlightRangeUse::Refused;

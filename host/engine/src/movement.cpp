@@ -345,32 +345,25 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &ce
                                     double height_difference_m)
 {
     const RobotFilter &filter = best();
-    const double scale = filter.scale();
-    const double offset = filter.offset();
+    const RangeTerms terms{height_difference_m, filter.scale(), filter.offset()};
     const double noise = rangeSigma() * rangeSigma() + filter.scaleSigma() * filter.scaleSigma() * range_m * range_m +
                          filter.offsetSigma() * filter.offsetSigma();
-    if (sog.components.empty()) {
+    if (sog.ring.empty()) {
         if (!from_robot) {
             return; // rings start around the robot; the map's nodes then help decide between them
         }
         // A ring around the robot, of the range corrected by the current calibration.
-        const double radius = std::sqrt(
-            std::max(std::pow((range_m - offset) / scale, 2.0) - height_difference_m * height_difference_m, 0.0));
-        const uint32_t count = std::max<uint32_t>(
-            params_.beacon_min_components,
-            static_cast<uint32_t>(std::floor(kTwoPi * radius / std::max(params_.beacon_arc_spacing_m, 0.05))) + 1U);
-        const double tangential = kTwoPi * radius / count / 2.5;
-        for (uint32_t k = 0; k < count; ++k) {
-            const double angle = kTwoPi * k / count;
-            const Vector2 radial(std::cos(angle), std::sin(angle));
-            const Vector2 across(-radial.y(), radial.x());
-            BeaconComponent component;
-            component.mean_m = centre_m + radius * radial;
-            component.covariance_m2 = noise * radial * radial.transpose() +
-                                      tangential * tangential * across * across.transpose() + centre_covariance_m2;
-            component.weight = 1.0 / count;
-            sog.components.push_back(component);
-        }
+        const double radius_m = std::sqrt(std::max(std::pow((range_m - terms.offset_m) / terms.scale, 2.0) -
+                                                       height_difference_m * height_difference_m,
+                                                   0.0));
+        RingSogParams shape;
+        shape.arc_spacing_m = std::max(params_.beacon_arc_spacing_m, 0.05);
+        shape.min_components = params_.beacon_min_components;
+        shape.radial_sigma_m = std::sqrt(noise);
+        shape.min_tangential_sigma_m = 0.0;
+        shape.weight_floor = 0.0; // what has lost is pruned, not kept
+        sog.ring = RingSog::generate(params_.robot_id, id, centre_m, radius_m, shape, centre_covariance_m2);
+        sog.ring.setAbsoluteComponents(sog.ring.components());
         sog.first_robot_m = centre_m;
         sog.ranges = 1;
         ++counters_.beacon_sogs;
@@ -380,41 +373,11 @@ void MovementStage::updateBeaconSog(NodeId id, BeaconSog &sog, const Vector2 &ce
     // The spread of the places it was ranged from (the robot's, or a map node's): what tells a
     // ring's modes apart.
     sog.baseline_m = std::max(sog.baseline_m, (centre_m - sog.first_robot_m).norm());
-    double best_weight = 0.0;
-    for (BeaconComponent &component : sog.components) {
-        const RangePrediction prediction = predictRange(component.mean_m, centre_m, height_difference_m, scale, offset);
-        if (prediction.singular) {
-            continue;
-        }
-        const Eigen::RowVector2d h = prediction.jacobian_point;
-        const double variance = (h * component.covariance_m2 * h.transpose()).value() +
-                                (h * centre_covariance_m2 * h.transpose()).value() + noise;
-        const double innovation = range_m - prediction.range_m;
-        component.weight *= likelihood_.density(innovation, variance);
-        const Eigen::Vector2d gain = component.covariance_m2 * h.transpose() / variance;
-        component.mean_m += gain * innovation;
-        component.covariance_m2 -= gain * h * component.covariance_m2;
-        component.covariance_m2 = 0.5 * (component.covariance_m2 + component.covariance_m2.transpose());
-        best_weight = std::max(best_weight, component.weight);
-    }
-    if (!(best_weight > 0.0)) {
-        return;
-    }
-    // Normalise and drop what has lost: only the plausible part of the ring is kept.
-    const double threshold = params_.beacon_prune_ratio * best_weight;
-    std::vector<BeaconComponent> kept;
-    double total = 0.0;
-    for (const BeaconComponent &component : sog.components) {
-        if (component.weight >= threshold) {
-            kept.push_back(component);
-            total += component.weight;
-        }
-    }
-    for (BeaconComponent &component : kept) {
-        component.weight /= total;
-    }
-    sog.components = std::move(kept);
-    (void)id;
+    RingUpdateRule rule;
+    rule.weigh_by = &likelihood_;
+    sog.ring.updateWithRange(centre_m, centre_covariance_m2, range_m, noise, terms, rule);
+    // Only the plausible part of the ring is kept.
+    sog.ring.prune(params_.beacon_prune_ratio);
 }
 
 void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matrix2 &centre_covariance_m2,
@@ -422,18 +385,11 @@ void MovementStage::updateBeacon(NodeId id, const Vector2 &centre_m, const Matri
 {
     BeaconSog &sog = beacons_[id];
     updateBeaconSog(id, sog, centre_m, centre_covariance_m2, from_robot, range_m, height_difference_m);
-    if (sog.components.empty()) {
+    if (sog.ring.empty()) {
         beacons_.erase(id);
         return;
     }
-    Gaussian2 merged;
-    for (const BeaconComponent &c : sog.components) {
-        merged.mean_m += c.weight * c.mean_m;
-    }
-    for (const BeaconComponent &c : sog.components) {
-        const Vector2 spread = c.mean_m - merged.mean_m;
-        merged.covariance_m2 += c.weight * (c.covariance_m2 + spread * spread.transpose());
-    }
+    const Gaussian2 merged = sog.ring.moments();
     const double largest_variance =
         merged.covariance_m2.trace() - minEigenvalue(merged.covariance_m2); // the larger eigenvalue
     // A full EKF leaves it a SoG (the map's nodes wait the same way in insertNode).
@@ -679,7 +635,7 @@ std::vector<NodeOutput> MovementStage::estimates() const
     const RobotFilter &filter = best();
     for (NodeOutput &node : out) {
         const bool held = node.id == params_.robot_id || filter.hasNode(node.id) ||
-                          (beacons_.count(node.id) != 0 && !beacons_.at(node.id).components.empty());
+                          (beacons_.count(node.id) != 0 && !beacons_.at(node.id).ring.empty());
         if (held && node.doubt == NodeDoubt::Foldable) {
             // Placed by the robot's ranges from many poses, not by the link graph alone: the
             // graph's folds (foldable.hpp) say nothing about it.
@@ -699,21 +655,13 @@ std::vector<NodeOutput> MovementStage::estimates() const
             node.covariance_m2 = transform.applyToCovariance(filter.nodeCovariance(node.id));
         } else {
             const auto beacon = beacons_.find(node.id);
-            if (beacon != beacons_.end() && !beacon->second.components.empty()) {
+            if (beacon != beacons_.end() && !beacon->second.ring.empty()) {
                 // Still a SoG around the robot's path: its merged mean, not converged.
-                Vector2 mean = Vector2::Zero();
-                for (const BeaconComponent &c : beacon->second.components) {
-                    mean += c.weight * c.mean_m;
-                }
-                Matrix2 covariance = Matrix2::Zero();
-                for (const BeaconComponent &c : beacon->second.components) {
-                    const Vector2 spread = c.mean_m - mean;
-                    covariance += c.weight * (c.covariance_m2 + spread * spread.transpose());
-                }
+                const Gaussian2 merged = beacon->second.ring.moments();
                 node.lifecycle = NodeLifecycle::Placed;
                 node.doubt = NodeDoubt::Unsettled;
-                node.position_m = transform.apply(mean);
-                node.covariance_m2 = transform.applyToCovariance(covariance);
+                node.position_m = transform.apply(merged.mean_m);
+                node.covariance_m2 = transform.applyToCovariance(merged.covariance_m2);
             }
         }
     }

@@ -13,11 +13,11 @@
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseCore>
 
+#include "cdro/engine/range_model.hpp"
+
 namespace cdro::engine {
 
 namespace {
-
-using Vector3 = Eigen::Vector3d;
 
 constexpr uint8_t kFree = 0;
 constexpr uint8_t kHeightHeld = 1; // an anchor of known height: x, y free
@@ -60,7 +60,7 @@ public:
     {
         double total = 0.0;
         for (const RangeTerm &r : problem_.ranges) {
-            const double z = std::abs(r.range_m - (points_m[r.i] - points_m[r.j]).norm()) / sigma_m_;
+            const double z = std::abs(r.range_m - predictRange(points_m[r.i], points_m[r.j]).range_m) / sigma_m_;
             total += z <= k_ ? 0.5 * z * z : k_ * z - 0.5 * k_ * k_;
         }
         for (const PriorTerm &p : problem_.priors) {
@@ -149,10 +149,9 @@ private:
         }
         const std::vector<Vector3> &p = problem_.points_m;
         for (const RangeTerm &r : problem_.ranges) {
-            const Vector3 d = p[r.i] - p[r.j];
-            const double distance = std::max(d.norm(), 1e-9);
-            const Vector3 unit = d / distance;
-            const double e = (r.range_m - distance) / sigma_m_;
+            const RangePrediction3 prediction = predictRange(p[r.i], p[r.j]);
+            const Eigen::RowVector3d unit = prediction.jacobian_point;
+            const double e = (r.range_m - prediction.range_m) / sigma_m_;
             const double weight = std::abs(e) <= k_ ? 1.0 : k_ / std::abs(e);
             // de/dp_i = -unit / sigma, de/dp_j = +unit / sigma
             std::array<std::pair<Eigen::Index, double>, 6> jacobian{};
@@ -496,7 +495,7 @@ std::vector<CalibratedAnchor> MovingCalibration::solve(const std::vector<Calibra
         attempt.cost = solver.cost(batch.points_m);
         double sum_m2 = 0.0;
         for (const RangeTerm &r : batch.ranges) {
-            const double e = r.range_m - (batch.points_m[r.i] - batch.points_m[r.j]).norm();
+            const double e = r.range_m - predictRange(batch.points_m[r.i], batch.points_m[r.j]).range_m;
             sum_m2 += e * e;
             attempt.outliers += std::abs(e) > params_.huber_sigmas * params_.range_sigma_m ? 1U : 0U;
         }
@@ -580,8 +579,8 @@ std::vector<CalibratedAnchor> MovingCalibration::solve(const std::vector<Calibra
         }
         for (uint32_t i = 0; i < anchors; ++i) {
             for (uint32_t j = 0; j < anchors; ++j) {
-                const double dz = planar ? *height[i] - *height[j] : 0.0;
-                d(i, j) = std::sqrt(std::max(dist(i, j) * dist(i, j) - dz * dz, 0.0));
+                bool clamped = false; // a range shorter than the height difference projects to 0
+                d(i, j) = projectRange(dist(i, j), planar ? *height[i] - *height[j] : 0.0, &clamped);
             }
         }
         const Eigen::MatrixXd x = classicalMds(d, planar ? 2 : 3);

@@ -22,6 +22,19 @@ RangePrediction predictRange(const Vector2 &point_m, const Vector2 &center_m, do
     return prediction;
 }
 
+RangePrediction3 predictRange(const Vector3 &point_m, const Vector3 &center_m)
+{
+    RangePrediction3 prediction;
+    const Vector3 offset = point_m - center_m;
+    prediction.range_m = offset.norm();
+    if (prediction.range_m < kSingularDistanceM) {
+        prediction.singular = true;
+        return prediction;
+    }
+    prediction.jacobian_point = (offset / prediction.range_m).transpose();
+    return prediction;
+}
+
 double projectRange(double range_m, double height_difference_m, bool *clamped)
 {
     const double squared = range_m * range_m - height_difference_m * height_difference_m;

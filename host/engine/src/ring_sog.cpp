@@ -13,7 +13,7 @@ constexpr double kTwoPi = 6.28318530717958647692;
 } // namespace
 
 RingSog RingSog::generate(NodeId center, NodeId target, const Vector2 &center_m, double range_m,
-                          const RingSogParams &params)
+                          const RingSogParams &params, const Matrix2 &center_covariance_m2)
 {
     RingSog ring;
     ring.center_ = center;
@@ -30,10 +30,8 @@ RingSog RingSog::generate(NodeId center, NodeId target, const Vector2 &center_m,
     ring.weight_floor_ = std::min(params.weight_floor, 0.1 / count);
 
     const double radial_variance = params.radial_sigma_m * params.radial_sigma_m;
-    // A ring of radius ~0 (a range shorter than the height difference) still gets a usable
-    // tangential spread: that of the radial noise.
     const double tangential_sigma =
-        std::max(kTwoPi * radius_m / count / std::max(params.tangential_overlap, 1e-3), params.radial_sigma_m);
+        std::max(kTwoPi * radius_m / count / std::max(params.tangential_overlap, 1e-3), params.min_tangential_sigma_m);
     const double tangential_variance = tangential_sigma * tangential_sigma;
     ring.components_.resize(count);
     for (uint32_t k = 0; k < count; ++k) {
@@ -44,6 +42,9 @@ RingSog RingSog::generate(NodeId center, NodeId target, const Vector2 &center_m,
         component.mean_m = radius_m * radial;
         component.covariance_m2 =
             radial_variance * radial * radial.transpose() + tangential_variance * tangential * tangential.transpose();
+        if (!center_covariance_m2.isZero(0.0)) {
+            component.covariance_m2 += center_covariance_m2;
+        }
         component.weight = 1.0 / count;
     }
     ring.refreshMoments();
@@ -72,17 +73,23 @@ void RingSog::collectActive(bool full)
 }
 
 RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix2 &center_covariance_m2, double range_m,
-                                           double range_sigma_m, double gate_sigma, double process_noise_m2, bool full)
+                                           double noise_variance_m2, const RangeTerms &terms,
+                                           const RingUpdateRule &rule)
 {
     RangeUpdateResult result;
-    const double noise_variance = range_sigma_m * range_sigma_m;
-    const double gate_squared = gate_sigma * gate_sigma;
+    const double noise_variance = noise_variance_m2;
+    const double gate_squared = rule.gate_sigma * rule.gate_sigma;
     const Vector2 center_relative = center_m - offset_m_;
-    collectActive(full);
+    collectActive(rule.full);
+    if (rule.weigh_by != nullptr) {
+        // A component that takes no information from the range keeps its weight.
+        scratch_.assign(components_.size(), 1.0);
+    }
     for (uint32_t k : active_) {
         SogComponentState &component = components_[k];
-        component.covariance_m2.diagonal().array() += process_noise_m2;
-        const RangePrediction prediction = predictRange(component.mean_m, center_relative);
+        component.covariance_m2.diagonal().array() += rule.process_noise_m2;
+        const RangePrediction prediction =
+            predictRange(component.mean_m, center_relative, terms.height_difference_m, terms.scale, terms.offset_m);
         if (prediction.singular) {
             continue;
         }
@@ -92,6 +99,9 @@ RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix
         const double innovation_variance =
             (h * covariance_h).value() + (h * center_covariance_m2 * h.transpose()).value() + noise_variance;
         const double innovation = range_m - prediction.range_m;
+        if (rule.weigh_by != nullptr) {
+            scratch_[k] = rule.weigh_by->density(innovation, innovation_variance);
+        }
         if (innovation * innovation > gate_squared * innovation_variance) {
             ++result.gated;
             continue;
@@ -104,8 +114,25 @@ RangeUpdateResult RingSog::updateWithRange(const Vector2 &center_m, const Matrix
                                   (innovation_variance - (h * covariance_h).value()) * gain * gain.transpose();
         ++result.updated;
     }
+    if (rule.weigh_by != nullptr) {
+        applyLikelihood(scratch_, false);
+    }
     refreshMoments();
     return result;
+}
+
+uint32_t RingSog::prune(double ratio)
+{
+    if (components_.empty()) {
+        return 0;
+    }
+    const double threshold = ratio * components_[heaviest()].weight;
+    const size_t before = components_.size();
+    components_.erase(std::remove_if(components_.begin(), components_.end(),
+                                     [threshold](const SogComponentState &c) { return c.weight < threshold; }),
+                      components_.end());
+    normalise();
+    return static_cast<uint32_t>(before - components_.size());
 }
 
 WeightUpdateResult RingSog::updateWeights(const std::vector<RangeWitness> &witnesses, const RangeLikelihood &likelihood,
@@ -307,6 +334,13 @@ SogComponentState RingSog::component(uint32_t k) const
     SogComponentState out = components_[k];
     out.mean_m += offset_m_;
     return out;
+}
+
+void RingSog::setAbsoluteComponents(std::vector<SogComponentState> components)
+{
+    components_ = std::move(components);
+    offset_m_.setZero();
+    refreshMoments();
 }
 
 void RingSog::setComponents(const std::vector<SogComponentState> &components)

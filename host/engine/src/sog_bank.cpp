@@ -19,6 +19,7 @@ SogBank::SogBank(const EngineParams &params, const RangeLikelihood &likelihood)
       follow_(params.sog.rings_follow_center && params.refinement.enabled), likelihood_(likelihood)
 {
     ring_.radial_sigma_m = params.range.sigma_m;
+    ring_.min_tangential_sigma_m = params.range.sigma_m;
 }
 
 uint32_t SogBank::newSlot(MapState &map) const

@@ -484,7 +484,7 @@ std::vector<uint8_t> movementBlockOf(const engine::MovementStage &movement)
         out.first_robot_x_m = sog.first_robot_m.x();
         out.first_robot_y_m = sog.first_robot_m.y();
         out.baseline_m = sog.baseline_m;
-        for (const engine::MovementStage::BeaconComponent &component : sog.components) {
+        for (const engine::SogComponentState &component : sog.ring.components()) {
             blocks::movement_component &c = out.components.emplace_back();
             c.mean_x_m = component.mean_m.x();
             c.mean_y_m = component.mean_m.y();
@@ -566,16 +566,18 @@ void restoreMovement(engine::MovementStage &movement, const service::SogSnapshot
         sog.ranges = in.ranges;
         sog.first_robot_m = engine::Vector2(in.first_robot_x_m, in.first_robot_y_m);
         sog.baseline_m = in.baseline_m;
+        std::vector<engine::SogComponentState> components;
         for (const blocks::movement_component &c : in.components) {
-            engine::MovementStage::BeaconComponent component;
+            engine::SogComponentState &component = components.emplace_back();
             component.mean_m = engine::Vector2(c.mean_x_m, c.mean_y_m);
             component.covariance_m2(0, 0) = c.var_x_m2;
             component.covariance_m2(0, 1) = c.cov_xy_m2;
             component.covariance_m2(1, 0) = c.cov_yx_m2;
             component.covariance_m2(1, 1) = c.var_y_m2;
             component.weight = c.weight;
-            sog.components.push_back(component);
         }
+        sog.ring.setIdentity(block.robot_id, in.id);
+        sog.ring.setAbsoluteComponents(std::move(components));
         saved.beacons[in.id] = std::move(sog);
     }
     for (const blocks::movement_moving &in : block.moving) {

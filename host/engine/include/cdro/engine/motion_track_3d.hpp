@@ -61,9 +61,6 @@
 
 namespace cdro::engine {
 
-using Vector3 = Eigen::Vector3d; // m
-using Matrix3 = Eigen::Matrix3d; // m^2 when it is a covariance
-
 // Where a tracked node is in its life.
 enum class FlightStatus : uint8_t {
     Waiting,  // declared, no range to an anchor yet

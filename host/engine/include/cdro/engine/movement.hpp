@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/engine/ring_sog.hpp"
 #include "cdro/engine/robot_filter.hpp"
 
 namespace cdro::engine {
@@ -128,13 +129,11 @@ public:
     double rangeSigmaInUse() const { return rangeSigma(); } // m
     uint64_t revision() const { return revision_ + engine_.revision(); }
 
-    struct BeaconComponent {
-        Vector2 mean_m = Vector2::Zero();
-        Matrix2 covariance_m2 = Matrix2::Zero();
-        double weight = 0.0;
-    };
+    // A node ranged from the robot before the EKF holds it: a ring (ring_sog.hpp) around the
+    // robot's first pose, narrowed by the ranges from the places the robot and the map's nodes
+    // ranged it from.
     struct BeaconSog {
-        std::vector<BeaconComponent> components;
+        RingSog ring; // absolute means (RingSog::setAbsoluteComponents), weights without a floor
         uint32_t ranges = 0;
         Vector2 first_robot_m = Vector2::Zero(); // m, the robot when the ring started
         double baseline_m = 0.0;                 // m, farthest place it was ranged from (robot or map node) from there

@@ -38,6 +38,16 @@ struct RangePrediction {
 RangePrediction predictRange(const Vector2 &point_m, const Vector2 &center_m, double height_difference_m = 0.0,
                              double scale = 1.0, double offset_m = 0.0);
 
+// The same between two points of 3D state (nodes of unknown height: motion_track_3d.hpp,
+// moving_calibration.hpp), with s = 1 and b = 0: h = |a - b|, dh/da = u^T, dh/db = -u^T.
+struct RangePrediction3 {
+    double range_m = 0.0;                                           // m, h
+    Eigen::RowVector3d jacobian_point = Eigen::RowVector3d::Zero(); // dh/da; dh/db is its negative
+    bool singular = false;                                          // h below kSingularDistanceM
+};
+
+RangePrediction3 predictRange(const Vector3 &point_m, const Vector3 &center_m);
+
 // A 3D range between nodes at heights differing by dz, projected to the plane: sqrt(r^2 - dz^2).
 // A range shorter than |dz| cannot be projected; it gives 0 and *clamped = true.
 double projectRange(double range_m, double height_difference_m, bool *clamped);

@@ -21,9 +21,17 @@
 // The ring is relative to its centre: when the centre's estimate moves, the ring moves with
 // it (translate(), O(1): the means are stored relative to an offset). Its weighted moments
 // are cached, so that merging the rings that describe a node costs O(rings), not O(components).
+//
+// The movement stage's beacons are rings too (movement.hpp): a node ranged from the robot's
+// path. Their ranges carry the radios' calibration (scale, offset and the height difference of
+// range_model.hpp: RangeTerms), come from a centre that moves, so each range also weighs the
+// components by how well they predicted it (RingUpdateRule::weigh_by), and what has lost is
+// dropped (prune()) rather than kept at a floor. Their means are absolute
+// (setAbsoluteComponents()), so that a checkpoint holds them exactly.
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "cdro/engine/range_likelihood.hpp"
@@ -37,7 +45,10 @@ struct RingSogParams {
     uint32_t max_components = 720;   // and at most this (bounds memory and time on long links)
     double tangential_overlap = 2.5; // c: sigma_t = arc spacing / c, so neighbours overlap
     double radial_sigma_m = 0.10;    // m, sigma_s of a new component (the range noise)
-    double weight_floor = 1e-6;      // smallest weight a component keeps, 0..1/N
+    // m, sigma_t at least this: a ring of radius ~0 (a range shorter than the height difference)
+    // still spreads along its circle (stage 1: sigma_s; the beacons: eq. 7 alone, 0)
+    double min_tangential_sigma_m = 0.10;
+    double weight_floor = 1e-6; // smallest weight a component keeps, 0..1/N
 };
 
 // One Gaussian of the ring.
@@ -45,6 +56,24 @@ struct SogComponentState {
     Vector2 mean_m = Vector2::Zero();        // m
     Matrix2 covariance_m2 = Matrix2::Zero(); // m^2
     double weight = 0.0;                     // normalised within the ring
+};
+
+// The terms of the range model besides the two points (range_model.hpp): stage 1's rings use
+// none (h = |m - c|).
+struct RangeTerms {
+    double height_difference_m = 0.0; // m, dz
+    double scale = 1.0;               // s
+    double offset_m = 0.0;            // m, b
+};
+
+// What an update does besides the EKF step of each component.
+struct RingUpdateRule {
+    double gate_sigma = std::numeric_limits<double>::infinity(); // beyond this many sigma: left alone
+    double process_noise_m2 = 0.0;                               // m^2, added to each covariance first
+    bool full = true;                                            // every component, else the active set
+    // When set, each component's weight is also multiplied by the likelihood of the range it
+    // predicted (normalised with the floor, never reset): a ring whose centre moves.
+    const RangeLikelihood *weigh_by = nullptr;
 };
 
 struct RangeUpdateResult {
@@ -71,8 +100,9 @@ public:
     // Eq. 5-7: N = max(min, min(max, floor(2 pi r / arc_spacing) + 1)) components on the circle
     // of radius range_m around center_m, radial std sigma_s, tangential std
     // sigma_t = (2 pi r / N) / c, equal weights 1/N.
+    // The centre's own uncertainty (center_covariance_m2) is added to every component's.
     static RingSog generate(NodeId center, NodeId target, const Vector2 &center_m, double range_m,
-                            const RingSogParams &params);
+                            const RingSogParams &params, const Matrix2 &center_covariance_m2 = Matrix2::Zero());
 
     // EKF update of every component with a range measured from the centre: h(m) = |m - c|
     // (range_model.hpp). The innovation variance includes the centre's own uncertainty
@@ -82,7 +112,19 @@ public:
     // so a ring never becomes certain enough to ignore new ranges.
     RangeUpdateResult updateWithRange(const Vector2 &center_m, const Matrix2 &center_covariance_m2, double range_m,
                                       double range_sigma_m, double gate_sigma, double process_noise_m2,
-                                      bool full = true);
+                                      bool full = true)
+    {
+        RingUpdateRule rule;
+        rule.gate_sigma = gate_sigma;
+        rule.process_noise_m2 = process_noise_m2;
+        rule.full = full;
+        return updateWithRange(center_m, center_covariance_m2, range_m, range_sigma_m * range_sigma_m, RangeTerms{},
+                               rule);
+    }
+    // The same with the range model's other terms and a noise variance (m^2) of the caller's:
+    // h(m) = s sqrt(|m - c|^2 + dz^2) + b.
+    RangeUpdateResult updateWithRange(const Vector2 &center_m, const Matrix2 &center_covariance_m2, double range_m,
+                                      double noise_variance_m2, const RangeTerms &terms, const RingUpdateRule &rule);
 
     // Eq. 8-11 for every witness at once: v_k <- v_k prod_m p(r_m - |m_k - p_m|), with the
     // predictive variance sigma_r^2 + u^T (C_k + C_m) u, then normalised with the floor.
@@ -98,6 +140,10 @@ public:
 
     // Eq. 15: w_k = N(|m_kmax - m_k|; 0, sigma_w^2), normalised, around the heaviest component.
     void transferWeights(double sigma_w_m);
+
+    // Drops the components whose weight is below ratio times the heaviest, and normalises the
+    // rest; returns how many were dropped.
+    uint32_t prune(double ratio);
 
     void translate(const Vector2 &delta_m) { offset_m_ += delta_m; }
     // x -> rotation x + translation for every mean (and rotation C rotation^T).
@@ -120,6 +166,9 @@ public:
     std::vector<SogComponentState> components() const;
     // Replaces the components (absolute means; restore, tests). Weights are normalised.
     void setComponents(const std::vector<SogComponentState> &components);
+    // Replaces them as they are: means stored absolute (no offset), weights unchanged, so that
+    // components() gives them back to the bit.
+    void setAbsoluteComponents(std::vector<SogComponentState> components);
     SogComponentState component(uint32_t k) const;
     double weightFloor() const { return weight_floor_; }
     void setWeightFloor(double floor) { weight_floor_ = floor; }

@@ -12,6 +12,8 @@ namespace cdro::engine {
 using NodeId = uint16_t;
 using Vector2 = Eigen::Vector2d; // m
 using Matrix2 = Eigen::Matrix2d; // m^2 when it is a covariance
+using Vector3 = Eigen::Vector3d; // m (nodes of unknown height)
+using Matrix3 = Eigen::Matrix3d; // m^2 when it is a covariance
 
 // A planar Gaussian: the belief about one position.
 struct Gaussian2 {
