@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """The engine's 3D tracker of moving nodes (cdro-hostd --moving; docs/engine.md, "Nodes that never
 stop") against the Python baselines (b) and (c-ref) on the seeded simulated flights of
-tests/tools/test_tracking.py (never on MiLUV): the sparse schedule (a tag hears an anchor every
+cdro_tools.simulation.flights (never on MiLUV): the sparse schedule (a tag hears an anchor every
 ~2.5 s, tag-to-tag ranges 0.25/s per pair: MiLUV's 3-robot run), the dense one (every ~0.43 s, no
-tag-to-tag: its 1-robot run) and the dense one with 5 % NLOS ranges (+Exp(0.5 m)). Scored as
+tag-to-tag: its 1-robot run), the dense one with 5 % NLOS ranges (+Exp(0.5 m)), and two tags a
+body on the sparse schedule (with and without cdro-hostd --moving-body). Scored as
 scripts/miluv.py scores, at every row and at (b)'s rows.
 
     CDRO_BUILD_DIR=build .venv/bin/python scripts/flights_sim.py [--seeds 1-5] [--set K=V]...
@@ -22,77 +23,21 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tools"))
-sys.path.insert(0, str(ROOT / "tests" / "tools"))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from cdro_tools.evaluation import tracking_baselines as tb  # noqa: E402
+from cdro_tools.simulation import flights  # noqa: E402
 import miluv  # noqa: E402
-import test_tracking as sim  # noqa: E402
 
 SCENARIOS = {"sparse (3 robots' schedule)": {},
              "dense (1 robot's schedule)": {"tag_tag_rate": 0.0, "gap_s": 0.43},
              "dense, 5 % NLOS": {"tag_tag_rate": 0.0, "gap_s": 0.43, "nlos": 0.05}}
 ZERO_AS = 100   # the sparse flight's anchor 0 is no node id for cdro-hostd
-# Two tags a body (MiLUV's 3-robot run: tags 10/11, 20/21, 30/31, lever arms 0.45 m apart, from its
-# tags.csv), body yaw turning at YAW_RATE_RAD_S; the sparse schedule per tag.
-BODY_ARMS_M = ((0.15, -0.165, -0.05), (-0.155, 0.16, -0.05))
-BODY_TAGS = ((10, 11), (20, 21), (30, 31))
-YAW_RATE_RAD_S = 0.3
 
 
-def simulate_bodies(seed: int) -> tuple[tb.TimedRanges, dict, list[str]]:
-    """(ranges, truth tracks, --moving-body arguments) of three bodies flying as the sparse flight's
-    tags do, each with two tags at BODY_ARMS_M; each tag hears an anchor every ~2.5 s (a cycle of
-    the six), tag-to-tag ranges between tags of different bodies 0.25/s per body pair; noise 0.1 m."""
-    print(f"bodies, seed {seed}")
-    rng = np.random.default_rng([seed, 7])
-    truth = {}
-    for body in BODY_TAGS:
-        centre = sim.random_flight(rng, sim.SPARSE_DURATION_S, sim.SPARSE_SPEED_M_S)
-        for tag, arm in zip(body, BODY_ARMS_M):
-            yaw = YAW_RATE_RAD_S * centre.t_s
-            c, s_ = np.cos(yaw), np.sin(yaw)
-            offset = np.stack([c * arm[0] - s_ * arm[1], s_ * arm[0] + c * arm[1], np.full_like(yaw, arm[2])], axis=1)
-            truth[tag] = sim.tracking.NodeTrack(centre.t_s, centre.p_m + offset)
-    anchors = sim.SPARSE_ANCHORS_M
-
-    def at(node: int, t_s: float) -> np.ndarray:
-        if node in anchors:
-            return np.array(anchors[node])
-        return np.array([np.interp(t_s, truth[node].t_s, truth[node].p_m[:, k]) for k in range(3)])
-
-    events = []
-    for tag in truth:
-        cycle = rng.permutation(list(anchors))
-        t_s, k = rng.uniform(0.0, sim.SPARSE_GAP_S), 0
-        while t_s < sim.SPARSE_DURATION_S:
-            events.append((t_s, tag, int(cycle[k % len(cycle)])))
-            k += 1
-            t_s += 0.3 + rng.exponential(sim.SPARSE_GAP_S - 0.3)
-    for i, body in enumerate(BODY_TAGS):
-        for other in BODY_TAGS[i + 1:]:
-            t_s = rng.exponential(1.0 / sim.SPARSE_TAG_TAG_RATE)
-            while t_s < sim.SPARSE_DURATION_S:
-                events.append((t_s, int(rng.choice(body)), int(rng.choice(other))))
-                t_s += rng.exponential(1.0 / sim.SPARSE_TAG_TAG_RATE)
-    events.sort()
-    values = [float(np.linalg.norm(at(a, t) - at(b, t))) + sim.NOISE_M * rng.standard_normal() for t, a, b in events]
-    columns = list(zip(*events))
-    separation = float(np.linalg.norm(np.subtract(*BODY_ARMS_M)))
-    bodies = [a for x, y in BODY_TAGS for a in ("--moving-body", f"{x}:{y}:{separation:.3f}")]
-    return (tb.TimedRanges(np.array(columns[0]), np.array(columns[1], dtype=np.int64),
-                           np.array(columns[2], dtype=np.int64), np.array(values), np.arange(len(events))),
-            truth, bodies)
-
-
-def score_all(rows: list, truth: dict, keep: set | None = None) -> dict:
-    estimates = {}
-    for tag in truth:
-        mine = [r for r in rows if r[1] == tag and (keep is None or (r[0], tag) in keep)]
-        estimates[tag] = sim.tracking.NodeTrack(np.array([r[0] for r in mine]),
-                                                np.array([r[2] for r in mine]).reshape(-1, 3),
-                                                np.array([r[3] for r in mine]).reshape(-1, 3, 3))
-    return sim.tracking.evaluate_tracking(estimates, truth)["overall"]
+def moving_body_arguments() -> list[str]:
+    """cdro-hostd's --moving-body arguments for the bodies of flights.simulate_bodies."""
+    return [a for x, y in flights.BODY_TAGS for a in ("--moving-body", f"{x}:{y}:{flights.BODY_SEPARATION_M:.3f}")]
 
 
 def renumber(ranges: tb.TimedRanges) -> tb.TimedRanges:
@@ -105,13 +50,14 @@ def calibration_rows(hostd, scratch: pathlib.Path, seeds, extra: list[str]) -> N
     --fixed-csv: moving_calibration.hpp calibrates the anchors first). Prints, per scenario, the
     mean over the seeds (and the worst) of the anchors' 3D RMSE after their own rigid fit, and the
     tags' 3D RMSE after one rigid fit of the trajectory (cdro-eval-motion --align)."""
-    anchors = {(ZERO_AS if i == 0 else i): np.array(p) for i, p in sim.sparse_anchors().items()}
+    anchors = {(ZERO_AS if i == 0 else i): np.array(p) for i, p in flights.sparse_anchors().items()}
     print("\n| scenario, anchors not given (d) | anchors' aligned RMSE 3D, mean (worst) | tags' aligned RMSE 3D, "
           "mean (worst) |")
     print("|---|---|---|")
-    flights = {title: (lambda seed, o=options: sim.simulate_sparse(seed, **o)) for title, options in SCENARIOS.items()}
-    flights["two tags a body (sparse)"] = lambda seed: simulate_bodies(seed)[:2]
-    for title, flight in flights.items():
+    simulated = {title: (lambda seed, o=options: flights.simulate_sparse(seed, **o))
+                 for title, options in SCENARIOS.items()}
+    simulated["two tags a body (sparse)"] = flights.simulate_bodies
+    for title, flight in simulated.items():
         anchor_rmse, tag_rmse = [], []
         for seed in seeds:
             ranges, truth = flight(seed)
@@ -120,13 +66,7 @@ def calibration_rows(hostd, scratch: pathlib.Path, seeds, extra: list[str]) -> N
             rows, _ = miluv.run_engine(hostd, scratch / "ranges.csv", anchors, sorted(truth), scratch, f"d{seed}",
                                        extra, calibrate=True, log=log)
             anchor_rmse.append(miluv.anchors_aligned(miluv.calibrated_anchors(log), anchors)["rmse_3d_m"])
-            estimates = {}
-            for tag in truth:
-                mine = [r for r in rows if r[1] == tag]
-                estimates[tag] = sim.tracking.NodeTrack(np.array([r[0] for r in mine]),
-                                                        np.array([r[2] for r in mine]).reshape(-1, 3),
-                                                        np.array([r[3] for r in mine]).reshape(-1, 3, 3))
-            tag_rmse.append(sim.tracking.evaluate_tracking(estimates, truth, align=True)["overall"]["rmse_3d_m"])
+            tag_rmse.append(flights.score_rows(rows, truth, align=True)["rmse_3d_m"])
         print(f"| {title} | {np.mean(anchor_rmse):.3f} ({np.max(anchor_rmse):.3f}) | {np.mean(tag_rmse):.3f} "
               f"({np.max(tag_rmse):.3f}) |")
 
@@ -140,7 +80,7 @@ def main() -> int:
     lo, _, hi = args.seeds.partition("-")
     seeds = range(int(lo), int(hi or lo) + 1)
     hostd = miluv.hostd_binary()
-    anchors = {(ZERO_AS if i == 0 else i): p for i, p in sim.sparse_anchors().items()}
+    anchors = {(ZERO_AS if i == 0 else i): p for i, p in flights.sparse_anchors().items()}
     extra = [a for kv in args.set for a in ("--set", kv)]
     print(f"seeds {seeds.start}-{seeds.stop - 1}; engine settings: {args.set or 'defaults'}")
     print("| scenario | (b) EKF per tag | (c-ref) cooperative EKF | (c) engine | (c) at (b)'s rows "
@@ -154,17 +94,17 @@ def main() -> int:
         for title, options in SCENARIOS.items():
             sums = {k: [] for k in ("ekf", "coop", "engine", "engine_b", "coop_b", "engine_in", "coop_in")}
             for seed in seeds:
-                ranges, truth = sim.simulate_sparse(seed, **options)
+                ranges, truth = flights.simulate_sparse(seed, **options)
                 ranges = renumber(ranges)
                 ekf = tb.track_ekf(ranges, anchors)
                 coop = tb.track_ekf(ranges, anchors, cooperative=True)
                 miluv.write_ranges(scratch / "ranges.csv", ranges)
-                engine, _ = miluv.run_engine(hostd, scratch / "ranges.csv", anchors, list(sim.SPARSE_TAGS), scratch,
+                engine, _ = miluv.run_engine(hostd, scratch / "ranges.csv", anchors, list(flights.SPARSE_TAGS), scratch,
                                              f"seed{seed}", extra)
                 keep = {(t, n) for t, n, _, _ in ekf.rows}
                 for key, rows, only in (("ekf", ekf.rows, None), ("coop", coop.rows, None), ("engine", engine, None),
                                         ("engine_b", engine, keep), ("coop_b", coop.rows, keep)):
-                    s = sim.sparse_score(rows, truth, only)
+                    s = flights.score_rows(rows, truth, only)
                     sums[key].append(s["rmse_3d_m"])
                     if only is None and key in ("coop", "engine"):
                         sums[key + "_in"].append(s["inside_95_3d"])
@@ -173,8 +113,9 @@ def main() -> int:
                   f"({m['engine_in']:.0%} inside) | {m['engine_b']:.3f} | {m['coop_b']:.3f} |")
         # Two tags a body: the engine with and without --moving-body.
         sums = {k: [] for k in ("ekf", "coop", "engine", "body", "body_in", "engine_in", "body_b", "engine_b")}
+        bodies = moving_body_arguments()
         for seed in seeds:
-            ranges, truth, bodies = simulate_bodies(seed)
+            ranges, truth = flights.simulate_bodies(seed)
             ranges = renumber(ranges)
             ekf = tb.track_ekf(ranges, anchors)
             coop = tb.track_ekf(ranges, anchors, cooperative=True)
@@ -186,7 +127,7 @@ def main() -> int:
             keep = {(t, n) for t, n, _, _ in ekf.rows}
             for key, rows, only in (("ekf", ekf.rows, None), ("coop", coop.rows, None), ("engine", engine, None),
                                     ("body", body, None), ("engine_b", engine, keep), ("body_b", body, keep)):
-                sc = score_all(rows, truth, only)
+                sc = flights.score_rows(rows, truth, only)
                 sums[key].append(sc["rmse_3d_m"])
                 if key in ("engine", "body"):
                     sums[key + "_in"].append(sc["inside_95_3d"])

@@ -65,6 +65,7 @@ from cdro_tools.evaluation import tracking  # noqa: E402 (after the path)
 from cdro_tools.evaluation.alignment import rigid_fit  # noqa: E402 (after the path)
 from cdro_tools.evaluation import tracking_baselines as tb  # noqa: E402 (after the path)
 from cdro_tools.evaluation.inputs import Format, Policy, Row, read_rows  # noqa: E402 (after the path)
+from cdro_tools.simulation.uwb import measured_range_m  # noqa: E402 (after the path)
 
 DATA = pathlib.Path(os.environ.get("CDRO_DATA_DIR", ROOT.parent / "shared" / "data")) / "miluv"
 EXPERIMENTS = ("3robots_cirObstacles_random_0", "1robot_cirObstacles_random3_0")
@@ -102,7 +103,8 @@ def replica(ranges: tb.TimedRanges, anchors: dict[int, np.ndarray], truth: dict[
         track = truth[node]
         return np.array([np.interp(t_s, track.t_s, track.p_m[:, k]) for k in range(3)])
 
-    values = [float(np.linalg.norm(position(a, t) - position(b, t))) + REPLICA_NOISE_M * rng.standard_normal()
+    values = [measured_range_m(float(np.linalg.norm(position(a, t) - position(b, t))), rng.standard_normal(),
+                               REPLICA_NOISE_M)
               for t, a, b in zip(ranges.t_s.tolist(), ranges.from_ids.tolist(), ranges.to_ids.tolist())]
     return tb.TimedRanges(ranges.t_s, ranges.from_ids, ranges.to_ids, np.array(values), ranges.lines)
 

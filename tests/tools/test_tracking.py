@@ -1,8 +1,9 @@
 """Moving nodes in 3D: the scorer (cdro_tools.evaluation.tracking, cdro-eval-motion
 --tag-trajectory) on cases with a known answer, the RTLS baselines
-(cdro_tools.evaluation.tracking_baselines) on a seeded simulated flight, and, when the data is
-there, scripts/miluv.py on the real MiLUV runs ($CDRO_DATA_DIR/miluv, else ../shared/data/miluv
-from the repository root; skipped without it)."""
+(cdro_tools.evaluation.tracking_baselines) on the seeded simulated flights of
+cdro_tools.simulation.flights, and, when the data is there, scripts/miluv.py on the real MiLUV
+runs ($CDRO_DATA_DIR/miluv, else ../shared/data/miluv from the repository root; skipped without
+it)."""
 from __future__ import annotations
 
 import json
@@ -16,6 +17,20 @@ import numpy as np
 import pytest
 from cdro_tools.evaluation import tracking
 from cdro_tools.evaluation import tracking_baselines as tb
+from cdro_tools.simulation.flights import (
+    ANCHORS_M,
+    SPARSE_DURATION_S,
+    SPARSE_SPEED_M_S,
+    SPARSE_TAGS,
+    TAGS,
+    anchors,
+    score_rows,
+    simulate,
+    simulate_sparse,
+    sparse_anchors,
+    true_position,
+    truth_tracks,
+)
 
 GUARD_S = 120
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -194,54 +209,15 @@ def test_that_the_command_line_exits_2_on_half_a_pair_or_a_missing_column(tmp_pa
 
 # ----------------------------------------------------------------------------- the baselines
 
-ANCHORS_M = {0: (0.0, 0.0, 2.0), 1: (5.0, -0.5, 2.8), 2: (10.0, 0.0, 2.0), 3: (10.0, 8.0, 2.8), 4: (5.0, 8.5, 2.0),
-             5: (0.0, 8.0, 2.8)}
-# three tags flying straight at 0.6-0.75 m/s below the anchors: start (m), velocity (m/s)
-TAGS = {10: ((1.0, 1.0, 0.5), (0.6, 0.45, 0.03)), 20: ((9.0, 1.5, 1.2), (-0.5, 0.5, -0.02)),
-        30: ((5.0, 7.0, 0.8), (0.3, -0.6, 0.0))}
-DURATION_S, RANGE_EVERY_S, NOISE_M = 12.0, 0.05, 0.1
+# The straight flight of cdro_tools.simulation.flights: six anchors, three tags flying straight
+# below them, one range every 0.05 s round robin over the 18 tag-anchor and 3 tag-tag pairs (each
+# tag hears each anchor about once a second).
 SEED = 1
 
 
-def true_position(tag: int, t_s: float) -> np.ndarray:
-    start, velocity = TAGS[tag]
-    return np.array(start) + t_s * np.array(velocity)
-
-
-def simulate(seed: int, tag_tag: bool = True) -> tb.TimedRanges:
-    """One range every 0.05 s, round robin over the 18 tag-anchor pairs and the 3 tag-tag pairs
-    (each tag hears each anchor about once a second), Gaussian noise NOISE_M."""
-    print(f"seed {seed}")
-    rng = np.random.default_rng(seed)
-    pairs = [(t, a) for t in TAGS for a in ANCHORS_M] + ([(10, 20), (20, 30), (30, 10)] if tag_tag else [])
-    rows = []
-    for k in range(round(DURATION_S / RANGE_EVERY_S)):
-        t_s = k * RANGE_EVERY_S
-        a, b = pairs[k % len(pairs)]
-        other = np.array(ANCHORS_M[b]) if b in ANCHORS_M else true_position(b, t_s)
-        rows.append((t_s, a, b, float(np.linalg.norm(true_position(a, t_s) - other)) + NOISE_M * rng.standard_normal()))
-    columns = list(zip(*rows))
-    return tb.TimedRanges(np.array(columns[0]), np.array(columns[1]), np.array(columns[2]), np.array(columns[3]),
-                          np.arange(len(rows)))
-
-
-def anchors() -> dict[int, np.ndarray]:
-    return {i: np.array(p, dtype=float) for i, p in ANCHORS_M.items()}
-
-
-def truth_tracks() -> dict[int, tracking.NodeTrack]:
-    times = np.arange(0.0, DURATION_S + 0.005, 0.01)
-    return {tag: tracking.NodeTrack(times, np.array([true_position(tag, t) for t in times])) for tag in TAGS}
-
-
 def score(result: tb.TrackingResult, keep: set | None = None) -> dict:
-    """Overall figures of a baseline's rows (only the (t, id) in keep, when given)."""
-    estimates = {}
-    for tag in TAGS:
-        rows = [r for r in result.rows if r[1] == tag and (keep is None or (r[0], tag) in keep)]
-        estimates[tag] = tracking.NodeTrack(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]),
-                                            np.array([r[3] for r in rows]))
-    return tracking.evaluate_tracking(estimates, truth_tracks())["overall"]
+    """Overall figures of a baseline's rows on the straight flight (only the (t, id) in keep, when given)."""
+    return score_rows(result.rows, truth_tracks(), keep)
 
 
 def test_that_the_baselines_track_a_simulated_flight_and_the_ekf_beats_trilateration():
@@ -350,96 +326,16 @@ def test_that_the_trajectory_file_holds_what_the_baseline_computed(tmp_path):
 
 # ------------------------------------------------- a flight on MiLUV's sparse schedule (simulated)
 #
-# What the 3-robot MiLUV run looks like (../shared/data/miluv/README.md), with a known truth: six
-# anchors at 1.6-1.9 m around a ~6 m x 7 m room, three drones flying straight legs between random
-# waypoints at 0.5 m/s (a turn at each) at 0.1-1.6 m inside the middle 4 m x 4 m, each tag ranging
-# one anchor at a time in a fixed cycle, about 0.4 ranges a second (gaps 0.3 s + exponential, mean
-# 2.5 s), and each pair of tags about 0.25 ranges a second. The EKFs' settings were decided on this
-# flight and the one above (tracking_baselines' docstring), not on MiLUV's truth.
+# The sparse flight of cdro_tools.simulation.flights: what the 3-robot MiLUV run looks like, with a
+# known truth (three drones among six anchors, each tag ranging one anchor at a time in a fixed
+# cycle, about 0.4 ranges a second, and each pair of tags about 0.25 ranges a second). The EKFs'
+# settings were decided on this flight and the one above (tracking_baselines' docstring), not on
+# MiLUV's truth.
 
-SPARSE_ANCHORS_M = {0: (-3.0, -3.5, 1.6), 1: (3.2, -3.4, 1.9), 2: (3.3, 0.1, 1.7), 3: (3.1, 3.6, 1.6),
-                    4: (-2.9, 3.7, 1.8), 5: (-3.1, 0.0, 1.9)}
-SPARSE_TAGS = (10, 20, 30)
-FLIGHT_BOX_M = ((-2.0, -2.0, 0.1), (2.0, 2.0, 1.6))
-SPARSE_DURATION_S, SPARSE_SPEED_M_S, SPARSE_GAP_S, SPARSE_TAG_TAG_RATE = 120.0, 0.5, 2.5, 0.25
 SPARSE_SEEDS = range(1, 6)
 # the first EKF, whose divergence docs/results.md diagnoses: constant velocity, q = 1 m^2/s^3, started from a
 # 10 s trilateration fix, ranges linearised at the prediction, no room, hard gate, no reset
 LEGACY = {"motion": "cv", "start": "window", "curvature": False, "room": False, "reset_after": 0, "huber": False}
-
-
-def random_flight(rng: np.random.Generator, duration_s: float, speed_m_s: float) -> tracking.NodeTrack:
-    """Straight legs at speed_m_s between uniform random waypoints in FLIGHT_BOX_M, at 100 Hz."""
-    lo, hi = np.array(FLIGHT_BOX_M[0]), np.array(FLIGHT_BOX_M[1])
-    points, times = [lo + (hi - lo) * rng.random(3)], [0.0]
-    while times[-1] < duration_s:
-        points.append(lo + (hi - lo) * rng.random(3))
-        times.append(times[-1] + float(np.linalg.norm(points[-1] - points[-2])) / speed_m_s)
-    grid = np.arange(0.0, duration_s + 0.005, 0.01)
-    return tracking.NodeTrack(grid, np.array([np.interp(grid, times, [q[k] for q in points]) for k in range(3)]).T)
-
-
-def simulate_sparse(seed: int, tag_tag_rate: float = SPARSE_TAG_TAG_RATE, gap_s: float = SPARSE_GAP_S,
-                    nlos: float = 0.0) -> tuple[tb.TimedRanges, dict]:
-    """(ranges, truth tracks) of the sparse flight; Gaussian noise NOISE_M. gap_s: the mean gap
-    between a tag's anchor ranges (0.43 s: MiLUV's 1-robot run, ~2.3 a second); nlos: the share of
-    ranges that read long by an exponential of mean 0.5 m more (drawn from a second generator, so
-    the flight and the schedule do not change with it)."""
-    print(f"sparse flight, seed {seed}, gap {gap_s} s, tag-tag {tag_tag_rate}/s, NLOS {nlos}")
-    rng = np.random.default_rng(seed)
-    truth = {tag: random_flight(rng, SPARSE_DURATION_S, SPARSE_SPEED_M_S) for tag in SPARSE_TAGS}
-
-    def at(node: int, t_s: float) -> np.ndarray:
-        if node in SPARSE_ANCHORS_M:
-            return np.array(SPARSE_ANCHORS_M[node])
-        return np.array([np.interp(t_s, truth[node].t_s, truth[node].p_m[:, k]) for k in range(3)])
-
-    events = []
-    for tag in SPARSE_TAGS:
-        cycle = rng.permutation(list(SPARSE_ANCHORS_M))
-        t_s, k = rng.uniform(0.0, SPARSE_GAP_S), 0
-        while t_s < SPARSE_DURATION_S:
-            events.append((t_s, tag, int(cycle[k % len(cycle)])))
-            k += 1
-            t_s += min(0.3, gap_s / 2.0) + rng.exponential(gap_s - min(0.3, gap_s / 2.0))
-    for i, a in enumerate(SPARSE_TAGS):
-        for b in SPARSE_TAGS[i + 1:] if tag_tag_rate else ():
-            t_s = rng.exponential(1.0 / tag_tag_rate)
-            while t_s < SPARSE_DURATION_S:
-                events.append((t_s, a, b))
-                t_s += rng.exponential(1.0 / tag_tag_rate)
-    events.sort()
-    values = [float(np.linalg.norm(at(a, t) - at(b, t))) + NOISE_M * rng.standard_normal() for t, a, b in events]
-    if nlos:
-        outliers = np.random.default_rng([seed, 1])
-        values = [v + (outliers.exponential(0.5) if outliers.random() < nlos else 0.0) for v in values]
-    columns = list(zip(*events))
-    return tb.TimedRanges(np.array(columns[0]), np.array(columns[1], dtype=np.int64),
-                          np.array(columns[2], dtype=np.int64), np.array(values), np.arange(len(events))), truth
-
-
-def sparse_anchors() -> dict[int, np.ndarray]:
-    return {i: np.array(p, dtype=float) for i, p in SPARSE_ANCHORS_M.items()}
-
-
-def sparse_score(rows: list, truth: dict, keep: set | None = None) -> dict:
-    """Overall figures of rows (t, id, p, cov) against the sparse flight's truth, with the mean
-    normalised estimation error squared (3D) of the rows that have a covariance."""
-    estimates = {}
-    for tag in SPARSE_TAGS:
-        mine = [r for r in rows if r[1] == tag and (keep is None or (r[0], tag) in keep)]
-        covs = [np.full((3, 3), np.nan) if r[3] is None else r[3] for r in mine]
-        estimates[tag] = tracking.NodeTrack(np.array([r[0] for r in mine]),
-                                            np.array([r[2] for r in mine]).reshape(-1, 3),
-                                            np.array(covs).reshape(-1, 3, 3))
-    out = tracking.evaluate_tracking(estimates, truth)["overall"]
-    nees = []
-    for t_s, tag, p_m, cov in rows:
-        if cov is not None and (keep is None or (t_s, tag) in keep):
-            g = tracking.interpolate_truth(truth[tag], t_s)
-            nees.append(float((p_m - g) @ np.linalg.solve(cov, p_m - g)))
-    out["nees_mean"] = float(np.mean(nees)) if nees else None
-    return out
 
 
 def room_centre_rows(ranges: tb.TimedRanges, anchors_m: dict) -> list:
@@ -487,7 +383,7 @@ def test_that_on_the_sparse_schedule_the_ekfs_beat_the_room_centre_and_their_cov
                 "no curvature": tb.track_ekf(ranges, sparse_anchors(), curvature=False).rows,
                 "centre": room_centre_rows(ranges, sparse_anchors())}
         for name, rows in runs.items():
-            figures.setdefault(name, []).append(sparse_score(rows, truth))
+            figures.setdefault(name, []).append(score_rows(rows, truth))
     mean = {name: {k: float(np.mean([f[k] for f in fs])) for k in ("rmse_3d_m", "rmse_h_m", "inside_95_3d", "nees_mean")
                    if fs[0][k] is not None} for name, fs in figures.items()}
     print({name: {k: round(v, 3) for k, v in m.items()} for name, m in mean.items()})
@@ -513,8 +409,8 @@ def test_that_tag_to_tag_ranges_help_at_the_same_rows_on_the_sparse_schedule():
         ekf = tb.track_ekf(ranges, sparse_anchors())
         coop = tb.track_ekf(ranges, sparse_anchors(), cooperative=True)
         keep = {(r[0], r[1]) for r in ekf.rows}
-        differences.append(sparse_score(coop.rows, truth, keep)["rmse_3d_m"]
-                           - sparse_score(ekf.rows, truth)["rmse_3d_m"])
+        differences.append(score_rows(coop.rows, truth, keep)["rmse_3d_m"]
+                           - score_rows(ekf.rows, truth)["rmse_3d_m"])
     print([round(d, 3) for d in differences])
     assert np.mean(differences) < 0.0
 
@@ -526,7 +422,7 @@ def test_that_huber_weights_beat_the_hard_gate_on_nlos_ranges():
     for seed in SPARSE_SEEDS:
         ranges, truth = simulate_sparse(seed, tag_tag_rate=0.0, gap_s=0.43, nlos=0.05)
         for huber in (True, False):
-            figures[huber].append(sparse_score(tb.track_ekf(ranges, sparse_anchors(), huber=huber).rows,
+            figures[huber].append(score_rows(tb.track_ekf(ranges, sparse_anchors(), huber=huber).rows,
                                                truth)["rmse_3d_m"])
     print({k: np.round(v, 3).tolist() for k, v in figures.items()})
     assert np.mean(figures[True]) < 0.9 * np.mean(figures[False])

@@ -21,7 +21,9 @@ the engine's defaults are used, and a ring whose weights all underflow starts ag
 Where the paper can be read two ways, `Reading` holds the choice, so that each reading can be
 measured: the filter's sigma (eqs. 6 and 8), the side of the square, and the centre a ring's EKF
 update measures from ("p_i will be p_i in the next iteration": the ring's own centre, or the
-node's current merged position). Randomness: numpy's PCG64 from the seed, printed.
+node's current merged position). A range is the UWB error model's (simulation.uwb.measured_range_m:
+the link's Gaussian noise, no bias) reflected at 0 and averaged over both directions. Randomness:
+numpy's PCG64 from the seed, printed.
 
     python -m cdro_tools.evaluation.paper_algorithm1 [--seeds 10] [--seed 1] [--iterations 100]
         [--arc-spacing-m 1.0] [--components N] [--range-noise-m SD] [--filter-sigma-m SD]
@@ -37,6 +39,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cdro_tools.evaluation.alignment import rigid_fit
+from cdro_tools.simulation.uwb import measured_range_m
 
 NODES = 5
 NOISE_VARIANCE_M2 = (0.3, 0.8)  # m^2, each link's range noise variance, drawn once per link
@@ -149,7 +152,7 @@ def run(seed: int, weight_transfer: bool, iterations: int = 100, reading: Readin
     sigma_m = reading.filter_sigma_m
 
     def measure() -> np.ndarray:
-        ranges = np.abs(distance_m + noise_m * rng.standard_normal((NODES, NODES)))
+        ranges = np.abs(measured_range_m(distance_m, rng.standard_normal((NODES, NODES)), noise_m))
         return (ranges + ranges.T) / 2.0         # one range per link, both directions
 
     ranges_m = measure()

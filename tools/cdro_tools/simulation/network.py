@@ -14,6 +14,7 @@ import math
 import random
 
 from .scenario import ScenarioError
+from .uwb import measured_range_m
 
 FIRST_ID = 0x6001
 AREA_PER_NODE_M2 = 100.0
@@ -86,7 +87,7 @@ def random_network(count: int, degree: float, seed: int, noise_m: float = 0.1, s
     for _ in range(sweeps):
         for i, j in links:
             true_m = math.dist((*xy[i], z[i]), (*xy[j], z[j]))
-            measured_m = max(0.0, true_m + bias.get((i, j), 0.0) + rng.gauss(0.0, std[(i, j)]))
+            measured_m = max(0.0, measured_range_m(true_m, rng.gauss(0.0, 1.0), std[(i, j)], bias.get((i, j), 0.0)))
             ranges.append((round(t_s, 3), ids[i], ids[j], round(measured_m, 3)))
             t_s += RANGE_PERIOD_S
     return RandomNetwork(nodes, links, radius_m, ranges, len(bias))

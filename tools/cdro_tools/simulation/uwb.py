@@ -4,6 +4,9 @@ model for every ranging the firmware runs.)
 
     measured_m = scale x true_3d_m + link_bias_m + N(0, link_std_m^2) [+ Exp(outlier_mean_m)]
 
+(measured_range_m, also the ranges of the seeded flights, flights.py, and of the paper's
+Algorithm 1, evaluation/paper_algorithm1.py)
+
 - link_std_m: uwb.noise_std_m, or per link sqrt(U(noise_variance_m2)) drawn once per link;
 - link_bias_m: persistent NLOS bias (>= 0) of listed links and of random_links chosen ones;
 - the exponential term is added with probability outlier_probability (NLOS reads long);
@@ -35,6 +38,14 @@ class RangeOutcome:
     distance_mm: int = 0
     rss_dbm: int = 0
     error_code: int = 0        # Pozyx ERRORCODE when not ok
+
+
+def measured_range_m(true_m, noise_draw, std_m, bias_m=0.0, scale=1.0, outlier_m=0.0):
+    """scale x true_m + bias_m + std_m x noise_draw + outlier_m: the range a two-way ranging reports,
+    from a standard normal draw and an NLOS excess (0 when the range is not an outlier). Floats or
+    numpy arrays alike (elementwise). Not clamped: what a negative result becomes is the caller's
+    (the Pozyx reports 0, the paper's Algorithm 1 takes its absolute value)."""
+    return scale * true_m + bias_m + std_m * noise_draw + outlier_m
 
 
 def link_key(a: int, b: int) -> tuple[int, int]:
@@ -78,9 +89,8 @@ class UwbModel:
         key = link_key(a, b)
         true_m = self.world.distance_m(a, b, t_s)
         bias_m = self.link_bias_m.get(key, 0.0)
-        measured_m = self.model.scale * true_m + bias_m + self.link_std_m[key] * noise
-        if u_outlier < self.model.nlos.outlier_probability:
-            measured_m += self.model.nlos.outlier_mean_m * tail
+        outlier_m = self.model.nlos.outlier_mean_m * tail if u_outlier < self.model.nlos.outlier_probability else 0.0
+        measured_m = measured_range_m(true_m, noise, self.link_std_m[key], bias_m, self.model.scale, outlier_m)
         distance_mm = int(min(0xFFFFFFFF, max(0, round(measured_m * 1000.0))))
         rss = RSS_AT_1M_DBM - 20.0 * math.log10(max(true_m, 0.1)) + rss_noise
         if bias_m > 0.0:
