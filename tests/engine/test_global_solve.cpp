@@ -16,6 +16,7 @@
 #include "cdro/engine/global_solve.hpp"
 #include "cdro/engine/map_connectivity.hpp"
 #include "cdro/engine/map_growth.hpp"
+#include "cdro/engine/map_hinges.hpp"
 #include "cdro/engine/map_lift.hpp"
 #include "cdro/engine/map_mds.hpp"
 #include "cdro/engine/map_patches.hpp"
@@ -278,6 +279,86 @@ TEST(GlobalSolve, WhoHeardWhomUnfoldsAMapItsRangesCannot)
     for (const MapHypothesis &h : seen.all) {
         if (alignedRmse(h.estimate, map.exact.truth_m) > 1.0) {
             EXPECT_GT(h.cost + h.connectivity_nats, seen.best.cost + seen.best.connectivity_nats + 5.0) << h.origin;
+        }
+    }
+}
+
+// The largest change in a link's length between two maps (m): a free part moves without one.
+double largestLinkChangeM(const MapProblem &problem, const MapEstimate &a, const MapEstimate &b)
+{
+    double largest_m = 0.0;
+    for (const MapLink &link : problem.links) {
+        const double before_m = (a.position_m[link.a] - a.position_m[link.b]).norm();
+        const double after_m = (b.position_m[link.a] - b.position_m[link.b]).norm();
+        largest_m = std::max(largest_m, std::abs(after_m - before_m));
+    }
+    return largest_m;
+}
+
+TEST(MapHinges, AFoldedPartIsReflectedBackWithoutChangingARange)
+{
+    const HingedMap map = hingedMap();
+    MapEstimate estimate = map.folded;
+    const HingeStats stats = placeFreeParts(map.exact.problem, estimate);
+    EXPECT_EQ(stats.parts, 2U); // the left and the right part, each on the two hinge nodes
+    EXPECT_EQ(stats.moved, 1U);
+    EXPECT_GT(stats.gained_nats, 1.0);
+    EXPECT_LT(alignedRmse(estimate, map.exact.truth_m), 1e-9);
+    EXPECT_LT(largestLinkChangeM(map.exact.problem, map.folded, estimate), 1e-12);
+    // Where who heard whom already puts it, nothing moves.
+    MapEstimate again = estimate;
+    EXPECT_EQ(placeFreeParts(map.exact.problem, again).moved, 0U);
+    EXPECT_EQ(again.position_m, estimate.position_m);
+}
+
+TEST(MapHinges, APartHangingOnOneNodeTurnsAwayFromTheNodesItNeverHeard)
+{
+    // A 4 x 4 grid, 4 m apart, pairs within 6 m linked (rigid); a triangle outside its corner
+    // node 15 (12, 12) m, linked to it and within itself only. Turned half a circle about that
+    // node it lies over the grid, every range the same.
+    MapProblem problem;
+    std::vector<Vector2> truth_m;
+    for (int row = 0; row < 4; ++row) {
+        for (int column = 0; column < 4; ++column) {
+            truth_m.emplace_back(4.0 * column, 4.0 * row);
+        }
+    }
+    const uint32_t corner = 15;
+    for (const Vector2 &p : {Vector2(15.0, 15.5), Vector2(17.5, 13.5), Vector2(16.5, 17.5)}) {
+        truth_m.push_back(p);
+    }
+    const auto count = static_cast<uint32_t>(truth_m.size());
+    for (uint32_t node = 0; node < count; ++node) {
+        problem.ids.push_back(static_cast<NodeId>(100 + node));
+    }
+    for (uint32_t a = 0; a < count; ++a) {
+        for (uint32_t b = a + 1; b < count; ++b) {
+            const double distance_m = (truth_m[a] - truth_m[b]).norm();
+            const bool in_grid = b < 16 && distance_m < 6.0;
+            const bool in_triangle = a >= 16 || (a == corner && b >= 16);
+            if (in_grid || in_triangle) {
+                problem.links.push_back(MapLink{a, b, distance_m});
+            }
+        }
+    }
+    problem.listens.assign(count, 1);
+    problem.finish();
+    MapEstimate estimate = MapEstimate::unplaced(count);
+    for (uint32_t node = 0; node < count; ++node) {
+        estimate.placed[node] = 1;
+        estimate.position_m[node] = node < 16 ? truth_m[node] : Vector2(2.0 * truth_m[corner] - truth_m[node]);
+    }
+    const MapEstimate turned_in = estimate;
+    const HingeStats stats = placeFreeParts(problem, estimate);
+    EXPECT_GE(stats.moved, 1U);
+    EXPECT_LT(largestLinkChangeM(problem, turned_in, estimate), 1e-9);
+    // Back outside the grid: no triangle node within a link's reach of a grid node it never heard
+    // (where exactly outside, the ranges and who heard whom cannot say).
+    for (uint32_t node = 16; node < count; ++node) {
+        for (uint32_t other = 0; other < 16; ++other) {
+            if (other != corner) {
+                EXPECT_GT((estimate.position_m[node] - estimate.position_m[other]).norm(), 6.0) << node << " " << other;
+            }
         }
     }
 }

@@ -266,6 +266,9 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             refined = refineMap(problem, hypothesis.estimate, likelihood, again);
             counters.refine_iterations += refined.iterations;
         }
+        if (params.connectivity && params.free_parts) {
+            counters.free_parts_moved += placeFreeParts(problem, hypothesis.estimate, params.hinges).moved;
+        }
         hypothesis.cost = mapCost(problem, hypothesis.estimate, likelihood);
         return hypothesis;
     };

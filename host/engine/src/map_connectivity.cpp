@@ -26,12 +26,17 @@ struct Bin {
     double unheard = 0.0;
 };
 
+double heardAt(double distance_m, double half_distance_m, double width_m)
+{
+    const double fall = 1.0 / (1.0 + std::exp((distance_m - half_distance_m) / width_m));
+    return kFloor + (kCeiling - kFloor) * fall;
+}
+
 double costOf(const std::vector<Bin> &bins, double half_distance_m, double width_m)
 {
     double cost = 0.0;
     for (const Bin &bin : bins) {
-        const double fall = 1.0 / (1.0 + std::exp((bin.distance_m - half_distance_m) / width_m));
-        const double heard = kFloor + (kCeiling - kFloor) * fall;
+        const double heard = heardAt(bin.distance_m, half_distance_m, width_m);
         if (bin.heard > 0.0) {
             cost -= bin.heard * std::log(heard);
         }
@@ -70,6 +75,11 @@ template <typename F> double goldenMinimum(F f, double low, double high)
 }
 
 } // namespace
+
+double heardProbability(const ConnectivityFit &fit, double distance_m)
+{
+    return fit.width_m > 0.0 ? heardAt(distance_m, fit.half_distance_m, fit.width_m) : 0.0;
+}
 
 ConnectivityFit connectivityCost(const MapProblem &problem, const MapEstimate &estimate)
 {

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "cdro/engine/map_growth.hpp"
+#include "cdro/engine/map_hinges.hpp"
 #include "cdro/engine/map_lift.hpp"
 #include "cdro/engine/map_problem.hpp"
 #include "cdro/engine/map_refine.hpp"
@@ -49,9 +50,11 @@ struct GlobalSolveParams {
     bool lifted_mds_start = true; // and start from MDS-MAP in D dimensions too
     bool range_offsets = true;    // estimate each node's range offset with the best map (range_offsets.hpp)
     bool connectivity = true;     // judge the maps by which pairs heard each other too (map_connectivity.hpp)
-    bool only_current = false;    // the caller's map the only start (its links were all
-                                  // solved from every start before: a refresh)
-    uint32_t threads = 1;         // starts refined at once (the result is the same for any)
+    bool free_parts = true;       // and place each map's free parts by it (map_hinges.hpp)
+    HingeParams hinges;
+    bool only_current = false; // the caller's map the only start (its links were all
+                               // solved from every start before: a refresh)
+    uint32_t threads = 1;      // starts refined at once (the result is the same for any)
     MapLiftParams lifting;
     MapRefineParams refine;
     MapGrowthParams growth;
@@ -71,6 +74,7 @@ struct GlobalSolveCounters {
     uint32_t escapes = 0; // single nodes moved to a better local optimum
     uint32_t refine_iterations = 0;
     uint32_t offset_evaluations = 0; // maps refined searching the range offsets
+    uint32_t free_parts_moved = 0;   // free parts turned or reflected by who heard whom
 
     GlobalSolveCounters &operator+=(const GlobalSolveCounters &other)
     {
@@ -78,6 +82,7 @@ struct GlobalSolveCounters {
         escapes += other.escapes;
         refine_iterations += other.refine_iterations;
         offset_evaluations += other.offset_evaluations;
+        free_parts_moved += other.free_parts_moved;
         return *this;
     }
 };

@@ -36,4 +36,7 @@ struct ConnectivityFit {
 // or the problem has no links between placed nodes).
 ConnectivityFit connectivityCost(const MapProblem &problem, const MapEstimate &estimate);
 
+// P(heard | d) of a fit (its width 0: no fit, 0).
+double heardProbability(const ConnectivityFit &fit, double distance_m);
+
 } // namespace cdro::engine
