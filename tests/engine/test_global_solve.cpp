@@ -474,20 +474,20 @@ TEST(MapStitch, WingsJoinedByTheirLinksComeBackExactly)
     EXPECT_LT(alignedRmse(*joined, wings.exact.truth_m), 1e-9);
 }
 
-TEST(MapStitch, IsAStartOfTheGlobalSolveWhenAskedFor)
+TEST(MapStitch, IsAStartOfTheGlobalSolve)
 {
     const TwoWings wings = twoWings(3);
-    GlobalSolveParams params;
-    params.stitch_start = true;
-    const GlobalSolveResult solved = solveGlobally(wings.exact.problem, likelihood(), params);
+    const GlobalSolveResult solved = solveGlobally(wings.exact.problem, likelihood(), GlobalSolveParams{});
     const auto stitched = std::find_if(solved.all.begin(), solved.all.end(),
                                        [](const MapHypothesis &h) { return h.origin == "stitched"; });
     ASSERT_NE(stitched, solved.all.end());
     EXPECT_EQ(stitched->estimate.placedCount(), wings.exact.problem.nodeCount());
     EXPECT_LT(alignedRmse(stitched->estimate, wings.exact.truth_m), kExactM);
     EXPECT_LT(alignedRmse(solved.best.estimate, wings.exact.truth_m), kExactM);
-    // Off by default: no stitched start.
-    const GlobalSolveResult plain = solveGlobally(wings.exact.problem, likelihood(), GlobalSolveParams{});
+    // Switched off: no stitched start.
+    GlobalSolveParams without;
+    without.stitch_start = false;
+    const GlobalSolveResult plain = solveGlobally(wings.exact.problem, likelihood(), without);
     EXPECT_TRUE(std::none_of(plain.all.begin(), plain.all.end(),
                              [](const MapHypothesis &h) { return h.origin == "stitched"; }));
 }

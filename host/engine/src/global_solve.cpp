@@ -413,6 +413,22 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
     if (params.learn_rounds > 0 || params.connectivity) {
         rank();
     }
+    // Maps that place the same nodes within disputed_m of one another are one map found twice:
+    // who heard whom tells them apart only by where its pairs' distances fall in their bins, so
+    // the one that fits the ranges best leads.
+    size_t closest_fit = 0;
+    for (size_t i = 1; i < hypotheses.size(); ++i) {
+        if (hypotheses[i].estimate.placed != hypotheses.front().estimate.placed ||
+            hypotheses[i].cost >= hypotheses[closest_fit].cost) {
+            continue;
+        }
+        const std::vector<double> apart = discrepancyM(hypotheses[i].estimate, hypotheses.front().estimate, part);
+        if (*std::max_element(apart.begin(), apart.end()) < params.disputed_m) {
+            closest_fit = i;
+        }
+    }
+    std::rotate(hypotheses.begin(), hypotheses.begin() + static_cast<std::ptrdiff_t>(closest_fit),
+                hypotheses.begin() + static_cast<std::ptrdiff_t>(closest_fit) + 1);
     result.learnt_nlos_fraction = params.learn_rounds > 0 ? hypotheses.front().nlos_fraction : -1.0;
     result.learnt_nlos_mean_excess_m = params.learn_rounds > 0 ? hypotheses.front().nlos_mean_excess_m : -1.0;
     result.best = hypotheses.front();

@@ -33,14 +33,10 @@
 namespace cdro::engine {
 
 struct GlobalSolveParams {
-    uint32_t growth_seeds = 3; // maps grown from this many seed triangles
-    bool mds_start = true;     // MDS-MAP as a start too
-    bool patch_start = true;   // local maps merged (map_patches.hpp) as a start too
-    // The grown maps that stop short stitched (map_stitch.hpp) as a start too. Off until the
-    // ranking stops letting who heard whom pick between maps that differ by millimetres: on, it
-    // takes the scorecard's wings from 5.4 to 1.6 m and 5.5 to 3.5 m, but a noise-free network
-    // ended 1.2 cm off (docs/engine.md, "Known limits").
-    bool stitch_start = false;
+    uint32_t growth_seeds = 3;    // maps grown from this many seed triangles
+    bool mds_start = true;        // MDS-MAP as a start too
+    bool patch_start = true;      // local maps merged (map_patches.hpp) as a start too
+    bool stitch_start = true;     // the grown maps that stop short stitched (map_stitch.hpp) as a start too
     uint32_t escape_rounds = 3;   // rounds of moving single nodes to better local optima
     double escape_gap_nats = 2.0; // a node moves when the move is this much cheaper
     double rival_gap_nats = 4.0;  // a map within this of the best is a rival
