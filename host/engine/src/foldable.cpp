@@ -135,22 +135,19 @@ void markAllButLargest(const std::vector<std::vector<uint32_t>> &parts, const st
     }
 }
 
-} // namespace
-
-Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
-                      const std::vector<uint8_t> &active, const std::vector<uint8_t> &anchored)
+std::vector<char> insideOf(uint32_t node_count, const std::vector<uint8_t> &active)
 {
-    Foldable out;
-    out.foldable.assign(node_count, 0);
-    out.hinge.assign(node_count, {kNoHinge, kNoHinge});
-    std::vector<uint8_t> anchor(node_count, 0);
-    for (uint32_t node = 0; node < node_count && node < anchored.size(); ++node) {
-        anchor[node] = anchored[node] != 0 ? 1 : 0;
-    }
     std::vector<char> inside(node_count, 0);
     for (uint32_t node = 0; node < node_count && node < active.size(); ++node) {
         inside[node] = active[node] != 0 ? 1 : 0;
     }
+    return inside;
+}
+
+// Each node's neighbours among the inside nodes, ascending, once each.
+Adjacency adjacencyOf(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                      const std::vector<char> &inside)
+{
     Adjacency adjacency(node_count);
     for (const auto &[a, b] : edges) {
         if (a < node_count && b < node_count && a != b && inside[a] && inside[b]) {
@@ -162,6 +159,30 @@ Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t,
         std::sort(neighbours.begin(), neighbours.end());
         neighbours.erase(std::unique(neighbours.begin(), neighbours.end()), neighbours.end());
     }
+    return adjacency;
+}
+
+} // namespace
+
+std::vector<uint32_t> cutNodes(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                               const std::vector<uint8_t> &active)
+{
+    const std::vector<char> inside = insideOf(node_count, active);
+    return articulationPoints(adjacencyOf(node_count, edges, inside), inside);
+}
+
+Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                      const std::vector<uint8_t> &active, const std::vector<uint8_t> &anchored)
+{
+    Foldable out;
+    out.foldable.assign(node_count, 0);
+    out.hinge.assign(node_count, {kNoHinge, kNoHinge});
+    std::vector<uint8_t> anchor(node_count, 0);
+    for (uint32_t node = 0; node < node_count && node < anchored.size(); ++node) {
+        anchor[node] = anchored[node] != 0 ? 1 : 0;
+    }
+    std::vector<char> inside = insideOf(node_count, active);
+    const Adjacency adjacency = adjacencyOf(node_count, edges, inside);
 
     // Nodes outside the largest component cannot be placed relative to it at all.
     const std::vector<std::vector<uint32_t>> whole = components(adjacency, inside);

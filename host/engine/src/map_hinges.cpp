@@ -84,8 +84,8 @@ std::optional<std::array<uint32_t, 2>> hingeOf(const MapProblem &problem, const 
 }
 
 // Every part that hangs on one or two nodes and is the smaller side of its cut, largest first (an
-// outer part before the parts inside it), each once: the parts each placed node's removal cuts
-// off, and the parts cut off by the two-node hinges foldable.hpp finds.
+// outer part before the parts inside it), each once: the parts each cut node's removal cuts off,
+// and the parts cut off by the two-node hinges foldable.hpp finds.
 std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &estimate)
 {
     const uint32_t count = problem.nodeCount();
@@ -106,10 +106,12 @@ std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &es
             parts.push_back(FreePart{*hinge, std::move(nodes)});
         }
     };
-    for (uint32_t cut = 0; cut < count; ++cut) {
-        if (estimate.placed[cut] == 0) {
-            continue;
-        }
+    std::vector<std::pair<uint32_t, uint32_t>> edges;
+    edges.reserve(problem.links.size());
+    for (const MapLink &link : problem.links) {
+        edges.emplace_back(link.a, link.b);
+    }
+    for (uint32_t cut : cutNodes(count, edges, estimate.placed)) {
         std::vector<uint8_t> done(count, 0);
         for (uint32_t link : problem.node_links[cut]) {
             const uint32_t start = problem.other(link, cut);
@@ -121,11 +123,6 @@ std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &es
                 consider(std::move(nodes));
             }
         }
-    }
-    std::vector<std::pair<uint32_t, uint32_t>> edges;
-    edges.reserve(problem.links.size());
-    for (const MapLink &link : problem.links) {
-        edges.emplace_back(link.a, link.b);
     }
     const Foldable folds = findFoldable(count, edges, estimate.placed, problem.fixed);
     for (uint32_t node = 0; node < count; ++node) {
@@ -158,33 +155,35 @@ HingeStats placeFreeParts(const MapProblem &problem, MapEstimate &estimate, cons
     }
     const std::vector<FreePart> parts = freeParts(problem, estimate);
     stats.parts = static_cast<uint32_t>(parts.size());
+    // The unheard pairs between each part and the rest: the only pairs a move changes (the part's
+    // links go to its hinge, whose distances to it a move keeps).
+    std::vector<std::vector<std::pair<uint32_t, uint32_t>>> unheard(parts.size());
+    for (size_t p = 0; p < parts.size(); ++p) {
+        std::vector<uint8_t> inside(problem.nodeCount(), 0);
+        for (uint32_t node : parts[p].nodes) {
+            inside[node] = 1;
+        }
+        for (uint32_t node : parts[p].nodes) {
+            for (uint32_t other = 0; other < problem.nodeCount(); ++other) {
+                if (inside[other] == 0 && estimate.placed[other] != 0 && problem.unheardPair(node, other)) {
+                    unheard[p].emplace_back(node, other);
+                }
+            }
+        }
+    }
     // An inner part's best place depends on where its outer part went, and back: a few passes.
     for (uint32_t pass = 0; pass < kPasses; ++pass) {
         const uint32_t moved_before = stats.moved;
-        for (const FreePart &part : parts) {
-            std::vector<uint8_t> inside(problem.nodeCount(), 0);
-            for (uint32_t node : part.nodes) {
-                inside[node] = 1;
-            }
-            // The unheard pairs between the part and the rest: the only pairs a move changes (the
-            // part's links go to its hinge, whose distances to it a move keeps).
-            std::vector<std::pair<uint32_t, uint32_t>> pairs;
-            for (uint32_t node : part.nodes) {
-                for (uint32_t other = 0; other < problem.nodeCount(); ++other) {
-                    if (inside[other] == 0 && estimate.placed[other] != 0 && problem.unheardPair(node, other)) {
-                        pairs.emplace_back(node, other);
-                    }
-                }
-            }
+        for (size_t p = 0; p < parts.size(); ++p) {
+            const FreePart &part = parts[p];
+            const std::vector<std::pair<uint32_t, uint32_t>> &pairs = unheard[p];
             if (pairs.empty()) {
                 continue;
             }
-            auto costOf = [&](const PartMove &move, bool identity) {
+            auto costOf = [&](const PartMove &move) {
                 double cost = 0.0;
                 for (const auto &[node, other] : pairs) {
-                    const Vector2 at_m =
-                        identity ? estimate.position_m[node]
-                                 : Vector2(move.centre_m + move.linear * (estimate.position_m[node] - move.centre_m));
+                    const Vector2 at_m = move.centre_m + move.linear * (estimate.position_m[node] - move.centre_m);
                     const double distance_m = (at_m - estimate.position_m[other]).norm();
                     cost += -std::log(1.0 - heardProbability(fit, distance_m)) + problem.unheardCost(distance_m);
                 }
@@ -214,11 +213,11 @@ HingeStats placeFreeParts(const MapProblem &problem, MapEstimate &estimate, cons
                 moves.push_back(
                     {2.0 * unit * unit.transpose() - Matrix2::Identity(), estimate.position_m[part.hinge[0]]});
             }
-            const double here = costOf(PartMove{}, true);
+            const double here = costOf(PartMove{}); // where it is
             double best = here;
             const PartMove *chosen = nullptr;
             for (const PartMove &move : moves) {
-                const double cost = costOf(move, false);
+                const double cost = costOf(move);
                 if (cost < best) {
                     best = cost;
                     chosen = &move;

@@ -34,4 +34,9 @@ struct Foldable {
 Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
                       const std::vector<uint8_t> &active, const std::vector<uint8_t> &anchored);
 
+// The nodes whose removal cuts their part of the graph in two or more (articulation points),
+// ascending; the same arguments. O(V + E).
+std::vector<uint32_t> cutNodes(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                               const std::vector<uint8_t> &active);
+
 } // namespace cdro::engine
