@@ -71,8 +71,9 @@ struct RingUpdateRule {
     double gate_sigma = std::numeric_limits<double>::infinity(); // beyond this many sigma: left alone
     double process_noise_m2 = 0.0;                               // m^2, added to each covariance first
     bool full = true;                                            // every component, else the active set
-    // When set, each component's weight is also multiplied by the likelihood of the range it
-    // predicted (normalised with the floor, never reset): a ring whose centre moves.
+    // When set (with full updates: a partial one would weigh only the active set), each
+    // component's weight is also multiplied by the likelihood of the range it predicted
+    // (normalised with the floor, never reset): a ring whose centre moves.
     const RangeLikelihood *weigh_by = nullptr;
 };
 
