@@ -84,6 +84,7 @@ TEST_P(NoiseFreeRecovery, RecoversTheTruthUpToARigidTransform)
     // excess guards walled buildings, where it leaves more nodes flexible).
     EngineParams params;
     params.convergence.common_excess_m = 0.0;
+    params.convergence.room_excess_m = 0.0;
     Engine engine(params);
     feed(engine, network, ranges);
     const AlignedError error = alignedError(engine.estimates(), network.ids, network.truth_m);

@@ -663,6 +663,52 @@ TEST(MapCovariance, AnExcessEveryLinkSharesIsInTheEllipses)
     EXPECT_LT(share_without, 0.6);
 }
 
+// Walls make a room's node read long on every link that leaves the room, and where its links all
+// leave it one way (a room off a corridor) the map moves it outward: the residuals show little of
+// it. Over corridor buildings (netgen's corridor family: each link long by its walls' excess,
+// 0.1 m noise), the map solved from the truth: with each node's shared excess in the model error
+// the 2-sigma ellipses hold the truth for 83 % of the nodes; with the common excess alone, 62 %.
+TEST(MapCovariance, AnExcessANodesLinksShareIsInTheEllipses)
+{
+    const ConvergenceParams defaults;
+    ASSERT_GT(defaults.room_excess_m, 0.0);
+    MapModelError common;
+    common.common_excess_m = defaults.common_excess_m;
+    MapModelError rooms = common;
+    rooms.room_excess_m = defaults.room_excess_m;
+    uint32_t inside_with = 0;
+    uint32_t inside_without = 0;
+    uint32_t total = 0;
+    for (uint64_t seed : testSeeds({1, 2, 3, 4})) {
+        SCOPED_TRACE(seedTrace(seed));
+        const netgen::World world = netgen::makeWorld(netgen::Family::Corridor, seed);
+        Exact exact = problemOf(world, 0.1, seed);
+        for (size_t i = 0; i < exact.problem.links.size(); ++i) {
+            exact.problem.links[i].range_m += world.links[i].excess_m;
+        }
+        MapEstimate estimate = truthEstimate(exact);
+        refineMap(exact.problem, estimate, likelihood());
+        const MapCovariance with = mapCovariance(exact.problem, estimate, likelihood(), rooms);
+        const MapCovariance without = mapCovariance(exact.problem, estimate, likelihood(), common);
+        std::vector<Vector2> a(estimate.position_m.begin(), estimate.position_m.end());
+        const RigidTransform fit = fitRigid(a, exact.truth_m, false);
+        for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
+            const Vector2 error = fit.apply(estimate.position_m[i]) - exact.truth_m[i];
+            inside_with += error.dot(fit.applyToCovariance(with.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
+            inside_without +=
+                error.dot(fit.applyToCovariance(without.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
+            ++total;
+        }
+    }
+    const double share_with = static_cast<double>(inside_with) / static_cast<double>(total);
+    const double share_without = static_cast<double>(inside_without) / static_cast<double>(total);
+    std::printf("%u nodes: truth inside the 2-sigma ellipse of %.0f %% (each node's shared excess), %.0f %% "
+                "(the common excess alone)\n",
+                total, 100.0 * share_with, 100.0 * share_without);
+    EXPECT_GE(share_with, 0.78);
+    EXPECT_LT(share_without, share_with - 0.1);
+}
+
 // The common excess is given to a map as far as its residuals show room for it: links that read
 // long unseen (walls) read long by different amounts, and the residuals spread beyond the noise.
 // Over random networks solved from the truth: with Gaussian noise only, the map gets little of it

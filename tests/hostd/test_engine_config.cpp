@@ -82,6 +82,7 @@ engine::EngineParams unusual()
     p.solve.threads = 3;
     p.convergence.reliable_m = 0.75;
     p.convergence.common_excess_m = 0.125;
+    p.convergence.room_excess_m = 0.375;
     p.convergence.smoothing = 0.95;
     p.convergence.threshold_m = 0.02;
     p.convergence.consecutive = 4;

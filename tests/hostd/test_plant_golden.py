@@ -3,6 +3,10 @@ byte for byte the committed tests/golden/plant-estimates.csv (17 significant dig
 so any change of the engine's result shows). When the change is intended, regenerate the file
 with scripts/update-golden.sh and commit it with the change; the script's header says how.
 
+PLANT is one hall of an industrial plant, with no rooms, and the run says so as its user would
+(engine.convergence.room_excess_m=0): the positions are those of the defaults, the statuses the
+checks' own rather than the walls' prior (with the default every node is flexible).
+
 The data is not part of this repository: ../shared/data/plant from the repository root, or
 $CDRO_DATA_DIR/plant; the comparison is skipped without it."""
 import os
@@ -50,7 +54,8 @@ def test_that_plant_gives_the_golden_estimates_byte_for_byte(build_dir, plant, t
 
     # Act
     result = subprocess.run([str(hostd), "--ranges-csv", str(plant / "ranges.csv"), "--heights-csv",
-                             str(plant / "nodes.csv"), "--out-csv", str(out)],
+                             str(plant / "nodes.csv"), "--set", "engine.convergence.room_excess_m=0", "--out-csv",
+                             str(out)],
                             capture_output=True, text=True, timeout=GUARD_S)
 
     # Assert
@@ -82,6 +87,26 @@ def test_that_the_golden_file_holds_every_plant_node_placed_and_converged_unless
     assert all(status == ["placed", "flexible"] for status in not_converged.values())
     assert all(row[7:] == ["converged", ""] for row in rows if row[6] == "1")
     assert [int(row[0]) for row in rows] == sorted(int(row[0]) for row in rows)
+
+
+def test_that_the_default_places_plant_where_the_golden_file_does_and_calls_none_of_it_converged(
+        build_dir, plant, tmp_path):
+    # The walls' prior (engine.convergence.room_excess_m, default 0.3 m) widens the ellipses and
+    # nothing else: the same positions, to the bit; and no PLANT node's ellipse stays within the
+    # metre "converged" promises, since no statistic of the ranges tells a hall from a building of
+    # rooms (docs/engine.md, "Confidence").
+    hostd = build_dir / "bin" / "cdro-hostd"
+    out = tmp_path / "plant-default.csv"
+    result = subprocess.run([str(hostd), "--ranges-csv", str(plant / "ranges.csv"), "--heights-csv",
+                             str(plant / "nodes.csv"), "--out-csv", str(out)],
+                            capture_output=True, text=True, timeout=GUARD_S)
+    assert result.returncode == 0, result.stderr
+    golden = [line.split(",") for line in GOLDEN.read_text().splitlines()[1:]]
+    default = [line.split(",") for line in out.read_text().splitlines()[1:]]
+    assert [row[:3] for row in default] == [row[:3] for row in golden]
+    assert all(row[6:] == ["0", "placed", "flexible"] for row in default)
+    widened = [float(d[3]) + float(d[5]) > float(g[3]) + float(g[5]) for d, g in zip(default, golden)]
+    assert all(widened)
 
 
 def test_that_a_difference_is_reported_at_its_first_row():

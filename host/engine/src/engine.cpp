@@ -276,9 +276,10 @@ void Engine::adoptGlobalSolve()
         }
     }
     const double variance = params_.range.sigma_m * params_.range.sigma_m;
-    for (uint32_t node : outcome.placed) {
-        NodeState &state = map_.nodes[node];
-        placement_.place(map_, node, state.position_m, state.solve.covariance_m2 + variance * Matrix2::Identity());
+    for (size_t i = 0; i < outcome.placed.size(); ++i) {
+        const uint32_t node = outcome.placed[i];
+        placement_.place(map_, node, map_.nodes[node].position_m,
+                         outcome.placed_covariance_m2[i] + variance * Matrix2::Identity());
     }
     adoptPlaced(outcome.placed);
     frame_.ensureFrameNodes(map_, params_.placement);
@@ -447,11 +448,15 @@ uint64_t Engine::settle(uint64_t max_updates)
     // A quiet map is the evidence eq. 16's average waits for: nodes still catching up with a
     // recent jump start their average again where they are, and a few more updates tell whether
     // they stay there.
+    // The rounds run while any node is not converged, whatever the checks doubt of it: the map
+    // must not depend on the statuses, which judge it (a node doubted by a wider covariance would
+    // otherwise leave the map less settled).
     bool lagging = false;
     for (NodeState &state : map_.nodes) {
-        if (state.placed() && state.free() && state.anchor() && !state.converged() &&
-            (state.doubt == NodeDoubt::Unsettled || state.doubt == NodeDoubt::None)) {
-            Convergence::restart(state);
+        if (state.placed() && state.free() && state.anchor() && !state.converged()) {
+            if (state.doubt == NodeDoubt::Unsettled || state.doubt == NodeDoubt::None) {
+                Convergence::restart(state);
+            }
             lagging = true;
         }
     }

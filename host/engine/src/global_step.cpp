@@ -157,6 +157,7 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
     // What the solve says of each node it places. A refresh tried no other start: what the full
     // solve found disputed stays disputed.
     out.views.assign(problem.nodeCount(), NodeSolveView{});
+    out.shared_excess_m2 = confidence.shared_excess_m2;
     for (uint32_t i = 0; i < problem.nodeCount(); ++i) {
         if (out.chosen.estimate.placed[i] == 0) {
             continue;
@@ -302,6 +303,7 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_taken, bool settling
     const double min_gain_nats = params_.solve.min_gain_nats;
     MapModelError model_error;
     model_error.common_excess_m = params_.convergence.common_excess_m;
+    model_error.room_excess_m = params_.convergence.room_excess_m;
     model_error.height_spread_m = params_.range.unknown_height_spread_m;
     const StructureCheck check = check_;
     job->result =
@@ -416,6 +418,8 @@ GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes,
                 continue;
             }
             outcome.placed.push_back(node);
+            outcome.placed_covariance_m2.push_back(view.covariance_m2 -
+                                                   transform.applyToCovariance(result.shared_excess_m2[i]));
             state.position_m = position;
             ++counters_.solve_placed;
             continue;

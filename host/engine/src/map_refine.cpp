@@ -546,6 +546,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     for (Matrix2 &covariance_m2 : out.covariance_m2) {
         covariance_m2.setZero();
     }
+    out.shared_excess_m2 = out.covariance_m2;
     uint32_t free_count = 0;
     const std::vector<int> number = freeNumbers(problem, estimate.placed, &free_count);
     if (free_count == 0) {
@@ -645,6 +646,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         heights_unknown = heights_unknown || (model_error.height_unknown[node] != 0 && estimate.placed[node] != 0);
     }
     out.common_excess_m = model_error.common_excess_m * unseenExcessShare(out.variance_factor, heights_unknown);
+    out.room_excess_m = model_error.room_excess_m * unseenExcessShare(out.variance_factor, heights_unknown);
     // Inverse of the information: with a free gauge its null space (translations, rotation) is
     // lifted by a tiny regulariser and projected out again (the pseudo-inverse), so the result is
     // the shape's uncertainty, as a rigid fit to the truth measures it.
@@ -710,6 +712,21 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     // wall or two reads larger by what no range can tell from a larger building. An additive
     // excess, not a relative scale: it is the short links of small rooms whose share it is largest.
     Eigen::VectorXd expansion = Eigen::VectorXd::Zero(size);
+    // The map's response to every link of one node reading a metre longer (X J^T W b_n, a column
+    // per placed node with links, fixed nodes included): the excess a node's links share. A node
+    // in a room has the room's walls on every link that leaves it, so its links read long
+    // together; where they all leave it one way (a room off a corridor, a building's edge) the map
+    // absorbs that excess by moving the node outward, and the residuals show none of it.
+    std::vector<int> shared_column(problem.nodeCount(), -1);
+    Eigen::Index shared_count = 0;
+    if (out.room_excess_m > 0.0) {
+        for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
+            if (estimate.placed[node] != 0 && !problem.node_links[node].empty()) {
+                shared_column[node] = static_cast<int>(shared_count++);
+            }
+        }
+    }
+    Eigen::MatrixXd shared_effect = Eigen::MatrixXd::Zero(size, shared_count);
     auto effectOf = [&](const LinkJacobian &j) {
         Eigen::VectorXd effect = Eigen::VectorXd::Zero(size); // X j
         if (j.na >= 0) {
@@ -745,6 +762,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         const Eigen::VectorXd effect = effectOf(j);
         if (model_error.common_excess_m > 0.0 && j.weight > 0.0) {
             expansion.noalias() += j.weight * effect;
+        }
+        if (shared_count > 0 && j.weight > 0.0) {
+            for (const uint32_t end : {link.a, link.b}) {
+                shared_effect.col(shared_column[end]).noalias() += j.weight * effect;
+            }
         }
         double leverage = 0.0;
         if (j.na >= 0) {
@@ -895,15 +917,30 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             transform -= gauge * normal_main.ldlt().solve(selected.transpose());
         }
         Eigen::MatrixXd covariance = transform * sandwich * transform.transpose();
+        // Model errors in m: in the frame's terms (S), not scaled by the variance factor.
+        const double unscaled = 1.0 / std::max(out.variance_factor, 1.0);
         if (out.common_excess_m > 0.0) {
-            // In the frame's terms (S), and a model error in m: not scaled by the variance factor.
             const Eigen::VectorXd moved = transform * expansion;
             covariance += out.common_excess_m * out.common_excess_m * moved * moved.transpose() /
                           std::max(out.variance_factor, 1.0);
         }
+        Eigen::MatrixXd shared_moved; // S X J^T W B: the nodes' shared excesses in the frame's terms
+        if (shared_count > 0) {
+            shared_moved.noalias() = transform * shared_effect;
+        }
+        const double room_m2 = out.room_excess_m * out.room_excess_m * unscaled;
         for (size_t i = 0; i < free_nodes.size(); ++i) {
             const auto row = static_cast<Eigen::Index>(2 * i);
-            const Matrix2 block = covariance.block<2, 2>(row, row);
+            Matrix2 block = covariance.block<2, 2>(row, row);
+            Matrix2 shared = Matrix2::Zero();
+            if (shared_moved.cols() > 0) {
+                // Each node's excess independent of the others': the sum over the nodes of their
+                // effects' outer products, only the diagonal blocks kept.
+                shared.noalias() =
+                    room_m2 * shared_moved.middleRows<2>(row) * shared_moved.middleRows<2>(row).transpose();
+                block += shared;
+            }
+            out.shared_excess_m2[free_nodes[i]] = out.variance_factor * 0.5 * (shared + shared.transpose());
             out.covariance_m2[free_nodes[i]] = out.variance_factor * 0.5 * (block + block.transpose());
         }
         // Reliability: the largest error in one link that could go unnoticed, delta0 sigma / sqrt(r),

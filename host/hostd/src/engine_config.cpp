@@ -123,6 +123,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_REAL("motion", "flight_floor_z_m", -kHuge, kHuge, motion.flight_floor_z_m),
         CDRO_REAL("convergence", "reliable_m", 0.01, kHuge, convergence.reliable_m),
         CDRO_REAL("convergence", "common_excess_m", 0.0, 100.0, convergence.common_excess_m),
+        CDRO_REAL("convergence", "room_excess_m", 0.0, 100.0, convergence.room_excess_m),
         CDRO_REAL("convergence", "smoothing", 0.0, 0.9999, convergence.smoothing),
         CDRO_REAL("convergence", "threshold_m", 0.0, kHuge, convergence.threshold_m),
         CDRO_COUNT("convergence", "consecutive", 1, 100000, convergence.consecutive),

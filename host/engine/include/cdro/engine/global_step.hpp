@@ -107,6 +107,9 @@ public:
 
     struct Outcome {
         std::vector<uint32_t> placed;                      // nodes it placed that were not placed
+        std::vector<Matrix2> placed_covariance_m2;         // m^2, per node of `placed`: the solve's
+                                                           // covariance without the nodes' shared
+                                                           // excesses (MapCovariance), for its SoG
         std::vector<std::pair<uint32_t, Vector2>> shifted; // placed nodes it moved, and by how much (m)
         bool adopted = false;                              // the solve's map (not the filter's, refined)
         // The whole-map checks on the chosen map (empty when the solve placed too little), and
@@ -142,9 +145,10 @@ private:
     struct SolvedMap {
         GlobalSolveResult solved;
         MapHypothesis chosen;
-        bool offsets = false;             // the chosen map comes with the range offsets (the best's)
-        std::vector<NodeSolveView> views; // per problem node, in the solve's frame
-        StructureVerdict structure;       // the whole-map checks on the chosen map
+        bool offsets = false;                  // the chosen map comes with the range offsets (the best's)
+        std::vector<NodeSolveView> views;      // per problem node, in the solve's frame
+        std::vector<Matrix2> shared_excess_m2; // m^2, per problem node: MapCovariance's
+        StructureVerdict structure;            // the whole-map checks on the chosen map
     };
     struct PendingSolve {
         StateProblem built;

@@ -65,22 +65,26 @@ constexpr double kCheckedRedundancy = 0.02;
 constexpr double kReliableCoreM = 1.0;
 
 struct MapCovariance {
-    std::vector<Matrix2> covariance_m2;  // per node (zero for unplaced and fixed nodes), m^2
-    std::vector<double> link_redundancy; // per link, 0..1 (< 0: not evaluated): the share of an
-                                         // error in the link that its residual shows; 0 when no
-                                         // other link checks it
-    std::vector<double> reliability_m;   // per node, m: the most that an error in one link, too
-                                         // small to be noticed there, would move the node
-                                         // (infinite: it hangs on a link nothing checks)
-    std::vector<uint8_t> main_part;      // per node: in the largest part joined by checked,
-                                         // line-of-sight links (the frame of the covariances)
-    double variance_factor = 1.0;        // a-posteriori variance of unit weight (applied)
-    double common_excess_m = 0.0;        // m, the std of the common excess given to this map: the
-                                         // model error's, scaled by the evidence for it (the
-                                         // variance factor: mapCovariance)
-    bool gauge_free = true;              // no frame from fixed nodes: the covariance is the map's
-                                         // shape, relative to the map as a whole (rotation and
-                                         // translation projected out)
+    std::vector<Matrix2> covariance_m2;    // per node (zero for unplaced and fixed nodes), m^2
+    std::vector<Matrix2> shared_excess_m2; // per node, m^2: the part of covariance_m2 that the
+                                           // nodes' shared excesses give (a model error of the
+                                           // map, which a filter placing the node does not carry)
+    std::vector<double> link_redundancy;   // per link, 0..1 (< 0: not evaluated): the share of an
+                                           // error in the link that its residual shows; 0 when no
+                                           // other link checks it
+    std::vector<double> reliability_m;     // per node, m: the most that an error in one link, too
+                                           // small to be noticed there, would move the node
+                                           // (infinite: it hangs on a link nothing checks)
+    std::vector<uint8_t> main_part;        // per node: in the largest part joined by checked,
+                                           // line-of-sight links (the frame of the covariances)
+    double variance_factor = 1.0;          // a-posteriori variance of unit weight (applied)
+    double common_excess_m = 0.0;          // m, the std of the common excess given to this map: the
+                                           // model error's, scaled by the evidence for it (the
+                                           // variance factor: mapCovariance)
+    double room_excess_m = 0.0;            // m, the same for the excess a node's links share
+    bool gauge_free = true;                // no frame from fixed nodes: the covariance is the map's
+                                           // shape, relative to the map as a whole (rotation and
+                                           // translation projected out)
 };
 
 // What the measurement model leaves out and the covariance must not: NLOS and uncalibrated
@@ -91,6 +95,8 @@ struct MapCovariance {
 struct MapModelError {
     double common_excess_m = 0.0; // m, std of an excess every link shares unseen, in a map whose
                                   // residuals spread well beyond the noise
+    double room_excess_m = 0.0;   // m, std of an excess each node's links share (its own, independent
+                                  // of the other nodes'), given to a map as common_excess_m is
     // > 0: the links' ranges were corrected by range offsets estimated with the map
     // (range_offsets.hpp), each node's a deviation of this std (m) around a common part; their
     // uncertainty goes into the positions' covariance. 0: the ranges' offsets are known.

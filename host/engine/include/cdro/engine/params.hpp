@@ -120,6 +120,10 @@ struct ConvergenceParams {
                                      // kolakowski-nlos), by less than the NLOS model can tell from
                                      // noise, and a map whose links nearly all cross a wall reads
                                      // larger than the building (docs/results.md, walls)
+    double room_excess_m = 0.3;      // m, std of an excess all of a node's links share: the walls of
+                                     // its room are on every link that leaves it, and where its
+                                     // links leave it one way the map moves it outward unseen;
+                                     // 0 in an open hall or plant (docs/engine.md, "Confidence")
     double smoothing = 0.9;          // alpha of eq. 16 (0.9-0.95 in the paper)
     double threshold_m = 0.01;       // m, step of the moving average under which a node is still
     uint32_t consecutive = 5;        // still updates in a row to count as converged ...
