@@ -107,8 +107,9 @@ TEST_P(NoiseFreeRecovery, RecoversTheTruthUpToARigidTransform)
     EXPECT_EQ(error.nodes, c.nodes);
     EXPECT_EQ(error.placed, c.nodes);
     EXPECT_EQ(error.converged + doubted, c.nodes);
-    // Sparse networks (degree 6) have nodes on three links that one error could move: flexible.
-    EXPECT_LE(doubted * 4, c.nodes) << "more than a quarter of the nodes in doubt";
+    // Sparse networks (degree 6) have nodes on three links that one error could move, or whose
+    // 95 % region under 0.1 m of noise reaches the metre: flexible (11 of 40 in seed 1000).
+    EXPECT_LE(doubted * 3, c.nodes) << "more than a third of the nodes in doubt";
     EXPECT_LT(error.rmse_m, 0.01);
     EXPECT_EQ(engine.counters().intake.ranges_received, ranges.size());
     EXPECT_EQ(engine.counters().intake.rejected_self + engine.counters().intake.rejected_value, 0U);

@@ -9,6 +9,11 @@ namespace cdro::engine {
 
 namespace {
 constexpr double kReliabilityMargin = 2.5;
+// "Converged" promises at most reliable_m: the node's 95 % region must lie within it, the
+// ellipse of chi-square 5.991 (2 degrees of freedom), 2.45 sigma along its largest axis. The
+// 2-sigma ellipse holds the truth 86.5 % of the time, so one node in seven of those it would call
+// converged could end beyond the promise.
+constexpr double kConvergedRegionChiSquare = 5.991;
 } // namespace
 
 Convergence::Convergence(const EngineParams &params, const RangeLikelihood &likelihood)
@@ -135,9 +140,10 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
             }
         }
         if (doubt == NodeDoubt::None && solve.solved) {
-            // The largest 2-sigma semi-axis of the map's covariance.
+            // The largest semi-axis of the 95 % region of the map's covariance.
             const double largest_m =
-                2.0 * std::sqrt(std::max(solve.covariance_m2.trace() - minEigenvalue(solve.covariance_m2), 0.0));
+                std::sqrt(kConvergedRegionChiSquare *
+                          std::max(solve.covariance_m2.trace() - minEigenvalue(solve.covariance_m2), 0.0));
             // Baarda's bound is a worst case (an error just too small to be noticed, all of it on
             // the weakest link): a node is flexible when even that bound is well beyond the promise.
             if (!solve.main_part || !(solve.reliability_m < kReliabilityMargin * reliable) || !(largest_m < reliable)) {

@@ -10,7 +10,7 @@
 //                  without changing a range;
 //   flexible       outside the part of the map joined by links that others check, or one error
 //                  in a link, too small to be noticed, could move it `reliable_m` or more, or its
-//                  2-sigma ellipse (the global solve's covariance) reaches that far, or the
+//                  95 % region (the global solve's covariance) reaches that far, or the
 //                  undoubted nodes it has links to do not determine it (fewer than three, or
 //                  all along one line);
 //   unsettled      the global solve has not placed it yet, or the filter has since moved it half of

@@ -111,8 +111,8 @@ struct MotionParams {
 
 // Converged means: the estimate has settled (eq. 16), the node has three or more placed
 // neighbours, no distinct position or rival map explains its links about as well, its part
-// cannot fold, and neither one unnoticed link error nor the map's own uncertainty (the 2-sigma
-// ellipse) could put it more than `reliable_m` away (convergence.hpp).
+// cannot fold, and neither one unnoticed link error nor the map's own uncertainty (its 95 %
+// region) could put it more than `reliable_m` away (convergence.hpp).
 struct ConvergenceParams {
     double reliable_m = 1.0;         // m, what converged promises at most
     double common_excess_m = 0.3;    // m, std of an excess that every link may share unseen: walls
