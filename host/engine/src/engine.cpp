@@ -168,7 +168,7 @@ RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s
         // Far from the map and from the link's own history: something moved.
         const double evidence = std::abs(taken.jump_m) < std::abs(residual) ? taken.jump_m : residual;
         for (uint32_t end : {a, b}) {
-            if (motion_.watch(map_, sogs_, end, taken.link, evidence, trace_)) {
+            if (motion_.watch(map_, sogs_, end, taken.link, evidence, t_s, trace_)) {
                 ++revision_;
                 enqueueNeighbours(end);
             }

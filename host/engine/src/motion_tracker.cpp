@@ -1,8 +1,13 @@
 #include "cdro/engine/motion_tracker.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
+#include <string>
 #include <vector>
+
+#include <Eigen/LU>
 
 #include "cdro/engine/point_solver.hpp"
 
@@ -78,6 +83,112 @@ bool standsStill(const MapState &map, const NodeState &state, const RangeLikelih
     return chi_square <= kStillChiSquare && chi_square < track_chi_square;
 }
 
+// The start test, for ranges with times. Under "the node stands", each residual e_i of its recent
+// ranges (to neighbours that stand: from the map, or from the link's history) is range noise;
+// under "it walks at a constant velocity v since t0", e_i = |p + v (t_i - t0) - a_i| - |p - a_i|
+// plus that noise (p: its map position, a_i: the neighbour's). A walk makes the residuals grow
+// with time, on each link by the walk's share along it: ranges a few tenths of a metre off on
+// several links, growing, tell a walk before any one of them is far off. Both hypotheses take the
+// robust range likelihood (range_likelihood.hpp): a reading too long costs what the NLOS model
+// says whatever its size, so a few long readings are weak evidence of a walk, and one too short
+// is strong evidence. The log-likelihood ratio is maximised over v (Gauss-Newton steps with the
+// robust model's IRLS weights, |v| capped at kWalkMaxSpeedMps) and over t0 (after each of the
+// recent ranges, with at least kWalkMinRanges ranges on kWalkMinLinks links after it). The
+// threshold was chosen on simulated carries and rooms where nothing moves (docs/results.md, "How
+// late the fallback detector sees the motion"): from 12 to 15 nats it trades about 0.1 s of delay
+// for a false start every ~100 still node-runs of 90 s.
+constexpr uint32_t kWalkMinRanges = 3;
+constexpr uint32_t kWalkMinLinks = 2;
+constexpr uint32_t kWalkIterations = 4;
+constexpr double kWalkMaxSpeedMps = 2.0; // m/s, a brisk walk: a faster carry still fits well enough
+constexpr double kWalkNats = 15.0;       // log-likelihood ratio over which the node walks
+// The test runs again only after a residual beyond this many sigmas, or while the ratio is above
+// half its threshold: a small residual cannot take it from there over the threshold.
+constexpr double kWalkGateSigmas = 2.0;
+
+double walkEvidence(const MapState &map, uint32_t node, const MotionMemory &memory, const RangeLikelihood &likelihood,
+                    double variance_m2)
+{
+    constexpr uint32_t kRanges = MotionMemory::kRecentRanges;
+    // The newest ranges with times, oldest first.
+    std::array<uint32_t, kRanges> order{};
+    uint32_t n = 0;
+    for (uint32_t back = 0; back < memory.recent_count; ++back) {
+        const uint32_t slot = (memory.recent_next + kRanges - 1 - back) % kRanges;
+        if (!std::isfinite(memory.recent_t_s[slot])) {
+            break;
+        }
+        order[n++] = slot;
+    }
+    std::reverse(order.begin(), order.begin() + n);
+    if (n < kWalkMinRanges + 1) {
+        return 0.0;
+    }
+    const Vector2 position_m = map.nodes[node].position_m;
+    std::array<Vector2, kRanges> offset_m{}; // m, from the neighbour to the node
+    std::array<double, kRanges> distance_m{};
+    std::array<double, kRanges> still_log{}; // log p(e_i) under standing
+    std::array<double, kRanges> still_weight{};
+    for (uint32_t i = 0; i < n; ++i) {
+        const uint32_t slot = order[i];
+        offset_m[i] = position_m - map.nodes[map.otherNode(memory.recent_links[slot], node)].position_m;
+        distance_m[i] = offset_m[i].norm();
+        const double e_m = memory.recent_residual_m[slot];
+        const ResidualEvaluation at = likelihood.evaluate(e_m, variance_m2);
+        still_log[i] = at.log_density;
+        still_weight[i] = likelihood.irlsWeight(e_m, variance_m2, at);
+    }
+    double best = 0.0;
+    std::array<double, kRanges> weight{};
+    std::array<uint32_t, kRanges> links{};
+    for (uint32_t j = n - kWalkMinRanges; j >= 1; --j) {
+        const double t0_s = memory.recent_t_s[order[j - 1]];
+        uint32_t distinct = 0;
+        for (uint32_t i = j; i < n; ++i) {
+            const uint32_t link = memory.recent_links[order[i]];
+            if (std::find(links.begin(), links.begin() + distinct, link) == links.begin() + distinct) {
+                links[distinct++] = link;
+            }
+        }
+        if (distinct < kWalkMinLinks) {
+            continue;
+        }
+        std::copy(still_weight.begin() + j, still_weight.begin() + n, weight.begin() + j);
+        Vector2 velocity_mps = Vector2::Zero();
+        double walk_log = 0.0;
+        for (uint32_t iteration = 0; iteration < kWalkIterations; ++iteration) {
+            // A negligible ridge: every range after t0 may lie along one line.
+            Matrix2 normal = 1e-9 * Matrix2::Identity();
+            Vector2 gradient = Vector2::Zero();
+            for (uint32_t i = j; i < n; ++i) {
+                const double dt_s = std::max(memory.recent_t_s[order[i]] - t0_s, 0.0);
+                const Vector2 walked = offset_m[i] + velocity_mps * dt_s;
+                const double reach_m = walked.norm();
+                const Vector2 jacobian = reach_m > 1e-9 ? Vector2(walked / reach_m * dt_s) : Vector2::Zero();
+                const double misfit_m = memory.recent_residual_m[order[i]] - (reach_m - distance_m[i]);
+                normal += weight[i] * jacobian * jacobian.transpose();
+                gradient += weight[i] * misfit_m * jacobian;
+            }
+            velocity_mps += normal.inverse() * gradient;
+            const double speed_mps = velocity_mps.norm();
+            if (speed_mps > kWalkMaxSpeedMps) {
+                velocity_mps *= kWalkMaxSpeedMps / speed_mps;
+            }
+            walk_log = 0.0;
+            for (uint32_t i = j; i < n; ++i) {
+                const double dt_s = std::max(memory.recent_t_s[order[i]] - t0_s, 0.0);
+                const double reach_m = (offset_m[i] + velocity_mps * dt_s).norm();
+                const double misfit_m = memory.recent_residual_m[order[i]] - (reach_m - distance_m[i]);
+                const ResidualEvaluation at = likelihood.evaluate(misfit_m, variance_m2);
+                walk_log += at.log_density - still_log[i];
+                weight[i] = likelihood.irlsWeight(misfit_m, variance_m2, at);
+            }
+        }
+        best = std::max(best, walk_log);
+    }
+    return best;
+}
+
 } // namespace
 
 MotionTracker::MotionTracker(const EngineParams &params, const RangeLikelihood &likelihood)
@@ -120,6 +231,7 @@ bool MotionTracker::change(MapState &map, SogBank &sogs, uint32_t node, bool mov
     state.motion.still_anchor_m = state.position_m;
     state.motion.still_updates = 0;
     state.motion.recent_count = 0;
+    state.motion.walk_nats = 0.0;
     state.motion.still_count = 0;
     // Stopping: the track, at rest, stays the estimate until every link has a range again (the
     // links start afresh below, and a median of nothing is no range).
@@ -143,40 +255,59 @@ bool MotionTracker::change(MapState &map, SogBank &sogs, uint32_t node, bool mov
     return true;
 }
 
-bool MotionTracker::watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m,
+bool MotionTracker::watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m, double t_s,
                           const Trace &trace)
 {
-    // The fallback detector: a node without motion reports moves when several of its recent
-    // ranges, on different links, read far from the map (one NLOS link reads far on one link).
+    // The fallback detector, for a node without motion reports: with range times, the start test
+    // above (its recent ranges fit a walk far better than standing); without, several of its
+    // recent ranges, on different links, read far from the map (one NLOS link reads far on one
+    // link).
     NodeState &state = map.nodes[node];
     if (!params_.reset || !params_.infer_from_ranges || state.motion.reports || state.moving() || state.fixed()) {
         return false;
     }
     MotionMemory &memory = state.motion;
-    const uint32_t window = std::clamp<uint32_t>(params_.inferred_window, 1U, MotionMemory::kRecentRanges);
+    constexpr uint32_t kRanges = MotionMemory::kRecentRanges;
     memory.recent_links[memory.recent_next] = link;
-    // Large means beyond both the configured distance and four standard deviations of the noise.
-    const double large_m = std::max(params_.inferred_residual_m, 4.0 * range_sigma_m_);
-    memory.recent_large[memory.recent_next] = std::abs(residual_m) > large_m ? 1 : 0;
-    memory.recent_next = (memory.recent_next + 1) % window;
-    memory.recent_count = std::min(memory.recent_count + 1, window);
-    uint32_t large = 0;
-    std::vector<uint32_t> large_links;
-    for (uint32_t i = 0; i < memory.recent_count; ++i) {
-        if (memory.recent_large[i] != 0) {
-            ++large;
-            if (std::find(large_links.begin(), large_links.end(), memory.recent_links[i]) == large_links.end()) {
-                large_links.push_back(memory.recent_links[i]);
+    memory.recent_t_s[memory.recent_next] = t_s;
+    memory.recent_residual_m[memory.recent_next] = residual_m;
+    memory.recent_next = (memory.recent_next + 1) % kRanges;
+    memory.recent_count = std::min(memory.recent_count + 1, kRanges);
+    std::string why;
+    if (std::isfinite(t_s)) {
+        if (std::abs(residual_m) > kWalkGateSigmas * range_sigma_m_ || memory.walk_nats > 0.5 * kWalkNats) {
+            memory.walk_nats = walkEvidence(map, node, memory, likelihood_, range_sigma_m_ * range_sigma_m_);
+        }
+        if (!(memory.walk_nats > kWalkNats)) {
+            return false;
+        }
+        char nats[32];
+        std::snprintf(nats, sizeof nats, "%.1f", memory.walk_nats);
+        why = "its last ranges fit a walk better than standing (log-likelihood ratio " + std::string(nats) + ")";
+    } else {
+        const uint32_t window = std::clamp<uint32_t>(params_.inferred_window, 1U, kRanges);
+        // Large means beyond both the configured distance and four standard deviations of the noise.
+        const double large_m = std::max(params_.inferred_residual_m, 4.0 * range_sigma_m_);
+        const uint32_t seen = std::min(memory.recent_count, window);
+        uint32_t large = 0;
+        std::vector<uint32_t> large_links;
+        for (uint32_t back = 0; back < seen; ++back) {
+            const uint32_t slot = (memory.recent_next + kRanges - 1 - back) % kRanges;
+            if (std::abs(memory.recent_residual_m[slot]) > large_m) {
+                ++large;
+                if (std::find(large_links.begin(), large_links.end(), memory.recent_links[slot]) == large_links.end()) {
+                    large_links.push_back(memory.recent_links[slot]);
+                }
             }
         }
-    }
-    if (large < params_.inferred_min_large || large_links.size() < params_.inferred_min_links) {
-        return false;
+        if (large < params_.inferred_min_large || large_links.size() < params_.inferred_min_links) {
+            return false;
+        }
+        why = std::to_string(large) + " of its last " + std::to_string(seen) + " ranges read far from the map";
     }
     ++counters_.motion_inferred;
     if (trace) {
-        trace("node " + std::to_string(state.id) + ": " + std::to_string(large) + " of its last " +
-              std::to_string(memory.recent_count) + " ranges read far from the map: taken as moving");
+        trace("node " + std::to_string(state.id) + ": " + why + ": taken as moving");
     }
     const bool changed = change(map, sogs, node, true, trace);
     state.motion.inferred = true;

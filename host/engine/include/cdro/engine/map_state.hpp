@@ -85,17 +85,19 @@ struct NodeSolveView {
     bool main_part = false;                  // in the part joined by checked links
 };
 
-// The fallback motion detector's memory: the node's last ranges, whether each read far from the
-// map, on which link; and the reports.
+// The fallback motion detector's memory: the node's last ranges (when, on which link, how far
+// from the map); and the reports.
 struct MotionMemory {
     static constexpr uint32_t kRecentRanges = 16;
     bool reports = false;         // the node sends motion reports: the detector leaves it alone
     bool reported_moving = false; // the last report said moving (kept while not placed)
     bool inferred = false;        // the current motion was found by the detector
     std::array<uint32_t, kRecentRanges> recent_links{};
-    std::array<uint8_t, kRecentRanges> recent_large{};
+    std::array<double, kRecentRanges> recent_t_s{};        // s (NaN: the range had no time)
+    std::array<double, kRecentRanges> recent_residual_m{}; // m, from the map and the link's history
     uint32_t recent_count = 0;
     uint32_t recent_next = 0;
+    double walk_nats = 0.0;                   // the start test's last log-likelihood ratio (motion_tracker.cpp)
     Vector2 still_anchor_m = Vector2::Zero(); // m, where an inferred-moving node was N updates ago
     uint32_t still_updates = 0;
     // An inferred-moving node's last ranges to anchors, for the test that it stands still again.

@@ -1,6 +1,7 @@
 // motion_tracker.hpp: nodes that move (paper Fig. 4, params.hpp MotionParams). A node reported
-// moving (MOTION frames, the motion CSV), or found moving by the fallback detector (several of its
-// recent ranges, on different links, read far from the map and from their links' own history),
+// moving (MOTION frames, the motion CSV), or found moving by the fallback detector (its recent
+// ranges, as far as they read from the map and from their links' own history, fit a walk far
+// better than standing; without range times: several of them, on different links, read far),
 // stops being an anchor and a witness for the others; its links start afresh, the SoGs centred on
 // it are dropped, and every range to it resets the SoG around the ranging neighbour (sog_bank.hpp).
 // A constant-velocity track (motion_track.hpp) follows it between ranges. When it stops, the
@@ -36,9 +37,10 @@ public:
     // A motion report. Returns whether the node changed between moving and still (its
     // neighbours then lose or regain an anchor).
     bool report(MapState &map, SogBank &sogs, uint32_t node, bool moving, const Trace &trace);
-    // The fallback detector, after a range on `link` whose distance from the map (and from the
-    // link's history) is `residual_m`. Returns whether the node was found moving.
-    bool watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m, const Trace &trace);
+    // The fallback detector, after a range on `link` at t_s (NaN: no time) whose distance from the
+    // map (and from the link's history) is `residual_m`. Returns whether the node was found moving.
+    bool watch(MapState &map, SogBank &sogs, uint32_t node, uint32_t link, double residual_m, double t_s,
+               const Trace &trace);
     // A range from a placed anchor to a moving (or settling) node, at t_s, for its track.
     void track(MapState &map, uint32_t moving_node, uint32_t anchor_node, double range_m, double t_s);
     // After an update of a moving or settling node: its estimate from the track (if warm), and

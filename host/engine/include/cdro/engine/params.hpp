@@ -88,6 +88,8 @@ struct SolveParams {
 struct MotionParams {
     bool reset = true;                      // false: --no-motion-reset, moving nodes handled as static
     bool infer_from_ranges = true;          // the fallback detector for nodes without reports
+                                            // (with range times: motion_tracker.cpp's walk test;
+                                            // without, the four keys below)
     double inferred_residual_m = 0.5;       // m, a range this far from the map and from its link's
                                             // recent median is large
     uint32_t inferred_window = 8;           // of the node's last ranges (<= 16) ...
