@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -16,42 +17,123 @@ namespace cdro::engine {
 namespace {
 
 // An inferred-moving node stands still again when one position explains its last
-// MotionMemory::kStillRanges ranges to anchors, taken over at least kStillSpanS on at least
-// kStillMinAnchors anchors: each within kStillSigmas of its noise (and its anchor's uncertainty
-// along it), all of them together within the 99 % point of their chi-square and better than the
-// moving track predicted them (its innovations: a likelihood ratio of standing against moving),
-// and that position determined to within kStillSigmaM. One NLOS range fails the test, and then
-// the track's speed decides, as without it.
+// kStillFitRanges ranges to anchors, taken over at least kStillSpanS on at least kStillMinAnchors
+// anchors: each within kStillSigmas of its noise (and its anchor's uncertainty along it), all of
+// them together within the 99 % point of their chi-square, that position determined to within
+// kStillSigmaM; and standing explains the ranges since some time t1 better than the moving track
+// did, by the Bayes factor below. One NLOS range fails the test, and then the track's speed
+// decides, as without it (once the track has taken kStillWarmUpdates ranges). The sizes were
+// chosen on simulated carries (docs/results.md, "How late the fallback detector sees the
+// motion"): 6 ranges instead of 8 see the stop about 0.3 s sooner, and the Bayes factor, not a
+// comparison of chi-squares, keeps them from calling a carried node still.
+//
+// The Bayes factor: the ranges since t1 (at least kStillFactorRanges, on kStillFactorAnchors
+// anchors), each predicted by the track (its innovation and variance when it came, under the
+// robust range likelihood) against the same ranges predicted by a node standing since t1 where the
+// track then put it (a position-only filter started from the track's position and covariance at
+// t1, widened by kStillStartSigmaM). Both start from what the track knew at t1, so a track that
+// is still unsure where the node is makes standing no likelier; a track that keeps walking while
+// the ranges stay put loses by more with every range. t1 is one of the remembered ranges' times
+// at which the track had taken at least kStillWarmUpdates ranges (a young track's walk is a
+// guess, and standing beats a guess).
+constexpr uint32_t kStillFitRanges = 6;
 constexpr uint32_t kStillMinAnchors = 4;
-constexpr double kStillSpanS = 0.75; // s
+constexpr double kStillSpanS = 0.5; // s
 constexpr double kStillSigmas = 3.0;
-constexpr double kStillChiSquare = 16.81; // chi-square, 6 degrees of freedom (8 ranges, 2 unknowns), 99 %
+constexpr double kStillChiSquare = 13.28; // chi-square, 4 degrees of freedom (6 ranges, 2 unknowns), 99 %
 constexpr double kStillSigmaM = 0.3;      // m
+constexpr uint32_t kStillFactorRanges = 3;
+constexpr uint32_t kStillFactorAnchors = 3;
+constexpr double kStillStartSigmaM = 0.1; // m
+constexpr uint32_t kStillWarmUpdates = 8;
+constexpr double kStillNats = 3.0; // log Bayes factor of standing over the track
+
+// The remembered ranges in the order they came (the ring's oldest first).
+uint32_t stillSlot(const MotionMemory &memory, uint32_t i)
+{
+    constexpr uint32_t kRanges = MotionMemory::kStillRanges;
+    return (memory.still_next + kRanges - memory.still_count + i) % kRanges;
+}
+
+double standingFactor(const MapState &map, const MotionMemory &memory, const RangeLikelihood &likelihood,
+                      double sigma_m)
+{
+    const uint32_t n = memory.still_count;
+    double best = -std::numeric_limits<double>::infinity();
+    for (uint32_t j = 0; j + kStillFactorRanges <= n; ++j) {
+        const uint32_t first = stillSlot(memory, j);
+        if (!memory.still_track_warm[first]) {
+            continue;
+        }
+        std::array<uint32_t, MotionMemory::kStillRanges> anchors{};
+        uint32_t distinct = 0;
+        for (uint32_t i = j; i < n; ++i) {
+            const uint32_t anchor = memory.still_anchor[stillSlot(memory, i)];
+            if (std::find(anchors.begin(), anchors.begin() + distinct, anchor) == anchors.begin() + distinct) {
+                anchors[distinct++] = anchor;
+            }
+        }
+        if (distinct < kStillFactorAnchors) {
+            continue;
+        }
+        Vector2 position_m = memory.still_track_position_m[first];
+        Matrix2 covariance_m2 =
+            memory.still_track_covariance_m2[first] + kStillStartSigmaM * kStillStartSigmaM * Matrix2::Identity();
+        double factor = 0.0;
+        for (uint32_t i = j; i < n; ++i) {
+            const uint32_t slot = stillSlot(memory, i);
+            const NodeState &anchor = map.nodes[memory.still_anchor[slot]];
+            const Vector2 along = position_m - anchor.position_m;
+            const double distance_m = along.norm();
+            if (distance_m < 1e-9) {
+                return -std::numeric_limits<double>::infinity();
+            }
+            const Vector2 u = along / distance_m;
+            const Matrix2 anchor_covariance = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
+            const double noise = sigma_m * sigma_m + u.dot(anchor_covariance * u);
+            const Vector2 pu = covariance_m2 * u;
+            const double variance = u.dot(pu) + noise;
+            const double innovation_m = memory.still_range_m[slot] - distance_m;
+            const RangeLikelihood::DensityWithInlier at = likelihood.densityWithInlier(innovation_m, variance);
+            factor += std::log(at.density_per_m) - memory.still_track_log_density[slot];
+            // As the track takes a range: an NLOS-looking one counts for less.
+            const double widened = u.dot(pu) + noise / std::max(at.inlier_probability, 0.05);
+            position_m += pu / widened * innovation_m;
+            covariance_m2 = symmetricPart(covariance_m2 - pu * pu.transpose() / widened);
+        }
+        best = std::max(best, factor);
+    }
+    return best;
+}
 
 bool standsStill(const MapState &map, const NodeState &state, const RangeLikelihood &likelihood, double sigma_m)
 {
     const MotionMemory &memory = state.motion;
-    if (memory.still_count < MotionMemory::kStillRanges) {
+    if (memory.still_count < kStillFitRanges) {
         return false;
     }
     std::vector<RangeConstraint> constraints;
     std::vector<uint32_t> anchors;
-    for (uint32_t i = 0; i < MotionMemory::kStillRanges; ++i) {
-        const NodeState &anchor = map.nodes[memory.still_anchor[i]];
+    double earliest_s = std::numeric_limits<double>::infinity();
+    double latest_s = -std::numeric_limits<double>::infinity();
+    for (uint32_t i = memory.still_count - kStillFitRanges; i < memory.still_count; ++i) {
+        const uint32_t slot = stillSlot(memory, i);
+        const NodeState &anchor = map.nodes[memory.still_anchor[slot]];
         if (!anchor.anchor()) {
             return false;
         }
         RangeConstraint constraint;
         constraint.anchor_m = anchor.position_m;
         constraint.anchor_covariance_m2 = anchor.fixed() ? Matrix2::Zero() : anchor.covariance_m2;
-        constraint.range_m = memory.still_range_m[i];
+        constraint.range_m = memory.still_range_m[slot];
         constraints.push_back(constraint);
-        if (std::find(anchors.begin(), anchors.end(), memory.still_anchor[i]) == anchors.end()) {
-            anchors.push_back(memory.still_anchor[i]);
+        if (std::find(anchors.begin(), anchors.end(), memory.still_anchor[slot]) == anchors.end()) {
+            anchors.push_back(memory.still_anchor[slot]);
         }
+        earliest_s = std::min(earliest_s, memory.still_t_s[slot]);
+        latest_s = std::max(latest_s, memory.still_t_s[slot]);
     }
-    const auto [earliest, latest] = std::minmax_element(memory.still_t_s.begin(), memory.still_t_s.end());
-    if (anchors.size() < kStillMinAnchors || !(*latest - *earliest >= kStillSpanS)) {
+    if (anchors.size() < kStillMinAnchors || !(latest_s - earliest_s >= kStillSpanS)) {
         return false;
     }
     PointSolverParams solver;
@@ -76,11 +158,7 @@ bool standsStill(const MapState &map, const NodeState &state, const RangeLikelih
         }
         chi_square += residual_m * residual_m / variance;
     }
-    double track_chi_square = 0.0;
-    for (const double innovation : memory.still_track_chi_square) {
-        track_chi_square += innovation;
-    }
-    return chi_square <= kStillChiSquare && chi_square < track_chi_square;
+    return chi_square <= kStillChiSquare && standingFactor(map, memory, likelihood, sigma_m) > kStillNats;
 }
 
 // The start test, for ranges with times. Under "the node stands", each residual e_i of its recent
@@ -341,7 +419,10 @@ void MotionTracker::track(MapState &map, uint32_t moving_node, uint32_t anchor_n
         memory.still_anchor[memory.still_next] = anchor_node;
         memory.still_range_m[memory.still_next] = range_m;
         memory.still_t_s[memory.still_next] = t_s;
-        memory.still_track_chi_square[memory.still_next] = (range_m - distance_m) * (range_m - distance_m) / variance;
+        memory.still_track_log_density[memory.still_next] = likelihood_.logDensity(range_m - distance_m, variance);
+        memory.still_track_position_m[memory.still_next] = state.track->position();
+        memory.still_track_covariance_m2[memory.still_next] = state.track->positionCovariance();
+        memory.still_track_warm[memory.still_next] = state.track->updates() >= kStillWarmUpdates ? 1 : 0;
         memory.still_next = (memory.still_next + 1) % MotionMemory::kStillRanges;
         memory.still_count = std::min(memory.still_count + 1, MotionMemory::kStillRanges);
     }
@@ -379,7 +460,9 @@ bool MotionTracker::afterUpdate(MapState &map, SogBank &sogs, uint32_t node, con
     if (standsStill(map, state, likelihood_, range_sigma_m_)) {
         return change(map, sogs, node, false, trace);
     }
-    const bool slow = state.track ? state.track->velocity().norm() < params_.inferred_still_speed_mps
+    // A young track's speed is its prior's (it starts at rest): it says nothing yet.
+    const bool slow = state.track ? state.track->updates() >= kStillWarmUpdates &&
+                                        state.track->velocity().norm() < params_.inferred_still_speed_mps
                                   : (state.position_m - memory.still_anchor_m).norm() < params_.inferred_still_m;
     memory.still_updates = slow ? memory.still_updates + 1 : 0;
     if (!slow) {

@@ -102,10 +102,16 @@ struct MotionMemory {
     uint32_t still_updates = 0;
     // An inferred-moving node's last ranges to anchors, for the test that it stands still again.
     static constexpr uint32_t kStillRanges = 8;
-    std::array<uint32_t, kStillRanges> still_anchor{};         // node indices
-    std::array<double, kStillRanges> still_range_m{};          // m
-    std::array<double, kStillRanges> still_t_s{};              // s
-    std::array<double, kStillRanges> still_track_chi_square{}; // the range's innovation^2 / its variance (the track's)
+    std::array<uint32_t, kStillRanges> still_anchor{}; // node indices
+    std::array<double, kStillRanges> still_range_m{};  // m
+    std::array<double, kStillRanges> still_t_s{};      // s
+    // What the track knew when each came (its prediction, before the range): the range's log
+    // predictive density (log 1/m), where it put the node (m) and how sure it was (m^2), and
+    // whether it had taken enough ranges to be a walk worth testing against.
+    std::array<double, kStillRanges> still_track_log_density{};
+    std::array<Vector2, kStillRanges> still_track_position_m{};
+    std::array<Matrix2, kStillRanges> still_track_covariance_m2{};
+    std::array<uint8_t, kStillRanges> still_track_warm{};
     uint32_t still_count = 0;
     uint32_t still_next = 0;
 };
