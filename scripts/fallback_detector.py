@@ -21,6 +21,7 @@ import argparse
 import csv
 import json
 import pathlib
+import statistics
 import subprocess
 import sys
 
@@ -133,13 +134,13 @@ def main() -> int:
             continue
         runs = carried(step, args.seeds, args.hostd, args.data, args.out)
         summary[step] = runs
-        p95 = sorted(r["p95_m"] for r in runs if r["p95_m"] is not None)
+        p95 = [r["p95_m"] for r in runs if r["p95_m"] is not None]
         print(f"{step}: start seen after (s): {shown(runs, 'start_seen_after_s')}; within 1 s: "
               f"{within(runs, 'start_seen_after_s')}/{len(runs)}")
         print(f"{step}: stop seen after (s):  {shown(runs, 'stop_seen_after_s')}; within 1 s: "
               f"{within(runs, 'stop_seen_after_s')}/{len(runs)}")
         print(f"{step}: track p95 (m): {', '.join(f'{v:.2f}' for v in (r['p95_m'] for r in runs))}; median "
-              f"{p95[len(p95) // 2]:.3f}; converged again after (s): {shown(runs, 'reconverged_after_s')}")
+              f"{statistics.median(p95):.3f}; converged again after (s): {shown(runs, 'reconverged_after_s')}")
     with open(args.out / "summary.json", "w") as f:
         json.dump(summary, f, indent=2, sort_keys=True)
     return 0

@@ -8,6 +8,7 @@ the shuffles are seeded, the seeds are printed.
 """
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import os
@@ -22,7 +23,9 @@ DATA = pathlib.Path(os.environ.get("CDRO_DATA_DIR", ROOT.parent / "shared" / "da
 OUT = ROOT / "out" / "results"
 PNG = ROOT / "docs" / "results"
 HOSTD = ROOT / "build" / "bin" / "cdro-hostd"
-BIN = ROOT / ".venv" / "bin"
+# The Python tools: the repository's environment, else the one running this script (a worktree
+# without its own .venv).
+BIN = ROOT / ".venv" / "bin" if (ROOT / ".venv" / "bin").is_dir() else pathlib.Path(sys.executable).parent
 SEEDS = list(range(1, 11))
 
 
@@ -290,14 +293,22 @@ def fallback_detector(summary: dict) -> None:
     print(f"  stop seen after (s):  {shown('stop_seen_after_s')}; within 1 s: {within('stop_seen_after_s')}/10")
 
 
+STEPS = (plant, fig3, fig3_batch, plaza, cooperative_robot, carried_node, fallback_detector)
+
+
 def main() -> int:
+    parser = argparse.ArgumentParser(description="Every figure of docs/results.md (or the steps named).")
+    parser.add_argument("--steps", nargs="+", choices=[step.__name__ for step in STEPS],
+                        help="only these steps (summary.json then holds only theirs)")
+    args = parser.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     PNG.mkdir(parents=True, exist_ok=True)
     if not DATA.is_dir():
         raise SystemExit(f"results: no data at {DATA} (set CDRO_DATA_DIR)")
     summary: dict = {"seeds": SEEDS}
-    for step in (plant, fig3, fig3_batch, plaza, cooperative_robot, carried_node, fallback_detector):
-        step(summary)
+    for step in STEPS:
+        if args.steps is None or step.__name__ in args.steps:
+            step(summary)
     with open(OUT / "summary.json", "w") as f:
         json.dump(summary, f, indent=2, sort_keys=True)
     print(f"results: every number in {OUT / 'summary.json'}, the plots in {PNG}")
