@@ -569,6 +569,20 @@ TEST(MapCovariance, EllipsesCoverTheErrorsAsOftenAsTheyShould)
     EXPECT_LT(factor, 1.3);
 }
 
+// How many nodes of `estimate` have the truth inside their 2-sigma ellipse of `covariance`, after
+// the rigid fit of the whole map to the truth.
+uint32_t insideTwoSigma(const Exact &exact, const MapEstimate &estimate, const MapCovariance &covariance)
+{
+    std::vector<Vector2> a(estimate.position_m.begin(), estimate.position_m.end());
+    const RigidTransform fit = fitRigid(a, exact.truth_m, false);
+    uint32_t inside = 0;
+    for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
+        const Vector2 error = fit.apply(estimate.position_m[i]) - exact.truth_m[i];
+        inside += error.dot(fit.applyToCovariance(covariance.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
+    }
+    return inside;
+}
+
 // Nodes of unknown height range in 3D and are mapped in the plane: every link reads a little long,
 // by an amount that depends on the two heights. Over random 2.5D networks (netgen's random family,
 // heights uniform in 0.3-2.8 m, std 0.72 m; 0.1 m noise), the map solved from the truth: with the
@@ -604,15 +618,9 @@ TEST(MapCovariance, UnknownHeightsAreInTheEllipses)
         heights.height_unknown.assign(exact.problem.nodeCount(), 1);
         const MapCovariance with = mapCovariance(exact.problem, estimate, likelihood(), heights);
         const MapCovariance without = mapCovariance(exact.problem, estimate, likelihood());
-        std::vector<Vector2> a(estimate.position_m.begin(), estimate.position_m.end());
-        const RigidTransform fit = fitRigid(a, exact.truth_m, false);
-        for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
-            const Vector2 error = fit.apply(estimate.position_m[i]) - exact.truth_m[i];
-            inside_with += error.dot(fit.applyToCovariance(with.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            inside_without +=
-                error.dot(fit.applyToCovariance(without.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            ++total;
-        }
+        inside_with += insideTwoSigma(exact, estimate, with);
+        inside_without += insideTwoSigma(exact, estimate, without);
+        total += exact.problem.nodeCount();
     }
     const double share_with = static_cast<double>(inside_with) / static_cast<double>(total);
     const double share_without = static_cast<double>(inside_without) / static_cast<double>(total);
@@ -645,15 +653,9 @@ TEST(MapCovariance, AnExcessEveryLinkSharesIsInTheEllipses)
         shared.common_excess_m = excess_m;
         const MapCovariance with = mapCovariance(exact.problem, estimate, likelihood(), shared);
         const MapCovariance without = mapCovariance(exact.problem, estimate, likelihood());
-        std::vector<Vector2> a(estimate.position_m.begin(), estimate.position_m.end());
-        const RigidTransform fit = fitRigid(a, exact.truth_m, false);
-        for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
-            const Vector2 error = fit.apply(estimate.position_m[i]) - exact.truth_m[i];
-            inside_with += error.dot(fit.applyToCovariance(with.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            inside_without +=
-                error.dot(fit.applyToCovariance(without.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            ++total;
-        }
+        inside_with += insideTwoSigma(exact, estimate, with);
+        inside_without += insideTwoSigma(exact, estimate, without);
+        total += exact.problem.nodeCount();
     }
     const double share_with = static_cast<double>(inside_with) / static_cast<double>(total);
     const double share_without = static_cast<double>(inside_without) / static_cast<double>(total);
@@ -690,15 +692,9 @@ TEST(MapCovariance, AnExcessANodesLinksShareIsInTheEllipses)
         refineMap(exact.problem, estimate, likelihood());
         const MapCovariance with = mapCovariance(exact.problem, estimate, likelihood(), rooms);
         const MapCovariance without = mapCovariance(exact.problem, estimate, likelihood(), common);
-        std::vector<Vector2> a(estimate.position_m.begin(), estimate.position_m.end());
-        const RigidTransform fit = fitRigid(a, exact.truth_m, false);
-        for (uint32_t i = 0; i < exact.problem.nodeCount(); ++i) {
-            const Vector2 error = fit.apply(estimate.position_m[i]) - exact.truth_m[i];
-            inside_with += error.dot(fit.applyToCovariance(with.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            inside_without +=
-                error.dot(fit.applyToCovariance(without.covariance_m2[i]).inverse() * error) <= 4.0 ? 1U : 0U;
-            ++total;
-        }
+        inside_with += insideTwoSigma(exact, estimate, with);
+        inside_without += insideTwoSigma(exact, estimate, without);
+        total += exact.problem.nodeCount();
     }
     const double share_with = static_cast<double>(inside_with) / static_cast<double>(total);
     const double share_without = static_cast<double>(inside_without) / static_cast<double>(total);
