@@ -107,8 +107,10 @@ def test_that_capture_records_exactly_what_the_simulator_sent(tmp_path):
         wait_until(lambda: (tmp_path / "dev").is_symlink(), "the simulator made no link")
         process = start_capture(tmp_path, tmp_path / "dev")
 
-        # Test: capture until the simulator has ended the scenario and gone away
+        # Test: capture until the simulator has ended the scenario and gone away, and the capture
+        # has seen it go (its stderr says so: a loaded machine may not have run it yet)
         assert sim.wait(GUARD_S) == 0
+        wait_until(lambda: "vanished" in (tmp_path / "capture.stderr").read_text(), "the capture never saw the link go")
         code, summary = finish(process)
     finally:
         for p in (sim,):
