@@ -863,5 +863,34 @@ TEST(Engine, DefaultOutputFrameIsTheFrameTriangles)
     EXPECT_GT(estimates.at((*frame)[2]).position_m.y(), 0.0);
 }
 
+// A node that will move (the robot's own tag, stage 2) must never be one of the output frame's
+// nodes: the frame follows its nodes, and one that moves carries every output with it (the robot
+// corridor's path read 15.7 m off, the robot pinned near (0, 0), when the first triangle the
+// stage-1 map could form held the robot's tag). Here the first three links form the only
+// triangle, and it holds the excluded node.
+TEST(Engine, ANodeExcludedFromTheFrameIsNeverOneOfItsNodes)
+{
+    const std::vector<std::pair<NodeId, Vector2>> truth{
+        {1, {0.0, 0.0}}, {2, {6.0, 0.0}}, {3, {2.0, 5.0}}, {4, {7.0, 6.0}}, {5, {-2.0, 7.0}}};
+    auto distance = [&](NodeId a, NodeId b) { return (truth[a - 1].second - truth[b - 1].second).norm(); };
+    Engine engine;
+    engine.excludeFromFrame(1);
+    const std::vector<std::pair<NodeId, NodeId>> order{{1, 2}, {1, 3}, {2, 3}, {1, 4}, {2, 4},
+                                                       {3, 4}, {1, 5}, {3, 5}, {4, 5}, {2, 5}};
+    for (int sweep = 0; sweep < 20; ++sweep) {
+        for (const auto &[a, b] : order) {
+            engine.addRange(a, b, distance(a, b));
+        }
+    }
+    engine.settle(10000);
+    const auto frame = engine.frameNodes();
+    ASSERT_TRUE(frame.has_value());
+    EXPECT_EQ(std::count(frame->begin(), frame->end(), NodeId{1}), 0);
+    EXPECT_EQ(engine.estimates().size(), 5U);
+    for (const NodeOutput &node : engine.estimates()) {
+        EXPECT_TRUE(node.placed()) << node.id;
+    }
+}
+
 } // namespace
 } // namespace cdro::enginetest

@@ -229,7 +229,7 @@ void Engine::runPlacement()
         frame_.apply(map_);
         ++revision_;
     }
-    const std::vector<uint32_t> placed = placement_.run(map_, frame_held_, frame_.fixedFrameNodes(), trace_);
+    const std::vector<uint32_t> placed = placement_.run(map_, frame_held_, frame_, trace_);
     adoptPlaced(placed);
     if (!placed.empty()) {
         // Let the new part of the map and its surroundings agree before the next range.

@@ -21,6 +21,9 @@ double headingOf(const Matrix2 &rotation, double heading_rad)
 MovementStage::MovementStage(Engine &engine, const MovementParams &params)
     : engine_(engine), params_(params), likelihood_(engine.params().likelihood)
 {
+    if (params_.robot_id != 0) {
+        engine_.excludeFromFrame(params_.robot_id);
+    }
 }
 
 double MovementStage::rangeSigma() const

@@ -22,6 +22,25 @@ void OutputFrame::setFixed(NodeId id, const Vector2 &position_m)
     fixed_.emplace_back(id, position_m);
 }
 
+void OutputFrame::exclude(NodeId id)
+{
+    const auto at = std::lower_bound(excluded_.begin(), excluded_.end(), id);
+    if (at == excluded_.end() || *at != id) {
+        excluded_.insert(at, id);
+    }
+}
+
+bool OutputFrame::excluded(NodeId id) const { return std::binary_search(excluded_.begin(), excluded_.end(), id); }
+
+std::vector<bool> OutputFrame::eligible(const MapState &map, bool anchors_only) const
+{
+    std::vector<bool> out(map.nodes.size(), false);
+    for (uint32_t node = 0; node < map.nodes.size(); ++node) {
+        out[node] = (!anchors_only || map.nodes[node].anchor()) && !excluded(map.nodes[node].id);
+    }
+    return out;
+}
+
 void OutputFrame::apply(MapState &map)
 {
     applied_ = true;
@@ -70,11 +89,8 @@ void OutputFrame::ensureFrameNodes(MapState &map, const PlacementParams &placeme
                                        [&](uint32_t n) { return map.nodes[n].placed(); })) {
         return;
     }
-    std::vector<bool> eligible(map.nodes.size(), false);
-    for (uint32_t node = 0; node < map.nodes.size(); ++node) {
-        eligible[node] = map.nodes[node].anchor();
-    }
-    const std::optional<FrameTriangle> triangle = chooseFrameTriangle(map, placement, eligible, std::nullopt);
+    const std::optional<FrameTriangle> triangle =
+        chooseFrameTriangle(map, placement, eligible(map, true), std::nullopt);
     if (triangle) {
         map.frame_nodes = std::array<uint32_t, 3>{triangle->origin, triangle->x_axis, triangle->positive_y};
     }

@@ -74,16 +74,16 @@ void PlacementStep::unplace(MapState &map, uint32_t node)
     markPending(map, node);
 }
 
-bool PlacementStep::placeFrame(MapState &map)
+bool PlacementStep::placeFrame(MapState &map, const OutputFrame &frame)
 {
-    std::vector<bool> eligible(map.nodes.size(), true);
     std::optional<std::array<uint32_t, 3>> preferred;
-    const FrameParams &frame = params_.frame;
-    if (frame.origin != 0 && frame.x_axis != 0 && frame.positive_y != 0) {
-        preferred = std::array<uint32_t, 3>{map.findNode(frame.origin), map.findNode(frame.x_axis),
-                                            map.findNode(frame.positive_y)};
+    const FrameParams &named = params_.frame;
+    if (named.origin != 0 && named.x_axis != 0 && named.positive_y != 0) {
+        preferred = std::array<uint32_t, 3>{map.findNode(named.origin), map.findNode(named.x_axis),
+                                            map.findNode(named.positive_y)};
     }
-    const std::optional<FrameTriangle> triangle = chooseFrameTriangle(map, params_.placement, eligible, preferred);
+    const std::optional<FrameTriangle> triangle =
+        chooseFrameTriangle(map, params_.placement, frame.eligible(map, false), preferred);
     if (!triangle) {
         return false;
     }
@@ -130,7 +130,7 @@ bool PlacementStep::placeByHandedness(MapState &map, const std::vector<uint32_t>
     return false;
 }
 
-std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, uint32_t fixed_frame_nodes,
+std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, const OutputFrame &frame,
                                          const std::function<void(const std::string &)> &trace)
 {
     std::vector<uint32_t> placed_now;
@@ -145,7 +145,7 @@ std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, uint32_
     }
     if (map.placedCount() == 0) {
         // With fewer than two fixed nodes the frame comes from a triangle of ranges.
-        if (frame_held || !placeFrame(map)) {
+        if (frame_held || !placeFrame(map, frame)) {
             // Nothing to start from yet: every linked node stays pending for the next link.
             for (uint32_t node = 0; node < map.nodes.size(); ++node) {
                 if (!map.nodes[node].links.empty()) {
@@ -197,7 +197,7 @@ std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, uint32_
                 }
             }
         }
-        if (!ambiguous.empty() && fixed_frame_nodes == 2 && map.placedCount() == 2 &&
+        if (!ambiguous.empty() && frame.fixedFrameNodes() == 2 && map.placedCount() == 2 &&
             placeByHandedness(map, ambiguous, trace)) {
             continue;
         }

@@ -141,6 +141,10 @@ public:
     // (not refined, not placed again) until unpinned.
     void pinNode(NodeId id, const Vector2 &position_m, const Matrix2 &covariance_m2);
     void unpinNode(NodeId id);
+    // A node that will move (the robot's own tag): never one of the output frame's three nodes,
+    // since the frame follows its nodes and one that moves would carry every output with it.
+    // Before its first range (a triangle already holding it is kept).
+    void excludeFromFrame(NodeId id) { frame_.exclude(id); }
     // While held, no frame triangle is placed: nodes are placed only from fixed or pinned ones
     // (the movement stage's own frame).
     void holdFrame(bool held) { frame_held_ = held; }

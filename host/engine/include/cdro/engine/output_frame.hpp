@@ -3,6 +3,8 @@
 // map sits (the outputs are shifted so that it is at its coordinates). Otherwise the named frame
 // (params.frame: origin at (0, 0), x-axis node on +x, a third on the +y side), else the frame
 // triangle's nodes play those roles, so the output frame stays put while the map is refined.
+// A node known to move (the robot's tag) is never one of the triangle's. Known limit: a frame
+// node that starts moving unannounced (a door, a cart) carries the outputs with it.
 #pragma once
 
 #include <cstdint>
@@ -32,6 +34,12 @@ public:
     RigidTransform transform(const MapState &map) const;
     // The single fixed node, if there is exactly one.
     const std::optional<std::pair<NodeId, Vector2>> &singleFixed() const { return single_; }
+    // A node never to be one of the frame triangle's (Engine::excludeFromFrame).
+    void exclude(NodeId id);
+    bool excluded(NodeId id) const;
+    // Per node of the map: may it be one of the frame triangle's (not excluded, and with
+    // `anchors_only` placed and still).
+    std::vector<bool> eligible(const MapState &map, bool anchors_only) const;
     // The frame triangle is all placed, or picked again among the placed, still nodes.
     void ensureFrameNodes(MapState &map, const PlacementParams &placement) const;
     // After a restore: the state as it was.
@@ -41,6 +49,7 @@ private:
     FrameParams named_;
     std::vector<std::pair<NodeId, Vector2>> fixed_;
     std::optional<std::pair<NodeId, Vector2>> single_;
+    std::vector<NodeId> excluded_; // sorted
     uint32_t fixed_frame_nodes_ = 0;
     bool applied_ = false;
 };

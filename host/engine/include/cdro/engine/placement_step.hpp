@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "cdro/engine/map_state.hpp"
+#include "cdro/engine/output_frame.hpp"
 #include "cdro/engine/params.hpp"
 #include "cdro/engine/point_solver.hpp"
 #include "cdro/engine/range_likelihood.hpp"
@@ -34,8 +35,9 @@ public:
     void markPending(const MapState &map, uint32_t node);
     bool anyPending() const { return any_pending_; }
     // Places what can be placed now; returns the nodes placed, in order. `frame_held`: no frame
-    // triangle (the movement stage's own frame: only fixed or pinned nodes start the map).
-    std::vector<uint32_t> run(MapState &map, bool frame_held, uint32_t fixed_frame_nodes,
+    // triangle (the movement stage's own frame: only fixed or pinned nodes start the map); the
+    // frame triangle is taken among the nodes `frame` allows.
+    std::vector<uint32_t> run(MapState &map, bool frame_held, const OutputFrame &frame,
                               const std::function<void(const std::string &)> &trace);
     // A node placed at position_m (also by others: the global solve).
     void place(MapState &map, uint32_t node, const Vector2 &position_m, const Matrix2 &covariance_m2);
@@ -49,7 +51,7 @@ public:
     void restoreCounters(const PlacementCounters &counters) { counters_ = counters; }
 
 private:
-    bool placeFrame(MapState &map);
+    bool placeFrame(MapState &map, const OutputFrame &frame);
     bool placeByHandedness(MapState &map, const std::vector<uint32_t> &nodes,
                            const std::function<void(const std::string &)> &trace);
 
