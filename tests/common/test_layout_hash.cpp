@@ -57,6 +57,10 @@ TEST(LayoutHash, CheckpointBlockLayoutHashesMatchTheTables)
         << "checkpoint_layout.def's flight block changed: set CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH to 0x" << std::hex
         << hashOf(CDRO_CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR)
         << ", bump CDRO_CHECKPOINT_FLIGHT_VERSION and add the pair to tests/golden/layout_history.json";
+    EXPECT_EQ(hashOf(CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_DESCRIPTOR), CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH)
+        << "checkpoint_layout.def's output frame block changed: set CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH to 0x"
+        << std::hex << hashOf(CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_DESCRIPTOR)
+        << ", bump CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION and add the pair to tests/golden/layout_history.json";
 }
 
 TEST(LayoutHash, EachVersionHasExactlyOneLayout)
@@ -92,6 +96,11 @@ TEST(LayoutHash, EachVersionHasExactlyOneLayout)
         << "record flight block version " << flight_version;
     EXPECT_EQ(std::stoul(history["checkpoint_flight"][flight_version].get<std::string>(), nullptr, 16),
               CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH);
+    const std::string output_frame_version = std::to_string(CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION);
+    ASSERT_TRUE(history["checkpoint_output_frame"].contains(output_frame_version))
+        << "record output frame block version " << output_frame_version;
+    EXPECT_EQ(std::stoul(history["checkpoint_output_frame"][output_frame_version].get<std::string>(), nullptr, 16),
+              CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH);
 }
 
 } // namespace

@@ -892,5 +892,55 @@ TEST(Engine, ANodeExcludedFromTheFrameIsNeverOneOfItsNodes)
     }
 }
 
+// A node of the frame triangle that starts moving (a door, a cart): another triangle is picked
+// and the outputs of the nodes that stay do not move. Before, the frame followed its origin node
+// and every output went with it (here 3.6 m).
+TEST(Engine, WhenAFrameNodeMovesTheOthersStayWhereTheyAreOutput)
+{
+    std::map<NodeId, Vector2> truth{{1, {0.0, 0.0}}, {2, {6.0, 0.0}},  {3, {2.0, 5.0}},
+                                    {4, {7.0, 6.0}}, {5, {-2.0, 7.0}}, {6, {3.0, -4.0}}};
+    Engine engine;
+    auto sweep = [&]() {
+        for (const auto &[a, pa] : truth) {
+            for (const auto &[b, pb] : truth) {
+                if (a < b) {
+                    engine.addRange(a, b, (pa - pb).norm());
+                }
+            }
+        }
+    };
+    for (int i = 0; i < 20; ++i) {
+        sweep();
+    }
+    engine.settle(10000);
+    const auto frame = engine.frameNodes();
+    ASSERT_TRUE(frame.has_value());
+    const NodeId carried = (*frame)[0];
+    const auto before = byId(engine.estimates());
+
+    engine.setMoving(carried, true);
+    for (int step = 1; step <= 10; ++step) {
+        truth[carried] += Vector2(0.3, 0.2);
+        sweep();
+    }
+    engine.setMoving(carried, false);
+    for (int i = 0; i < 10; ++i) {
+        sweep();
+    }
+    engine.settle(10000);
+
+    const auto after = byId(engine.estimates());
+    const auto frame_after = engine.frameNodes();
+    ASSERT_TRUE(frame_after.has_value());
+    EXPECT_EQ(std::count(frame_after->begin(), frame_after->end(), carried), 0);
+    for (const auto &[id, position] : truth) {
+        if (id != carried) {
+            EXPECT_LT((after.at(id).position_m - before.at(id).position_m).norm(), 0.05) << id;
+        }
+    }
+    const Vector2 moved_m = after.at(carried).position_m - before.at(carried).position_m;
+    EXPECT_NEAR(moved_m.norm(), std::hypot(3.0, 2.0), 0.1);
+}
+
 } // namespace
 } // namespace cdro::enginetest

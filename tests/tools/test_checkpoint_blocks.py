@@ -124,3 +124,18 @@ def test_a_damaged_flight_block_is_refused_with_what_is_wrong():
     square["covariance"] = square["covariance"][:-1]
     with pytest.raises(ValueError, match="FLIGHT_BLOCK.covariance is not 12 by 12"):
         checkpoint.encode_flight_block(square)
+
+
+def test_the_output_frame_block_round_trips_through_its_table():
+    # A reflection and a turn of 30 degrees: doubles that are not round.
+    c, s = 3.0 ** 0.5 / 2.0, 0.5
+    block = {"version": checkpoint.OUTPUT_FRAME_VERSION, "rotation_xx": c, "rotation_xy": s,
+             "rotation_yx": s, "rotation_yy": -c, "translation_x_m": 12.345678901, "translation_y_m": -0.1 / 3.0}
+    blob = checkpoint.encode_output_frame_block(block)
+    assert len(blob) == 1 + 6 * 8
+    assert checkpoint.decode_output_frame_block(blob) == block
+    assert checkpoint.TAG_OUTPUT_FRAME == 0x0004
+    with pytest.raises(SogError, match="the output frame block is cut short in"):
+        checkpoint.decode_output_frame_block(blob[:-1])
+    with pytest.raises(SogError, match=f"the output frame block is of version {blob[0] + 1}"):
+        checkpoint.decode_output_frame_block(bytes([blob[0] + 1]) + blob[1:])

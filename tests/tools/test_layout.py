@@ -23,6 +23,8 @@ def test_layout_hashes_match_the_committed_constants():
     assert layout.CHECKPOINT_ENGINE_LAYOUT_HASH_COMPUTED == layout.CONSTANTS["CDRO_CHECKPOINT_ENGINE_LAYOUT_HASH"]
     assert layout.CHECKPOINT_MOVEMENT_LAYOUT_HASH_COMPUTED == layout.CONSTANTS["CDRO_CHECKPOINT_MOVEMENT_LAYOUT_HASH"]
     assert layout.CHECKPOINT_FLIGHT_LAYOUT_HASH_COMPUTED == layout.CONSTANTS["CDRO_CHECKPOINT_FLIGHT_LAYOUT_HASH"]
+    assert (layout.CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH_COMPUTED
+            == layout.CONSTANTS["CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH"])
 
 
 def test_each_version_has_exactly_one_layout(golden_dir):
@@ -35,7 +37,7 @@ def test_each_version_has_exactly_one_layout(golden_dir):
     assert int(capture, 16) == layout.CONSTANTS["CDRO_CAPTURE_LAYOUT_HASH"]
     checkpoint = history["checkpoint"][str(layout.CONSTANTS["CDRO_CHECKPOINT_SERVICE_INFO_VERSION"])]
     assert int(checkpoint, 16) == layout.CONSTANTS["CDRO_CHECKPOINT_LAYOUT_HASH"]
-    for block in ("engine", "movement", "flight"):
+    for block in ("engine", "movement", "flight", "output_frame"):
         version = str(layout.CONSTANTS[f"CDRO_CHECKPOINT_{block.upper()}_VERSION"])
         pinned = history[f"checkpoint_{block}"][version]
         assert int(pinned, 16) == layout.CONSTANTS[f"CDRO_CHECKPOINT_{block.upper()}_LAYOUT_HASH"], block

@@ -128,7 +128,7 @@ def descriptor(records: list[dict], fields: dict, empty: list[dict] = ()) -> str
 
 
 BLOCK_LISTS = {"ENGINE": "CDRO_CHECKPOINT_ENGINE_LIST", "MOVEMENT": "CDRO_CHECKPOINT_MOVEMENT_LIST",
-               "FLIGHT": "CDRO_CHECKPOINT_FLIGHT_LIST"}
+               "FLIGHT": "CDRO_CHECKPOINT_FLIGHT_LIST", "OUTPUT_FRAME": "CDRO_CHECKPOINT_OUTPUT_FRAME_LIST"}
 
 
 def check_block(records: list[dict], fields: dict) -> None:
@@ -218,6 +218,9 @@ def generate(include_dir: pathlib.Path) -> str:
         "",
         f"CHECKPOINT_FLIGHT_RECORDS = {pprint.pformat(block_records['FLIGHT'], sort_dicts=False, width=100)}",
         "",
+        "CHECKPOINT_OUTPUT_FRAME_RECORDS = "
+        f"{pprint.pformat(block_records['OUTPUT_FRAME'], sort_dicts=False, width=100)}",
+        "",
         f"FRAME_LAYOUT_DESCRIPTOR = {frame_text!r}",
         f"FRAME_LAYOUT_HASH_COMPUTED = 0x{crc16(frame_text.encode('ascii')):04X}",
         f"SOG_LAYOUT_DESCRIPTOR = {sog_text!r}",
@@ -232,6 +235,9 @@ def generate(include_dir: pathlib.Path) -> str:
         f"CHECKPOINT_MOVEMENT_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['MOVEMENT'].encode('ascii')):04X}",
         f"CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR = {block_texts['FLIGHT']!r}",
         f"CHECKPOINT_FLIGHT_LAYOUT_HASH_COMPUTED = 0x{crc16(block_texts['FLIGHT'].encode('ascii')):04X}",
+        f"CHECKPOINT_OUTPUT_FRAME_LAYOUT_DESCRIPTOR = {block_texts['OUTPUT_FRAME']!r}",
+        f"CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH_COMPUTED = "
+        f"0x{crc16(block_texts['OUTPUT_FRAME'].encode('ascii')):04X}",
         "",
     ]
     return "\n".join(lines)
@@ -390,7 +396,8 @@ def protocol_tables(include_dir: pathlib.Path) -> str:
                                checkpoint["constants"])
     for block, list_name in BLOCK_LISTS.items():
         version = f"CDRO_CHECKPOINT_{block}_VERSION"
-        out.append(f"### Checkpoint {block.lower()} block (version {checkpoint['constants'][version]})")
+        title = block.lower().replace("_", " ")
+        out.append(f"### Checkpoint {title} block (version {checkpoint['constants'][version]})")
         out.append("")
         for record in checkpoint["lists"][list_name]:
             fields = checkpoint["fields"][record["name"]]

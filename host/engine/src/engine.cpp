@@ -52,6 +52,7 @@ void Engine::setMoving(NodeId id, bool moving)
         ++revision_;
         enqueueNeighbours(node); // they lose (or regain) an anchor
     }
+    keepFrame();
 }
 
 void Engine::trackMoving3D(NodeId id)
@@ -145,6 +146,20 @@ void Engine::unpinNode(NodeId id)
 }
 
 RangeVerdict Engine::addRange(NodeId from, NodeId to, double range_m, double t_s)
+{
+    const RangeVerdict verdict = takeRange(from, to, range_m, t_s);
+    keepFrame();
+    return verdict;
+}
+
+void Engine::keepFrame()
+{
+    if (frame_.frameNodesLost(map_)) {
+        frame_.ensureFrameNodes(map_, params_.placement);
+    }
+}
+
+RangeVerdict Engine::takeRange(NodeId from, NodeId to, double range_m, double t_s)
 {
     if (!flights_.empty() && (flights_.tracks(from) || flights_.tracks(to))) {
         return addFlightRange(from, to, range_m, t_s); // a node that never stops: its own 3D track
@@ -469,6 +484,7 @@ uint64_t Engine::settle(uint64_t max_updates)
             }
         }
     }
+    keepFrame();
     return relaxations_ - before;
 }
 
@@ -650,6 +666,7 @@ void Engine::restore(const RestoredState &restored)
         }
         map.frame_nodes = indices;
     }
+    map.frame_offset = restored.frame_offset;
     map_ = std::move(map);
     in_relax_queue_.assign(map_.nodes.size(), 0);
     relax_queue_.clear();

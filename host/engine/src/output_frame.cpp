@@ -8,6 +8,50 @@
 
 namespace cdro::engine {
 
+namespace {
+
+// Origin node at (0, 0), the x-axis node on +x, the third on the +y side.
+RigidTransform triangleFrame(const MapState &map, const std::array<uint32_t, 3> &frame)
+{
+    RigidTransform transform;
+    const Vector2 origin = map.nodes[frame[0]].position_m;
+    const Vector2 axis = map.nodes[frame[1]].position_m - origin;
+    if (axis.norm() > kSingularDistanceM) {
+        const Vector2 unit_x = axis.normalized();
+        Matrix2 rotation;
+        rotation << unit_x.x(), unit_x.y(), -unit_x.y(), unit_x.x();
+        const Vector2 third = rotation * (map.nodes[frame[2]].position_m - origin);
+        if (third.y() < 0.0) {
+            rotation.row(1) *= -1.0;
+            transform.reflected = true;
+        }
+        transform.rotation = rotation;
+        transform.translation_m = -rotation * origin;
+    }
+    return transform;
+}
+
+// outer after inner.
+RigidTransform compose(const RigidTransform &outer, const RigidTransform &inner)
+{
+    RigidTransform out;
+    out.rotation = outer.rotation * inner.rotation;
+    out.translation_m = outer.rotation * inner.translation_m + outer.translation_m;
+    out.reflected = outer.reflected != inner.reflected;
+    return out;
+}
+
+RigidTransform inverse(const RigidTransform &transform)
+{
+    RigidTransform out;
+    out.rotation = transform.rotation.transpose();
+    out.translation_m = -(out.rotation * transform.translation_m);
+    out.reflected = transform.reflected;
+    return out;
+}
+
+} // namespace
+
 void OutputFrame::setFixed(NodeId id, const Vector2 &position_m)
 {
     if (applied_) {
@@ -78,22 +122,43 @@ void OutputFrame::restored(const MapState &map)
     }
 }
 
+bool OutputFrame::frameNodesLost(const MapState &map) const
+{
+    return fixed_frame_nodes_ < 2 && map.frame_nodes &&
+           !std::all_of(map.frame_nodes->begin(), map.frame_nodes->end(),
+                        [&](uint32_t n) { return map.nodes[n].anchor(); });
+}
+
 void OutputFrame::ensureFrameNodes(MapState &map, const PlacementParams &placement) const
 {
-    // The output frame needs three placed nodes that ranged to each other (a map adopted from
-    // the global solve may have placed a triangle of its own): pick them as the first is picked.
+    // The output frame needs three placed, still nodes that ranged to each other (a map adopted
+    // from the global solve may have placed a triangle of its own; a node of it may start moving):
+    // pick them as the first is picked.
     if (fixed_frame_nodes_ >= 2) {
         return;
     }
-    if (map.frame_nodes && std::all_of(map.frame_nodes->begin(), map.frame_nodes->end(),
-                                       [&](uint32_t n) { return map.nodes[n].placed(); })) {
+    if (map.frame_nodes && !frameNodesLost(map)) {
         return;
     }
     const std::optional<FrameTriangle> triangle =
         chooseFrameTriangle(map, placement, eligible(map, true), std::nullopt);
-    if (triangle) {
-        map.frame_nodes = std::array<uint32_t, 3>{triangle->origin, triangle->x_axis, triangle->positive_y};
+    if (!triangle) {
+        return;
     }
+    const std::array<uint32_t, 3> picked{triangle->origin, triangle->x_axis, triangle->positive_y};
+    if (map.frame_nodes && std::all_of(map.frame_nodes->begin(), map.frame_nodes->end(),
+                                       [&](uint32_t n) { return map.nodes[n].placed(); })) {
+        // A node of the triangle started moving: the outputs stay where they were, the old
+        // triangle's frame (where its nodes are now) composed with the offset so far, seen from
+        // the new triangle's.
+        const RigidTransform before = compose(map.frame_offset, triangleFrame(map, *map.frame_nodes));
+        map.frame_offset = compose(before, inverse(triangleFrame(map, picked)));
+    } else {
+        // A node of it unplaced by a solve: its last position is in the frame of the map the
+        // solve replaced, so nothing ties the two frames together; the new triangle's frame.
+        map.frame_offset = RigidTransform{};
+    }
+    map.frame_nodes = picked;
 }
 
 RigidTransform OutputFrame::transform(const MapState &map) const
@@ -102,32 +167,15 @@ RigidTransform OutputFrame::transform(const MapState &map) const
     if (fixed_frame_nodes_ >= 2) {
         return transform;
     }
-    std::optional<std::array<uint32_t, 3>> frame;
     if (named_.origin != 0 && named_.x_axis != 0 && named_.positive_y != 0) {
         const std::array<uint32_t, 3> ids{map.findNode(named_.origin), map.findNode(named_.x_axis),
                                           map.findNode(named_.positive_y)};
         if (std::all_of(ids.begin(), ids.end(), [&](uint32_t n) { return n != kNoIndex && map.nodes[n].placed(); })) {
-            frame = ids;
+            transform = triangleFrame(map, ids);
         }
     } else if (map.frame_nodes && std::all_of(map.frame_nodes->begin(), map.frame_nodes->end(),
                                               [&](uint32_t n) { return map.nodes[n].placed(); })) {
-        frame = map.frame_nodes;
-    }
-    if (frame) {
-        const Vector2 origin = map.nodes[(*frame)[0]].position_m;
-        const Vector2 axis = map.nodes[(*frame)[1]].position_m - origin;
-        if (axis.norm() > kSingularDistanceM) {
-            const Vector2 unit_x = axis.normalized();
-            Matrix2 rotation;
-            rotation << unit_x.x(), unit_x.y(), -unit_x.y(), unit_x.x();
-            const Vector2 third = rotation * (map.nodes[(*frame)[2]].position_m - origin);
-            if (third.y() < 0.0) {
-                rotation.row(1) *= -1.0;
-                transform.reflected = true;
-            }
-            transform.rotation = rotation;
-            transform.translation_m = -rotation * origin;
-        }
+        transform = compose(map.frame_offset, triangleFrame(map, *map.frame_nodes));
     }
     if (single_) {
         const uint32_t node = map.findNode(single_->first);

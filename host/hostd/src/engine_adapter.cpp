@@ -736,8 +736,48 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         block.counters.push_back(*field);
     }
     snapshot.extensions.push_back({kEngineExtensionTag, blocks::encode(block)});
+    const engine::RigidTransform &offset = network.frame_offset;
+    if (offset.rotation != engine::Matrix2::Identity() || offset.translation_m != engine::Vector2::Zero()) {
+        blocks::output_frame_block frame;
+        frame.version = CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION;
+        frame.rotation_xx = offset.rotation(0, 0);
+        frame.rotation_xy = offset.rotation(0, 1);
+        frame.rotation_yx = offset.rotation(1, 0);
+        frame.rotation_yy = offset.rotation(1, 1);
+        frame.translation_x_m = offset.translation_m.x();
+        frame.translation_y_m = offset.translation_m.y();
+        snapshot.extensions.push_back({kOutputFrameExtensionTag, blocks::encode(frame)});
+    }
     return snapshot;
 }
+
+namespace {
+
+// The output frame's offset (none without the block: the frame triangle's own frame).
+engine::RigidTransform outputFrameOffsetOf(const service::SogSnapshot &snapshot)
+{
+    engine::RigidTransform offset;
+    const service::SogSnapshot::Extension *extension = snapshot.findExtension(kOutputFrameExtensionTag);
+    if (extension == nullptr) {
+        return offset;
+    }
+    const auto frame = blocks::decode<blocks::output_frame_block>(extension->bytes, "output frame",
+                                                                  CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION);
+    offset.rotation << frame.rotation_xx, frame.rotation_xy, frame.rotation_yx, frame.rotation_yy;
+    offset.translation_m = engine::Vector2(frame.translation_x_m, frame.translation_y_m);
+    // Orthonormal to the doubles' precision, as the engine composes them; anything else is damage.
+    constexpr double kOrthonormalTolerance = 1e-9;
+    if (!offset.rotation.allFinite() || !offset.translation_m.allFinite() ||
+        (offset.rotation.transpose() * offset.rotation - engine::Matrix2::Identity()).cwiseAbs().maxCoeff() >
+            kOrthonormalTolerance) {
+        throw CheckpointError("the checkpoint's output frame block holds no rotation (not orthonormal, or not finite)");
+    }
+    const engine::Matrix2 &rotation = offset.rotation;
+    offset.reflected = rotation(0, 0) * rotation(1, 1) - rotation(0, 1) * rotation(1, 0) < 0.0;
+    return offset;
+}
+
+} // namespace
 
 void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
 {
@@ -849,6 +889,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
     state.solve_schedule.nodes_at_full = block.nodes_at_full_solve;
     state.solve_schedule.ranges_at_full = block.ranges_at_full_solve;
     state.assessed_key = block.assessed_key;
+    state.frame_offset = outputFrameOffsetOf(snapshot);
     std::vector<uint64_t *> fields = counterFields(state.counters);
     for (size_t i = 0; i < block.counters.size() && i < fields.size(); ++i) {
         *fields[i] = block.counters[i];

@@ -1,17 +1,25 @@
-"""cdro-hostd's checkpoint blocks (tags TAG_ENGINE, TAG_MOVEMENT and TAG_FLIGHT) as named fields.
+"""cdro-hostd's checkpoint blocks (tags TAG_ENGINE, TAG_MOVEMENT, TAG_FLIGHT and TAG_OUTPUT_FRAME)
+as named fields.
 
-The layouts are the tables CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_MOVEMENT_RECORDS and
-CHECKPOINT_FLIGHT_RECORDS of layout.py, generated from checkpoint_layout.def, whose C++ expansion
-(host/hostd/include/cdro/hostd/checkpoint_blocks.hpp) cdro-hostd writes and reads. One walker serves every
-record: an L field is a list of dicts, a V field a list of values, a Q field a list of rows,
-an A field (a u8 count) a list; doubles (F64) come out exactly as written.
+The layouts are the tables CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_MOVEMENT_RECORDS,
+CHECKPOINT_FLIGHT_RECORDS and CHECKPOINT_OUTPUT_FRAME_RECORDS of layout.py, generated from
+checkpoint_layout.def, whose C++ expansion (host/hostd/include/cdro/hostd/checkpoint_blocks.hpp)
+cdro-hostd writes and reads. One walker serves every record: an L field is a list of dicts, a V
+field a list of values, a Q field a list of rows, an A field (a u8 count) a list; doubles (F64)
+come out exactly as written.
 """
 from __future__ import annotations
 
 import struct
 from typing import Any
 
-from .layout import CHECKPOINT_ENGINE_RECORDS, CHECKPOINT_FLIGHT_RECORDS, CHECKPOINT_MOVEMENT_RECORDS, CONSTANTS
+from .layout import (
+    CHECKPOINT_ENGINE_RECORDS,
+    CHECKPOINT_FLIGHT_RECORDS,
+    CHECKPOINT_MOVEMENT_RECORDS,
+    CHECKPOINT_OUTPUT_FRAME_RECORDS,
+    CONSTANTS,
+)
 from .sog import SogError, SogSnapshot
 
 TAG_ENGINE = CONSTANTS["CDRO_CHECKPOINT_TAG_ENGINE"]
@@ -20,6 +28,8 @@ ENGINE_VERSION = CONSTANTS["CDRO_CHECKPOINT_ENGINE_VERSION"]
 MOVEMENT_VERSION = CONSTANTS["CDRO_CHECKPOINT_MOVEMENT_VERSION"]
 TAG_FLIGHT = CONSTANTS["CDRO_CHECKPOINT_TAG_FLIGHT"]
 FLIGHT_VERSION = CONSTANTS["CDRO_CHECKPOINT_FLIGHT_VERSION"]
+TAG_OUTPUT_FRAME = CONSTANTS["CDRO_CHECKPOINT_TAG_OUTPUT_FRAME"]
+OUTPUT_FRAME_VERSION = CONSTANTS["CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION"]
 
 _STRUCT = {"U8": "<B", "U16": "<H", "U32": "<I", "U64": "<Q", "I16": "<h", "I32": "<i", "I64": "<q", "F64": "<d"}
 _COUNT = "<I"      # the count before an L or a V
@@ -120,6 +130,11 @@ def decode_flight_block(blob: bytes) -> dict:
     return _decode_block(CHECKPOINT_FLIGHT_RECORDS, blob, "flight", FLIGHT_VERSION)
 
 
+def decode_output_frame_block(blob: bytes) -> dict:
+    """The fields of a TAG_OUTPUT_FRAME block (OUTPUT_FRAME_BLOCK: the output frame's offset)."""
+    return _decode_block(CHECKPOINT_OUTPUT_FRAME_RECORDS, blob, "output frame", OUTPUT_FRAME_VERSION)
+
+
 def encode_engine_block(values: dict) -> bytes:
     out = bytearray()
     _encode_record(CHECKPOINT_ENGINE_RECORDS, "ENGINE_BLOCK", values, out)
@@ -151,3 +166,15 @@ def flight_block(snapshot: SogSnapshot) -> dict | None:
     """A cdro-hostd checkpoint's 3D tracks (None when it tracked no node in 3D)."""
     blob = dict(snapshot.extensions).get(TAG_FLIGHT)
     return None if blob is None else decode_flight_block(blob)
+
+
+def encode_output_frame_block(values: dict) -> bytes:
+    out = bytearray()
+    _encode_record(CHECKPOINT_OUTPUT_FRAME_RECORDS, "OUTPUT_FRAME_BLOCK", values, out)
+    return bytes(out)
+
+
+def output_frame_block(snapshot: SogSnapshot) -> dict | None:
+    """A cdro-hostd checkpoint's output frame offset (None: the frame triangle's own frame)."""
+    blob = dict(snapshot.extensions).get(TAG_OUTPUT_FRAME)
+    return None if blob is None else decode_output_frame_block(blob)

@@ -45,6 +45,8 @@ CONSTANTS = {'CDRO_CAPTURE_FLAG_ODOMETRY': 4,
  'CDRO_CHECKPOINT_MOVEMENT_STARTED': 1,
  'CDRO_CHECKPOINT_MOVEMENT_VERSION': 1,
  'CDRO_CHECKPOINT_MOVEMENT_WAITING_FOR_FIX': 4,
+ 'CDRO_CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH': 49756,
+ 'CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION': 1,
  'CDRO_CHECKPOINT_SERVICE_INFO_VERSION': 1,
  'CDRO_CHECKPOINT_SOLVE_DISPUTED': 2,
  'CDRO_CHECKPOINT_SOLVE_MAIN_PART': 4,
@@ -52,6 +54,7 @@ CONSTANTS = {'CDRO_CAPTURE_FLAG_ODOMETRY': 4,
  'CDRO_CHECKPOINT_TAG_ENGINE': 1,
  'CDRO_CHECKPOINT_TAG_FLIGHT': 3,
  'CDRO_CHECKPOINT_TAG_MOVEMENT': 2,
+ 'CDRO_CHECKPOINT_TAG_OUTPUT_FRAME': 4,
  'CDRO_CHECKPOINT_TAG_SERVICE': 61441,
  'CDRO_CRC_SIZE': 2,
  'CDRO_DEVICE_ERROR_ACCEL': 8,
@@ -1138,6 +1141,40 @@ CHECKPOINT_FLIGHT_RECORDS = {'FLIGHT_BLOCK': {'doc': "the block of tag CDRO_CHEC
                                'unit': 'count',
                                'doc': 'its ranges refused'}]}}
 
+CHECKPOINT_OUTPUT_FRAME_RECORDS = {'OUTPUT_FRAME_BLOCK': {'doc': 'the block of tag CDRO_CHECKPOINT_TAG_OUTPUT_FRAME: the output '
+                               "frame from the frame triangle's",
+                        'fields': [{'kind': 'U8',
+                                    'name': 'version',
+                                    'unit': '',
+                                    'range': (1, 1),
+                                    'doc': 'CDRO_CHECKPOINT_OUTPUT_FRAME_VERSION'},
+                                   {'kind': 'F64',
+                                    'name': 'rotation_xx',
+                                    'unit': '',
+                                    'doc': 'rotation (or rotation and reflection), row 0, column '
+                                           '0'},
+                                   {'kind': 'F64',
+                                    'name': 'rotation_xy',
+                                    'unit': '',
+                                    'doc': 'row 0, column 1'},
+                                   {'kind': 'F64',
+                                    'name': 'rotation_yx',
+                                    'unit': '',
+                                    'doc': 'row 1, column 0'},
+                                   {'kind': 'F64',
+                                    'name': 'rotation_yy',
+                                    'unit': '',
+                                    'doc': 'row 1, column 1 (orthonormal, else the block is '
+                                           'refused)'},
+                                   {'kind': 'F64',
+                                    'name': 'translation_x_m',
+                                    'unit': 'm',
+                                    'doc': 'translation, x'},
+                                   {'kind': 'F64',
+                                    'name': 'translation_y_m',
+                                    'unit': 'm',
+                                    'doc': 'translation, y'}]}}
+
 FRAME_LAYOUT_DESCRIPTOR = 'HELLO 0x01{U32 device_time_ms;U16 firmware_version;U8 protocol_version;U16 layout_hash;U16 node_id;U8 capabilities;U8 pozyx_firmware;U8 max_nodes;U8 reset_cause;U8 pozyx_tries;}RANGE 0x02{U32 device_time_ms;U16 from_id;U16 to_id;U32 distance_mm;I16 rss_dbm;U8 flags;}MOTION 0x03{U32 device_time_ms;U16 node_id;U8 moving;U16 accel_norm_mg;U16 deviation_mg;U8 reason;}STATUS 0x04{U32 uptime_ms;U32 ranges_ok_direct;U32 ranges_ok_remote;U32 ranges_failed_direct;U32 ranges_failed_remote;U32 retries;U32 bus_errors;U32 timeouts;U32 frames_sent;U32 frames_dropped;U32 commands_rejected;U32 longest_loop_us;U16 free_ram_bytes;U8 running;U8 node_count;U32 bus_recoveries;}NODE_LIST 0x05{U8 source;U16 node_ids[20];}ACK 0x06{U8 acked_type;U16 acked_sequence;U32 value;}NACK 0x07{U8 nacked_type;U16 nacked_sequence;U8 reason;}ERROR 0x08{U32 device_time_ms;U8 code;U16 detail;U16 node_id;}NODE_INFO 0x09{U16 node_id;U8 result;U8 pozyx_firmware;U8 uwb_channel;U8 uwb_rates;U8 uwb_plen;U8 uwb_gain;U8 range_protocol;U8 mismatch;}DIAG 0x0A{U8 item;U8 status;U16 node_id;U32 value_a;U32 value_b;U32 value_c;}SET_NODES 0x41{U16 node_ids[20];}SET_SCHEDULE 0x42{U16 slot_period_ms;U8 mode;U16 motion_poll_ms;U8 moving_boost;U16 status_period_ms;U8 max_retries;}PING 0x45{U32 nonce;}SET_UWB 0x47{U8 uwb_channel;U8 uwb_rates;U8 uwb_plen;U8 uwb_gain;U8 range_protocol;}START 0x43{}STOP 0x44{}HELLO_REQUEST 0x46{}DIAGNOSE 0x48{}'
 FRAME_LAYOUT_HASH_COMPUTED = 0x4D0F
 SOG_LAYOUT_DESCRIPTOR = 'SOG_HEADER 0{U16 layout_version;U16 layout_hash;I64 created_unix_us;U32 ranges_processed;U16 node_count;U32 pair_count;U32 component_count;U16 flags;}SOG_NODE 0{U16 id;U8 flags;I32 x_mm;I32 y_mm;I32 z_mm;U32 std_x_um;U32 std_y_um;I16 correlation_q15;I32 average_x_mm;I32 average_y_mm;U16 merge_count;}SOG_PAIR 0{U16 center_id;U16 target_id;U32 last_range_mm;U16 range_count;U16 component_count;}SOG_COMPONENT 0{I32 x_mm;I32 y_mm;U32 std_x_um;U32 std_y_um;I16 correlation_q15;U16 weight_q16;}'
@@ -1152,3 +1189,5 @@ CHECKPOINT_MOVEMENT_LAYOUT_DESCRIPTOR = 'MOVEMENT_BLOCK 0{U8 version;U16 robot_i
 CHECKPOINT_MOVEMENT_LAYOUT_HASH_COMPUTED = 0xE209
 CHECKPOINT_FLIGHT_LAYOUT_DESCRIPTOR = 'FLIGHT_BLOCK 0{U8 version;U8 flags;F64 t_s;LIST FLIGHT_NODE nodes;LIST FLIGHT_BODY bodies;LIST FLIGHT_ANCHOR anchors;U64 tag_taken;U64 tag_down_weighted;U64 tag_refused;F64 state[];F64 covariance[state*state];U64 counters[255];}FLIGHT_NODE 1{U16 id;U8 status;U32 refused_in_a_row;U16 heard[];}FLIGHT_BODY 2{U16 a_id;U16 b_id;F64 separation_m;}FLIGHT_ANCHOR 3{U16 id;F64 x_m;F64 y_m;F64 z_m;U64 taken;U64 down_weighted;U64 refused;}'
 CHECKPOINT_FLIGHT_LAYOUT_HASH_COMPUTED = 0x3CE8
+CHECKPOINT_OUTPUT_FRAME_LAYOUT_DESCRIPTOR = 'OUTPUT_FRAME_BLOCK 0{U8 version;F64 rotation_xx;F64 rotation_xy;F64 rotation_yx;F64 rotation_yy;F64 translation_x_m;F64 translation_y_m;}'
+CHECKPOINT_OUTPUT_FRAME_LAYOUT_HASH_COMPUTED = 0xC25C

@@ -188,6 +188,7 @@ public:
         std::vector<RestoredLink> links;
         std::vector<RingSog> rings;
         std::optional<std::array<NodeId, 3>> frame_nodes;
+        RigidTransform frame_offset; // MapState::frame_offset
         EngineCounters counters;
         SolveSchedule solve_schedule;
         std::vector<NodeDoubt> structural_doubts; // per node, as structuralDoubts()
@@ -204,6 +205,9 @@ public:
 
 private:
     uint32_t nodeIndex(NodeId id);
+    RangeVerdict takeRange(NodeId from, NodeId to, double range_m, double t_s);
+    // A frame node unplaced or moving: another triangle, the outputs where they were.
+    void keepFrame();
     void runPlacement();
     void adoptPlaced(const std::vector<uint32_t> &nodes);
     void startGlobalSolve(bool settling);

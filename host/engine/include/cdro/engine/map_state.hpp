@@ -15,6 +15,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "cdro/engine/alignment.hpp"
 #include "cdro/engine/motion_track.hpp"
 #include "cdro/engine/ring_sog.hpp"
 #include "cdro/engine/types.hpp"
@@ -190,9 +191,10 @@ public:
 
     std::vector<NodeState> nodes;
     std::vector<LinkState> links;
-    std::vector<RingSog> rings;                                    // the SoGs, by slot (sog_bank.hpp owns their life)
-    std::vector<uint32_t> free_rings;                              // slots to reuse
-    std::optional<std::array<uint32_t, 3>> frame_nodes;            // the frame triangle (node indices)
+    std::vector<RingSog> rings;                         // the SoGs, by slot (sog_bank.hpp owns their life)
+    std::vector<uint32_t> free_rings;                   // slots to reuse
+    std::optional<std::array<uint32_t, 3>> frame_nodes; // the frame triangle (node indices)
+    RigidTransform frame_offset; // the output frame from the triangle's (identity until it is picked again)
     double last_time_s = -std::numeric_limits<double>::infinity(); // s, latest range time seen
 
 private:

@@ -3,8 +3,10 @@
 // map sits (the outputs are shifted so that it is at its coordinates). Otherwise the named frame
 // (params.frame: origin at (0, 0), x-axis node on +x, a third on the +y side), else the frame
 // triangle's nodes play those roles, so the output frame stays put while the map is refined.
-// A node known to move (the robot's tag) is never one of the triangle's. Known limit: a frame
-// node that starts moving unannounced (a door, a cart) carries the outputs with it.
+// A node known to move (the robot's tag) is never one of the triangle's; when a node of the
+// triangle starts moving, another is picked and the outputs stay where they were (an offset,
+// map.frame_offset). When a solve adopts a map without one of them, another is picked and the
+// outputs move with it: nothing ties the replaced map's frame to the new one.
 #pragma once
 
 #include <cstdint>
@@ -40,8 +42,12 @@ public:
     // Per node of the map: may it be one of the frame triangle's (not excluded, and with
     // `anchors_only` placed and still).
     std::vector<bool> eligible(const MapState &map, bool anchors_only) const;
-    // The frame triangle is all placed, or picked again among the placed, still nodes.
+    // The frame triangle is all placed and still, or picked again among the placed, still nodes:
+    // after a node of it started moving, the outputs kept where they were (map.frame_offset takes
+    // the difference); after one was unplaced, in the new triangle's frame (no offset).
     void ensureFrameNodes(MapState &map, const PlacementParams &placement) const;
+    // Whether the frame triangle needs picking again (a node of it unplaced, moving or settling).
+    bool frameNodesLost(const MapState &map) const;
     // After a restore: the state as it was.
     void restored(const MapState &map);
 

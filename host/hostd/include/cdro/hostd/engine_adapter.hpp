@@ -14,7 +14,9 @@
 //                       laid out by checkpoint_layout.def (cdro/hostd/checkpoint_blocks.hpp);
 //                       with nodes tracked in 3D (map.moving), a third (kFlightExtensionTag):
 //                       the 3D tracks' whole state, doubles exactly, so that they go on as if
-//                       never stopped
+//                       never stopped; once a node of the output frame's triangle moved and
+//                       another took its place, a fourth (kOutputFrameExtensionTag): the offset
+//                       that keeps the outputs where they were
 //
 // A checkpoint without the 3D tracks (written by an older cdro-hostd, or without map.moving), or
 // whose tracks are of other nodes than map.moving, is resumed with a warning naming the nodes;
@@ -48,6 +50,8 @@ constexpr uint16_t kEngineExtensionTag = CDRO_CHECKPOINT_TAG_ENGINE;
 constexpr uint16_t kMovementExtensionTag =
     CDRO_CHECKPOINT_TAG_MOVEMENT;                                    // the movement stage, when a robot is configured
 constexpr uint16_t kFlightExtensionTag = CDRO_CHECKPOINT_TAG_FLIGHT; // the 3D tracks, with map.moving
+// The output frame's offset, once a frame node moved (MapState::frame_offset; absent: none).
+constexpr uint16_t kOutputFrameExtensionTag = CDRO_CHECKPOINT_TAG_OUTPUT_FRAME;
 
 class EngineAdapter final : public service::FrameConsumer,
                             public service::MapSource,
