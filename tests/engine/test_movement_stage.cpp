@@ -673,6 +673,47 @@ TEST(MovementStage, AStandingRobotWhoseStageOnePositionIsAmbiguousHasNoPositionY
     }
 }
 
+// A regression test (the robot corridor of docs/results.md, seed 4: its first 10 ranges, heights
+// and times as simulated): the standing robot's tag was the hub of a map of doubtful nodes, the
+// only node of its main part (covariance zero: the gauge on it), called flexible, and the
+// trajectory's rows put it ~50 m from the truth. A stage-1 position that ranges fewer than three
+// converged nodes is no position yet.
+TEST(MovementStage, AStandingRobotThatRangesNoConvergedNodeHasNoPositionYet)
+{
+    const NodeId robot_id = 0x6001;
+    const std::vector<std::pair<NodeId, double>> heights_m = {{0x6001, 0.5}, {0x6021, 2.5}, {0x6022, 2.0},
+                                                              {0x6023, 2.8}, {0x6024, 1.5}, {0x6025, 2.2},
+                                                              {0x6027, 1.8}};
+    struct Range {
+        double t_s;
+        NodeId from;
+        NodeId to;
+        double range_m;
+    };
+    const std::vector<Range> ranges = {{0.603, 0x6001, 0x6021, 26.169}, {0.647, 0x6001, 0x6023, 12.626},
+                                       {0.690, 0x6001, 0x6025, 6.313},  {0.734, 0x6001, 0x6027, 18.380},
+                                       {0.802, 0x6021, 0x6022, 12.436}, {0.872, 0x6021, 0x6024, 24.107},
+                                       {1.395, 0x6022, 0x6024, 14.293}, {1.918, 0x6023, 0x6025, 14.591},
+                                       {2.214, 0x6024, 0x6025, 12.781}, {2.282, 0x6024, 0x6027, 23.973}};
+    Engine engine;
+    for (const auto &[id, z_m] : heights_m) {
+        engine.setHeight(id, z_m);
+    }
+    MovementParams params;
+    params.robot_id = robot_id;
+    MovementStage stage(engine, params);
+    for (const Range &range : ranges) {
+        stage.addRange(range.from, range.to, range.range_m, range.t_s);
+    }
+    stage.addOdometry(2.3, OdometryStep{0.0, 0.0});
+
+    const std::optional<NodeOutput> node = engine.estimate(robot_id);
+    ASSERT_TRUE(node.has_value() && node->placed());
+    EXPECT_EQ(node->doubt, engine::NodeDoubt::Flexible);
+    ASSERT_TRUE(stage.robot().has_value());
+    EXPECT_FALSE(stage.robot()->placed); // no trajectory row, no position to publish
+}
+
 // A regression test: a beacon whose SoG around the robot has become one mode when the EKF is
 // full (RobotFilter::kMaxNodes = 120) stays a SoG. Before the fix it was counted in
 // nodes_inserted, pinned in stage 1 at its SoG's mean and its SoG dropped although the EKF did not

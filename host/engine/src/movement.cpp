@@ -570,6 +570,22 @@ void MovementStage::restore(const Saved &saved)
     revision_ = saved.revision;
 }
 
+size_t MovementStage::convergedNeighbours() const
+{
+    const MapState &map = engine_.map();
+    const uint32_t robot = map.findNode(params_.robot_id);
+    size_t count = 0;
+    if (robot == kNoIndex) {
+        return count;
+    }
+    for (uint32_t link : map.nodes[robot].links) {
+        const LinkState &state = map.links[link];
+        const uint32_t other = state.node_a == robot ? state.node_b : state.node_a;
+        count += map.nodes[other].converged() || map.nodes[other].fixed() ? 1U : 0U;
+    }
+    return count;
+}
+
 const char *robotFrameName(RobotFrame frame) { return frame == RobotFrame::Map ? "map" : "odometry"; }
 
 std::optional<RobotOutput> MovementStage::robot() const
@@ -584,10 +600,13 @@ std::optional<RobotOutput> MovementStage::robot() const
     if (!started_ || hypotheses_.empty()) {
         const std::optional<NodeOutput> node = engine_.estimate(params_.robot_id);
         // A node whose links fit another position about as well (too few links, a mirror image
-        // while the map forms, a part that can fold): that is no position yet. Measured on the simulated runs: those estimates
-        // are 5-13 m off, the first unambiguous one 0.1 m.
+        // while the map forms, a part that can fold): that is no position yet. Measured on the
+        // simulated runs: those estimates are 5-13 m off, the first unambiguous one 0.1 m. Nor is
+        // one that ranges fewer than three converged nodes: while the map forms from its first
+        // ranges the robot's tag can be the hub of a map of doubtful nodes, its covariance zero
+        // (the map's gauge on it), ~50 m off (the robot corridor, seeds 4 and 5).
         const bool undecided = node && (node->doubt == NodeDoubt::Ambiguous || node->doubt == NodeDoubt::TooFewLinks ||
-                                        node->doubt == NodeDoubt::Foldable);
+                                        node->doubt == NodeDoubt::Foldable || convergedNeighbours() < 3);
         if (node && node->placed() && !undecided) {
             out.placed = true;
             out.frame = RobotFrame::Map;
