@@ -14,6 +14,18 @@ namespace cdro::engine {
 
 namespace {
 
+// A square matrix made exactly symmetric, each pair of off-diagonal entries their mean, in place.
+void symmetrizeInPlace(Eigen::MatrixXd &matrix)
+{
+    for (Eigen::Index column = 0; column < matrix.cols(); ++column) {
+        for (Eigen::Index row = column + 1; row < matrix.rows(); ++row) {
+            const double mean = 0.5 * (matrix(row, column) + matrix(column, row));
+            matrix(row, column) = mean;
+            matrix(column, row) = mean;
+        }
+    }
+}
+
 using SparseMatrix = Eigen::SparseMatrix<double>;
 using Triplet = Eigen::Triplet<double>;
 // The unit vector from b to a in D dimensions and their distance, on the stack (the normal
@@ -669,8 +681,15 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     }
     // The whole inverse (the reliabilities need its off-diagonal blocks), then, with a free
     // gauge, P X P with P = I - G G^T: G spans x, y translation and the rotation about the
-    // centroid (orthonormalised), the pseudo-inverse.
-    Eigen::MatrixXd inverse = solver.solve(Eigen::MatrixXd::Identity(size, size));
+    // centroid (orthonormalised), the pseudo-inverse. Solved a block of columns at a time into
+    // the one dense matrix (at 1000 nodes it is tens of megabytes: no identity beside it).
+    Eigen::MatrixXd inverse(size, size);
+    constexpr Eigen::Index kSolveColumns = 64;
+    for (Eigen::Index column = 0; column < size; column += kSolveColumns) {
+        const Eigen::Index count = std::min(kSolveColumns, size - column);
+        inverse.middleCols(column, count) =
+            solver.solve(Eigen::MatrixXd::Identity(size, size).middleCols(column, count));
+    }
     Eigen::MatrixXd gauge = Eigen::MatrixXd::Zero(size, 3);
     {
         Vector2 centroid = Vector2::Zero();
@@ -692,9 +711,12 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         const Eigen::MatrixXd basis = qr.householderQ() * Eigen::MatrixXd::Identity(size, 3);
         const Eigen::MatrixXd xg = inverse * basis;         // X G
         const Eigen::Matrix3d gxg = basis.transpose() * xg; // G^T X G
-        inverse = inverse - basis * xg.transpose() - xg * basis.transpose() + basis * gxg * basis.transpose();
+        // P X P = X - G W^T - W G^T with W = X G - G (G^T X G) / 2: two rank-3 updates in place.
+        const Eigen::MatrixXd w = xg - 0.5 * basis * gxg;
+        inverse.noalias() -= basis * w.transpose();
+        inverse.noalias() -= w * basis.transpose();
     }
-    inverse = 0.5 * (inverse + inverse.transpose());
+    symmetrizeInPlace(inverse);
     // Redundancy of each link (Baarda): r = 1 - w j^T X j, the share of an error in the link that its
     // own residual shows (0: no other link checks it). Gauge-invariant.
     struct LinkJacobian {
@@ -791,7 +813,9 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     // residuals fit the model, larger around the links that do not, and larger still where few
     // links check them, since there a bias hides in the position. On the scorecard's families it
     // took the converged nodes more than 1 m off from 2 to 0 (docs/results.md).
-    Eigen::MatrixXd sandwich = inverse;
+    // Kept as its terms, X plus one rank-1 term k e e^T per such link (e = X j), never as a second
+    // dense matrix: only the diagonal blocks of its frame transform are needed (below).
+    std::vector<std::pair<uint32_t, double>> biased_links; // link, w (k - 1)
     for (uint32_t index = 0; index < problem.links.size(); ++index) {
         const LinkJacobian &j = jacobians[index];
         if (j.weight <= 0.0 || out.link_redundancy[index] < 0.0) {
@@ -803,8 +827,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         const double shown = residual / redundancy;
         const double excess = j.weight * shown * shown;
         if (j.weight * residual * residual / redundancy > kBiasSigmas * kBiasSigmas) {
-            const Eigen::VectorXd effect = effectOf(j);
-            sandwich.noalias() += j.weight * (excess - 1.0) * effect * effect.transpose();
+            biased_links.emplace_back(index, j.weight * (excess - 1.0));
         }
     }
     // Unknown heights: link l of node i reads e_l = (z_i - z_j)^2 / 2 d_l long. With the heights
@@ -812,7 +835,10 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     // a node share a covariance of s^4 / 2 d_l d_m. The map moves by f_l = X j_l w_l per metre of
     // e_l; per node of unknown height g_i = sum over its links of f_l / d_l, and s^4 g_i g_i^T
     // summed over the nodes is exact on each link's own variance and twice the shared part
-    // (conservative), in one product.
+    // (conservative), in one product: a term spread_weight G G^T of the sandwich, G one column g_i
+    // per node.
+    Eigen::MatrixXd spread_effect;
+    double spread_weight = 0.0;
     if (model_error.height_spread_m > 0.0 && model_error.height_unknown.size() == problem.nodeCount()) {
         std::vector<uint32_t> unknown_nodes;
         for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
@@ -825,8 +851,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             for (size_t k = 0; k < unknown_nodes.size(); ++k) {
                 column[unknown_nodes[k]] = static_cast<int>(k);
             }
-            Eigen::MatrixXd spread_effect =
-                Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
+            spread_effect = Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
             for (uint32_t index = 0; index < problem.links.size(); ++index) {
                 const LinkJacobian &j = jacobians[index];
                 const MapLink &link = problem.links[index];
@@ -843,8 +868,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             }
             const double spread_m2 = model_error.height_spread_m * model_error.height_spread_m;
             // A model error in m^2, not scaled by the variance factor the covariance gets below.
-            sandwich.noalias() +=
-                spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0) * spread_effect * spread_effect.transpose();
+            spread_weight = spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0);
         }
     }
     // The main part: the largest group of nodes joined by links that other links check (and
@@ -903,9 +927,12 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         }
     }
     for (int pass = 0; pass < 4; ++pass) {
-        Eigen::MatrixXd transform = Eigen::MatrixXd::Identity(size, size); // S
+        // S = I - G F with F = (G^T E G)^-1 G^T E, E selecting the datum's coordinates (S = I
+        // with a fixed gauge). S is applied through its three rows F, never formed: a vector in
+        // O(size), and of S X S^T only the diagonal blocks the outputs need, in O(size^2); the
+        // sandwich's rank-1 terms, each through its vector.
+        Eigen::MatrixXd frame_rows; // F, 3 x size
         if (out.gauge_free) {
-            // S = I - G (G^T E G)^-1 G^T E, E selecting the datum's coordinates.
             Eigen::MatrixXd selected = Eigen::MatrixXd::Zero(size, 3); // E G
             for (size_t i = 0; i < free_nodes.size(); ++i) {
                 if (datum[free_nodes[i]] != 0) {
@@ -914,30 +941,83 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
                 }
             }
             const Eigen::Matrix3d normal_main = gauge.transpose() * selected;
-            transform -= gauge * normal_main.ldlt().solve(selected.transpose());
+            frame_rows = normal_main.ldlt().solve(selected.transpose());
         }
-        Eigen::MatrixXd covariance = transform * sandwich * transform.transpose();
+        const auto inFrame = [&](const Eigen::VectorXd &v) -> Eigen::VectorXd {
+            if (frame_rows.size() == 0) {
+                return v;
+            }
+            const Eigen::Vector3d along = frame_rows * v;
+            return v - gauge * along;
+        };
+        Eigen::MatrixXd inverse_rows;                           // F X, 3 x size
+        Eigen::Matrix3d inverse_core = Eigen::Matrix3d::Zero(); // F X F^T
+        if (frame_rows.size() > 0) {
+            inverse_rows.noalias() = frame_rows * inverse;
+            inverse_core.noalias() = inverse_rows * frame_rows.transpose();
+        }
+        // The diagonal blocks of S X_B S^T: (S X S^T)_ii = X_ii - G_i (F X)_i - (F X)_i^T G_i^T +
+        // G_i (F X F^T) G_i^T, then each term of the sandwich through S.
+        std::vector<Matrix2> blocks(free_nodes.size());
+        for (size_t i = 0; i < free_nodes.size(); ++i) {
+            const auto row = static_cast<Eigen::Index>(2 * i);
+            blocks[i] = inverse.block<2, 2>(row, row);
+            if (frame_rows.size() > 0) {
+                const Eigen::Matrix<double, 2, 3> g = gauge.middleRows<2>(row);
+                const Eigen::Matrix<double, 3, 2> rows = inverse_rows.middleCols<2>(row);
+                const Matrix2 mixed = g * rows;
+                blocks[i] += g * inverse_core * g.transpose() - mixed - mixed.transpose();
+            }
+        }
+        for (const auto &[index, term] : biased_links) {
+            const Eigen::VectorXd effect = inFrame(effectOf(jacobians[index]));
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                const auto row = static_cast<Eigen::Index>(2 * i);
+                blocks[i].noalias() += term * effect.segment<2>(row) * effect.segment<2>(row).transpose();
+            }
+        }
+        // Of columns C (one per node's excess) in the frame's terms, S C = C - G (F C), the
+        // diagonal block of node i of (S C)(S C)^T, row by row: no copy of C.
+        const auto alongFrame = [&](const Eigen::MatrixXd &columns) {
+            return frame_rows.size() > 0 ? Eigen::MatrixXd(frame_rows * columns) : Eigen::MatrixXd();
+        };
+        const auto outerBlock = [&](const Eigen::MatrixXd &columns, const Eigen::MatrixXd &along, Eigen::Index row) {
+            Eigen::Matrix<double, 2, Eigen::Dynamic> rows = columns.middleRows<2>(row);
+            if (along.size() > 0) {
+                const Eigen::Matrix<double, 2, 3> g = gauge.middleRows<2>(row);
+                rows.noalias() -= g * along;
+            }
+            Matrix2 outer;
+            outer.noalias() = rows * rows.transpose();
+            return outer;
+        };
+        if (spread_weight > 0.0) {
+            const Eigen::MatrixXd along = alongFrame(spread_effect);
+            for (size_t i = 0; i < free_nodes.size(); ++i) {
+                blocks[i] += spread_weight * outerBlock(spread_effect, along, static_cast<Eigen::Index>(2 * i));
+            }
+        }
         // Model errors in m: in the frame's terms (S), not scaled by the variance factor.
         const double unscaled = 1.0 / std::max(out.variance_factor, 1.0);
+        Eigen::VectorXd expanded; // S X J^T W 1: the common excess in the frame's terms
         if (out.common_excess_m > 0.0) {
-            const Eigen::VectorXd moved = transform * expansion;
-            covariance += out.common_excess_m * out.common_excess_m * moved * moved.transpose() /
-                          std::max(out.variance_factor, 1.0);
+            expanded = inFrame(expansion);
         }
-        Eigen::MatrixXd shared_moved; // S X J^T W B: the nodes' shared excesses in the frame's terms
-        if (shared_count > 0) {
-            shared_moved.noalias() = transform * shared_effect;
-        }
+        // S X J^T W B: the nodes' shared excesses in the frame's terms.
+        const Eigen::MatrixXd shared_along = shared_count > 0 ? alongFrame(shared_effect) : Eigen::MatrixXd();
         const double room_m2 = out.room_excess_m * out.room_excess_m * unscaled;
         for (size_t i = 0; i < free_nodes.size(); ++i) {
             const auto row = static_cast<Eigen::Index>(2 * i);
-            Matrix2 block = covariance.block<2, 2>(row, row);
+            Matrix2 block = blocks[i];
+            if (expanded.size() > 0) {
+                block += out.common_excess_m * out.common_excess_m * unscaled * expanded.segment<2>(row) *
+                         expanded.segment<2>(row).transpose();
+            }
             Matrix2 shared = Matrix2::Zero();
-            if (shared_moved.cols() > 0) {
+            if (shared_count > 0) {
                 // Each node's excess independent of the others': the sum over the nodes of their
                 // effects' outer products, only the diagonal blocks kept.
-                shared.noalias() =
-                    room_m2 * shared_moved.middleRows<2>(row) * shared_moved.middleRows<2>(row).transpose();
+                shared = room_m2 * outerBlock(shared_effect, shared_along, row);
                 block += shared;
             }
             out.shared_excess_m2[free_nodes[i]] = out.variance_factor * 0.5 * (shared + shared.transpose());
@@ -951,7 +1031,7 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
             if (j.weight <= 0.0 || out.link_redundancy[index] < 0.0) {
                 continue;
             }
-            const Eigen::VectorXd effect = transform * effectOf(j);
+            const Eigen::VectorXd effect = inFrame(effectOf(j));
             const double checked = out.link_redundancy[index];
             // A link nothing checks: its possible error is bounded by nothing but the floor.
             const double blunder_times_weight =
