@@ -16,12 +16,14 @@ constexpr double kCommonMinM = -0.3;      // m, the common part searched (radios
 constexpr double kCommonMaxM = 1.5;       // m
 constexpr uint32_t kGoldenSteps = 8;      // the common part to (1.8 m) 0.618^8 = 0.04 m
 constexpr uint32_t kRounds = 6;           // map and offsets in turn, per common part
+constexpr uint32_t kWarmRounds = 2;       // ... from a neighbouring common part's map and offsets
 constexpr uint32_t kOffsetIterations = 3; // IRLS steps of the offsets per round
 constexpr double kNatsPerOffset = 2.0;    // nats an offset must earn to be adopted
 constexpr double kGoldenRatio = 0.6180339887498949;
 
 struct Trial {
     MapEstimate estimate;
+    std::vector<double> deviation_m; // the offsets' deviations from the common part
     std::vector<double> offset_m;
     double cost_nats = 0.0;
 };
@@ -80,11 +82,16 @@ void solveDeviations(const MapProblem &problem, const MapEstimate &map, const Ra
     }
 }
 
-Trial tryCommon(const MapProblem &problem, const MapEstimate &start, const RangeLikelihood &likelihood, double common_m)
+// The map and offsets for one common part: from `start` (the map without offsets) through the
+// refinement's stages, or, warm, from a neighbouring common part's trial, whose map and
+// deviations are already near (the common part moves every range by a few centimetres between
+// neighbours), in fewer rounds at the nominal noise.
+Trial tryCommon(const MapProblem &problem, const MapEstimate &start, const RangeLikelihood &likelihood, double common_m,
+                const Trial *warm = nullptr)
 {
     Trial trial;
-    trial.estimate = start;
-    std::vector<double> deviation(problem.nodeCount(), 0.0);
+    trial.estimate = warm != nullptr ? warm->estimate : start;
+    std::vector<double> deviation = warm != nullptr ? warm->deviation_m : std::vector<double>(problem.nodeCount(), 0.0);
     auto offsets = [&]() {
         std::vector<double> out(problem.nodeCount(), 0.0);
         for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
@@ -92,14 +99,17 @@ Trial tryCommon(const MapProblem &problem, const MapEstimate &start, const Range
         }
         return out;
     };
-    refineMap(withRangeOffsets(problem, offsets()), trial.estimate, likelihood);
     MapRefineParams final_stage;
     final_stage.stages = {RefineStage{}};
-    for (uint32_t round = 0; round < kRounds; ++round) {
+    if (warm == nullptr) {
+        refineMap(withRangeOffsets(problem, offsets()), trial.estimate, likelihood);
+    }
+    for (uint32_t round = 0; round < (warm != nullptr ? kWarmRounds : kRounds); ++round) {
         solveDeviations(problem, trial.estimate, likelihood, common_m, deviation);
         refineMap(withRangeOffsets(problem, offsets()), trial.estimate, likelihood, final_stage);
     }
     trial.offset_m = offsets();
+    trial.deviation_m = deviation;
     double prior_nats = 0.0;
     for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
         if (start.placed[node] != 0) {
@@ -134,7 +144,8 @@ RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate 
     if (placed < 4 || problem.links.size() < 2 * static_cast<size_t>(placed)) {
         return out; // the links cannot tell an offset per node from the map
     }
-    // Golden section over the common part; each trial starts from the same map.
+    // Golden section over the common part: the first two trials from the map without offsets,
+    // each later one warm from the kept trial next to it.
     double low = kCommonMinM;
     double high = kCommonMaxM;
     double x1 = high - kGoldenRatio * (high - low);
@@ -148,13 +159,13 @@ RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate 
             x2 = x1;
             t2 = std::move(t1);
             x1 = high - kGoldenRatio * (high - low);
-            t1 = tryCommon(problem, start, likelihood, x1);
+            t1 = tryCommon(problem, start, likelihood, x1, &t2);
         } else {
             low = x1;
             x1 = x2;
             t1 = std::move(t2);
             x2 = low + kGoldenRatio * (high - low);
-            t2 = tryCommon(problem, start, likelihood, x2);
+            t2 = tryCommon(problem, start, likelihood, x2, &t1);
         }
         ++out.evaluations;
     }
