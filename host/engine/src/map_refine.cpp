@@ -17,11 +17,11 @@ namespace {
 // A square matrix made exactly symmetric, each pair of off-diagonal entries their mean, in place.
 void symmetrizeInPlace(Eigen::MatrixXd &matrix)
 {
-    for (Eigen::Index column = 0; column < matrix.cols(); ++column) {
-        for (Eigen::Index row = column + 1; row < matrix.rows(); ++row) {
-            const double mean = 0.5 * (matrix(row, column) + matrix(column, row));
-            matrix(row, column) = mean;
-            matrix(column, row) = mean;
+    for (Eigen::Index j = 0; j < matrix.cols(); ++j) {
+        for (Eigen::Index i = j + 1; i < matrix.rows(); ++i) {
+            const double mean = 0.5 * (matrix(i, j) + matrix(j, i));
+            matrix(i, j) = mean;
+            matrix(j, i) = mean;
         }
     }
 }
