@@ -115,6 +115,17 @@ def _decode_block(records: dict, blob: bytes, block: str, version: int) -> dict:
     return values
 
 
+def _encode_block(records: dict, name: str, values: dict) -> bytes:
+    out = bytearray()
+    _encode_record(records, name, values, out)
+    return bytes(out)
+
+
+def _extension_block(snapshot: SogSnapshot, tag: int, decode) -> dict | None:
+    blob = dict(snapshot.extensions).get(tag)
+    return None if blob is None else decode(blob)
+
+
 def decode_engine_block(blob: bytes) -> dict:
     """The fields of a TAG_ENGINE block (ENGINE_BLOCK, its nodes ENGINE_NODE, links ENGINE_LINK)."""
     return _decode_block(CHECKPOINT_ENGINE_RECORDS, blob, "engine", ENGINE_VERSION)
@@ -136,15 +147,11 @@ def decode_output_frame_block(blob: bytes) -> dict:
 
 
 def encode_engine_block(values: dict) -> bytes:
-    out = bytearray()
-    _encode_record(CHECKPOINT_ENGINE_RECORDS, "ENGINE_BLOCK", values, out)
-    return bytes(out)
+    return _encode_block(CHECKPOINT_ENGINE_RECORDS, "ENGINE_BLOCK", values)
 
 
 def encode_movement_block(values: dict) -> bytes:
-    out = bytearray()
-    _encode_record(CHECKPOINT_MOVEMENT_RECORDS, "MOVEMENT_BLOCK", values, out)
-    return bytes(out)
+    return _encode_block(CHECKPOINT_MOVEMENT_RECORDS, "MOVEMENT_BLOCK", values)
 
 
 def engine_blocks(snapshot: SogSnapshot) -> tuple[dict, dict | None]:
@@ -152,29 +159,22 @@ def engine_blocks(snapshot: SogSnapshot) -> tuple[dict, dict | None]:
     blocks = dict(snapshot.extensions)
     if TAG_ENGINE not in blocks:
         raise SogError("the checkpoint has no engine block (tag 0x0001): not written by cdro-hostd")
-    movement = blocks.get(TAG_MOVEMENT)
-    return decode_engine_block(blocks[TAG_ENGINE]), None if movement is None else decode_movement_block(movement)
+    return decode_engine_block(blocks[TAG_ENGINE]), _extension_block(snapshot, TAG_MOVEMENT, decode_movement_block)
 
 
 def encode_flight_block(values: dict) -> bytes:
-    out = bytearray()
-    _encode_record(CHECKPOINT_FLIGHT_RECORDS, "FLIGHT_BLOCK", values, out)
-    return bytes(out)
+    return _encode_block(CHECKPOINT_FLIGHT_RECORDS, "FLIGHT_BLOCK", values)
 
 
 def flight_block(snapshot: SogSnapshot) -> dict | None:
     """A cdro-hostd checkpoint's 3D tracks (None when it tracked no node in 3D)."""
-    blob = dict(snapshot.extensions).get(TAG_FLIGHT)
-    return None if blob is None else decode_flight_block(blob)
+    return _extension_block(snapshot, TAG_FLIGHT, decode_flight_block)
 
 
 def encode_output_frame_block(values: dict) -> bytes:
-    out = bytearray()
-    _encode_record(CHECKPOINT_OUTPUT_FRAME_RECORDS, "OUTPUT_FRAME_BLOCK", values, out)
-    return bytes(out)
+    return _encode_block(CHECKPOINT_OUTPUT_FRAME_RECORDS, "OUTPUT_FRAME_BLOCK", values)
 
 
 def output_frame_block(snapshot: SogSnapshot) -> dict | None:
     """A cdro-hostd checkpoint's output frame offset (None: the frame triangle's own frame)."""
-    blob = dict(snapshot.extensions).get(TAG_OUTPUT_FRAME)
-    return None if blob is None else decode_output_frame_block(blob)
+    return _extension_block(snapshot, TAG_OUTPUT_FRAME, decode_output_frame_block)
