@@ -579,9 +579,8 @@ size_t MovementStage::convergedNeighbours() const
         return count;
     }
     for (uint32_t link : map.nodes[robot].links) {
-        const LinkState &state = map.links[link];
-        const uint32_t other = state.node_a == robot ? state.node_b : state.node_a;
-        count += map.nodes[other].converged() || map.nodes[other].fixed() ? 1U : 0U;
+        const NodeState &other = map.nodes[map.otherNode(link, robot)];
+        count += other.converged() || other.fixed() ? 1U : 0U;
     }
     return count;
 }
