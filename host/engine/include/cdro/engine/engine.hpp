@@ -206,7 +206,7 @@ public:
 private:
     uint32_t nodeIndex(NodeId id);
     RangeVerdict takeRange(NodeId from, NodeId to, double range_m, double t_s);
-    // A frame node unplaced or moving: another triangle, the outputs where they were.
+    // A node of the frame triangle moving or unplaced: another triangle (OutputFrame::ensureFrameNodes).
     void keepFrame();
     void runPlacement();
     void adoptPlaced(const std::vector<uint32_t> &nodes);
