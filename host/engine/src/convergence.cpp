@@ -9,12 +9,13 @@ namespace cdro::engine {
 
 namespace {
 constexpr double kReliabilityMargin = 2.5;
-// "Converged" promises at most reliable_m: the node's 95 % region must lie within it, the
-// ellipse of chi-square 5.991 (2 degrees of freedom), 2.45 sigma along its largest axis. The
-// 2-sigma ellipse holds the truth 86.5 % of the time, so one node in seven of those it would call
-// converged could end beyond the promise.
-constexpr double kConvergedRegionChiSquare = 5.991;
+constexpr double kConvergedRegionChiSquare = 5.991; // the 95 % point of chi-square, 2 degrees of freedom
 } // namespace
+
+double regionSemiAxisM(const Matrix2 &covariance_m2)
+{
+    return std::sqrt(kConvergedRegionChiSquare * std::max(covariance_m2.trace() - minEigenvalue(covariance_m2), 0.0));
+}
 
 Convergence::Convergence(const EngineParams &params, const RangeLikelihood &likelihood)
     : params_(params.convergence), check_(params, likelihood),
@@ -140,10 +141,7 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
             }
         }
         if (doubt == NodeDoubt::None && solve.solved) {
-            // The largest semi-axis of the 95 % region of the map's covariance.
-            const double largest_m =
-                std::sqrt(kConvergedRegionChiSquare *
-                          std::max(solve.covariance_m2.trace() - minEigenvalue(solve.covariance_m2), 0.0));
+            const double largest_m = regionSemiAxisM(solve.covariance_m2);
             // Baarda's bound is a worst case (an error just too small to be noticed, all of it on
             // the weakest link): a node is flexible when even that bound is well beyond the promise.
             if (!solve.main_part || !(solve.reliability_m < kReliabilityMargin * reliable) || !(largest_m < reliable)) {

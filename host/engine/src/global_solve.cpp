@@ -146,7 +146,8 @@ void forEachIndex(size_t count, uint32_t threads, const std::function<void(size_
     }
 }
 
-// The largest discrepancy per node between two maps, after the rigid fit of one onto the other.
+} // namespace
+
 std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference,
                                  const std::vector<uint32_t> &part)
 {
@@ -172,8 +173,6 @@ std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &refe
     }
     return out;
 }
-
-} // namespace
 
 void priceWhoHeardWhom(const MapProblem &problem, std::vector<MapHypothesis> &hypotheses, uint32_t threads)
 {
@@ -222,6 +221,7 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
 {
     GlobalSolveResult result;
     result.disputed.assign(problem.nodeCount(), 0);
+    result.rival_apart_m.assign(problem.nodeCount(), 0.0);
     const std::vector<std::vector<uint32_t>> parts = mapComponents(problem);
     result.best.estimate = MapEstimate::unplaced(problem.nodeCount());
     if (parts.empty() || parts.front().size() < 3) {
@@ -447,6 +447,11 @@ GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood
             }
         }
         if (distinct) {
+            // Another map, not the same one found twice: where it places a node closer than
+            // disputed_m, the node may be there too.
+            for (uint32_t node : part) {
+                result.rival_apart_m[node] = std::max(result.rival_apart_m[node], apart[node]);
+            }
             result.rivals.push_back(rival);
         }
     }

@@ -154,6 +154,22 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
     model_error.height_unknown = job.height_unknown;
     const MapProblem &solved_problem = out.offsets ? corrected : problem;
     const MapCovariance confidence = mapCovariance(solved_problem, out.chosen.estimate, likelihood, model_error);
+    // Where the margin between range offsets and none barely decided (uncalibrated radios in a
+    // small room read as a map bent to fit them), the other model's map is about as good: how far
+    // from each node's position its 95 % region reaches.
+    std::vector<double> other_model_reach_m(problem.nodeCount(), 0.0);
+    if (chosen == &solved.best && solved.offsets.evaluations > 0 &&
+        std::abs(solved.offsets.decision_nats) < solve.rival_gap_nats) {
+        MapModelError other_error = model_error;
+        other_error.range_offset_spread_sigma_m = out.offsets ? 0.0 : kRangeOffsetSpreadSigmaM;
+        const MapProblem other_problem = withRangeOffsets(problem, solved.offsets.other_offset_m);
+        const MapCovariance other =
+            mapCovariance(other_problem, solved.offsets.other_estimate, likelihood, other_error);
+        const std::vector<double> apart = discrepancyM(solved.offsets.other_estimate, out.chosen.estimate, solved.part);
+        for (uint32_t node : solved.part) {
+            other_model_reach_m[node] = apart[node] + regionSemiAxisM(other.covariance_m2[node]);
+        }
+    }
     // What the solve says of each node it places. A refresh tried no other start: what the full
     // solve found disputed stays disputed.
     out.views.assign(problem.nodeCount(), NodeSolveView{});
@@ -167,7 +183,14 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
         view.position_m = out.chosen.estimate.position_m[i];
         view.covariance_m2 = confidence.covariance_m2[i];
         view.reliability_m = confidence.reliability_m[i];
-        view.disputed = solved.disputed[i] != 0 || (job.refresh && job.was_disputed[i] != 0);
+        // "Converged" promises the node within disputed_m wherever the maps about as good as this
+        // one place it: a node whose own 95 % region is within that is still disputed when a rival's
+        // position (with as large a region) or the other offset model's region reaches beyond it.
+        // (A node whose own region is not within it is flexible anyway.)
+        const double region_m = regionSemiAxisM(view.covariance_m2);
+        view.disputed = solved.disputed[i] != 0 || (job.refresh && job.was_disputed[i] != 0) ||
+                        (region_m < solve.disputed_m &&
+                         std::max(solved.rival_apart_m[i] + region_m, other_model_reach_m[i]) >= solve.disputed_m);
         view.main_part = confidence.main_part[i] != 0;
     }
     if (job.check_structure) {

@@ -171,7 +171,13 @@ RangeOffsets calibrateRangeOffsets(const MapProblem &problem, const MapEstimate 
     }
     Trial &best = t1.cost_nats < t2.cost_nats ? t1 : t2;
     const double margin = kNatsPerOffset * static_cast<double>(placed + 1);
-    if (best.cost_nats + margin < out.cost_without_nats) {
+    out.decision_nats = out.cost_without_nats - (best.cost_nats + margin);
+    if (!(out.decision_nats > 0.0)) {
+        out.other_estimate = std::move(best.estimate);
+        out.other_offset_m = std::move(best.offset_m);
+    } else {
+        out.other_estimate = start;
+        out.other_offset_m.assign(problem.nodeCount(), 0.0);
         out.adopted = true;
         out.common_m = t1.cost_nats < t2.cost_nats ? x1 : x2;
         out.offset_m = std::move(best.offset_m);

@@ -41,6 +41,12 @@ struct ConvergenceCounters {
     uint64_t flexible_nodes = 0;  // ... flexible
 };
 
+// m, the largest semi-axis of the 95 % region of a position's covariance (the ellipse of
+// chi-square 5.991, 2 degrees of freedom: 2.45 sigma along its largest axis). "Converged"
+// promises that this region lies within `reliable_m`; the 2-sigma ellipse holds the truth only
+// 86.5 % of the time, so one node in seven of those it would call converged could end beyond it.
+double regionSemiAxisM(const Matrix2 &covariance_m2);
+
 // What the structure check needs of each node of the map it looks at.
 struct StructureNode {
     bool free = false;                       // neither fixed nor pinned: the only nodes checked

@@ -87,14 +87,22 @@ struct GlobalSolveResult {
     MapHypothesis best;
     std::vector<MapHypothesis> rivals; // distinct maps within rival_gap_nats of the best, best first
     std::vector<uint8_t> disputed;     // per node: a rival places it disputed_m or more away
-    std::vector<uint32_t> part;        // the nodes solved (the largest connected part)
-    std::vector<MapHypothesis> all;    // every start after refinement, best first (diagnostics)
+    // per node, m: the farthest a rival places it (fitted rigidly on the part); 0 without
+    std::vector<double> rival_apart_m;
+    std::vector<uint32_t> part;     // the nodes solved (the largest connected part)
+    std::vector<MapHypothesis> all; // every start after refinement, best first (diagnostics)
     GlobalSolveCounters counters;
     double learnt_nlos_fraction = -1.0;      // the NLOS model learnt (< 0: not learnt)
     double learnt_nlos_mean_excess_m = -1.0; // m
     RangeOffsets offsets;                    // the nodes' range offsets (adopted or not); when adopted,
                                              // `best` is the map under the corrected ranges
 };
+
+// Per node, m: how far `map` places each node of `part` from where `reference` does, after the
+// rigid fit (reflection allowed) of one onto the other over the part; infinite where only one
+// places it, 0 outside the part.
+std::vector<double> discrepancyM(const MapEstimate &map, const MapEstimate &reference,
+                                 const std::vector<uint32_t> &part);
 
 GlobalSolveResult solveGlobally(const MapProblem &problem, const RangeLikelihood &likelihood,
                                 const GlobalSolveParams &params, const MapEstimate *current = nullptr);

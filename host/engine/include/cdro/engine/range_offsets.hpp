@@ -32,6 +32,11 @@ struct RangeOffsets {
     double cost_nats = 0.0;         // the links' cost under the corrected ranges, with the prior
     double cost_without_nats = 0.0; // ... of the start under the ranges as read
     uint32_t evaluations = 0;       // maps refined in the search
+    // nats: the cost without offsets less the best trial's with them and the margin; > 0 adopted
+    double decision_nats = 0.0;
+    // the model not taken: the start and no offsets when adopted, else the best trial's map and offsets
+    MapEstimate other_estimate;
+    std::vector<double> other_offset_m; // m, per node
 };
 
 // The offsets that best explain `problem`'s links from the map `start` (placed nodes only).
