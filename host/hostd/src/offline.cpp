@@ -46,9 +46,10 @@ void reportDoubt(std::FILE *log, const engine::NodeOutput &node)
         return;
     case engine::NodeDoubt::Ambiguous:
         std::fprintf(log,
-                     "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part, "
-                     "fits its %u links about as well (not converged; add a link to a node off the line of "
-                     "its neighbours)\n",
+                     "cdro-hostd: node 0x%04X is ambiguous: another position, or another map of its part "
+                     "(with the radios' range offsets or without), fits its %u links about as well (not "
+                     "converged; add a link to a node off the line of its neighbours, or calibrate the "
+                     "radios' antenna delays)\n",
                      id, node.link_count);
         return;
     case engine::NodeDoubt::Foldable:
