@@ -41,6 +41,21 @@ GUARD_S = 120  # s, a deadlock guard only
 START_US = 1_700_000_000_000_000  # us since the epoch: the capture's start, the flight's t = 0
 
 
+def hello_record(node_id=0x6000):
+    """The capture record of the tag's HELLO at START_US (node_id: the tag's own node)."""
+    hello = Frame("HELLO", 0, dict(device_time_ms=50, firmware_version=0x0102, protocol_version=PROTOCOL_VERSION,
+                                   layout_hash=LAYOUT_HASH, node_id=node_id, capabilities=0x03, pozyx_firmware=0x12,
+                                   max_nodes=20, reset_cause=1, pozyx_tries=1))
+    return CaptureRecord(START_US, encode_frame(hello)[:-1], 0)
+
+
+def range_record(sequence, t_s, a, b, range_m):
+    """The capture record of a RANGE frame a-b at START_US + t_s (s), as the tag sends it."""
+    frame = Frame("RANGE", sequence, dict(device_time_ms=100 + round(t_s * 1000), from_id=int(a), to_id=int(b),
+                                          distance_mm=round(range_m * 1000), rss_dbm=-80, flags=0))
+    return CaptureRecord(START_US + round(t_s * 1e6), encode_frame(frame)[:-1], 0)
+
+
 def write_capture(folder, context=b"", name="flight.cdrocap", from_s=None, to_s=None):
     """NAME: a HELLO, then a RANGE frame per row of ranges.csv at START_US + t; context: the run's
     context of its header (cdro-hostd's JSON), b"" = none. With from_s (s): the rows from then on
@@ -48,20 +63,13 @@ def write_capture(folder, context=b"", name="flight.cdrocap", from_s=None, to_s=
     path = folder / name
     rows = (folder / "ranges.csv").read_text().splitlines()[1:]
     with CaptureWriter(path, "serial:/dev/ttyACM0@115200", START_US) as writer:
-        hello = Frame("HELLO", 0, dict(device_time_ms=50, firmware_version=0x0102, protocol_version=PROTOCOL_VERSION,
-                                       layout_hash=LAYOUT_HASH, node_id=0x6000, capabilities=0x03,
-                                       pozyx_firmware=0x12, max_nodes=20, reset_cause=1, pozyx_tries=1))
         if from_s is None:
-            writer.write(CaptureRecord(START_US, encode_frame(hello)[:-1], 0))
+            writer.write(hello_record())
         for sequence, row in enumerate(rows, start=1):
             t_s, a, b, range_m = row.split(",")
             if (from_s is not None and float(t_s) < from_s) or (to_s is not None and float(t_s) >= to_s):
                 continue
-            at_us = START_US + round(float(t_s) * 1e6)
-            frame = Frame("RANGE", sequence, dict(device_time_ms=100 + round(float(t_s) * 1000), from_id=int(a),
-                                                  to_id=int(b), distance_mm=round(float(range_m) * 1000),
-                                                  rss_dbm=-80, flags=0))
-            writer.write(CaptureRecord(at_us, encode_frame(frame)[:-1], 0))
+            writer.write(range_record(sequence, float(t_s), a, b, float(range_m)))
     if context:
         data = path.read_bytes()
         header, size = decode_header(data)

@@ -20,12 +20,11 @@ import sys
 import numpy as np
 from offline_run import GUARD_S, seed_of
 
+from test_live_moving import START_US, hello_record, range_record
+
 from cdro_tools.codec import Frame, decode_sog, encode_frame
 from cdro_tools.codec import checkpoint as checkpoint_codec
 from cdro_tools.codec.capture_file import CaptureRecord, CaptureWriter
-from cdro_tools.codec.frames import LAYOUT_HASH, PROTOCOL_VERSION
-
-START_US = 1_700_000_000_000_000  # us since the epoch: the capture's start, the ranges' t = 0
 MOTION_AT_S = 20.0  # s: the triangle's origin reported moving (the map has converged by then)
 
 
@@ -35,10 +34,7 @@ def write_capture(folder, name, moving_at_s=None, moving_id=0):
     path = folder / name
     rows = (folder / "ranges.csv").read_text().splitlines()[1:]
     with CaptureWriter(path, "serial:/dev/ttyACM0@115200", START_US) as writer:
-        hello = Frame("HELLO", 0, dict(device_time_ms=50, firmware_version=0x0102, protocol_version=PROTOCOL_VERSION,
-                                       layout_hash=LAYOUT_HASH, node_id=0x6001, capabilities=0x03,
-                                       pozyx_firmware=0x12, max_nodes=20, reset_cause=1, pozyx_tries=1))
-        writer.write(CaptureRecord(START_US, encode_frame(hello)[:-1], 0))
+        writer.write(hello_record(0x6001))
         sequence = 1
         for row in rows:
             t_s, a, b, range_m = row.split(",")
@@ -49,10 +45,7 @@ def write_capture(folder, name, moving_at_s=None, moving_id=0):
                 writer.write(CaptureRecord(START_US + round(moving_at_s * 1e6), encode_frame(motion)[:-1], 0))
                 sequence += 1
                 moving_at_s = None
-            frame = Frame("RANGE", sequence, dict(device_time_ms=100 + round(float(t_s) * 1000), from_id=int(a),
-                                                  to_id=int(b), distance_mm=round(float(range_m) * 1000),
-                                                  rss_dbm=-80, flags=0))
-            writer.write(CaptureRecord(START_US + round(float(t_s) * 1e6), encode_frame(frame)[:-1], 0))
+            writer.write(range_record(sequence, float(t_s), a, b, float(range_m)))
             sequence += 1
     return path
 
