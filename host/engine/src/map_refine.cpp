@@ -739,16 +739,16 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     // in a room has the room's walls on every link that leaves it, so its links read long
     // together; where they all leave it one way (a room off a corridor, a building's edge) the map
     // absorbs that excess by moving the node outward, and the residuals show none of it.
-    std::vector<int> shared_column(problem.nodeCount(), -1);
-    Eigen::Index shared_count = 0;
+    // One column per such node: C = X J^T W B, built a block of columns at a time where it is
+    // used (excessBlocks below), never whole (size x nodes: at 1000 nodes 24 MB).
+    std::vector<uint32_t> shared_nodes;
     if (out.room_excess_m > 0.0) {
         for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
             if (estimate.placed[node] != 0 && !problem.node_links[node].empty()) {
-                shared_column[node] = static_cast<int>(shared_count++);
+                shared_nodes.push_back(node);
             }
         }
     }
-    Eigen::MatrixXd shared_effect = Eigen::MatrixXd::Zero(size, shared_count);
     auto effectOf = [&](const LinkJacobian &j) {
         Eigen::VectorXd effect = Eigen::VectorXd::Zero(size); // X j
         if (j.na >= 0) {
@@ -784,11 +784,6 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         const Eigen::VectorXd effect = effectOf(j);
         if (model_error.common_excess_m > 0.0 && j.weight > 0.0) {
             expansion.noalias() += j.weight * effect;
-        }
-        if (shared_count > 0 && j.weight > 0.0) {
-            for (const uint32_t end : {link.a, link.b}) {
-                shared_effect.col(shared_column[end]).noalias() += j.weight * effect;
-            }
         }
         double leverage = 0.0;
         if (j.na >= 0) {
@@ -836,36 +831,16 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
     // e_l; per node of unknown height g_i = sum over its links of f_l / d_l, and s^4 g_i g_i^T
     // summed over the nodes is exact on each link's own variance and twice the shared part
     // (conservative), in one product: a term spread_weight G G^T of the sandwich, G one column g_i
-    // per node.
-    Eigen::MatrixXd spread_effect;
+    // per node (built a block of columns at a time, as the shared excess's).
+    std::vector<uint32_t> unknown_nodes;
     double spread_weight = 0.0;
     if (model_error.height_spread_m > 0.0 && model_error.height_unknown.size() == problem.nodeCount()) {
-        std::vector<uint32_t> unknown_nodes;
         for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
             if (model_error.height_unknown[node] != 0 && estimate.placed[node] != 0) {
                 unknown_nodes.push_back(node);
             }
         }
         if (!unknown_nodes.empty()) {
-            std::vector<int> column(problem.nodeCount(), -1);
-            for (size_t k = 0; k < unknown_nodes.size(); ++k) {
-                column[unknown_nodes[k]] = static_cast<int>(k);
-            }
-            spread_effect = Eigen::MatrixXd::Zero(size, static_cast<Eigen::Index>(unknown_nodes.size()));
-            for (uint32_t index = 0; index < problem.links.size(); ++index) {
-                const LinkJacobian &j = jacobians[index];
-                const MapLink &link = problem.links[index];
-                if (j.weight <= 0.0 || out.link_redundancy[index] < 0.0 || (column[link.a] < 0 && column[link.b] < 0)) {
-                    continue;
-                }
-                const double distance = (estimate.position_m[link.a] - estimate.position_m[link.b]).norm();
-                const Eigen::VectorXd moved = effectOf(j) * (j.weight / distance);
-                for (const uint32_t end : {link.a, link.b}) {
-                    if (column[end] >= 0) {
-                        spread_effect.col(column[end]) += moved;
-                    }
-                }
-            }
             const double spread_m2 = model_error.height_spread_m * model_error.height_spread_m;
             // A model error in m^2, not scaled by the variance factor the covariance gets below.
             spread_weight = spread_m2 * spread_m2 / std::max(out.variance_factor, 1.0);
@@ -976,25 +951,55 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
                 blocks[i].noalias() += term * effect.segment<2>(row) * effect.segment<2>(row).transpose();
             }
         }
-        // Of columns C (one per node's excess) in the frame's terms, S C = C - G (F C), the
-        // diagonal block of node i of (S C)(S C)^T, row by row: no copy of C.
-        const auto alongFrame = [&](const Eigen::MatrixXd &columns) {
-            return frame_rows.size() > 0 ? Eigen::MatrixXd(frame_rows * columns) : Eigen::MatrixXd();
-        };
-        const auto outerBlock = [&](const Eigen::MatrixXd &columns, const Eigen::MatrixXd &along, Eigen::Index row) {
-            Eigen::Matrix<double, 2, Eigen::Dynamic> rows = columns.middleRows<2>(row);
-            if (along.size() > 0) {
-                const Eigen::Matrix<double, 2, 3> g = gauge.middleRows<2>(row);
-                rows.noalias() -= g * along;
+        // Of columns C, one per node n of `nodes` (column n: the sum over the node's links l of
+        // coefficient(l) X j_l), in the frame's terms S C = C - G (F C), the diagonal block of
+        // each free node of (S C)(S C)^T, summed a block of columns at a time: C is never whole.
+        const auto excessBlocks = [&](const std::vector<uint32_t> &nodes, const auto &coefficient) {
+            std::vector<Matrix2> outer(free_nodes.size());
+            for (Matrix2 &block : outer) {
+                block.setZero(); // element by element: see out.covariance_m2 above (GCC 12 at -O1)
             }
-            Matrix2 outer;
-            outer.noalias() = rows * rows.transpose();
+            Eigen::MatrixXd columns;
+            Eigen::MatrixXd along;
+            const auto node_count = static_cast<Eigen::Index>(nodes.size());
+            for (Eigen::Index first = 0; first < node_count; first += kSolveColumns) {
+                const Eigen::Index count = std::min(kSolveColumns, node_count - first);
+                columns.setZero(size, count);
+                for (Eigen::Index k = 0; k < count; ++k) {
+                    for (const uint32_t link : problem.node_links[nodes[static_cast<size_t>(first + k)]]) {
+                        const double c = coefficient(link);
+                        if (c != 0.0) {
+                            columns.col(k).noalias() += c * effectOf(jacobians[link]);
+                        }
+                    }
+                }
+                if (frame_rows.size() > 0) {
+                    along.noalias() = frame_rows * columns;
+                }
+                for (size_t i = 0; i < free_nodes.size(); ++i) {
+                    const auto row = static_cast<Eigen::Index>(2 * i);
+                    Eigen::Matrix<double, 2, Eigen::Dynamic> rows = columns.middleRows<2>(row);
+                    if (frame_rows.size() > 0) {
+                        const Eigen::Matrix<double, 2, 3> g = gauge.middleRows<2>(row);
+                        rows.noalias() -= g * along;
+                    }
+                    outer[i].noalias() += rows * rows.transpose();
+                }
+            }
             return outer;
         };
         if (spread_weight > 0.0) {
-            const Eigen::MatrixXd along = alongFrame(spread_effect);
+            // Each link of a node of unknown height moves the map by its effect per metre over its length.
+            const std::vector<Matrix2> spread = excessBlocks(unknown_nodes, [&](uint32_t link) {
+                const LinkJacobian &j = jacobians[link];
+                if (j.weight <= 0.0 || out.link_redundancy[link] < 0.0) {
+                    return 0.0;
+                }
+                return j.weight /
+                       (estimate.position_m[problem.links[link].a] - estimate.position_m[problem.links[link].b]).norm();
+            });
             for (size_t i = 0; i < free_nodes.size(); ++i) {
-                blocks[i] += spread_weight * outerBlock(spread_effect, along, static_cast<Eigen::Index>(2 * i));
+                blocks[i] += spread_weight * spread[i];
             }
         }
         // Model errors in m: in the frame's terms (S), not scaled by the variance factor.
@@ -1003,8 +1008,11 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         if (out.common_excess_m > 0.0) {
             expanded = inFrame(expansion);
         }
-        // S X J^T W B: the nodes' shared excesses in the frame's terms.
-        const Eigen::MatrixXd shared_along = shared_count > 0 ? alongFrame(shared_effect) : Eigen::MatrixXd();
+        // S X J^T W B: the nodes' shared excesses in the frame's terms, each node's excess
+        // independent of the others': the sum over the nodes of their effects' outer products,
+        // only the diagonal blocks kept.
+        const std::vector<Matrix2> shared_blocks =
+            excessBlocks(shared_nodes, [&](uint32_t link) { return std::max(jacobians[link].weight, 0.0); });
         const double room_m2 = out.room_excess_m * out.room_excess_m * unscaled;
         for (size_t i = 0; i < free_nodes.size(); ++i) {
             const auto row = static_cast<Eigen::Index>(2 * i);
@@ -1014,10 +1022,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
                          expanded.segment<2>(row).transpose();
             }
             Matrix2 shared = Matrix2::Zero();
-            if (shared_count > 0) {
-                // Each node's excess independent of the others': the sum over the nodes of their
-                // effects' outer products, only the diagonal blocks kept.
-                shared = room_m2 * outerBlock(shared_effect, shared_along, row);
+            if (!shared_nodes.empty()) {
+                shared = room_m2 * shared_blocks[i];
                 block += shared;
             }
             out.shared_excess_m2[free_nodes[i]] = out.variance_factor * 0.5 * (shared + shared.transpose());
