@@ -133,6 +133,20 @@ TEST(StructureCheck, OneUndoubtedNodeOffTheLineStillHoldsTheJunction)
     EXPECT_EQ(verdict.doubt[kJunction], NodeDoubt::None);
 }
 
+// "Converged" promises the node within the metre wherever a map about as good places it. A node
+// whose 95 % region is 0.4 m: a rival map 0.7 m away, with a region as large, could hold it 1.1 m
+// from here, so it is disputed; 0.5 m away, 0.9 m, it is not. Where offsets-or-none was barely
+// decided the other model's map reaches as far as it says. A region of a metre or more is not
+// judged here: the node is flexible.
+TEST(Convergence, ANodeIsDisputedWhereAMapAboutAsGoodCouldHoldItBeyondTheMetre)
+{
+    EXPECT_TRUE(disputedByOtherMaps(0.4, 0.7, 0.0, 1.0));
+    EXPECT_FALSE(disputedByOtherMaps(0.4, 0.5, 0.0, 1.0));
+    EXPECT_TRUE(disputedByOtherMaps(0.4, 0.0, 1.0, 1.0));
+    EXPECT_FALSE(disputedByOtherMaps(0.4, 0.0, 0.9, 1.0));
+    EXPECT_FALSE(disputedByOtherMaps(1.2, 3.0, 3.0, 1.0));
+}
+
 // What the map holds is what nodes that move are measured against (the fallback detector's
 // residuals, the robot's first position): a still node, settled where the global solve put it,
 // converged, or flexible with its 95 % region within the metre; not one with a rival position,

@@ -17,6 +17,11 @@ double regionSemiAxisM(const Matrix2 &covariance_m2)
     return std::sqrt(kConvergedRegionChiSquare * std::max(covariance_m2.trace() - minEigenvalue(covariance_m2), 0.0));
 }
 
+bool disputedByOtherMaps(double region_m, double rival_apart_m, double other_model_reach_m, double within_m)
+{
+    return region_m < within_m && std::max(rival_apart_m + region_m, other_model_reach_m) >= within_m;
+}
+
 double heldEigenvalue(double common_excess_m, double sigma_m, double reliable_m)
 {
     return std::pow(2.0 * std::hypot(common_excess_m, sigma_m) / reliable_m, 2);

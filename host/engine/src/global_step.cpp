@@ -191,13 +191,10 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
         view.covariance_m2 = confidence.covariance_m2[i];
         view.reliability_m = confidence.reliability_m[i];
         // "Converged" promises the node within disputed_m wherever the maps about as good as this
-        // one place it: a node whose own 95 % region is within that is still disputed when a rival's
-        // position (with as large a region) or the other offset model's region reaches beyond it.
-        // (A node whose own region is not within it is flexible anyway.)
-        const double region_m = regionSemiAxisM(view.covariance_m2);
+        // one place it.
         view.disputed = solved.disputed[i] != 0 || (job.refresh && job.was_disputed[i] != 0) ||
-                        (region_m < solve.disputed_m &&
-                         std::max(solved.rival_apart_m[i] + region_m, other_model_reach_m[i]) >= solve.disputed_m);
+                        disputedByOtherMaps(regionSemiAxisM(view.covariance_m2), solved.rival_apart_m[i],
+                                            other_model_reach_m[i], solve.disputed_m);
         view.checked = confidence.main_part[i] != 0 && held_by_one[i] == 0;
     }
     if (job.check_structure) {

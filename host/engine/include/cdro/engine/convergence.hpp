@@ -47,6 +47,13 @@ struct ConvergenceCounters {
 // 86.5 % of the time, so one node in seven of those it would call converged could end beyond it.
 double regionSemiAxisM(const Matrix2 &covariance_m2);
 
+// Whether a node whose own 95 % region is region_m (regionSemiAxisM) could be beyond within_m
+// in a map about as good as the chosen one: a distinct rival map placing it rival_apart_m away
+// (with as large a region), or the other range-offset model's map reaching other_model_reach_m
+// (its distance plus that map's own region; 0 where offsets-or-none was clearly decided). A node
+// whose own region is not within within_m is not judged here (it is flexible anyway).
+bool disputedByOtherMaps(double region_m, double rival_apart_m, double other_model_reach_m, double within_m);
+
 // The smallest eigenvalue of sum u u^T (u: unit vectors to the nodes a node's links reach) that
 // holds the node: below it, an excess of common_excess_m (sigma_m at least) on those links could
 // move it 2 sigma by reliable_m along the weakest direction, (2 sigma / reliable_m)^2.
