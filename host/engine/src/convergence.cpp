@@ -22,42 +22,6 @@ bool disputedByOtherMaps(double region_m, double rival_apart_m, double other_mod
     return region_m < within_m && std::max(rival_apart_m + region_m, other_model_reach_m) >= within_m;
 }
 
-double heldEigenvalue(double common_excess_m, double sigma_m, double reliable_m)
-{
-    return std::pow(2.0 * std::hypot(common_excess_m, sigma_m) / reliable_m, 2);
-}
-
-std::vector<uint8_t> heldByOneUnseenLink(const MapProblem &problem, const MapEstimate &estimate,
-                                         const std::vector<double> &link_redundancy, double unseen_redundancy,
-                                         double least_eigenvalue)
-{
-    std::vector<uint8_t> held_by_one(problem.nodeCount(), 0);
-    std::vector<std::pair<uint32_t, Vector2>> units; // link, unit vector to its other end
-    for (uint32_t node = 0; node < problem.nodeCount(); ++node) {
-        if (estimate.placed[node] == 0) {
-            continue;
-        }
-        units.clear();
-        Matrix2 directions = Matrix2::Zero();
-        for (const uint32_t link : problem.node_links[node]) {
-            const uint32_t other = problem.other(link, node);
-            const Vector2 delta = estimate.position_m[other] - estimate.position_m[node];
-            if (estimate.placed[other] != 0 && delta.norm() > 1e-9) {
-                units.emplace_back(link, delta / delta.norm());
-                directions += units.back().second * units.back().second.transpose();
-            }
-        }
-        for (const auto &[link, u] : units) {
-            const double redundancy = link < link_redundancy.size() ? link_redundancy[link] : -1.0;
-            if (redundancy >= 0.0 && redundancy < unseen_redundancy &&
-                minEigenvalue(directions - u * u.transpose()) < least_eigenvalue) {
-                held_by_one[node] = 1;
-            }
-        }
-    }
-    return held_by_one;
-}
-
 Convergence::Convergence(const EngineParams &params, const RangeLikelihood &likelihood)
     : params_(params.convergence), check_(params, likelihood),
       solve_enabled_(params.solve.enabled && params.refinement.enabled)
@@ -86,29 +50,14 @@ NodeDoubt Convergence::doubtOf(const MapState &map, uint32_t node) const
     if (node < structural_.size() && structural_[node] != NodeDoubt::None) {
         return structural_[node];
     }
-    return settled(state) ? NodeDoubt::None : NodeDoubt::Unsettled;
-}
-
-bool Convergence::settled(const NodeState &state) const
-{
     const NodeSolveView &solve = state.solve;
     if (solve_enabled_ && (!solve.solved || (state.position_m - solve.position_m).norm() > 0.5 * params_.reliable_m)) {
-        return false;
+        return NodeDoubt::Unsettled;
     }
-    return state.still_updates >= params_.consecutive && state.update_count >= params_.min_updates;
-}
-
-bool Convergence::holds(const MapState &map, uint32_t node) const
-{
-    const NodeState &state = map.nodes[node];
-    if (!state.anchor()) {
-        return false;
+    if (state.still_updates < params_.consecutive || state.update_count < params_.min_updates) {
+        return NodeDoubt::Unsettled;
     }
-    if (!state.free() || state.converged()) {
-        return true;
-    }
-    return state.doubt == NodeDoubt::Flexible && settled(state) && state.solve.solved &&
-           regionSemiAxisM(state.solve.covariance_m2) < params_.reliable_m;
+    return NodeDoubt::None;
 }
 
 void Convergence::decide(MapState &map, uint32_t node)
@@ -200,7 +149,7 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
             const double largest_m = regionSemiAxisM(solve.covariance_m2);
             // Baarda's bound is a worst case (an error just too small to be noticed, all of it on
             // the weakest link): a node is flexible when even that bound is well beyond the promise.
-            if (!solve.checked || !(solve.reliability_m < kReliabilityMargin * reliable) || !(largest_m < reliable)) {
+            if (!solve.main_part || !(solve.reliability_m < kReliabilityMargin * reliable) || !(largest_m < reliable)) {
                 doubt = NodeDoubt::Flexible;
             }
         }
@@ -223,7 +172,8 @@ void StructureCheck::peelUnheld(const MapProblem &problem, const MapEstimate &es
     // along the corridor, and the map around it bent by walls, would otherwise be called converged
     // however wrong that map is.
     const uint32_t count = problem.nodeCount();
-    const double least_eigenvalue = heldEigenvalue(params_.common_excess_m, solver_.range_sigma_m, params_.reliable_m);
+    const double sigma_m = std::hypot(params_.common_excess_m, solver_.range_sigma_m);
+    const double least_eigenvalue = std::pow(2.0 * sigma_m / params_.reliable_m, 2);
     std::vector<uint8_t> held(count, 0);
     for (uint32_t node = 0; node < count; ++node) {
         held[node] =

@@ -170,13 +170,6 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
             other_model_reach_m[node] = apart[node] + regionSemiAxisM(other.covariance_m2[node]);
         }
     }
-    // A node held across by one link that could read a metre long unseen is not held
-    // (convergence.hpp, heldByOneUnseenLink): its residual would show too little of the error.
-    const double sigma_m = problem.sigma_m * std::sqrt(confidence.variance_factor);
-    const std::vector<uint8_t> held_by_one =
-        heldByOneUnseenLink(problem, out.chosen.estimate, confidence.link_redundancy,
-                            std::pow(kReliabilityDelta * sigma_m / solve.disputed_m, 2),
-                            heldEigenvalue(model_error.common_excess_m, problem.sigma_m, solve.disputed_m));
     // What the solve says of each node it places. A refresh tried no other start: what the full
     // solve found disputed stays disputed.
     out.views.assign(problem.nodeCount(), NodeSolveView{});
@@ -195,7 +188,7 @@ GlobalStep::SolvedMap GlobalStep::solveAndAssess(const PendingSolve &job, const 
         view.disputed = solved.disputed[i] != 0 || (job.refresh && job.was_disputed[i] != 0) ||
                         disputedByOtherMaps(regionSemiAxisM(view.covariance_m2), solved.rival_apart_m[i],
                                             other_model_reach_m[i], solve.disputed_m);
-        view.checked = confidence.main_part[i] != 0 && held_by_one[i] == 0;
+        view.main_part = confidence.main_part[i] != 0;
     }
     if (job.check_structure) {
         std::vector<StructureNode> nodes = job.nodes;

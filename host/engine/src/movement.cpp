@@ -570,7 +570,7 @@ void MovementStage::restore(const Saved &saved)
     revision_ = saved.revision;
 }
 
-size_t MovementStage::heldNeighbours() const
+size_t MovementStage::convergedNeighbours() const
 {
     const MapState &map = engine_.map();
     const uint32_t robot = map.findNode(params_.robot_id);
@@ -579,7 +579,8 @@ size_t MovementStage::heldNeighbours() const
         return count;
     }
     for (uint32_t link : map.nodes[robot].links) {
-        count += engine_.holds(map.otherNode(link, robot)) ? 1U : 0U;
+        const NodeState &other = map.nodes[map.otherNode(link, robot)];
+        count += other.converged() || other.fixed() ? 1U : 0U;
     }
     return count;
 }
@@ -600,11 +601,11 @@ std::optional<RobotOutput> MovementStage::robot() const
         // A node whose links fit another position about as well (too few links, a mirror image
         // while the map forms, a part that can fold): that is no position yet. Measured on the
         // simulated runs: those estimates are 5-13 m off, the first unambiguous one 0.1 m. Nor is
-        // one that ranges fewer than three nodes the map holds: while the map forms from its first
+        // one that ranges fewer than three converged nodes: while the map forms from its first
         // ranges the robot's tag can be the hub of a map of doubtful nodes, its covariance zero
         // (the map's gauge on it), ~50 m off (the robot corridor, seeds 4 and 5).
         const bool undecided = node && (node->doubt == NodeDoubt::Ambiguous || node->doubt == NodeDoubt::TooFewLinks ||
-                                        node->doubt == NodeDoubt::Foldable || heldNeighbours() < 3);
+                                        node->doubt == NodeDoubt::Foldable || convergedNeighbours() < 3);
         if (node && node->placed() && !undecided) {
             out.placed = true;
             out.frame = RobotFrame::Map;

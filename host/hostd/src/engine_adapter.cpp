@@ -673,7 +673,7 @@ service::SogSnapshot snapshotOf(const engine::Engine &engine, int64_t created_un
         const engine::NodeSolveView &solve = node.solve;
         exact.solve_flags = static_cast<uint8_t>(bitIf(solve.solved, CDRO_CHECKPOINT_SOLVE_SOLVED) |
                                                  bitIf(solve.disputed, CDRO_CHECKPOINT_SOLVE_DISPUTED) |
-                                                 bitIf(solve.checked, CDRO_CHECKPOINT_SOLVE_CHECKED));
+                                                 bitIf(solve.main_part, CDRO_CHECKPOINT_SOLVE_MAIN_PART));
         exact.solve_x_m = solve.position_m.x();
         exact.solve_y_m = solve.position_m.y();
         exact.solve_var_x_m2 = solve.covariance_m2(0, 0);
@@ -825,7 +825,7 @@ void restoreFrom(engine::Engine &engine, const service::SogSnapshot &snapshot)
         node.motion.inferred = (exact.motion_flags & CDRO_CHECKPOINT_MOTION_INFERRED) != 0;
         node.solve.solved = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_SOLVED) != 0;
         node.solve.disputed = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_DISPUTED) != 0;
-        node.solve.checked = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_CHECKED) != 0;
+        node.solve.main_part = (exact.solve_flags & CDRO_CHECKPOINT_SOLVE_MAIN_PART) != 0;
         node.solve.position_m = engine::Vector2(exact.solve_x_m, exact.solve_y_m);
         node.solve.covariance_m2(0, 0) = exact.solve_var_x_m2;
         node.solve.covariance_m2(0, 1) = node.solve.covariance_m2(1, 0) = exact.solve_cov_xy_m2;

@@ -54,20 +54,6 @@ double regionSemiAxisM(const Matrix2 &covariance_m2);
 // whose own region is not within within_m is not judged here (it is flexible anyway).
 bool disputedByOtherMaps(double region_m, double rival_apart_m, double other_model_reach_m, double within_m);
 
-// The smallest eigenvalue of sum u u^T (u: unit vectors to the nodes a node's links reach) that
-// holds the node: below it, an excess of common_excess_m (sigma_m at least) on those links could
-// move it 2 sigma by reliable_m along the weakest direction, (2 sigma / reliable_m)^2.
-double heldEigenvalue(double common_excess_m, double sigma_m, double reliable_m);
-
-// Per node (problem numbering), 1 where one of its links alone holds it in some direction (the
-// others' sum u u^T without that link's is below least_eigenvalue) and that link could read long
-// unseen: its redundancy (map_refine.hpp, link_redundancy; < 0 not evaluated) below
-// unseen_redundancy, so that its residual shows too little of an obstruction's excess, which moves
-// the node with nothing to show it (the map bends to fit the link).
-std::vector<uint8_t> heldByOneUnseenLink(const MapProblem &problem, const MapEstimate &estimate,
-                                         const std::vector<double> &link_redundancy, double unseen_redundancy,
-                                         double least_eigenvalue);
-
 // What the structure check needs of each node of the map it looks at.
 struct StructureNode {
     bool free = false;                       // neither fixed nor pinned: the only nodes checked
@@ -120,14 +106,6 @@ public:
     const StructureCheck &structureCheck() const { return check_; }
     // The node's doubt now (the whole-map part from the last assess()).
     NodeDoubt doubtOf(const MapState &map, uint32_t node) const;
-    // Whether the map holds the node, so that it can be a reference for the ones that move (the
-    // fallback motion detector's residuals, the robot's first position): still, and fixed, pinned,
-    // converged, or flexible but settled where the global solve puts it with its 95 % region
-    // within `reliable_m`. Such a node agrees with every range where it is; what it lacks is the
-    // redundancy that would show one hidden error, the promise of "converged", not what a
-    // reference needs. Not one with a rival position (ambiguous, too few links, foldable), a
-    // wide region (a corridor's bent map: the detector saw static nodes start there), or moving.
-    bool holds(const MapState &map, uint32_t node) const;
 
     const ConvergenceCounters &counters() const { return counters_; }
     // The whole-map doubts of the last assessment, per node (checkpoints).
@@ -137,8 +115,6 @@ public:
 
 private:
     void decide(MapState &map, uint32_t node);
-    // Eq. 16 still and, with the solve, where the global solve last put it.
-    bool settled(const NodeState &state) const;
 
     ConvergenceParams params_;
     StructureCheck check_;

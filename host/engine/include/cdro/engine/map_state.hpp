@@ -83,9 +83,7 @@ struct NodeSolveView {
     Matrix2 covariance_m2 = Matrix2::Zero(); // m^2, the map's (correlations across it included)
     double reliability_m = 0.0;              // m, the most one unnoticed link error moves it
     bool disputed = false;                   // a rival map places it a metre or more away
-    bool checked = false;                    // held by links that others check: in the main part
-                                             // (map_refine.hpp), and not held across by one link
-                                             // alone that could read long unseen (convergence.hpp)
+    bool main_part = false;                  // in the part joined by checked links
 };
 
 // The fallback motion detector's memory: the node's last ranges (when, on which link, how far

@@ -173,8 +173,8 @@ public:
 
 private:
     void start(double t_s);
-    // Nodes the map holds (Engine::holds) that the robot's tag has links to.
-    size_t heldNeighbours() const;
+    // Converged (or fixed) nodes the robot's tag has links to.
+    size_t convergedNeighbours() const;
     void insertConvergedNodes();
     bool insertNode(NodeId id);
     // A range to a node that has a SoG (or gets one: only a range from the robot starts a ring)
