@@ -51,7 +51,9 @@ def test_map_converges_and_the_carried_node_is_tracked(build_dir, avr_build_dir,
     end = run.scenario.duration_s
     still = [n.id for n in run.scenario.nodes if n.id != mover]
     last = {n: estimates[n][-1] for n in still}
-    assert all(e["converged"] and e["placed"] for e in last.values()), {n: e for n, e in last.items()}
+    not_converged = {hex(n): (e["placed"], e["reason"]) for n, e in last.items()
+                     if not (e["converged"] and e["placed"])}
+    assert not not_converged, f"still nodes not converged (placed, reason): {not_converged}"
     truth_end = {n: run.world.position(n, end)[:2] for n in still}
     fit = align({n: (e["x_m"], e["y_m"]) for n, e in last.items()}, truth_end)
     assert fit.nodes == len(still)
