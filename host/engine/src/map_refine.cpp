@@ -954,6 +954,8 @@ MapCovariance mapCovariance(const MapProblem &problem, const MapEstimate &estima
         // Of columns C, one per node n of `nodes` (column n: the sum over the node's links l of
         // coefficient(l) X j_l), in the frame's terms S C = C - G (F C), the diagonal block of
         // each free node of (S C)(S C)^T, summed a block of columns at a time: C is never whole.
+        // Its columns are built again in each pass (two effects per link, O(links x size), small
+        // beside the pass's O(size^2)): memory traded for work that does not show (docs/bench.md).
         const auto excessBlocks = [&](const std::vector<uint32_t> &nodes, const auto &coefficient) {
             std::vector<Matrix2> outer(free_nodes.size());
             for (Matrix2 &block : outer) {
