@@ -147,6 +147,51 @@ TEST(Convergence, ANodeIsDisputedWhereAMapAboutAsGoodCouldHoldItBeyondTheMetre)
     EXPECT_FALSE(disputedByOtherMaps(1.2, 3.0, 3.0, 1.0));
 }
 
+// What the map holds is what the fallback motion detector measures a node's ranges against: a
+// still node settled where the global solve put it, converged, or flexible with its 95 % region
+// within the metre (a small room's corner held across by one wall link); not one with a rival
+// position, nor one whose estimate still moves, nor a moving one.
+TEST(Convergence, TheMapHoldsSettledNodesThatAreConvergedOrOnlyFlexible)
+{
+    const EngineParams params;
+    const RangeLikelihood likelihood(params.likelihood);
+    const Convergence convergence(params, likelihood);
+    MapState map;
+    const uint32_t node = map.addNode(1);
+    NodeState &state = map.nodes[node];
+    state.lifecycle = NodeLifecycle::Placed;
+    state.position_m = Vector2(3.0, 4.0);
+    state.solve.solved = true;
+    state.solve.position_m = state.position_m;
+    state.still_updates = params.convergence.consecutive;
+    state.update_count = params.convergence.min_updates;
+
+    state.doubt = NodeDoubt::Flexible;
+    EXPECT_TRUE(convergence.holds(map, node));
+    state.still_updates = params.convergence.consecutive - 1; // eq. 16 not still yet
+    EXPECT_FALSE(convergence.holds(map, node));
+    state.still_updates = params.convergence.consecutive;
+    state.position_m += Vector2(params.convergence.reliable_m, 0.0); // away from the solve's map
+    EXPECT_FALSE(convergence.holds(map, node));
+    state.position_m = state.solve.position_m;
+    state.solve.covariance_m2 = Matrix2::Identity() * 0.25; // m^2: its 95 % region 1.2 m, beyond the metre
+    EXPECT_FALSE(convergence.holds(map, node));
+    state.solve.covariance_m2 = Matrix2::Identity() * 0.01; // m^2: 0.24 m
+    EXPECT_TRUE(convergence.holds(map, node));
+    for (const NodeDoubt rival : {NodeDoubt::Ambiguous, NodeDoubt::TooFewLinks, NodeDoubt::Foldable}) {
+        state.doubt = rival;
+        EXPECT_FALSE(convergence.holds(map, node)) << nodeDoubtName(rival);
+    }
+    state.doubt = NodeDoubt::None;
+    state.lifecycle = NodeLifecycle::Converged;
+    EXPECT_TRUE(convergence.holds(map, node));
+    state.lifecycle = NodeLifecycle::Moving;
+    EXPECT_FALSE(convergence.holds(map, node));
+    state.lifecycle = NodeLifecycle::Placed;
+    state.role = NodeRole::Fixed;
+    EXPECT_TRUE(convergence.holds(map, node));
+}
+
 // Uncalibrated radios in a small room (netgen's `biased` family, seed 10: 8 nodes, every pair,
 // delays of 0-0.9 m, 0.02 m noise), in the order the scorecard shuffles it into (docs/results.md).
 // In that order the range offsets win by less than their margin (16 nats for 18), so the map is the

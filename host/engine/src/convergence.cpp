@@ -50,14 +50,29 @@ NodeDoubt Convergence::doubtOf(const MapState &map, uint32_t node) const
     if (node < structural_.size() && structural_[node] != NodeDoubt::None) {
         return structural_[node];
     }
+    return settled(state) ? NodeDoubt::None : NodeDoubt::Unsettled;
+}
+
+bool Convergence::settled(const NodeState &state) const
+{
     const NodeSolveView &solve = state.solve;
     if (solve_enabled_ && (!solve.solved || (state.position_m - solve.position_m).norm() > 0.5 * params_.reliable_m)) {
-        return NodeDoubt::Unsettled;
+        return false;
     }
-    if (state.still_updates < params_.consecutive || state.update_count < params_.min_updates) {
-        return NodeDoubt::Unsettled;
+    return state.still_updates >= params_.consecutive && state.update_count >= params_.min_updates;
+}
+
+bool Convergence::holds(const MapState &map, uint32_t node) const
+{
+    const NodeState &state = map.nodes[node];
+    if (!state.anchor()) {
+        return false;
     }
-    return NodeDoubt::None;
+    if (!state.free() || state.converged()) {
+        return true;
+    }
+    return state.doubt == NodeDoubt::Flexible && settled(state) && state.solve.solved &&
+           regionSemiAxisM(state.solve.covariance_m2) < params_.reliable_m;
 }
 
 void Convergence::decide(MapState &map, uint32_t node)

@@ -174,11 +174,10 @@ RangeVerdict Engine::takeRange(NodeId from, NodeId to, double range_m, double t_
     const uint32_t b = taken.b;
     intake_.refreshLinkRange(map_, taken.link, params_.motion.reset);
     ++revision_; // the links are part of the outputs (last range, count)
-    // 2. Motion: the map is a reference only once both ends have converged on it.
+    // 2. Motion: the map is a reference only once it holds both ends.
     const NodeState &end_a = map_.nodes[a];
     const NodeState &end_b = map_.nodes[b];
-    auto reference = [](const NodeState &n) { return n.anchor() && (n.converged() || !n.free()); };
-    if (reference(end_a) && reference(end_b)) {
+    if (holds(a) && holds(b)) {
         const double residual = taken.planar_m - (end_a.position_m - end_b.position_m).norm();
         // Far from the map and from the link's own history: something moved.
         const double evidence = std::abs(taken.jump_m) < std::abs(residual) ? taken.jump_m : residual;

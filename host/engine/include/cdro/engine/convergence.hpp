@@ -106,6 +106,14 @@ public:
     const StructureCheck &structureCheck() const { return check_; }
     // The node's doubt now (the whole-map part from the last assess()).
     NodeDoubt doubtOf(const MapState &map, uint32_t node) const;
+    // Whether the map holds the node, so that it can be a reference for the ones that move (the
+    // fallback motion detector's residuals): still, and fixed, pinned, converged, or flexible but
+    // settled where the global solve puts it with its 95 % region within `reliable_m`. Such a
+    // node agrees with every range where it is; what it lacks is the redundancy that would show
+    // one hidden error, the promise of "converged", not what a reference needs. Not one with a
+    // rival position (ambiguous, too few links, foldable), a wide region (a corridor's bent map:
+    // the detector saw static nodes start there), or moving.
+    bool holds(const MapState &map, uint32_t node) const;
 
     const ConvergenceCounters &counters() const { return counters_; }
     // The whole-map doubts of the last assessment, per node (checkpoints).
@@ -115,6 +123,8 @@ public:
 
 private:
     void decide(MapState &map, uint32_t node);
+    // Eq. 16 still and, with the solve, where the global solve last put it.
+    bool settled(const NodeState &state) const;
 
     ConvergenceParams params_;
     StructureCheck check_;

@@ -200,6 +200,8 @@ public:
     // The convergence checks' whole-map doubts and the structure they were assessed on: a
     // restored engine decides as this one would, without assessing again.
     const std::vector<NodeDoubt> &structuralDoubts() const { return convergence_.structuralDoubts(); }
+    // Whether the map holds the node (map numbering): a reference for nodes that move (Convergence::holds).
+    bool holds(uint32_t node) const { return convergence_.holds(map_, node); }
     uint64_t assessedKey() const { return assessed_key_; }
     void restore(const RestoredState &state); // replaces everything; throws std::invalid_argument
 
