@@ -351,9 +351,11 @@ struct Timed {
     double wall_s = 0.0;
     double cpu_s = 0.0;
     uint64_t ranges = 0;
-    uint64_t refused = 0;        // ranges the engine rejected (none expected)
-    double longest_call_s = 0.0; // s, the slowest addRange call (wall clock; with the ranges fed
-                                 // back to back it includes waiting for the solve's worker)
+    uint64_t refused = 0;            // ranges the engine rejected (none expected)
+    double longest_call_s = 0.0;     // s, the slowest addRange call (wall clock; with the ranges fed
+                                     // back to back it includes waiting for the solve's worker)
+    double longest_adoption_s = 0.0; // s, with --adopt-when-done: the slowest adoption between ranges
+    uint64_t adoptions = 0;          // ... and how many there were
     double rate() const { return wall_s > 0.0 ? static_cast<double>(ranges) / wall_s : 0.0; }
     double cpuRate() const { return cpu_s > 0.0 ? static_cast<double>(ranges) / cpu_s : 0.0; }
     Timed &operator+=(const Timed &other)
@@ -363,15 +365,19 @@ struct Timed {
         ranges += other.ranges;
         refused += other.refused;
         longest_call_s = std::max(longest_call_s, other.longest_call_s);
+        longest_adoption_s = std::max(longest_adoption_s, other.longest_adoption_s);
+        adoptions += other.adoptions;
         return *this;
     }
 };
 
 // Feeds one pass or sweep; the watch (if any) runs between ranges. *fed counts the ranges fed
 // so far, *fed_wall_s the time spent feeding them. With `pace_ranges_per_s` > 0 the ranges come
-// at that rate, as from a live network (the time waited between them is not feeding time).
+// at that rate, as from a live network (the time waited between them is not feeding time). With
+// `adopt_when_done` the engine adopts its solves between ranges once done (SolveAdoption::ByCaller,
+// as cdro-hostd live), each adoption timed apart from the addRange calls.
 Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *watch, uint64_t *fed,
-           double *fed_wall_s, double pace_ranges_per_s = 0.0)
+           double *fed_wall_s, double pace_ranges_per_s = 0.0, bool adopt_when_done = false)
 {
     Timed timed;
     double wall0 = wallSeconds();
@@ -390,6 +396,13 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
         const double call0 = wallSeconds();
         const cdro::engine::RangeVerdict verdict = engine.addRange(range.from, range.to, range.range_m);
         timed.longest_call_s = std::max(timed.longest_call_s, wallSeconds() - call0);
+        if (adopt_when_done) {
+            const double adoption0 = wallSeconds();
+            if (engine.adoptFinishedSolve()) {
+                ++timed.adoptions;
+                timed.longest_adoption_s = std::max(timed.longest_adoption_s, wallSeconds() - adoption0);
+            }
+        }
         timed.refused += (verdict == cdro::engine::RangeVerdict::RejectedSelf ||
                           verdict == cdro::engine::RangeVerdict::RejectedValue)
                              ? 1U
@@ -417,7 +430,9 @@ Json timedJson(const Timed &t)
                 {"ranges_per_s", t.rate()},
                 {"ranges_per_cpu_s", t.cpuRate()},
                 {"refused", t.refused},
-                {"longest_call_ms", 1e3 * t.longest_call_s}};
+                {"longest_call_ms", 1e3 * t.longest_call_s},
+                {"adoptions_between_ranges", t.adoptions},
+                {"longest_adoption_ms", 1e3 * t.longest_adoption_s}};
 }
 
 // ---- PLANT ----------------------------------------------------------------------------------
@@ -603,6 +618,7 @@ struct NetworkOptions {
     std::string write_csv_dir;      // with --one-network: the stream and the truth as CSV files
     double pace_ranges_per_s = 0.0; // ranges/s, fed at this rate as from a live network (0: back to back)
     double adopt_after_sweeps = cdro::engine::SolveParams{}.adopt_after_sweeps; // engine.solve's (0: in addRange)
+    bool adopt_when_done = false; // the solves adopted between ranges once done (cdro-hostd live)
 };
 
 Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
@@ -644,6 +660,9 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     cdro::engine::EngineParams params;
     params.solve.adopt_after_sweeps = options.adopt_after_sweeps;
     Engine engine(params);
+    if (options.adopt_when_done) {
+        engine.setSolveAdoption(Engine::SolveAdoption::ByCaller);
+    }
     // The networks are planar and a deployment in one plane knows it: every height is 0.
     for (const NodeId id : net.ids) {
         engine.setHeight(id, 0.0);
@@ -671,7 +690,8 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
             }
         }
         const bool warming = sweep < options.warmup_sweeps;
-        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, options.pace_ranges_per_s);
+        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, options.pace_ranges_per_s,
+                                 options.adopt_when_done);
         if (warming) {
             warmup += timed;
             warmup_sweep_s.push_back(timed.wall_s);
@@ -1118,6 +1138,9 @@ static int runMain(int argc, char **argv)
                    "networks: engine.solve.adopt_after_sweeps (0: the global solve inside addRange, no worker thread)")
         ->capture_default_str()
         ->check(CLI::Range(0.0, 1e6));
+    app.add_flag("--adopt-when-done", network.adopt_when_done,
+                 "networks: adopt each global solve between ranges once its worker is done, as cdro-hostd does "
+                 "live (Engine::SolveAdoption::ByCaller), never inside addRange; the adoptions are timed apart");
     auto *plant_flag = app.add_flag("--plant-only", plant_only, "PLANT only");
     app.add_flag("--networks-only", networks_only, "random networks only")->excludes(plant_flag);
     app.add_flag("--json", json, "print one JSON document instead of the table");
@@ -1167,27 +1190,30 @@ static int runMain(int argc, char **argv)
                 Json results = Json::array();
                 for (uint32_t draw = 0; draw < draws; ++draw) {
                     const uint64_t draw_seed = seed + draw;
-                    const std::vector<std::string> arguments{argv[0],
-                                                             "--one-network",
-                                                             std::to_string(nodes),
-                                                             "--seed",
-                                                             std::to_string(draw_seed),
-                                                             "--degree",
-                                                             std::to_string(network.degree),
-                                                             "--area-per-node-m2",
-                                                             std::to_string(network.area_per_node_m2),
-                                                             "--noise-m",
-                                                             std::to_string(network.noise_sigma_m),
-                                                             "--warmup-sweeps",
-                                                             std::to_string(network.warmup_sweeps),
-                                                             "--min-sweeps",
-                                                             std::to_string(network.min_sweeps),
-                                                             "--steady-ranges",
-                                                             std::to_string(network.steady_ranges),
-                                                             "--pace",
-                                                             std::to_string(network.pace_ranges_per_s),
-                                                             "--adopt-after-sweeps",
-                                                             std::to_string(network.adopt_after_sweeps)};
+                    std::vector<std::string> arguments{argv[0],
+                                                       "--one-network",
+                                                       std::to_string(nodes),
+                                                       "--seed",
+                                                       std::to_string(draw_seed),
+                                                       "--degree",
+                                                       std::to_string(network.degree),
+                                                       "--area-per-node-m2",
+                                                       std::to_string(network.area_per_node_m2),
+                                                       "--noise-m",
+                                                       std::to_string(network.noise_sigma_m),
+                                                       "--warmup-sweeps",
+                                                       std::to_string(network.warmup_sweeps),
+                                                       "--min-sweeps",
+                                                       std::to_string(network.min_sweeps),
+                                                       "--steady-ranges",
+                                                       std::to_string(network.steady_ranges),
+                                                       "--pace",
+                                                       std::to_string(network.pace_ranges_per_s),
+                                                       "--adopt-after-sweeps",
+                                                       std::to_string(network.adopt_after_sweeps)};
+                    if (network.adopt_when_done) {
+                        arguments.emplace_back("--adopt-when-done");
+                    }
                     std::string failure;
                     Json result = spawnNetwork(arguments, &failure);
                     if (result.is_null()) {

@@ -1,4 +1,5 @@
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -110,13 +111,13 @@ TEST(Capture, HeaderRejectsOtherFilesAndNewerVersions)
     EXPECT_EQ(cdro_capture_header_decode(good.data(), 10, &header, &consumed), CDRO_PENDING);
 }
 
-TEST(Capture, TheGoldenFileIsVersion2WithAnOdometryRecord)
+TEST(Capture, TheGoldenFileIsVersion3WithAnOdometryRecordAndAHostEvent)
 {
     const auto &v = golden::vectors()["capture"];
     cdro_capture_header_t header;
     const auto file = golden::fromHex(v["bytes"]);
     const Parsed parsed = parse(file, header);
-    EXPECT_EQ(header.format_version, 2U);
+    EXPECT_EQ(header.format_version, 3U);
     EXPECT_EQ(header.format_version, v["header"]["format_version"].get<uint16_t>());
     const size_t index = v["odometry"]["record"].get<size_t>();
     ASSERT_LT(index, parsed.records.size());
@@ -124,34 +125,46 @@ TEST(Capture, TheGoldenFileIsVersion2WithAnOdometryRecord)
     EXPECT_EQ(odometry.flags, CDRO_CAPTURE_FLAG_ODOMETRY);
     const std::string text(reinterpret_cast<const char *>(odometry.data), odometry.data_len);
     EXPECT_EQ(nlohmann::json::parse(text), v["odometry"]["message"]);
+    const size_t event = v["host_event"]["record"].get<size_t>();
+    ASSERT_LT(event, parsed.records.size());
+    EXPECT_EQ(parsed.records[event].flags, CDRO_CAPTURE_FLAG_HOST_EVENT);
+    EXPECT_EQ(golden::toHex(parsed.records[event].data, parsed.records[event].data_len),
+              v["host_event"]["data"].get<std::string>());
     for (size_t i = 0; i < parsed.records.size(); ++i) {
         if (i != index) {
             EXPECT_EQ(parsed.records[i].flags & CDRO_CAPTURE_FLAG_ODOMETRY, 0U) << i;
         }
+        if (i != event) {
+            EXPECT_EQ(parsed.records[i].flags & CDRO_CAPTURE_FLAG_HOST_EVENT, 0U) << i;
+        }
     }
 }
 
-// Version-1 files (before odometry records) read as before, and encode to the same bytes.
-TEST(Capture, AVersion1FileStillReadsAndEncodes)
+// Files of versions 1 (before odometry records) and 2 (before host events) read as before, and
+// encode to the same bytes.
+TEST(Capture, OlderVersionsStillReadAndEncode)
 {
-    const auto &v = golden::vectors()["capture_v1"];
-    cdro_capture_header_t header;
-    const auto file = golden::fromHex(v["bytes"]);
-    const Parsed parsed = parse(file, header);
-    EXPECT_EQ(header.format_version, 1U);
-    EXPECT_EQ(header.created_unix_us, v["header"]["created_unix_us"].get<int64_t>());
-    ASSERT_EQ(parsed.records.size(), v["records"].size());
-    for (size_t i = 0; i < parsed.records.size(); ++i) {
-        EXPECT_EQ(parsed.records[i].flags, v["records"][i]["flags"].get<uint8_t>());
-        EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len),
-                  v["records"][i]["data"].get<std::string>());
-    }
-    EXPECT_EQ(parsed.corrupt_bytes + parsed.tail_bytes, 0U);
+    for (const auto &[name, version] : {std::pair<const char *, uint16_t>{"capture_v1", 1U}, {"capture_v2", 2U}}) {
+        SCOPED_TRACE(name);
+        const auto &v = golden::vectors()[name];
+        cdro_capture_header_t header;
+        const auto file = golden::fromHex(v["bytes"]);
+        const Parsed parsed = parse(file, header);
+        EXPECT_EQ(header.format_version, version);
+        EXPECT_EQ(header.created_unix_us, v["header"]["created_unix_us"].get<int64_t>());
+        ASSERT_EQ(parsed.records.size(), v["records"].size());
+        for (size_t i = 0; i < parsed.records.size(); ++i) {
+            EXPECT_EQ(parsed.records[i].flags, v["records"][i]["flags"].get<uint8_t>());
+            EXPECT_EQ(golden::toHex(parsed.records[i].data, parsed.records[i].data_len),
+                      v["records"][i]["data"].get<std::string>());
+        }
+        EXPECT_EQ(parsed.corrupt_bytes + parsed.tail_bytes, 0U);
 
-    std::vector<uint8_t> encoded(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE);
-    encoded.resize(cdro_capture_header_encode(&header, encoded.data(), encoded.size()));
-    ASSERT_GT(encoded.size(), 0U);
-    EXPECT_EQ(golden::toHex(encoded), v["bytes"].get<std::string>().substr(0, 2 * encoded.size()));
+        std::vector<uint8_t> encoded(CDRO_CAPTURE_HEADER_FIXED + CDRO_CAPTURE_MAX_SOURCE);
+        encoded.resize(cdro_capture_header_encode(&header, encoded.data(), encoded.size()));
+        ASSERT_GT(encoded.size(), 0U);
+        EXPECT_EQ(golden::toHex(encoded), v["bytes"].get<std::string>().substr(0, 2 * encoded.size()));
+    }
 }
 
 // The run's context in the header (an addition to its layout, read by every version): decoded,

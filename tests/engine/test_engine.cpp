@@ -268,6 +268,73 @@ TEST(Engine, TheWorkerThreadsSolveIsAdoptedAtTheSameRangeWhateverItsTiming)
     EXPECT_EQ(std::memcmp(&counters_a, &counters_b, sizeof(engine::EngineCounters)), 0);
 }
 
+// Live, no range waits for the global solve: with SolveAdoption::ByCaller addRange never adopts a
+// solve of the worker thread, however long it has been pending (a caller busy for two sweeps finds
+// it still pending), and the caller adopts it between ranges once the worker is done, where the
+// thread's timing puts it. A replay that adopts at the same places (cdro-hostd: the capture's host
+// events) gets the same estimates and counters, bit for bit.
+TEST(Engine, ASolveTheCallerAdoptsWhenItsWorkerIsDoneIsReplayedAtTheSamePlaces)
+{
+    CDRO_SKIP_WHEN_SANITIZED();
+    const uint64_t seed = testSeed(3502);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 16, 7.0, true);
+    const std::vector<TestRange> ranges = noisyRanges(network, random, 12);
+    engine::EngineParams params;
+    params.solve.adopt_after_sweeps = 0.25; // the default: the solve on the worker thread
+    Engine live(params);
+    Engine replayed(params);
+    for (Engine *engine : {&live, &replayed}) {
+        engine->setSolveAdoption(Engine::SolveAdoption::ByCaller);
+        for (size_t i = 0; i < network.ids.size(); ++i) {
+            engine->setHeight(network.ids[i], network.height_m[i]);
+        }
+    }
+    std::vector<size_t> adopted_after; // range index after which the live caller adopted
+    size_t busy_until = 0;             // the caller does not look before this range
+    size_t longest_pending = 0;        // ranges a solve stayed pending
+    size_t pending_for = 0;
+    for (size_t i = 0; i < ranges.size(); ++i) {
+        live.addRange(ranges[i].from, ranges[i].to, ranges[i].range_m);
+        pending_for = live.solvePending() ? pending_for + 1 : 0;
+        longest_pending = std::max(longest_pending, pending_for);
+        if (!live.solvePending()) {
+            continue;
+        }
+        if (adopted_after.size() == 1 && busy_until == 0) {
+            busy_until = i + 2 * live.map().links.size(); // two sweeps without a look
+        }
+        if (i < busy_until) {
+            continue;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        if (live.adoptFinishedSolve()) {
+            EXPECT_FALSE(live.solvePending());
+            adopted_after.push_back(i);
+        }
+    }
+    ASSERT_GE(adopted_after.size(), 2U);
+    // The lag is a quarter sweep: addRange would have adopted long before.
+    EXPECT_GT(longest_pending, live.map().links.size());
+    size_t next = 0;
+    for (size_t i = 0; i < ranges.size(); ++i) {
+        replayed.addRange(ranges[i].from, ranges[i].to, ranges[i].range_m);
+        if (next < adopted_after.size() && adopted_after[next] == i) {
+            EXPECT_TRUE(replayed.adoptPendingSolve()) << "range " << i;
+            ++next;
+        }
+    }
+    EXPECT_EQ(next, adopted_after.size());
+    for (Engine *engine : {&live, &replayed}) {
+        engine->settle(200ULL * engine->map().nodes.size() + 1000ULL);
+    }
+    EXPECT_TRUE(identical(live.estimates(), replayed.estimates()));
+    const engine::EngineCounters counters_live = live.counters();
+    const engine::EngineCounters counters_replayed = replayed.counters();
+    EXPECT_EQ(std::memcmp(&counters_live, &counters_replayed, sizeof(engine::EngineCounters)), 0);
+}
+
 // The steady state costs no global solve: once the links are known and a solve has seen their
 // windows full, their medians only flicker and the solve is not run again, however many ranges
 // come; while the ranges still change the links (a link reading 0.4 m longer from now on), it is.

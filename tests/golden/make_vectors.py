@@ -199,14 +199,20 @@ def stream_vector() -> dict:
 ODOMETRY_RECORD = b'{"t":1795046400.225,"distance_m":0.012,"dheading_rad":-0.001,"source":"udp:127.0.0.1:40000"}'
 
 
+# A host event as cdro-hostd writes it (host/hostd/src/engine_adapter.cpp): a global solve adopted
+# between frames, "S" and the engine's ranges received (u64, little endian).
+HOST_EVENT_RECORD = b"S" + (1234).to_bytes(8, "little")
+
+
 def capture_vector() -> dict:
-    """Format version 2: device chunks, a host frame, an odometry record."""
+    """Format version 3: device chunks, a host frame, an odometry record, a host event."""
     header = CaptureHeader(created_unix_us=1795046400123456, source="serial:/dev/ttyACM0@115200")
     records = [
         CaptureRecord(1795046400200000, encode_frame(FRAMES[0][1])[:-1]),
         CaptureRecord(1795046400210000, encode_frame(FRAMES[11][1])[:-1], capture_file.FLAG_TO_DEVICE),
         CaptureRecord(1795046400230000, ODOMETRY_RECORD, capture_file.FLAG_ODOMETRY),
         CaptureRecord(1795046400250000, b"\x13\x37"),
+        CaptureRecord(1795046400250000, HOST_EVENT_RECORD, capture_file.FLAG_HOST_EVENT),
         CaptureRecord(1795046400260000, b"", 0),
     ]
     blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in records)
@@ -220,6 +226,7 @@ def capture_vector() -> dict:
         "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
         "odometry": {"record": 2, "message": {"t": 1795046400.225, "distance_m": 0.012, "dheading_rad": -0.001,
                                               "source": "udp:127.0.0.1:40000"}},
+        "host_event": {"record": 4, "data": hexs(HOST_EVENT_RECORD)},
         "bytes": hexs(blob),
         "cut_short": {"bytes": hexs(blob[:-3]), "records": len(records) - 1, "truncated_tail_bytes": 11},
         "corrupt_middle": {"bytes": hexs(bytes(corrupt)), "records": len(records) - 1,
@@ -239,6 +246,22 @@ def capture_v1_vector() -> dict:
     blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in records)
     return {
         "header": {"created_unix_us": header.created_unix_us, "source": header.source, "format_version": 1},
+        "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
+        "bytes": hexs(blob),
+    }
+
+
+def capture_v2_vector() -> dict:
+    """A format-version-2 file (odometry, before host events): every reader must still read it."""
+    header = CaptureHeader(created_unix_us=1795046400123456, source="serial:/dev/ttyACM0@115200", format_version=2)
+    records = [
+        CaptureRecord(1795046400200000, encode_frame(FRAMES[0][1])[:-1]),
+        CaptureRecord(1795046400230000, ODOMETRY_RECORD, capture_file.FLAG_ODOMETRY),
+        CaptureRecord(1795046400250000, b"\x13\x37"),
+    ]
+    blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in records)
+    return {
+        "header": {"created_unix_us": header.created_unix_us, "source": header.source, "format_version": 2},
         "records": [{"host_time_us": r.host_time_us, "flags": r.flags, "data": hexs(r.data)} for r in records],
         "bytes": hexs(blob),
     }
@@ -316,6 +339,7 @@ def main() -> None:
         "stream": stream_vector(),
         "capture": capture_vector(),
         "capture_v1": capture_v1_vector(),
+        "capture_v2": capture_v2_vector(),
         "capture_context": capture_context_vector(),
         "sog": sog_vector(),
         "fixed": fixed_vectors(),

@@ -332,5 +332,23 @@ TEST(KnownGeometry, MapMovingIsReadCheckedAndRecordedInTheRunContext)
     EXPECT_EQ(back.settings, context.settings);
 }
 
+// A live run records that it adopted its global solves between frames (host events in its
+// capture), so that its replay adopts them there; a context without the key (cdro-sim's captures,
+// older cdro-hostd's) keeps the fixed lag, and a value this build does not know is refused.
+TEST(KnownGeometry, TheRunContextSaysWhetherTheSolvesAdoptionsWereRecorded)
+{
+    RunContext context;
+    context.settings = "engine: {}\n";
+    const std::string lagged = encodeRunContext(context);
+    EXPECT_EQ(lagged.find("solve_adoption"), std::string::npos) << lagged;
+    EXPECT_FALSE(decodeRunContext(lagged, "test").solve_adoption_recorded);
+    context.solve_adoption_recorded = true;
+    const std::string recorded = encodeRunContext(context);
+    EXPECT_TRUE(decodeRunContext(recorded, "test").solve_adoption_recorded);
+    std::string unknown = recorded;
+    unknown.replace(unknown.find("\"recorded\""), 10, "\"whenever\"");
+    EXPECT_THROW(decodeRunContext(unknown, "test"), ConfigError);
+}
+
 } // namespace
 } // namespace cdro::hostd

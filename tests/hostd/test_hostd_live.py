@@ -323,3 +323,37 @@ def test_a_resumed_run_ends_within_the_documented_tolerance(build_dir, tmp_path)
         assert all(final[n]["converged"] == uninterrupted[n]["converged"] for n in final), [
             (n, final[n]["reason"], uninterrupted[n]["reason"]) for n in final
             if final[n]["converged"] != uninterrupted[n]["converged"]]
+
+
+def test_a_live_runs_solves_are_adopted_when_done_and_replayed_in_place(build_dir, tmp_path):
+    # Live, no frame waits for the global solve: its map is taken between frames once the worker
+    # thread is done, and the capture records where (host events, format 3); the replay takes each
+    # one after the same frame and so writes the live run's node lines, bit for bit.
+    seed = int(os.environ.get("CDRO_TEST_SEED", "1"))
+    print(f"cdro-sim demo, seed {seed} (set CDRO_TEST_SEED to change it)")
+    heights, link = tmp_path / "heights.csv", tmp_path / "tty"
+    sim_log = open(tmp_path / "sim.stderr.log", "w")
+    sim = subprocess.Popen(sim_command("--seed", seed, "--pty", link, "--speed", SPEED, "--heights-csv", heights),
+                           stdout=subprocess.DEVNULL, stderr=sim_log)
+    live = None
+    try:
+        wait_until(link.is_symlink, "the simulator's pseudo-terminal")
+        live = Hostd(build_dir, tmp_path, "live", [], device=link, heights_csv=heights)
+        assert sim.wait(timeout=GUARD_S) == 0, (tmp_path / "sim.stderr.log").read_text()
+        assert live.stop() == 0, live.log()
+    finally:
+        if live is not None:
+            live.close()
+        if sim.poll() is None:
+            sim.kill()
+        sim_log.close()
+    capture = read_capture(live.capture)
+    assert capture.header.format_version == 3
+    events = [record for record in capture.records if record.host_event]
+    assert events, "no global solve was adopted between frames"
+    assert all(record.data[:1] == b"S" and len(record.data) == 9 for record in events)
+    assert last_health(live.jsonl)["counters"]["host_events"] == len(events)
+    replayed = replay(build_dir, tmp_path, "replayed", live.capture, heights)
+    assert "replay: the live run adopted" not in replayed.log()
+    assert f"{len(events)} host events fed" in replayed.log()
+    assert node_lines(replayed.jsonl) == node_lines(live.jsonl)

@@ -114,7 +114,7 @@ def test_udp_odometry_with_a_streaming_device_then_an_identical_replay(harness_b
 
     # The capture: every accepted message, where it was taken among the frames.
     capture = read_capture(harness.capture)
-    assert capture.header.format_version == 2 and capture.corrupt_bytes == 0
+    assert capture.header.format_version == 3 and capture.corrupt_bytes == 0
     records = [r.odometry_message() for r in capture.records if r.odometry]
     assert [(m["t"], m["distance_m"], m["dheading_rad"]) for m in records] == [
         (line["t_s"], line["distance_m"], line["dheading_rad"]) for line in odometry]

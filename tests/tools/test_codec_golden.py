@@ -107,25 +107,31 @@ def test_capture_golden(vectors):
 def test_capture_golden_odometry_record(vectors):
     v = vectors["capture"]
     contents = codec.parse_capture(bytes.fromhex(v["bytes"]))
-    assert contents.header.format_version == v["header"]["format_version"] == capture_file.FORMAT_VERSION == 2
+    assert contents.header.format_version == v["header"]["format_version"] == capture_file.FORMAT_VERSION == 3
     index = v["odometry"]["record"]
     record = contents.records[index]
     assert record.odometry and not record.device and not record.to_device
     assert record.odometry_message() == v["odometry"]["message"]
     assert [r.odometry for r in contents.records].count(True) == 1
-    assert [i for i, r in enumerate(contents.records) if r.device] == [0, 3, 4]
+    event = contents.records[v["host_event"]["record"]]
+    assert event.host_event and not event.device and not event.odometry
+    assert event.data.hex() == v["host_event"]["data"]
+    assert [r.host_event for r in contents.records].count(True) == 1
+    assert [i for i, r in enumerate(contents.records) if r.device] == [0, 3, 5]
     with pytest.raises(ValueError):
         contents.records[0].odometry_message()
 
 
-def test_capture_version_1_still_reads_and_encodes(vectors):
-    v = vectors["capture_v1"]
+@pytest.mark.parametrize("name, version", [("capture_v1", 1), ("capture_v2", 2)])
+def test_capture_older_versions_still_read_and_encode(vectors, name, version):
+    v = vectors[name]
     contents = codec.parse_capture(bytes.fromhex(v["bytes"]))
-    assert contents.header.format_version == 1
+    assert contents.header.format_version == version
     assert [(r.host_time_us, r.flags, r.data.hex()) for r in contents.records] == [
         (r["host_time_us"], r["flags"], r["data"]) for r in v["records"]]
-    assert not any(r.odometry for r in contents.records)
-    header = codec.CaptureHeader(v["header"]["created_unix_us"], v["header"]["source"], format_version=1)
+    assert not any(r.host_event for r in contents.records)
+    assert any(r.odometry for r in contents.records) == (version == 2)
+    header = codec.CaptureHeader(v["header"]["created_unix_us"], v["header"]["source"], format_version=version)
     blob = capture_file.encode_header(header) + b"".join(capture_file.encode_record(r) for r in contents.records)
     assert blob.hex() == v["bytes"]
 
@@ -147,7 +153,7 @@ def test_capture_header_with_a_context_reads_and_encodes(vectors):
 def test_capture_refuses_newer_versions(vectors):
     data = bytearray.fromhex(vectors["capture"]["bytes"])
     data[8] = capture_file.FORMAT_VERSION + 1
-    with pytest.raises(codec.CaptureError, match="version 3"):
+    with pytest.raises(codec.CaptureError, match=f"version {capture_file.FORMAT_VERSION + 1}"):
         codec.parse_capture(bytes(data))
     with pytest.raises(ValueError):
         capture_file.encode_header(codec.CaptureHeader(0, "x", format_version=capture_file.FORMAT_VERSION + 1))

@@ -36,12 +36,14 @@ def test_shows_odometry_records_in_their_place(tmp_path, golden_dir):
     assert result.returncode == 0, result.stderr
     lines = [json.loads(line) for line in result.stdout.decode().splitlines()]
     assert [(line["direction"], line.get("type")) for line in lines] == [
-        ("rx", "HELLO"), ("tx", "SET_SCHEDULE"), ("odometry", "ODOMETRY"), ("rx", None)]
+        ("rx", "HELLO"), ("tx", "SET_SCHEDULE"), ("odometry", "ODOMETRY"), ("rx", None), ("host_event", None)]
+    assert lines[4]["data"] == vectors["capture"]["host_event"]["data"]
     odometry = lines[2]
     assert odometry["result"] == "ok" and odometry["fields"] == vectors["capture"]["odometry"]["message"]
     assert odometry["host_time_us"] == vectors["capture"]["records"][2]["host_time_us"]
     stderr = [json.loads(line) for line in result.stderr.decode().splitlines()]
-    assert stderr[0]["capture"]["odometry_records"] == 1 and stderr[0]["capture"]["format_version"] == 2
+    assert stderr[0]["capture"]["odometry_records"] == 1 and stderr[0]["capture"]["format_version"] == 3
+    assert stderr[0]["capture"]["host_event_records"] == 1
     assert stderr[-1]["received"]["frames_ok"] == 1  # the JSON was not fed to the frame decoder
 
 

@@ -97,11 +97,12 @@ def test_that_replay_into_a_port_keeps_the_recorded_order_at_a_speed_factor(tmp_
 def test_that_the_golden_capture_plays_its_device_records_and_skips_the_host_and_odometry_ones(tmp_path, golden_dir):
     vectors = json.loads((golden_dir / "vectors.json").read_text())
     vector = vectors["capture"]
-    device_only = codec.capture_file.FLAG_TO_DEVICE | codec.capture_file.FLAG_ODOMETRY
-    expected = b"".join(bytes.fromhex(r["data"]) + b"\x00" for r in vector["records"] if not r["flags"] & device_only)
-    cases = (("whole", vector["bytes"], 3, 1), ("cut", vector["cut_short"]["bytes"], 2, 1),
-             ("version 1", vectors["capture_v1"]["bytes"], 3, 0))
-    for name, blob, played, odometry in cases:
+    not_device = (codec.capture_file.FLAG_TO_DEVICE | codec.capture_file.FLAG_ODOMETRY |
+                  codec.capture_file.FLAG_HOST_EVENT)
+    expected = b"".join(bytes.fromhex(r["data"]) + b"\x00" for r in vector["records"] if not r["flags"] & not_device)
+    cases = (("whole", vector["bytes"], 3, 1, 1), ("cut", vector["cut_short"]["bytes"], 2, 1, 1),
+             ("version 1", vectors["capture_v1"]["bytes"], 3, 0, 0))
+    for name, blob, played, odometry, host_events in cases:
         path = tmp_path / f"{name.replace(' ', '-')}.cdrocap"
         path.write_bytes(bytes.fromhex(blob))
         master, slave = os.openpty()
@@ -114,10 +115,11 @@ def test_that_the_golden_capture_plays_its_device_records_and_skips_the_host_and
         finally:
             os.close(master)
             os.close(slave)
-        assert received == want, name   # (the odometry JSON never reaches the port)
+        assert received == want, name   # (the odometry JSON and the host event never reach the port)
         assert summary["records_played"] == played and summary["records_skipped_to_device"] == 1, name
         assert summary["records_skipped_odometry"] == odometry, name
-        assert f"skipped 1 host-to-device and {odometry} odometry records" in stderr, name
+        assert summary["records_skipped_host_events"] == host_events, name
+        assert f"skipped 1 host-to-device, {odometry} odometry and {host_events} host event records" in stderr, name
         if name == "cut":
             assert summary["capture_truncated_tail_bytes"] == vector["cut_short"]["truncated_tail_bytes"]
             assert "truncated tail" in stderr

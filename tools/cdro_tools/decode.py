@@ -4,7 +4,9 @@ One line per chunk: {"host_time_us", "direction", "result", "type", "sequence", 
 good frames, and the rejection with its reason for everything else; then, on stderr, the
 decoder's counters. The robot's odometry messages in a capture (format version 2) are lines
 {"direction": "odometry", "result": "ok", "host_time_us", "type": "ODOMETRY", "fields": {"t",
-"distance_m", "dheading_rad", "source"}}, in their place among the frames. A pipe stage:
+"distance_m", "dheading_rad", "source"}}, in their place among the frames; the engine's host
+events (format version 3) lines {"direction": "host_event", "result": "ok", "host_time_us",
+"data": hex}. A pipe stage:
 compose it with jq, grep, or cdro-plot.
 
 examples:
@@ -74,8 +76,14 @@ def main(argv: list[str] | None = None) -> int:
                             out.write(json.dumps(_line(event)) + "\n")
         else:
             contents = read_capture(args.input)
-            odometry = 0
+            odometry = host_events = 0
             for record in contents.records:
+                if record.host_event:
+                    host_events += 1
+                    if not args.summary:
+                        out.write(json.dumps({"direction": "host_event", "host_time_us": record.host_time_us,
+                                              "result": "ok", "data": record.data.hex()}) + "\n")
+                    continue
                 if record.odometry:
                     odometry += 1
                     if not args.summary:
@@ -89,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                                           "format_version": contents.header.format_version,
                                           "context": contents.header.context.decode("utf-8", errors="replace"),
                                           "records": len(contents.records), "odometry_records": odometry,
+                                          "host_event_records": host_events,
                                           "corrupt_bytes": contents.corrupt_bytes,
                                           "truncated_tail_bytes": contents.truncated_tail_bytes}}),
                   file=sys.stderr)

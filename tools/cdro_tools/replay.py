@@ -2,11 +2,14 @@
 pseudo-terminal, at the recorded timing divided by --speed (or as fast as the reader takes
 the bytes with --speed max). Each record is written as its chunk followed by the 0x00
 delimiter, so a capture made by cdro-capture or cdro-sim plays back byte for byte.
-Host-to-device records and the robot's odometry records (a cdro-hostd capture, format
-version 2: they never came over the serial link) are skipped, counted in the summary as
-records_skipped_to_device and records_skipped_odometry. With --pty, playing starts when a
-reader opens the link, and the link is removed after the reader has read everything (at most
-5 s).
+Host-to-device records, the robot's odometry records (a cdro-hostd capture, format
+version 2) and the engine's host events (format 3): none of them came over the serial link, so
+they are skipped, counted in the summary as records_skipped_to_device, records_skipped_odometry
+and records_skipped_host_events (the service fed this way adopts its global solves on its own
+timing, as live; its own replay of the file repeats the recorded ones).
+
+With --pty, playing starts when a reader opens the link, and the link is removed after the
+reader has read everything (at most 5 s).
 
 examples:
   cdro-replay run.cdrocap --pty /tmp/cdro-dev               # then: cdro-hostd --device /tmp/cdro-dev
@@ -108,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     records = [r for r in contents.records if r.device]
     skipped = sum(1 for r in contents.records if r.to_device)
     skipped_odometry = sum(1 for r in contents.records if r.odometry and not r.to_device)
+    skipped_host_events = sum(1 for r in contents.records if r.host_event)
     if contents.corrupt_bytes or contents.truncated_tail_bytes:
         _err(f"{args.capture}: skipping {contents.corrupt_bytes} corrupt bytes and a truncated tail of "
              f"{contents.truncated_tail_bytes} bytes (the records around them play)")
@@ -161,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     c = decoder.counters
     summary = {"ended_by": ended_by, "records_played": played, "bytes": played_bytes, "seconds": round(seconds, 3),
                "records_skipped_to_device": skipped, "records_skipped_odometry": skipped_odometry,
+               "records_skipped_host_events": skipped_host_events,
                "records_truncated": truncated,
                "capture_corrupt_bytes": contents.corrupt_bytes,
                "capture_truncated_tail_bytes": contents.truncated_tail_bytes, "bytes_unread": unread,
@@ -168,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
                "rejected": {k[:-7]: v for k, v in c.items() if k.endswith("_errors") and v}}
     _err(f"played {played} of {len(records)} device records ({played_bytes} bytes) in {seconds:.1f} s "
          f"({ended_by}); {c['frames_ok']} good frames, rejected {summary['rejected'] or 'none'}; skipped {skipped} "
-         f"host-to-device and {skipped_odometry} odometry records")
+         f"host-to-device, {skipped_odometry} odometry and {skipped_host_events} host event records")
     print(json.dumps(summary))
     return 0
 

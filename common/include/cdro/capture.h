@@ -33,6 +33,10 @@
  *           With CDRO_CAPTURE_FLAG_ODOMETRY: one accepted odometry message as normalised
  *           JSON (UTF-8, one object, no newline), after conversion to a step:
  *           {"t":<s since the epoch>,"distance_m":<m>,"dheading_rad":<rad>,"source":"<where>"}
+ *           With CDRO_CAPTURE_FLAG_HOST_EVENT: something the host's estimator did on its own
+ *           timing between two frames, which a replay repeats after the same frame, as the
+ *           estimator defines it (cdro-hostd: 'S' and the engine's ranges taken, u64 little
+ *           endian: a global solve's map adopted once its worker thread was done).
  *   12+n u16 CRC-16/CCITT-FALSE of bytes [0, 12+n)
  *
  * Each record is self-delimiting (length) and checked (CRC), and is written with a single
@@ -44,7 +48,8 @@
  * reader ignores flag bits it does not know, so it would feed an odometry record's JSON to its
  * frame decoder as if the device had sent it; that is why files that can hold such records
  * say 2, which a version-1 reader refuses as newer. Readers of version 2 read version-1 files
- * unchanged (they never have the bit set). The header's layout is the same in both.
+ * unchanged (they never have the bit set). 3: adds CDRO_CAPTURE_FLAG_HOST_EVENT, for the same
+ * reason a new version. The header's layout is the same in all three.
  */
 #ifndef CDRO_CAPTURE_H
 #define CDRO_CAPTURE_H

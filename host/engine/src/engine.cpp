@@ -273,6 +273,18 @@ void Engine::startGlobalSolve(bool settling)
     global_.start(map_, intake_.counters().taken(), settling);
 }
 
+bool Engine::adoptFinishedSolve() { return global_.finished() && adoptPendingSolve(); }
+
+bool Engine::adoptPendingSolve()
+{
+    if (!global_.pending()) {
+        return false;
+    }
+    adoptGlobalSolve();
+    keepFrame();
+    return true;
+}
+
 void Engine::adoptGlobalSolve()
 {
     const GlobalStep::Outcome outcome = global_.adopt(map_, frame_.fixedFrameNodes(), trace_);

@@ -1,6 +1,7 @@
 #include "cdro/engine/global_step.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <future>
 #include <memory>
@@ -301,6 +302,7 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_taken, bool settling
     const double lag_ranges = params_.solve.adopt_after_sweeps * static_cast<double>(map.links.size());
     const bool background = !settling && lag_ranges >= 1.0;
     adopt_in_ranges_ = background ? static_cast<uint64_t>(lag_ranges) : 0U;
+    job->background = background;
     // The worker reads only what the job owns (the problem, the start) and copies of the model and
     // the parameters: nothing the caller goes on changing. It holds the job by a plain pointer: the
     // future's shared state keeps the callable, so a shared_ptr in it would keep the job alive
@@ -332,6 +334,12 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_taken, bool settling
             return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error, check);
         }).share();
     pending_ = std::move(job);
+}
+
+bool GlobalStep::finished() const
+{
+    return pending_ != nullptr && pending_->background &&
+           pending_->result.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
 }
 
 GlobalStep::Outcome GlobalStep::adopt(MapState &map, uint32_t fixed_frame_nodes, const Trace &trace)

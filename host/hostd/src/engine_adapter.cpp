@@ -4,6 +4,7 @@
 #include <cmath>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "cdro/fixed.h"
 #include "cdro/hostd/checkpoint_blocks.hpp"
@@ -117,6 +118,56 @@ void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameCo
         movement_->setMoving(motion.node_id, motion.moving != 0, seconds(context.host_unix_us));
     } else {
         engine_.setMoving(motion.node_id, motion.moving != 0);
+    }
+}
+
+namespace {
+
+constexpr uint8_t kSolveAdopted = 'S'; // host event: a global solve adopted; then u64 ranges received
+constexpr size_t kSolveAdoptedBytes = 9;
+
+} // namespace
+
+std::vector<uint8_t> EngineAdapter::hostEventAfterFrame(const service::FrameContext &)
+{
+    if (!engine_.adoptFinishedSolve()) {
+        return {};
+    }
+    const uint64_t ranges = engine_.counters().intake.ranges_received;
+    std::vector<uint8_t> event(kSolveAdoptedBytes, 0);
+    event[0] = kSolveAdopted;
+    for (size_t i = 0; i < 8; ++i) {
+        event[1 + i] = static_cast<uint8_t>(ranges >> (8U * i));
+    }
+    return event;
+}
+
+void EngineAdapter::onHostEvent(const uint8_t *data, size_t len, const service::FrameContext &context)
+{
+    last_event_unix_us_ = context.host_unix_us;
+    if (len != kSolveAdoptedBytes || data[0] != kSolveAdopted) {
+        ++host_events_mismatched_;
+        service::log()->warn("replay: a host event this cdro-hostd does not know ({} bytes, first 0x{:02x}) skipped",
+                             len, len > 0 ? data[0] : 0);
+        return;
+    }
+    uint64_t live_ranges = 0;
+    for (size_t i = 0; i < 8; ++i) {
+        live_ranges |= static_cast<uint64_t>(data[1 + i]) << (8U * i);
+    }
+    const uint64_t ranges = engine_.counters().intake.ranges_received;
+    if (!engine_.adoptPendingSolve()) {
+        ++host_events_mismatched_;
+        service::log()->warn("replay: the live run adopted a global solve after {} ranges, but none is pending here "
+                             "(after {}): another engine or other settings than the live run's; the map will differ",
+                             live_ranges, ranges);
+        return;
+    }
+    if (ranges != live_ranges) {
+        ++host_events_mismatched_;
+        service::log()->warn("replay: the live run adopted a global solve after {} ranges, this replay after {}: the "
+                             "map will differ from the live one",
+                             live_ranges, ranges);
     }
 }
 

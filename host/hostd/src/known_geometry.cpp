@@ -133,6 +133,9 @@ std::string encodeRunContext(const RunContext &context)
     if (!context.moving.empty()) {
         json["moving"] = context.moving; // absent otherwise: the header of a run without it is as before
     }
+    if (context.solve_adoption_recorded) {
+        json["solve_adoption"] = "recorded";
+    }
     return json.dump(); // doubles in their shortest round-trip form: read back bit for bit
 }
 
@@ -157,6 +160,14 @@ RunContext decodeRunContext(const std::string &text, const std::string &origin)
         context.settings = json.at("settings").get<std::string>();
         if (json.contains("moving")) {
             context.moving = json.at("moving").get<std::vector<uint16_t>>();
+        }
+        if (json.contains("solve_adoption")) {
+            const std::string adoption = json.at("solve_adoption").get<std::string>();
+            if (adoption != "recorded") {
+                throw cdro::service::ConfigError(origin + ": the run context's solve_adoption is '" + adoption +
+                                                 "', which this cdro-hostd does not know");
+            }
+            context.solve_adoption_recorded = true;
         }
     } catch (const nlohmann::json::exception &error) {
         throw service::ConfigError(origin + ": the run's context in the capture header is unreadable (" +

@@ -37,8 +37,9 @@ namespace {
 // A replay reaches the live run's map only with what the map depended on: the heights and fixed
 // nodes and the settings, which the live run recorded in its capture's header. Whatever the
 // replay's own command line and configuration do not give is taken from there; what they give
-// is used, with a warning when it differs from the live run's.
-void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_settings, cdro::hostd::KnownRows &rows,
+// is used, with a warning when it differs from the live run's. Returns whether the live run
+// recorded where it adopted its global solves (the replay then adopts them there).
+bool takeRunContext(const std::string &capture, bool gave_geometry, bool gave_settings, cdro::hostd::KnownRows &rows,
                     cdro::engine::EngineParams &params, cdro::engine::MovementParams &movement,
                     std::vector<uint16_t> &moving)
 {
@@ -49,7 +50,7 @@ void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_se
             "it): the replay uses the heights, fixed nodes and settings given now ({} heights, {} fixed nodes, {} "
             "settings) and reaches the live run's map only if they are the live run's",
             capture, rows.heights.size(), rows.fixed.size(), gave_settings ? "the configured" : "the default");
-        return;
+        return false;
     }
     const cdro::hostd::RunContext recorded = cdro::hostd::decodeRunContext(reader.context(), capture);
     if (!gave_geometry) {
@@ -83,6 +84,7 @@ void takeRunContext(const std::string &capture, bool gave_geometry, bool gave_se
                                    "capture; cdro-hostd --print-config shows these); the map will differ from the "
                                    "live one");
     }
+    return recorded.solve_adoption_recorded;
 }
 
 } // namespace
@@ -241,19 +243,25 @@ static int runMain(int argc, char **argv)
                                        "JSON Lines (--jsonl - writes them here, --jsonl FILE to a file)");
         }
         cdro::hostd::KnownRows rows = cdro::hostd::readKnownGeometry(geometry, 20, stderr);
+        // Live, no frame waits for the global solve: its map is adopted between frames once its
+        // worker is done, and the capture records where (host events), so that a replay adopts it
+        // there. Captures that do not say so (cdro-sim's, older cdro-hostd's) keep the fixed lag.
+        bool adoption_recorded = service_overrides.run.replay_path.empty();
         if (!service_overrides.run.replay_path.empty()) {
             const bool gave_geometry = !geometry.heights_csv.empty() || !geometry.fixed_csv.empty();
             const bool gave_settings =
                 (document.root && document.root.IsMap() && (document.root["engine"] || document.root["movement"])) ||
                 engine_overrides.no_weight_transfer || engine_overrides.no_cooperative ||
                 engine_overrides.no_refinement || engine_overrides.no_motion_reset;
-            takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows, params, movement,
-                           geometry.moving);
+            adoption_recorded = takeRunContext(service_overrides.run.replay_path, gave_geometry, gave_settings, rows,
+                                               params, movement, geometry.moving);
         }
         if (!geometry.moving.empty() && movement.robot_id != 0) {
             throw cdro::service::ConfigError("map.moving is not for the movement stage: no movement.robot_id with it");
         }
         cdro::engine::Engine engine(params);
+        engine.setSolveAdoption(adoption_recorded ? cdro::engine::Engine::SolveAdoption::ByCaller
+                                                  : cdro::engine::Engine::SolveAdoption::AfterLag);
         engine.setTrace([](const std::string &message) { cdro::service::log()->debug("engine: {}", message); });
         const cdro::hostd::KnownGeometryCounts known = cdro::hostd::applyKnownRows(engine, rows);
         if (known.heights + known.fixed > 0) {
@@ -272,8 +280,8 @@ static int runMain(int argc, char **argv)
         cdro::service::SystemClock clock;
         cdro::service::Service service(config, service_overrides.run, {&adapter, &adapter, &adapter, &adapter}, clock);
         service.setCaptureContext(cdro::hostd::encodeRunContext(
-            {rows, cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement),
-             geometry.moving}));
+            {rows, cdro::hostd::engineParamsYaml(params) + cdro::hostd::movementParamsYaml(movement), geometry.moving,
+             adoption_recorded}));
         service.start();
         if (!service.liveMapUrl().empty()) {
             std::fprintf(stderr, "cdro-hostd: live map: %s\n", service.liveMapUrl().c_str());

@@ -110,6 +110,14 @@ void FrameIntake::noteSentFrame(uint8_t type)
     }
 }
 
+void FrameIntake::pushHostEvent(const uint8_t *data, size_t len, int64_t host_unix_us)
+{
+    last_event_unix_us_ = host_unix_us;
+    if (consumer_ != nullptr) {
+        consumer_->onHostEvent(data, len, FrameContext{host_unix_us, 0});
+    }
+}
+
 void FrameIntake::push(const uint8_t *bytes, size_t len, int64_t host_unix_us)
 {
     last_event_unix_us_ = host_unix_us;

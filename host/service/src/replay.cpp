@@ -71,6 +71,11 @@ void ReplaySource::feed(const CaptureRecord &record)
         }
         return;
     }
+    if (record.hostEvent()) {
+        ++counters_.replay_host_events;
+        intake_.pushHostEvent(record.data.data(), record.data.size(), record.host_time_us);
+        return;
+    }
     if (record.toDevice()) {
         ++counters_.replay_to_device_records;
         cdro_frame_t frame;
@@ -143,8 +148,10 @@ void ReplaySource::finish()
     if (after_batch_) {
         after_batch_();
     }
-    log()->info("replay: finished ({} device records and {} odometry records fed, {} host-to-device records skipped)",
-                counters_.replay_records, counters_.replay_odometry_records, counters_.replay_to_device_records);
+    log()->info("replay: finished ({} device records, {} odometry records and {} host events fed, {} host-to-device "
+                "records skipped)",
+                counters_.replay_records, counters_.replay_odometry_records, counters_.replay_host_events,
+                counters_.replay_to_device_records);
     if (on_finished_) {
         on_finished_();
     }

@@ -10,6 +10,14 @@
 
 namespace cdro::service {
 
+namespace {
+
+// us: how soon, live, work the consumer finished between frames is taken in (a global solve's
+// map after the last frame of a burst); well under a frame's period at the firmware's ~14 frames/s.
+constexpr int64_t kHostEventPollUs = 20'000;
+
+} // namespace
+
 // Forwards every frame to the engine, then lets the service publish what changed, so that the
 // outputs follow the frames one by one (and a replay reproduces them exactly).
 class Service::ConsumerTap final : public FrameConsumer {
@@ -48,6 +56,11 @@ public:
     void onDeviceReset(DeviceResetReason reason, const FrameContext &context) override
     {
         inner_.onDeviceReset(reason, context);
+        service_.afterFrame(context.host_unix_us);
+    }
+    void onHostEvent(const uint8_t *data, size_t len, const FrameContext &context) override
+    {
+        inner_.onHostEvent(data, len, context);
         service_.afterFrame(context.host_unix_us);
     }
 
@@ -203,6 +216,9 @@ void Service::start()
     if (systemd_.watchdogPeriodUs() > 0) {
         loop_.addTimerAfter(systemd_.watchdogPeriodUs(), [this] { watchdogTick(); });
     }
+    if (!replay_) {
+        loop_.addTimerAfter(kHostEventPollUs, [this] { hostEventTick(); });
+    }
 
     started_ = true;
     systemd_.ready(statusLine());
@@ -324,7 +340,20 @@ void Service::stampUpdates(MapState &map) const
 
 void Service::afterFrame(int64_t event_unix_us)
 {
-    if (hooks_.map == nullptr || shut_down_) {
+    if (shut_down_) {
+        return;
+    }
+    if (!replaying()) {
+        // Live: the estimator's own-timed work, recorded right after the frame it followed.
+        const std::vector<uint8_t> event = hooks_.consumer->hostEventAfterFrame(FrameContext{event_unix_us, 0});
+        if (!event.empty()) {
+            ++counters_.host_events;
+            if (capture_ != nullptr) {
+                capture_->append(CDRO_CAPTURE_FLAG_HOST_EVENT, event_unix_us, event.data(), event.size());
+            }
+        }
+    }
+    if (hooks_.map == nullptr) {
         return;
     }
     const uint64_t revision = hooks_.map->revision();
@@ -440,6 +469,16 @@ void Service::healthTick()
     mqtt_.publishHealth(h, outputTime(now_us));
     systemd_.status(statusLine());
     loop_.addTimerAfter(secondsToUs(config_.output.health_period_s), [this] { healthTick(); });
+}
+
+void Service::hostEventTick()
+{
+    if (shut_down_) {
+        return;
+    }
+    afterFrame(nowEventUnixUs()); // records a host event if the consumer has one; then the outputs
+    jsonl_.flush();
+    loop_.addTimerAfter(kHostEventPollUs, [this] { hostEventTick(); });
 }
 
 void Service::watchdogTick()

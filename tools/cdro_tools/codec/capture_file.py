@@ -1,7 +1,8 @@
 """Capture files, the Python twin of common/include/cdro/capture.h (layout documented there
 and in docs/protocol.md): a checked header, then self-delimiting checked records, one per
-chunk received (or frame sent, or, from format version 2, odometry message accepted). A file
-cut short loses at most its last record. Version-1 files read unchanged.
+chunk received (or frame sent, or, from format version 2, odometry message accepted, or, from
+version 3, host event of the estimator). A file cut short loses at most its last record. Files
+of versions 1 and 2 read unchanged.
 
 The fixed fields (CAPTURE_HEAD, CAPTURE_RECORD_HEAD) and the constants come from layout.py,
 generated from common/include/cdro/capture_layout.def, the table the C codec expands."""
@@ -30,6 +31,7 @@ MAX_DATA = CONSTANTS["CDRO_CAPTURE_MAX_DATA"]
 FLAG_TO_DEVICE = CONSTANTS["CDRO_CAPTURE_FLAG_TO_DEVICE"]
 FLAG_TRUNCATED = CONSTANTS["CDRO_CAPTURE_FLAG_TRUNCATED"]
 FLAG_ODOMETRY = CONSTANTS["CDRO_CAPTURE_FLAG_ODOMETRY"]  # version 2: the data is an odometry message (JSON)
+FLAG_HOST_EVENT = CONSTANTS["CDRO_CAPTURE_FLAG_HOST_EVENT"]  # version 3: what the estimator did on its own timing
 
 # Fields in table order: (format_version, header_size, created_unix_us, source_len) and
 # (marker, flags, data_len, host_time_us); the names are checked below.
@@ -79,9 +81,15 @@ class CaptureRecord:
         return bool(self.flags & FLAG_ODOMETRY)
 
     @property
+    def host_event(self) -> bool:
+        """Something the host's estimator did between two frames, which a replay repeats in place
+        (cdro-hostd: b"S" and its ranges received, u64 little endian: a global solve adopted)."""
+        return bool(self.flags & FLAG_HOST_EVENT)
+
+    @property
     def device(self) -> bool:
-        """A chunk received from the device (neither sent to it nor odometry)."""
-        return not self.flags & (FLAG_TO_DEVICE | FLAG_ODOMETRY)
+        """A chunk received from the device (not sent to it, not odometry, not a host event)."""
+        return not self.flags & (FLAG_TO_DEVICE | FLAG_ODOMETRY | FLAG_HOST_EVENT)
 
     def odometry_message(self) -> dict:
         """The odometry record's message: {"t", "distance_m", "dheading_rad", "source"}."""

@@ -195,8 +195,20 @@ public:
         uint64_t assessed_key = 0;
     };
     const SolveSchedule &solveSchedule() const { return global_.schedule(); }
-    // A global solve started on the worker thread and not adopted yet (adopted at a fixed range).
+    // A global solve started on the worker thread and not adopted yet.
     bool solvePending() const { return global_.pending(); }
+    // Who adopts a global solve that runs on the worker thread. AfterLag (the default): addRange,
+    // `solve.adopt_after_sweeps` sweeps after it started, waiting for the worker if it is not done
+    // (the place depends on the range stream alone: CSV files, older captures). ByCaller: never
+    // addRange; live, adoptFinishedSolve() between ranges once the worker is done, so that no range
+    // waits for a solve, the caller recording where it adopted; a replay, adoptPendingSolve() at
+    // those places (cdro-hostd: host events in the capture), for the same estimates bit for bit.
+    enum class SolveAdoption : uint8_t { AfterLag, ByCaller };
+    void setSolveAdoption(SolveAdoption adoption) { global_.setAdoptionByCaller(adoption == SolveAdoption::ByCaller); }
+    // Adopts the pending solve if its worker is done, never waiting; whether it adopted.
+    bool adoptFinishedSolve();
+    // Adopts the pending solve, waiting for its worker; false when none is pending.
+    bool adoptPendingSolve();
     // The convergence checks' whole-map doubts and the structure they were assessed on: a
     // restored engine decides as this one would, without assessing again.
     const std::vector<NodeDoubt> &structuralDoubts() const { return convergence_.structuralDoubts(); }

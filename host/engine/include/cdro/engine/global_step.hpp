@@ -126,8 +126,18 @@ public:
     bool pending() const { return pending_ != nullptr; }
     // One more range taken (refused ranges do not count: they change nothing else either).
     void countRange() { adopt_in_ranges_ -= pending_ != nullptr && adopt_in_ranges_ > 0 ? 1U : 0U; }
-    // Whether the pending solve's map is due now.
-    bool adoptionDue() const { return pending_ != nullptr && adopt_in_ranges_ == 0; }
+    // Whether the pending solve's map is due now: a solve of the caller's thread at once, one of
+    // the worker thread after its lag, unless the caller adopts those (setAdoptionByCaller).
+    bool adoptionDue() const
+    {
+        return pending_ != nullptr && adopt_in_ranges_ == 0 && !(adoption_by_caller_ && pending_->background);
+    }
+    // Whether a solve runs on the worker thread and its map waits for the caller (never for the
+    // range stream): adopted where adopt() is called, which the caller must then be able to repeat
+    // (cdro-hostd records the place in its capture). Default false: after the lag.
+    void setAdoptionByCaller(bool by_caller) { adoption_by_caller_ = by_caller; }
+    // The pending solve ran on the worker thread and is done: adopt() would not wait.
+    bool finished() const;
     // Waits for the pending solve and adopts its map into `map` (positions only: the caller moves
     // the rings, places the new nodes' SoGs and restarts eq. 16 for the moved ones).
     Outcome adopt(MapState &map, uint32_t fixed_frame_nodes, const Trace &trace);
@@ -158,6 +168,7 @@ private:
         std::vector<StructureNode> nodes;    // per node of the problem, at the start (for the checks)
         bool refresh = false;                // the same links and nodes as the last full solve
         bool settling = false;
+        bool background = false;              // on the worker thread (not deferred to adopt())
         bool check_structure = false;         // run the whole-map checks (refinement on)
         std::shared_future<SolvedMap> result; // last: destroyed first, waiting for the worker
     };
@@ -175,6 +186,7 @@ private:
     GlobalStepCounters counters_;
     std::shared_ptr<const PendingSolve> pending_;
     uint64_t adopt_in_ranges_ = 0; // ranges to take before the pending solve's map is adopted
+    bool adoption_by_caller_ = false;
 };
 
 } // namespace cdro::engine

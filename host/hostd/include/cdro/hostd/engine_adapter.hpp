@@ -2,7 +2,9 @@
 // (host/service: consumer.hpp, map_state.hpp, checkpoint.hpp), for cdro-hostd.
 //
 //   FrameConsumer       RANGE -> Engine::addRange (mm -> m), MOTION -> Engine::setMoving (or the
-//                       movement stage's, with the frame's event time in s)
+//                       movement stage's, with the frame's event time in s); host events: the
+//                       global solve adopted between frames, live when its worker is done, on
+//                       replay where the capture says (Engine::SolveAdoption::ByCaller)
 //   MapSource           the engine's estimates in the output frame, its links, SoG components;
 //                       the nodes tracked in 3D (map.moving) with their 3D track: z_m, var_z_m2,
 //                       cov_xz_m2, cov_yz_m2 (docs/outputs.md), once they have started
@@ -70,6 +72,13 @@ public:
     // FrameConsumer
     void onRange(const cdro_range_t &range, const service::FrameContext &context) override;
     void onMotion(const cdro_motion_t &motion, const service::FrameContext &context) override;
+    // Host events (consumer.hpp): with Engine::SolveAdoption::ByCaller, live, the global solve's
+    // map is adopted after the first frame that finds its worker done, and the event says so
+    // ('S' and the engine's ranges received, u64 little endian); a replay adopts it after the same
+    // frame. An event that does not fit the replay (another engine or settings: no solve pending,
+    // or the ranges differ) is warned about, counted and skipped where it cannot be taken.
+    std::vector<uint8_t> hostEventAfterFrame(const service::FrameContext &context) override;
+    void onHostEvent(const uint8_t *data, size_t len, const service::FrameContext &context) override;
 
     // MapSource
     uint64_t revision() const override { return movement_ != nullptr ? movement_->revision() : engine_.revision(); }
@@ -83,6 +92,9 @@ public:
     std::vector<uint16_t> restoredNodes() const override;
 
     uint64_t rangesRefused() const { return ranges_refused_; }
+    // Host events of a replay that did not fit it (unknown, or no solve pending to adopt, or
+    // another range count): the replay diverges from the live run there.
+    uint64_t hostEventsMismatched() const { return host_events_mismatched_; }
     int64_t lastEventUnixUs() const { return last_event_unix_us_; }
 
 private:
@@ -90,6 +102,7 @@ private:
     engine::MovementStage *movement_ = nullptr;
     std::vector<uint16_t> moving_; // tracked in 3D
     uint64_t ranges_refused_ = 0;
+    uint64_t host_events_mismatched_ = 0;
     int64_t last_event_unix_us_ = 0;
 };
 

@@ -74,12 +74,16 @@ void trackMovingNodes(engine::Engine &engine, const KnownRows &rows, const std::
 // header, capture.h): the known heights and fixed nodes, the nodes tracked in 3D, and the engine's and movement stage's
 // settings as --print-config prints them. JSON:
 //   {"heights": [[id, z_m], ...], "fixed": [[id, x_m, y_m], ...], "settings": "engine:\n  ...",
-//    "moving": [id, ...]}
+//    "moving": [id, ...], "solve_adoption": "recorded"}
 // A replay takes from it whatever its own command line does not give (docs/service.md).
 struct RunContext {
     KnownRows rows;
     std::string settings;         // YAML
     std::vector<uint16_t> moving; // map.moving; "moving": [id, ...] (absent in older captures: none)
+    // The live run adopted its global solves between frames when done and recorded where (host
+    // events, Engine::SolveAdoption::ByCaller); absent (captures of cdro-sim, older cdro-hostd):
+    // adopted at the fixed lag, which a replay then keeps.
+    bool solve_adoption_recorded = false;
 };
 std::string encodeRunContext(const RunContext &context);
 // Throws cdro::service::ConfigError naming `origin` when the text is not a run context.

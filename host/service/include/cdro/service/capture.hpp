@@ -2,7 +2,8 @@
 // service and read back by --replay.
 //
 // CaptureWriter appends one record per chunk received (and per frame sent, flagged
-// to-device, and per odometry message accepted, flagged odometry), each with a single write() on an O_APPEND descriptor and no user-space
+// to-device, per odometry message accepted, flagged odometry, and per host event of the
+// estimator, flagged host event: consumer.hpp), each with a single write() on an O_APPEND descriptor and no user-space
 // buffering: a kill -9 at any moment loses at most the record being written, which readers
 // report as a truncated tail. Before a record would take the file past rotate_mib, the file is
 // rotated: path -> path.1 -> path.2 ... up to path.<keep> (older ones are deleted), and a new
@@ -83,6 +84,7 @@ struct CaptureRecord {
                                // the message as normalised JSON)
     bool toDevice() const { return (flags & CDRO_CAPTURE_FLAG_TO_DEVICE) != 0; }
     bool odometry() const { return (flags & CDRO_CAPTURE_FLAG_ODOMETRY) != 0; }
+    bool hostEvent() const { return (flags & CDRO_CAPTURE_FLAG_HOST_EVENT) != 0; }
 };
 
 class CaptureReader {

@@ -9,7 +9,9 @@
 // read any clock of its own, only FrameContext::host_unix_us.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "cdro/frames.h"
 
@@ -40,6 +42,16 @@ public:
     // The device restarted: its clock (device_time_ms) and sequence numbers start again.
     // Called before the frame that revealed the reset is delivered.
     virtual void onDeviceReset(DeviceResetReason, const FrameContext &) {}
+
+    // Host events: what the consumer does on its own timing (cdro-hostd: a global solve's map,
+    // adopted once its worker thread is done, so that no frame waits for it), which a replay
+    // must repeat at the same place of the frame stream to reach the same estimates. Live, after
+    // every frame delivered: the consumer does such work now and describes it (empty: none); the
+    // service records the description in the capture after that frame (the record's time is
+    // `context`'s). On --replay this is not called; instead each recorded description comes back
+    // to onHostEvent, after the same frame. At most CDRO_CAPTURE_MAX_DATA bytes.
+    virtual std::vector<uint8_t> hostEventAfterFrame(const FrameContext &) { return {}; }
+    virtual void onHostEvent(const uint8_t *, size_t, const FrameContext &) {}
 };
 
 } // namespace cdro::service

@@ -56,6 +56,8 @@ namespace cdro::service {
     X(replay_corrupt_bytes, "capture bytes skipped as corrupt on replay")                                          \
     X(replay_truncated_bytes, "bytes of a cut-short last record on replay")                                        \
     X(replay_odometry_records, "odometry records fed from a capture")                                              \
+    X(replay_host_events, "host events fed from a capture (cdro-hostd: solves adopted where the live run did)")    \
+    X(host_events, "host events of the estimator recorded live (cdro-hostd: solves adopted when done)")            \
     X(odometry_received, "odometry messages received (UDP, MQTT, or fed from a capture)")                          \
     X(odometry_accepted, "odometry messages handed to the consumer (as steps)")                                    \
     X(odometry_clock_starts, "velocity messages that only started their source's clock (no step)")                 \

@@ -65,6 +65,8 @@ public:
     void setObserver(IntakeObserver *observer) { observer_ = observer; }
     void setCapture(CaptureWriter *capture) { capture_ = capture; }
 
+    // A host event recorded in a capture (consumer.hpp, onHostEvent), on --replay.
+    void pushHostEvent(const uint8_t *data, size_t len, int64_t host_unix_us);
     // Received bytes, all with the same event time.
     void push(const uint8_t *bytes, size_t len, int64_t host_unix_us);
     // The byte source ended (device vanished): a partial chunk is ended as if a delimiter had

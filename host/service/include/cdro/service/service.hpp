@@ -126,6 +126,9 @@ private:
     void httpTick();
     void checkpointTick();
     void watchdogTick();
+    // Live: between frames too (a pause, the last frame), the consumer's own-timed work is
+    // taken in within kHostEventPollUs and recorded (consumer.hpp, host events).
+    void hostEventTick();
     std::string statusLine() const; // systemd's STATUS=: link, frames, nodes, the live map
     bool replayMayGoOn();
     void shutdown(const std::string &why);
