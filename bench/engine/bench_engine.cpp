@@ -47,6 +47,7 @@
 #include "cdro/engine/engine.hpp"
 #include "cdro/netgen/geometric.hpp"
 #include "cdro/netgen/random.hpp"
+#include "bench_networks.hpp"
 #include "plant_data.hpp"
 
 namespace {
@@ -590,29 +591,14 @@ Json plantJson(const Plant &plant, const std::vector<PlantRun> &runs, uint32_t p
 
 // ---- random geometric networks --------------------------------------------------------------
 
-// The networks of docs/bench.md: netgen's geometric network (cdro/netgen/geometric.hpp, which
-// says what is drawn and how the seed is used): ids 1..n, every pair within the radius of the
-// expected mean degree, each link's direction drawn, connected, the links in a drawn feeding
-// order; attempt k of a size from its own seed, so each size and seed is one network.
-cdro::netgen::GeometricNetwork drawNetwork(uint32_t nodes, double degree, double area_per_node_m2, uint64_t seed)
-{
-    cdro::netgen::GeometricOptions options;
-    options.nodes = nodes;
-    options.mean_degree = degree;
-    options.area_per_node_m2 = area_per_node_m2;
-    options.radius = cdro::netgen::GeometricOptions::Radius::ExpectedDegree;
-    options.ids = cdro::netgen::GeometricOptions::Ids::Sequential;
-    options.draw_directions = true;
-    options.shuffle_links = true;
-    return cdro::netgen::drawGeometric(seed, options);
-}
+using cdro::bench::drawNetwork; // bench_networks.hpp
 
 struct NetworkOptions {
-    double degree = 10.0;
-    double area_per_node_m2 = 80.0; // m^2, PLANT's density (~3000 m^2 for its 38 surveyed nodes)
-    double noise_sigma_m = 0.10;    // m, Gaussian range noise (Pozyx nominal)
-    uint32_t warmup_sweeps = 4;     // the map is built and, two sweeps after the last new link,
-                                    // the initialization runs once more on the whole network
+    double degree = cdro::bench::kNetworkDegree;
+    double area_per_node_m2 = cdro::bench::kNetworkAreaPerNodeM2; // m^2, PLANT's density
+    double noise_sigma_m = 0.10;                                  // m, Gaussian range noise (Pozyx nominal)
+    uint32_t warmup_sweeps = 4; // the map is built and, two sweeps after the last new link,
+                                // the initialization runs once more on the whole network
     uint32_t min_sweeps = 20;
     uint64_t steady_ranges = 60000; // at least this many ranges in the steady state
     std::string write_csv_dir;      // with --one-network: the stream and the truth as CSV files

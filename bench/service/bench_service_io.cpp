@@ -15,13 +15,19 @@
 //                   streams PLANT's 1205 ranges (../shared/data/plant/ranges.csv) pass after
 //                   pass, node id k as 0x6000 + k; at the end the map is scored against
 //                   PLANT's surveyed positions (rigid fit with reflection, as cdro-bench-engine).
+//   --engine network  the same engine on a random network of docs/bench.md (--nodes, --seed:
+//                   bench_networks.hpp, degree ~10 at PLANT's density, heights 0), node id k as
+//                   0x1000 + k; the device streams every link once a pass (one noisy pass of
+//                   0.1 m, drawn once, repeated), and the map is scored against the truth.
+// With the engine, its global solves are adopted between frames once done, as cdro-hostd does
+// live (Engine::SolveAdoption::ByCaller: no frame waits for a solve); each adoption is timed.
 //
 // Figures only: nothing here passes or fails on a time. docs/bench.md has the figures.
 //
 // In a run, the JSON Lines file (in a temporary folder, removed at the end) is truncated each
 // time it passes 1 GiB, so that a soak does not fill the disk.
 //
-//   cdro-bench-service [--engine none|plant] [--frames N | --soak-s S] [--rate-hz R]
+//   cdro-bench-service [--engine none|plant|network] [--nodes N] [--seed S] [--frames N | --soak-s S] [--rate-hz R]
 //                      [--jsonl on|off] [--jsonl-path FILE] [--jsonl-rate-hz R] [--capture on|off]
 //                      [--checkpoint on|off] [--data-dir DIR]
 #include <algorithm>
@@ -56,6 +62,8 @@
 #include "cdro/hostd/engine_adapter.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
+#include "bench_networks.hpp"
+#include "cdro/netgen/random.hpp"
 #include "plant_data.hpp"
 
 using namespace cdro::service;
@@ -67,6 +75,9 @@ constexpr uint16_t kOwnNode = 0x6000;
 constexpr uint16_t kRemoteNodes[] = {0x6069, 0x6A11, 0x6A2C, 0x6A3E, 0x6A4F, 0x6A5B, 0x6A60};
 // PLANT's node k is the Pozyx id 0x6000 + k on both sides (device and engine).
 constexpr uint16_t kPlantIdBase = 0x6000;
+// A random network's node k (1..n) is the Pozyx id 0x1000 + k.
+constexpr uint16_t kNetworkIdBase = 0x1000;
+constexpr double kNetworkNoiseM = 0.10; // m, the ranges' Gaussian noise (Pozyx nominal)
 // The run's JSON Lines file is truncated when it passes this (bytes). Each truncation frees
 // the file's pages while holding its lock against the service's writes: it shows in the
 // latency tail of a soak with JSON Lines (docs/bench.md).
@@ -250,6 +261,17 @@ public:
     {
         adapter_.onMotion(motion, context);
     }
+    std::vector<uint8_t> hostEventAfterFrame(const FrameContext &context) override
+    {
+        const int64_t begin_ns = steadyNs();
+        std::vector<uint8_t> event = adapter_.hostEventAfterFrame(context);
+        if (!event.empty()) {
+            const int64_t spent_ns = steadyNs() - begin_ns;
+            ++adoptions_;
+            max_adoption_ns_ = std::max(max_adoption_ns_, spent_ns);
+        }
+        return event;
+    }
     uint64_t revision() const override { return adapter_.revision(); }
     void fill(MapState &map) const override
     {
@@ -267,6 +289,8 @@ public:
     uint64_t fills() const { return fills_; }
     double maxEngineUs() const { return static_cast<double>(max_engine_ns_) * 1e-3; }
     uint64_t engineCallsOver1ms() const { return engine_calls_over_1ms_; }
+    uint64_t adoptions() const { return adoptions_; }
+    double maxAdoptionUs() const { return static_cast<double>(max_adoption_ns_) * 1e-3; }
 
 private:
     mutable FrameTimer timer_;
@@ -274,6 +298,8 @@ private:
     int64_t engine_ns_ = 0;
     int64_t max_engine_ns_ = 0;
     uint64_t engine_calls_over_1ms_ = 0;
+    uint64_t adoptions_ = 0; // global solves adopted between frames
+    int64_t max_adoption_ns_ = 0;
     mutable int64_t fill_ns_ = 0;
     mutable uint64_t fills_ = 0;
 };
@@ -423,6 +449,72 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
     return score;
 }
 
+// What the device streams with the engine behind the service: one pass of RANGE frames (without
+// the device time), repeated; the heights the engine is told; the truth the map is scored against.
+struct Workload {
+    std::string description;
+    uint16_t own_node = 0;
+    std::vector<cdro_range_t> pass;
+    std::vector<std::pair<uint16_t, double>> heights_m; // m, by Pozyx id
+    std::map<uint16_t, cdro::engine::Vector2> truth_m;  // m, by Pozyx id
+};
+
+cdro_range_t rangeFrame(uint16_t own_node, uint16_t from, uint16_t to, double range_m)
+{
+    cdro_range_t range{};
+    range.from_id = from;
+    range.to_id = to;
+    range.distance_mm = static_cast<uint32_t>(std::lround(range_m * 1000.0));
+    range.rss_dbm = -80;
+    range.flags = from != own_node && to != own_node ? CDRO_RANGE_FLAG_REMOTE : 0;
+    return range;
+}
+
+Workload plantWorkload(const cdro::bench::Plant &plant)
+{
+    Workload workload;
+    workload.own_node = pozyxIdOfPlant(plant.ranges.front().from);
+    for (const cdro::bench::Range &r : plant.ranges) {
+        workload.pass.push_back(rangeFrame(workload.own_node, pozyxIdOfPlant(r.from), pozyxIdOfPlant(r.to), r.range_m));
+    }
+    for (const auto &[id, height_m] : plant.heights_m) {
+        workload.heights_m.emplace_back(pozyxIdOfPlant(id), height_m);
+    }
+    for (const auto &[id, position_m] : plant.truth_m) {
+        workload.truth_m[pozyxIdOfPlant(id)] = position_m;
+    }
+    workload.description = "PLANT (" + plant.dir + "): " + std::to_string(plant.truth_m.size()) + " nodes, " +
+                           std::to_string(plant.ranges.size()) + " ranges a pass, ids 0x6000 + k";
+    return workload;
+}
+
+Workload networkWorkload(uint32_t nodes, uint64_t seed)
+{
+    const cdro::netgen::GeometricNetwork net =
+        cdro::bench::drawNetwork(nodes, cdro::bench::kNetworkDegree, cdro::bench::kNetworkAreaPerNodeM2, seed);
+    const auto pozyxId = [](cdro::engine::NodeId id) { return static_cast<uint16_t>(kNetworkIdBase + id); };
+    Workload workload;
+    workload.own_node = pozyxId(net.ids.front());
+    cdro::netgen::MersenneRandom noise(cdro::netgen::mixSeed(net.draw_seed ^ 0x6E6F697365ULL)); // "noise"
+    for (size_t i = 0; i < net.links.size(); ++i) {
+        const cdro::netgen::GeometricLink &link = net.links[i];
+        // A range cannot be zero or negative (the engine would refuse it): clipped at 1 cm.
+        const double range_m = std::max(0.01, link.distance_m + kNetworkNoiseM * noise.normal());
+        workload.pass.push_back(
+            rangeFrame(workload.own_node, pozyxId(net.ids[link.a]), pozyxId(net.ids[link.b]), range_m));
+    }
+    for (size_t i = 0; i < net.ids.size(); ++i) {
+        workload.heights_m.emplace_back(pozyxId(net.ids[i]), 0.0); // planar, and known to be
+        workload.truth_m[pozyxId(net.ids[i])] = net.position_m[i];
+    }
+    char text[160];
+    std::snprintf(text, sizeof text,
+                  "random network, seed %llu: %u nodes, %zu links (a pass), mean degree %.1f, ids 0x%04X + k",
+                  static_cast<unsigned long long>(seed), nodes, net.links.size(), net.mean_degree, kNetworkIdBase);
+    workload.description = text;
+    return workload;
+}
+
 struct MemorySample {
     double t_s = 0.0; // s since the start
     long rss_kib = -1;
@@ -506,11 +598,19 @@ static int runMain(int argc, char **argv)
     std::string data_dir;
     std::string jsonl_path;
     double jsonl_rate_hz = 0.0;
+    uint32_t nodes = 1000;
+    uint64_t seed = 1;
     app.add_option("--engine", engine_mode,
                    "the consumer: none = an I/O-only stand-in (a map that changes on every range, 1 + 7 nodes); "
-                   "plant = the engine behind cdro-hostd's adapter, the device streaming PLANT in a loop")
+                   "plant = the engine behind cdro-hostd's adapter, the device streaming PLANT in a loop; network = "
+                   "the same engine, the device streaming a random network of --nodes nodes (docs/bench.md) in a loop")
         ->capture_default_str()
-        ->check(CLI::IsMember({"none", "plant"}));
+        ->check(CLI::IsMember({"none", "plant", "network"}));
+    app.add_option("--nodes", nodes, "--engine network: nodes of the random network")
+        ->capture_default_str()
+        ->check(CLI::Range(4U, 65535U - kNetworkIdBase));
+    app.add_option("--seed", seed, "--engine network: the network's seed (as cdro-bench-engine --seed)")
+        ->capture_default_str();
     auto *frames_option = app.add_option("--frames", frames, "RANGE frames the device sends")->capture_default_str();
     app.add_option("--soak-s", soak_s, "s: stream for this long instead of --frames")
         ->excludes(frames_option)
@@ -532,7 +632,7 @@ static int runMain(int argc, char **argv)
     app.add_option("--capture", capture_switch, "the capture file (rotated at 64 MiB, one kept)")
         ->capture_default_str()
         ->check(CLI::IsMember({"on", "off"}));
-    app.add_option("--checkpoint", checkpoint_switch, "--engine plant: checkpoints every 30 s, as cdro-hostd")
+    app.add_option("--checkpoint", checkpoint_switch, "with the engine: checkpoints every 30 s, as cdro-hostd")
         ->capture_default_str()
         ->check(CLI::IsMember({"on", "off"}));
     app.add_option("--data-dir", data_dir,
@@ -542,19 +642,21 @@ static int runMain(int argc, char **argv)
     if (soak_s > 0.0) {
         frames = 0;
     }
-    const bool with_engine = engine_mode == "plant";
+    const bool with_engine = engine_mode != "none";
     const bool jsonl = jsonl_switch == "on";
     const bool capture = capture_switch == "on";
     const bool checkpoint = with_engine && checkpoint_switch == "on";
 
-    cdro::bench::Plant plant;
-    if (with_engine) {
+    Workload workload;
+    if (engine_mode == "plant") {
         try {
-            plant = cdro::bench::loadPlant(cdro::bench::findPlant(data_dir, CDRO_SOURCE_DIR));
+            workload = plantWorkload(cdro::bench::loadPlant(cdro::bench::findPlant(data_dir, CDRO_SOURCE_DIR)));
         } catch (const std::exception &error) {
             std::fprintf(stderr, "cdro-bench-service: %s\n", error.what());
             return 2;
         }
+    } else if (engine_mode == "network") {
+        workload = networkWorkload(nodes, seed);
     }
     const std::string run_text = soak_s > 0.0 ? shortNumber(soak_s) + " s soak" : std::to_string(frames) + " frames";
     const std::string rate_text = rate_hz > 0.0 ? shortNumber(rate_hz) + " frames/s" : "flood";
@@ -566,8 +668,7 @@ static int runMain(int argc, char **argv)
                 rate_text.c_str(), jsonl_text.c_str(), capture_switch.c_str(),
                 checkpoint ? ", checkpoints every 30 s" : "");
     if (with_engine) {
-        std::printf("PLANT (%s): %zu nodes, %zu ranges a pass, ids 0x%04X + k\n", plant.dir.c_str(),
-                    plant.truth_m.size(), plant.ranges.size(), kPlantIdBase);
+        std::printf("%s\n", workload.description.c_str());
     }
     std::fflush(stdout);
 
@@ -602,18 +703,16 @@ static int runMain(int argc, char **argv)
 
     SystemClock clock;
     // The engine, as cdro-hostd builds it (default parameters, the heights known before start).
+    // Its solves adopted between frames once done, as cdro-hostd does live.
     cdro::engine::Engine engine;
+    engine.setSolveAdoption(cdro::engine::Engine::SolveAdoption::ByCaller);
     engine.setTrace([](const std::string &message) { log()->debug("engine: {}", message); });
-    std::map<uint16_t, cdro::engine::Vector2> truth_m; // by Pozyx id
-    for (const auto &[id, height_m] : plant.heights_m) {
-        engine.setHeight(pozyxIdOfPlant(id), height_m);
-    }
-    for (const auto &[id, position_m] : plant.truth_m) {
-        truth_m[pozyxIdOfPlant(id)] = position_m;
+    for (const auto &[id, height_m] : workload.heights_m) {
+        engine.setHeight(id, height_m);
     }
     cdro::hostd::EngineAdapter adapter(engine);
     // The first two passes build the map (placements, re-initializations): the warm-up.
-    TimedEngine timed(clock, adapter, 2 * plant.ranges.size());
+    TimedEngine timed(clock, adapter, 2 * workload.pass.size());
     BenchConsumer stand_in(clock);
     const FrameTimer &timer = with_engine ? timed.timer() : stand_in.timer();
     ServiceHooks hooks = with_engine ? ServiceHooks{&timed, &timed, checkpoint ? &adapter : nullptr, &adapter}
@@ -625,22 +724,11 @@ static int runMain(int argc, char **argv)
     script.frames = frames;
     script.soak_s = soak_s;
     script.rate_hz = rate_hz;
-    std::vector<cdro_range_t> plant_frames; // one pass, without the device time
     if (with_engine) {
-        script.own_node = pozyxIdOfPlant(plant.ranges.front().from);
-        for (const cdro::bench::Range &r : plant.ranges) {
-            cdro_range_t range{};
-            range.from_id = pozyxIdOfPlant(r.from);
-            range.to_id = pozyxIdOfPlant(r.to);
-            range.distance_mm = static_cast<uint32_t>(std::lround(r.range_m * 1000.0));
-            range.rss_dbm = -80;
-            const bool remote = range.from_id != script.own_node && range.to_id != script.own_node;
-            range.flags = remote ? CDRO_RANGE_FLAG_REMOTE : 0;
-            plant_frames.push_back(range);
-        }
+        script.own_node = workload.own_node;
         // Pass after pass, 1 ms of device time a frame.
-        script.range = [&plant_frames](uint64_t i, cdro_range_t &range) {
-            range = plant_frames[i % plant_frames.size()];
+        script.range = [&workload](uint64_t i, cdro_range_t &range) {
+            range = workload.pass[i % workload.pass.size()];
             range.device_time_ms = static_cast<uint32_t>(1000U + i);
         };
     } else {
@@ -784,7 +872,9 @@ static int runMain(int argc, char **argv)
                     wall_us_per_frame, engine_us, timed.maxEngineUs(),
                     static_cast<unsigned long long>(timed.engineCallsOver1ms()), fill_us,
                     static_cast<unsigned long long>(timed.fills()), wall_us_per_frame - engine_us - fill_us);
-        const MapScore score = scoreMap(engine, truth_m);
+        std::printf("solves adopted        %llu between frames, the slowest %.0f us (not in the engine's time above)\n",
+                    static_cast<unsigned long long>(timed.adoptions()), timed.maxAdoptionUs());
+        const MapScore score = scoreMap(engine, workload.truth_m);
         std::printf(
             "map at the end        %zu of %zu nodes placed, %zu converged; aligned RMSE %.3f m (worst node %.3f "
             "m; live, not settled)\n",
