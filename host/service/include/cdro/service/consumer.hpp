@@ -46,10 +46,12 @@ public:
     // Host events: what the consumer does on its own timing (cdro-hostd: a global solve's map,
     // adopted once its worker thread is done, so that no frame waits for it), which a replay
     // must repeat at the same place of the frame stream to reach the same estimates. Live, after
-    // every frame delivered: the consumer does such work now and describes it (empty: none); the
-    // service records the description in the capture after that frame (the record's time is
-    // `context`'s). On --replay this is not called; instead each recorded description comes back
-    // to onHostEvent, after the same frame. At most CDRO_CAPTURE_MAX_DATA bytes.
+    // every frame delivered (and every 20 ms between frames, so that work done after the last
+    // frame of a burst is not left waiting for the next): the consumer does such work now and
+    // describes it (empty: none); the service records the description in the capture after the
+    // last record (its time is `context`'s). On --replay this is not called; instead each
+    // recorded description comes back to onHostEvent in its place among the frames. At most
+    // CDRO_CAPTURE_MAX_DATA bytes.
     virtual std::vector<uint8_t> hostEventAfterFrame(const FrameContext &) { return {}; }
     virtual void onHostEvent(const uint8_t *, size_t, const FrameContext &) {}
 };
