@@ -200,7 +200,7 @@ ODOMETRY_RECORD = b'{"t":1795046400.225,"distance_m":0.012,"dheading_rad":-0.001
 
 
 # A host event as cdro-hostd writes it (host/hostd/src/engine_adapter.cpp): a global solve adopted
-# between frames, "S" and the engine's ranges received (u64, little endian).
+# between frames, "S" and the engine's ranges taken when that solve started (u64, little endian).
 HOST_EVENT_RECORD = b"S" + (1234).to_bytes(8, "little")
 
 

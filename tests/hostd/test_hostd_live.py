@@ -28,6 +28,7 @@ import urllib.error
 import urllib.request
 
 from cdro_tools.codec import decode_sog, read_capture
+from cdro_tools.codec import capture_file
 from cdro_tools.codec.capture_file import RECORD_OVERHEAD, CaptureWriter
 from cdro_tools.evaluation.alignment import align
 
@@ -354,6 +355,17 @@ def test_a_live_runs_solves_are_adopted_when_done_and_replayed_in_place(build_di
     assert all(record.data[:1] == b"S" and len(record.data) == 9 for record in events)
     assert last_health(live.jsonl)["counters"]["host_events"] == len(events)
     replayed = replay(build_dir, tmp_path, "replayed", live.capture, heights)
-    assert "replay: the live run adopted" not in replayed.log()
+    assert "the map will differ" not in replayed.log()
     assert f"{len(events)} host events fed" in replayed.log()
     assert node_lines(replayed.jsonl) == node_lines(live.jsonl)
+
+    # A capture that lost its first host event (a damaged record is skipped): the replay goes on,
+    # adopts that solve at the next event, says where it parts from the live run, and ends on a map.
+    damaged = tmp_path / "damaged.cdrocap"
+    first = capture.records.index(events[0])
+    damaged.write_bytes(capture_file.encode_header(capture.header) + b"".join(
+        capture_file.encode_record(record) for i, record in enumerate(capture.records) if i != first))
+    diverged = replay(build_dir, tmp_path, "damaged", damaged, heights)
+    assert "the map will differ from the live one" in diverged.log()
+    assert f"{len(events) - 1} host events fed" in diverged.log()
+    assert all(line["placed"] for line in final_map(diverged.jsonl).values())

@@ -35,8 +35,9 @@
  *           {"t":<s since the epoch>,"distance_m":<m>,"dheading_rad":<rad>,"source":"<where>"}
  *           With CDRO_CAPTURE_FLAG_HOST_EVENT: something the host's estimator did on its own
  *           timing between two frames, which a replay repeats after the same frame, as the
- *           estimator defines it (cdro-hostd: 'S' and the engine's ranges taken, u64 little
- *           endian: a global solve's map adopted once its worker thread was done).
+ *           estimator defines it (cdro-hostd: 'S' and the engine's ranges taken when the solve
+ *           started, u64 little endian: a global solve's map adopted once its worker thread
+ *           was done).
  *   12+n u16 CRC-16/CCITT-FALSE of bytes [0, 12+n)
  *
  * Each record is self-delimiting (length) and checked (CRC), and is written with a single

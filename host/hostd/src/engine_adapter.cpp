@@ -123,17 +123,19 @@ void EngineAdapter::onMotion(const cdro_motion_t &motion, const service::FrameCo
 
 namespace {
 
-constexpr uint8_t kSolveAdopted = 'S'; // host event: a global solve adopted; then u64 ranges received
+// Host event: a global solve adopted; then u64, the engine's ranges taken when it started (which
+// solve it was: a replay that has another one pending has parted from the live run).
+constexpr uint8_t kSolveAdopted = 'S';
 constexpr size_t kSolveAdoptedBytes = 9;
 
 } // namespace
 
 std::vector<uint8_t> EngineAdapter::hostEventAfterFrame(const service::FrameContext &)
 {
+    const uint64_t ranges = engine_.solveSchedule().ranges_at_last; // the pending solve's start
     if (!engine_.adoptFinishedSolve()) {
         return {};
     }
-    const uint64_t ranges = engine_.counters().intake.ranges_received;
     std::vector<uint8_t> event(kSolveAdoptedBytes, 0);
     event[0] = kSolveAdopted;
     for (size_t i = 0; i < 8; ++i) {
@@ -155,18 +157,20 @@ void EngineAdapter::onHostEvent(const uint8_t *data, size_t len, const service::
     for (size_t i = 0; i < 8; ++i) {
         live_ranges |= static_cast<uint64_t>(data[1 + i]) << (8U * i);
     }
-    const uint64_t ranges = engine_.counters().intake.ranges_received;
+    const uint64_t ranges = engine_.solveSchedule().ranges_at_last; // the pending solve's start
     if (!engine_.adoptPendingSolve()) {
         ++host_events_mismatched_;
-        service::log()->warn("replay: the live run adopted a global solve after {} ranges, but none is pending here "
-                             "(after {}): another engine or other settings than the live run's; the map will differ",
-                             live_ranges, ranges);
+        service::log()->warn("replay: the live run adopted here the global solve it started after {} ranges, but "
+                             "none is pending (another engine or other settings than the live run's, or a lost "
+                             "record); the map will differ from the live one",
+                             live_ranges);
         return;
     }
     if (ranges != live_ranges) {
         ++host_events_mismatched_;
-        service::log()->warn("replay: the live run adopted a global solve after {} ranges, this replay after {}: the "
-                             "map will differ from the live one",
+        service::log()->warn("replay: the live run adopted here the global solve it started after {} ranges; this "
+                             "replay's started after {} (another engine or settings, or a lost record); the map will "
+                             "differ from the live one",
                              live_ranges, ranges);
     }
 }

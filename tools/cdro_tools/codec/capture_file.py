@@ -83,7 +83,7 @@ class CaptureRecord:
     @property
     def host_event(self) -> bool:
         """Something the host's estimator did between two frames, which a replay repeats in place
-        (cdro-hostd: b"S" and its ranges received, u64 little endian: a global solve adopted)."""
+        (cdro-hostd: b"S" and the ranges taken when the adopted solve started, u64 little endian)."""
         return bool(self.flags & FLAG_HOST_EVENT)
 
     @property

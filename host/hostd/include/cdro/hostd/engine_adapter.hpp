@@ -74,9 +74,10 @@ public:
     void onMotion(const cdro_motion_t &motion, const service::FrameContext &context) override;
     // Host events (consumer.hpp): with Engine::SolveAdoption::ByCaller, live, the global solve's
     // map is adopted after the first frame that finds its worker done, and the event says so
-    // ('S' and the engine's ranges received, u64 little endian); a replay adopts it after the same
-    // frame. An event that does not fit the replay (another engine or settings: no solve pending,
-    // or the ranges differ) is warned about, counted and skipped where it cannot be taken.
+    // ('S' and the engine's ranges taken when that solve started, u64 little endian); a replay
+    // adopts it after the same frame. An event that does not fit the replay (no solve pending, or
+    // another one: another engine or settings, a lost record) is warned about and counted, and
+    // skipped where it cannot be taken.
     std::vector<uint8_t> hostEventAfterFrame(const service::FrameContext &context) override;
     void onHostEvent(const uint8_t *data, size_t len, const service::FrameContext &context) override;
 
