@@ -290,7 +290,13 @@ static int runMain(int argc, char **argv)
         if (progress) {
             line = std::make_unique<cdro::hostd::ProgressLine>(service, engine, stderr);
         }
-        return service.run();
+        const int code = service.run();
+        if (adapter.hostEventsMismatched() > 0) {
+            cdro::service::log()->warn("replay: {} of the capture's host events did not fit this replay (above): its "
+                                       "map parts from the live run's there",
+                                       adapter.hostEventsMismatched());
+        }
+        return code;
     } catch (const std::exception &error) {
         std::fprintf(stderr, "cdro-hostd: %s\n", error.what());
         return 2;
