@@ -158,9 +158,10 @@ private:
 };
 
 // Frames taken, and the latency of each frame whose estimate went out: from its arrival
-// (FrameContext::host_unix_us, the read() that delivered it) to the first fill() after the
-// map's revision changed. Health timers read the map too, without a new frame: those reads are
-// not latencies. The samples of frames after the first warmup_frames are also kept apart.
+// (FrameContext::host_unix_us, the read() that delivered it) to the first time the outputs read
+// the map (MapSource::updateEstimates, or fill) after its revision changed. Health timers read the map too, without a new frame: those reads are
+// not latencies. The samples of frames after the first warmup_frames are also kept apart, and
+// those of frames that arrived steady_after_us or more after the first (the map formed).
 class FrameTimer {
 public:
     FrameTimer(const Clock &clock, uint64_t warmup_frames) : clock_(clock), warmup_frames_(warmup_frames) {}
@@ -186,13 +187,18 @@ public:
         if (ranges_ > warmup_frames_) {
             after_warmup_.add(latency_us);
         }
+        if (steady_after_us_ > 0 && last_us_ - first_us_ >= steady_after_us_) {
+            steady_.add(latency_us);
+        }
     }
+    void setSteadyAfterUs(int64_t steady_after_us) { steady_after_us_ = steady_after_us; }
 
     uint64_t ranges() const { return ranges_; }
     double seconds() const { return static_cast<double>(last_us_ - first_us_) * 1e-6; }
     uint64_t warmupFrames() const { return warmup_frames_; }
     const LatencyHistogram &all() const { return all_; }
     const LatencyHistogram &afterWarmup() const { return after_warmup_; }
+    const LatencyHistogram &steady() const { return steady_; }
 
 private:
     const Clock &clock_;
@@ -204,6 +210,8 @@ private:
     uint64_t filled_revision_ = 0;
     LatencyHistogram all_;
     LatencyHistogram after_warmup_;
+    int64_t steady_after_us_ = 0; // 0: not kept apart
+    LatencyHistogram steady_;
 };
 
 // --engine none: a map source that changes on every range.
@@ -228,7 +236,7 @@ public:
         map.nodes.push_back(node);
     }
     std::optional<NodeComponents> components(uint16_t) const override { return std::nullopt; }
-    const FrameTimer &timer() const { return timer_; }
+    FrameTimer &timer() const { return timer_; }
 
 private:
     mutable FrameTimer timer_;
@@ -236,9 +244,9 @@ private:
     uint32_t last_distance_mm_ = 0;
 };
 
-// --engine plant: cdro-hostd's EngineAdapter, timed. The latency is taken when the adapter's
-// fill() returns (the estimates converted for the outputs); the time spent in the engine
-// (onRange) and in fill() is summed, to tell where the time per frame goes.
+// --engine plant|network: cdro-hostd's EngineAdapter, timed. The latency is taken when the
+// adapter's updateEstimates() returns (the changed estimates converted for the outputs); the
+// time spent in the engine (onRange) and there is summed, to tell where the time per frame goes.
 class TimedEngine final : public FrameConsumer, public MapSource {
 public:
     TimedEngine(const Clock &clock, cdro::hostd::EngineAdapter &adapter, uint64_t warmup_frames)
@@ -273,17 +281,18 @@ public:
         return event;
     }
     uint64_t revision() const override { return adapter_.revision(); }
-    void fill(MapState &map) const override
+    void fill(MapState &map) const override { adapter_.fill(map); } // the live map's, not per frame
+    void updateEstimates(MapState &map, std::vector<size_t> &changed) override
     {
         const int64_t begin_ns = steadyNs();
-        adapter_.fill(map);
+        adapter_.updateEstimates(map, changed);
         fill_ns_ += steadyNs() - begin_ns;
         ++fills_;
         timer_.onFilled(adapter_.revision());
     }
     std::optional<NodeComponents> components(uint16_t id) const override { return adapter_.components(id); }
 
-    const FrameTimer &timer() const { return timer_; }
+    FrameTimer &timer() const { return timer_; }
     double engineS() const { return static_cast<double>(engine_ns_) * 1e-9; }
     double fillS() const { return static_cast<double>(fill_ns_) * 1e-9; }
     uint64_t fills() const { return fills_; }
@@ -300,8 +309,8 @@ private:
     uint64_t engine_calls_over_1ms_ = 0;
     uint64_t adoptions_ = 0; // global solves adopted between frames
     int64_t max_adoption_ns_ = 0;
-    mutable int64_t fill_ns_ = 0;
-    mutable uint64_t fills_ = 0;
+    int64_t fill_ns_ = 0;
+    uint64_t fills_ = 0;
 };
 
 // ---- the device -----------------------------------------------------------------------------
@@ -600,6 +609,7 @@ static int runMain(int argc, char **argv)
     double jsonl_rate_hz = 0.0;
     uint32_t nodes = 1000;
     uint64_t seed = 1;
+    double steady_after_s = 0.0;
     app.add_option("--engine", engine_mode,
                    "the consumer: none = an I/O-only stand-in (a map that changes on every range, 1 + 7 nodes); "
                    "plant = the engine behind cdro-hostd's adapter, the device streaming PLANT in a loop; network = "
@@ -632,6 +642,10 @@ static int runMain(int argc, char **argv)
     app.add_option("--capture", capture_switch, "the capture file (rotated at 64 MiB, one kept)")
         ->capture_default_str()
         ->check(CLI::IsMember({"on", "off"}));
+    app.add_option("--steady-after-s", steady_after_s,
+                   "s: the latencies of the frames that arrive this long after the first are also reported apart "
+                   "(the map formed); 0 = not")
+        ->check(CLI::NonNegativeNumber);
     app.add_option("--checkpoint", checkpoint_switch, "with the engine: checkpoints every 30 s, as cdro-hostd")
         ->capture_default_str()
         ->check(CLI::IsMember({"on", "off"}));
@@ -714,7 +728,8 @@ static int runMain(int argc, char **argv)
     // The first two passes build the map (placements, re-initializations): the warm-up.
     TimedEngine timed(clock, adapter, 2 * workload.pass.size());
     BenchConsumer stand_in(clock);
-    const FrameTimer &timer = with_engine ? timed.timer() : stand_in.timer();
+    FrameTimer &timer = with_engine ? timed.timer() : stand_in.timer();
+    timer.setSteadyAfterUs(static_cast<int64_t>(std::llround(steady_after_s * 1e6)));
     ServiceHooks hooks = with_engine ? ServiceHooks{&timed, &timed, checkpoint ? &adapter : nullptr, &adapter}
                                      : ServiceHooks{&stand_in, &stand_in, nullptr, nullptr};
     Service service(config, RunOptions{}, hooks, clock);
@@ -798,6 +813,9 @@ static int runMain(int argc, char **argv)
     if (with_engine) {
         timer.afterWarmup().print("  from pass 3 on");
     }
+    if (steady_after_s > 0.0) {
+        timer.steady().print(("  from " + std::to_string(static_cast<long>(steady_after_s)) + " s on").c_str());
+    }
     std::printf("capture               %llu records, %llu bytes, %llu rotations\n",
                 static_cast<unsigned long long>(c.capture_records), static_cast<unsigned long long>(c.capture_bytes),
                 static_cast<unsigned long long>(c.capture_rotations));
@@ -868,7 +886,7 @@ static int runMain(int argc, char **argv)
         const double engine_us = timed.engineS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
         const double fill_us = timed.fillS() * 1e6 / static_cast<double>(std::max<uint64_t>(1, ranges));
         std::printf("time a frame          %.2f us wall: engine %.2f us (max %.0f us, %llu calls over 1 ms), adapter "
-                    "fill %.2f us (%llu fills), the rest %.2f us (intake, capture, JSON Lines, loop, idle)\n",
+                    "update %.2f us (%llu updates), the rest %.2f us (intake, capture, JSON Lines, loop, idle)\n",
                     wall_us_per_frame, engine_us, timed.maxEngineUs(),
                     static_cast<unsigned long long>(timed.engineCallsOver1ms()), fill_us,
                     static_cast<unsigned long long>(timed.fills()), wall_us_per_frame - engine_us - fill_us);

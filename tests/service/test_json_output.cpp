@@ -1,5 +1,6 @@
 // JSON Lines exactly per docs/outputs.md, and the update/rate policies on event time.
 #include <fstream>
+#include <sstream>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -284,6 +285,64 @@ TEST(JsonOutput, ThePerNodeLimitHoldsAChangeBackUntilItsIntervalAndWritesTheLast
     EXPECT_DOUBLE_EQ(lines.back()["x_m"].get<double>(), 0.1 * 11);
     EXPECT_EQ(lines.size(), 5U); // the second node once
     EXPECT_EQ(counters.jsonl_lines_held, 9U);
+}
+
+// The service tells the writer which nodes an update changed (MapSource::updateEstimates); a
+// node held back by the per-node limit must still go out after its interval even when later
+// updates do not change it. Six nodes, each moving at its own times, a line per node per 0.5 s:
+// the writer told only of the changes writes byte for byte what a writer looking at every node
+// writes, the held-back lines and the end included.
+TEST(JsonOutput, AWriterToldOnlyOfTheChangedNodesWritesWhatOneLookingAtAllWrites)
+{
+    cdro::test::TempDir dir;
+    ServiceCounters counters_all;
+    ServiceCounters counters_changed;
+    OutputConfig config;
+    config.limits.max_node_rate_hz = 2.0;
+    config.jsonl = dir.file("all.jsonl");
+    JsonLinesWriter all(config, counters_all);
+    config.jsonl = dir.file("changed.jsonl");
+    JsonLinesWriter told(config, counters_changed);
+    all.open();
+    told.open();
+    MapState map;
+    for (uint16_t k = 0; k < 6; ++k) {
+        NodeEstimate node;
+        node.id = static_cast<uint16_t>(0x6001 + k);
+        node.placed = true;
+        node.status = "placed";
+        map.nodes.push_back(node);
+    }
+    uint64_t state = 20261207; // a fixed LCG: which nodes move at each update
+    for (int i = 0; i < 200; ++i) {
+        std::vector<size_t> changed;
+        for (size_t k = 0; k < map.nodes.size(); ++k) {
+            state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+            if ((state >> 60U) < 3U) { // 3 in 16
+                map.nodes[k].x_m += 0.01;
+            }
+            if ((state >> 60U) < 3U || i == 0) { // at first, every node is new
+                changed.push_back(k);
+            }
+        }
+        map.t_s = 0.05 * i;
+        all.onUpdate(map, 50'000 * i);
+        told.onUpdate(map, changed, 50'000 * i);
+    }
+    all.finish(map);
+    told.finish(map);
+    all.close();
+    told.close();
+    std::ostringstream bytes_all;
+    std::ostringstream bytes_told;
+    bytes_all << std::ifstream(dir.file("all.jsonl")).rdbuf();
+    bytes_told << std::ifstream(dir.file("changed.jsonl")).rdbuf();
+    EXPECT_GT(counters_all.jsonl_lines_held, 50U); // the limit was at work
+    EXPECT_FALSE(bytes_all.str().empty());
+    EXPECT_TRUE(bytes_all.str() == bytes_told.str())
+        << bytes_all.str().size() << " bytes against " << bytes_told.str().size();
+    EXPECT_EQ(counters_all.jsonl_lines, counters_changed.jsonl_lines);
+    EXPECT_EQ(counters_all.jsonl_lines_held, counters_changed.jsonl_lines_held);
 }
 
 TEST(JsonOutput, AFileIsAppendedToAndRotatedBeforeItGrowsPastTheLimit)

@@ -173,3 +173,37 @@ TEST(Mqtt, ALostBrokerIsRetriedAndGetsTheLatestStateWhenBack)
     });
     ASSERT_FALSE(payload.empty());
 }
+
+// The service tells the publisher which nodes an update changed (MapSource::updateEstimates). A
+// node that changed before its period was up waits, and goes out with the first update after
+// it, even when that update changed another node only.
+TEST(Mqtt, ANodeWaitingForItsPeriodGoesOutWithALaterUpdateThatDidNotChangeIt)
+{
+    cdro::test::Broker broker(cdro::test::freeLoopbackPort());
+    SystemClock clock;
+    EventLoop loop(clock);
+    ServiceCounters counters;
+    MqttConfig config;
+    config.url = "mqtt://127.0.0.1:" + std::to_string(broker.port());
+    config.topic_prefix = "test/cdro";
+    config.rate_hz = 2.0; // a message per node per 0.5 s of event time
+    MqttPublisher publisher(loop, config, counters);
+    publisher.start();
+    pump(loop, [&] { return publisher.connected(); });
+    ASSERT_TRUE(publisher.connected());
+    Subscriber subscriber(broker.port(), "test/cdro/nodes/#");
+    MapState map = mapWith(1.25);
+    publisher.onUpdate(map, {0, 1}, 0);
+    map.nodes[0].x_m = 2.5; // too soon for 0x6001: it waits
+    publisher.onUpdate(map, {0}, 100'000);
+    map.nodes[1].x_m = 7.0; // only 0x6002 changed, 0.6 s on: both are due
+    publisher.onUpdate(map, {1}, 600'000);
+    pump(loop, [&] { return publisher.flushed(); });
+    const auto x_is = [](double x) {
+        return [x](const std::string &payload) { return nlohmann::json::parse(payload)["x_m"] == x; };
+    };
+    EXPECT_FALSE(subscriber.waitFor("test/cdro/nodes/0x6001", x_is(2.5)).empty());
+    EXPECT_FALSE(subscriber.waitFor("test/cdro/nodes/0x6002", x_is(7.0)).empty());
+    EXPECT_EQ(counters.mqtt_published, 4U + 2U); // two nodes twice, the robot and the status
+    publisher.shutdown();
+}

@@ -523,62 +523,66 @@ std::vector<NodeOutput> Engine::estimates() const
     const RigidTransform transform = outputTransform();
     std::vector<NodeOutput> out;
     out.reserve(map_.nodes.size());
-    for (const NodeState &state : map_.nodes) {
-        NodeOutput node;
-        node.id = state.id;
-        node.role = state.role;
-        node.lifecycle = state.lifecycle;
-        node.doubt = state.placed() ? state.doubt : NodeDoubt::None;
-        if (node.doubt == NodeDoubt::Foldable) {
-            for (uint32_t hinge : state.hinge) {
-                if (hinge != kNoIndex) {
-                    node.hinge[node.hinge_nodes++] = map_.nodes[hinge].id;
-                }
-            }
-            if (node.hinge_nodes == 2 && node.hinge[1] < node.hinge[0]) {
-                std::swap(node.hinge[0], node.hinge[1]); // by id, as the output lists nodes
-            }
-        }
-        node.height_known = state.height_m.has_value();
-        node.height_m = state.height_m.value_or(0.0);
-        node.link_count = static_cast<uint32_t>(state.links.size());
-        if (state.placed()) {
-            // A moving node is where its track says it is now, not at its last range.
-            const bool predicted =
-                state.moving() && state.track && std::isfinite(map_.last_time_s) && motion_.trackIsEstimate(state);
-            node.position_m = transform.apply(predicted ? state.track->positionAt(map_.last_time_s) : state.position_m);
-            const auto &single = frame_.singleFixed();
-            if (single && single->first == state.id) {
-                node.position_m = single->second;
-                node.role = NodeRole::Fixed;
-            }
-            // The map's covariance (correlations across it included) where the solve has one,
-            // else the local one of the refinement.
-            const bool from_solve = state.solve.solved && state.free() && state.anchor() && params_.refinement.enabled;
-            node.covariance_m2 =
-                transform.applyToCovariance(from_solve ? state.solve.covariance_m2 : state.covariance_m2);
-        }
-        out.push_back(node);
+    for (const uint32_t index : map_.nodesById()) {
+        out.push_back(outputOf(index, transform));
     }
-    std::sort(out.begin(), out.end(), [](const NodeOutput &x, const NodeOutput &y) { return x.id < y.id; });
     return out;
 }
 
 std::optional<NodeOutput> Engine::estimate(NodeId id) const
 {
-    for (const NodeOutput &node : estimates()) {
-        if (node.id == id) {
-            return node;
+    const uint32_t index = map_.findNode(id);
+    if (index == kNoIndex) {
+        return std::nullopt;
+    }
+    return outputOf(index, outputTransform());
+}
+
+NodeOutput Engine::outputOf(uint32_t index, const RigidTransform &transform) const
+{
+    const NodeState &state = map_.nodes[index];
+    NodeOutput node;
+    node.id = state.id;
+    node.role = state.role;
+    node.lifecycle = state.lifecycle;
+    node.doubt = state.placed() ? state.doubt : NodeDoubt::None;
+    if (node.doubt == NodeDoubt::Foldable) {
+        for (uint32_t hinge : state.hinge) {
+            if (hinge != kNoIndex) {
+                node.hinge[node.hinge_nodes++] = map_.nodes[hinge].id;
+            }
+        }
+        if (node.hinge_nodes == 2 && node.hinge[1] < node.hinge[0]) {
+            std::swap(node.hinge[0], node.hinge[1]); // by id, as the output lists nodes
         }
     }
-    return std::nullopt;
+    node.height_known = state.height_m.has_value();
+    node.height_m = state.height_m.value_or(0.0);
+    node.link_count = static_cast<uint32_t>(state.links.size());
+    if (state.placed()) {
+        // A moving node is where its track says it is now, not at its last range.
+        const bool predicted =
+            state.moving() && state.track && std::isfinite(map_.last_time_s) && motion_.trackIsEstimate(state);
+        node.position_m = transform.apply(predicted ? state.track->positionAt(map_.last_time_s) : state.position_m);
+        const auto &single = frame_.singleFixed();
+        if (single && single->first == state.id) {
+            node.position_m = single->second;
+            node.role = NodeRole::Fixed;
+        }
+        // The map's covariance (correlations across it included) where the solve has one,
+        // else the local one of the refinement.
+        const bool from_solve = state.solve.solved && state.free() && state.anchor() && params_.refinement.enabled;
+        node.covariance_m2 = transform.applyToCovariance(from_solve ? state.solve.covariance_m2 : state.covariance_m2);
+    }
+    return node;
 }
 
 std::vector<LinkOutput> Engine::links() const
 {
     std::vector<LinkOutput> out;
     out.reserve(map_.links.size());
-    for (const LinkState &state : map_.links) {
+    for (const uint32_t index : map_.linksById()) {
+        const LinkState &state = map_.links[index];
         LinkOutput link;
         link.a = map_.nodes[state.node_a].id;
         link.b = map_.nodes[state.node_b].id;
@@ -588,8 +592,6 @@ std::vector<LinkOutput> Engine::links() const
         link.inlier_probability = state.inlier_probability;
         out.push_back(link);
     }
-    std::sort(out.begin(), out.end(),
-              [](const LinkOutput &x, const LinkOutput &y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
     return out;
 }
 

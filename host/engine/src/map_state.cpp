@@ -116,6 +116,9 @@ uint32_t MapState::addNode(NodeId id)
         NodeState state;
         state.id = id;
         nodes.push_back(state);
+        const auto before = std::lower_bound(nodes_by_id_.begin(), nodes_by_id_.end(), id,
+                                             [this](uint32_t node, NodeId key) { return nodes[node].id < key; });
+        nodes_by_id_.insert(before, position->second);
     }
     return position->second;
 }
@@ -146,7 +149,13 @@ uint32_t MapState::addLink(uint32_t node_x, uint32_t node_y, uint32_t window_lim
     link.node_b = node_y;
     link.window.setCapacityLimit(window_limit);
     links.push_back(link);
-    link_index_.emplace(linkKey(nodes[node_x].id, nodes[node_y].id), index);
+    const uint32_t key = linkKey(nodes[node_x].id, nodes[node_y].id);
+    link_index_.emplace(key, index);
+    const auto before =
+        std::lower_bound(links_by_id_.begin(), links_by_id_.end(), key, [this](uint32_t other, uint32_t k) {
+            return linkKey(nodes[links[other].node_a].id, nodes[links[other].node_b].id) < k;
+        });
+    links_by_id_.insert(before, index);
     nodes[node_x].links.push_back(index);
     nodes[node_y].links.push_back(index);
     return index;

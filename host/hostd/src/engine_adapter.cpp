@@ -182,37 +182,62 @@ void EngineAdapter::onOdometry(const service::OdometryMessage &message)
     }
 }
 
-void EngineAdapter::fill(service::MapState &map) const
+namespace {
+
+service::NodeEstimate estimateOf(const engine::NodeOutput &node)
 {
-    map.nodes.clear();
-    const std::vector<engine::NodeOutput> estimates =
-        movement_ != nullptr ? movement_->estimates() : engine_.estimates();
-    for (const engine::NodeOutput &node : estimates) {
-        if (node.link_count == 0 && !node.fixed()) {
-            continue;
-        }
-        service::NodeEstimate out;
-        out.id = node.id;
-        out.placed = node.placed();
-        out.converged = node.converged();
-        out.moving = node.moving();
-        out.foldable = node.doubt == engine::NodeDoubt::Foldable;
-        out.status = engine::nodeLifecycleName(node.lifecycle);
-        out.reason = engine::nodeDoubtName(node.doubt);
-        for (uint8_t k = 0; k < node.hinge_nodes; ++k) {
-            out.hinge.push_back(node.hinge[k]);
-        }
-        if (node.height_known) {
-            out.z_m = node.height_m;
-        }
-        if (node.placed()) {
-            out.x_m = node.position_m.x();
-            out.y_m = node.position_m.y();
-            out.var_x_m2 = node.covariance_m2(0, 0);
-            out.cov_xy_m2 = node.covariance_m2(0, 1);
-            out.var_y_m2 = node.covariance_m2(1, 1);
-        }
-        map.nodes.push_back(out);
+    service::NodeEstimate out;
+    out.id = node.id;
+    out.placed = node.placed();
+    out.converged = node.converged();
+    out.moving = node.moving();
+    out.foldable = node.doubt == engine::NodeDoubt::Foldable;
+    out.status = engine::nodeLifecycleName(node.lifecycle);
+    out.reason = engine::nodeDoubtName(node.doubt);
+    for (uint8_t k = 0; k < node.hinge_nodes; ++k) {
+        out.hinge.push_back(node.hinge[k]);
+    }
+    if (node.height_known) {
+        out.z_m = node.height_m;
+    }
+    if (node.placed()) {
+        out.x_m = node.position_m.x();
+        out.y_m = node.position_m.y();
+        out.var_x_m2 = node.covariance_m2(0, 0);
+        out.cov_xy_m2 = node.covariance_m2(0, 1);
+        out.var_y_m2 = node.covariance_m2(1, 1);
+    }
+    return out;
+}
+
+// Every field estimateOf reads, bit for bit (a NaN compares unequal: converted again, harmless).
+bool sameOutput(const engine::NodeOutput &a, const engine::NodeOutput &b)
+{
+    return a.id == b.id && a.role == b.role && a.lifecycle == b.lifecycle && a.doubt == b.doubt &&
+           a.hinge_nodes == b.hinge_nodes && a.hinge == b.hinge && a.height_known == b.height_known &&
+           a.height_m == b.height_m && a.link_count == b.link_count && a.position_m == b.position_m &&
+           a.covariance_m2 == b.covariance_m2;
+}
+
+} // namespace
+
+std::vector<engine::NodeOutput> EngineAdapter::shownNodes() const
+{
+    std::vector<engine::NodeOutput> shown = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
+    // A node known only by name (a height, or a range refused) is not on the map until it has a link.
+    shown.erase(std::remove_if(shown.begin(), shown.end(),
+                               [](const engine::NodeOutput &node) { return node.link_count == 0 && !node.fixed(); }),
+                shown.end());
+    return shown;
+}
+
+void EngineAdapter::fillNodes(std::vector<service::NodeEstimate> &nodes,
+                              const std::vector<engine::NodeOutput> &shown) const
+{
+    nodes.clear();
+    nodes.reserve(shown.size() + moving_.size());
+    for (const engine::NodeOutput &node : shown) {
+        nodes.push_back(estimateOf(node));
     }
     // The nodes tracked in 3D are not in the static map: their tracks, once started (before
     // FlightTracks::kMinAnchors anchors are heard, not placed).
@@ -241,12 +266,47 @@ void EngineAdapter::fill(service::MapState &map) const
         } else {
             out.status = "unplaced";
         }
-        map.nodes.push_back(out);
+        nodes.push_back(out);
     }
     if (!moving_.empty()) {
-        std::sort(map.nodes.begin(), map.nodes.end(),
+        std::sort(nodes.begin(), nodes.end(),
                   [](const service::NodeEstimate &a, const service::NodeEstimate &b) { return a.id < b.id; });
     }
+}
+
+void EngineAdapter::fillRobot(std::optional<service::RobotPose> &robot_pose) const
+{
+    robot_pose.reset();
+    if (movement_ == nullptr) {
+        return;
+    }
+    const std::optional<engine::RobotOutput> robot = movement_->robot();
+    if (!robot || !robot->localized) {
+        return;
+    }
+    service::RobotPose pose;
+    pose.id = robot->id;
+    pose.x_m = robot->pose.x_m;
+    pose.y_m = robot->pose.y_m;
+    pose.heading_rad = robot->pose.heading_rad;
+    pose.var_x_m2 = robot->covariance(0, 0);
+    pose.cov_xy_m2 = robot->covariance(0, 1);
+    pose.var_y_m2 = robot->covariance(1, 1);
+    pose.frame = engine::robotFrameName(robot->frame);
+    pose.var_heading_rad2 = robot->covariance(2, 2);
+    pose.cov_x_heading_m_rad = robot->covariance(0, 2);
+    pose.cov_y_heading_m_rad = robot->covariance(1, 2);
+    pose.heading_hypotheses = robot->hypotheses;
+    pose.range_scale = robot->range_scale;
+    pose.range_scale_sigma = robot->range_scale_sigma;
+    pose.range_offset_m = robot->range_offset_m;
+    pose.range_offset_sigma_m = robot->range_offset_sigma_m;
+    robot_pose = pose;
+}
+
+void EngineAdapter::fill(service::MapState &map) const
+{
+    fillNodes(map.nodes, shownNodes());
     map.links.clear();
     for (const engine::LinkOutput &link : engine_.links()) {
         service::LinkEstimate out;
@@ -258,30 +318,34 @@ void EngineAdapter::fill(service::MapState &map) const
         out.inlier_probability = link.inlier_probability;
         map.links.push_back(out);
     }
-    map.robot.reset();
-    if (movement_ != nullptr) {
-        const std::optional<engine::RobotOutput> robot = movement_->robot();
-        if (robot && robot->localized) {
-            service::RobotPose pose;
-            pose.id = robot->id;
-            pose.x_m = robot->pose.x_m;
-            pose.y_m = robot->pose.y_m;
-            pose.heading_rad = robot->pose.heading_rad;
-            pose.var_x_m2 = robot->covariance(0, 0);
-            pose.cov_xy_m2 = robot->covariance(0, 1);
-            pose.var_y_m2 = robot->covariance(1, 1);
-            pose.frame = engine::robotFrameName(robot->frame);
-            pose.var_heading_rad2 = robot->covariance(2, 2);
-            pose.cov_x_heading_m_rad = robot->covariance(0, 2);
-            pose.cov_y_heading_m_rad = robot->covariance(1, 2);
-            pose.heading_hypotheses = robot->hypotheses;
-            pose.range_scale = robot->range_scale;
-            pose.range_scale_sigma = robot->range_scale_sigma;
-            pose.range_offset_m = robot->range_offset_m;
-            pose.range_offset_sigma_m = robot->range_offset_sigma_m;
-            map.robot = pose;
-        }
+    fillRobot(map.robot);
+}
+
+void EngineAdapter::updateEstimates(service::MapState &map, std::vector<size_t> &changed)
+{
+    std::vector<engine::NodeOutput> shown = shownNodes();
+    fillRobot(map.robot);
+    changed.clear();
+    // The common case: the same nodes as last time, and `map` holds what they were then
+    // (last_shown_ converted): convert only the nodes whose output differs.
+    bool same_nodes = moving_.empty() && shown.size() == last_shown_.size() && map.nodes.size() == shown.size();
+    for (size_t i = 0; same_nodes && i < shown.size(); ++i) {
+        same_nodes = shown[i].id == last_shown_[i].id && map.nodes[i].id == shown[i].id;
     }
+    if (same_nodes) {
+        for (size_t i = 0; i < shown.size(); ++i) {
+            if (!sameOutput(shown[i], last_shown_[i])) {
+                map.nodes[i] = estimateOf(shown[i]);
+                changed.push_back(i);
+            }
+        }
+    } else {
+        std::vector<service::NodeEstimate> nodes;
+        fillNodes(nodes, shown);
+        changed = service::changedNodes(map.nodes, nodes);
+        map.nodes = std::move(nodes);
+    }
+    last_shown_ = std::move(shown);
 }
 
 std::optional<service::NodeComponents> EngineAdapter::components(uint16_t id) const

@@ -104,7 +104,7 @@ void JsonLinesWriter::writeAll(const MapState &map)
     }
 }
 
-void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
+void JsonLinesWriter::onUpdate(const MapState &map, const std::vector<size_t> &changed, int64_t event_us)
 {
     if (!writable()) {
         return;
@@ -121,22 +121,23 @@ void JsonLinesWriter::onUpdate(const MapState &map, int64_t event_us)
         writeAll(map);
         return;
     }
-    writeChanged(map, event_us, true);
+    writeChanged(map, nodesToLookAt(map, changed, held_ids_), event_us);
 }
 
-void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool limited)
+void JsonLinesWriter::writeChanged(const MapState &map, const std::vector<size_t> &positions, int64_t event_us)
 {
-    bool held = false;
-    for (const NodeEstimate &node : map.nodes) {
+    std::vector<size_t> held;
+    for (const size_t position : positions) {
+        const NodeEstimate &node = map.nodes[position];
         auto it = last_node_.find(node.id);
         if (it != last_node_.end() && sameEstimate(it->second, node)) {
             continue;
         }
-        if (limited && node_interval_us_ > 0) {
+        if (node_interval_us_ > 0) {
             auto when = last_node_us_.find(node.id);
             if (when != last_node_us_.end() && event_us - when->second < node_interval_us_) {
                 ++counters_.jsonl_lines_held;
-                held = true;
+                held.push_back(position);
                 continue;
             }
         }
@@ -144,24 +145,27 @@ void JsonLinesWriter::writeChanged(const MapState &map, int64_t event_us, bool l
         last_node_[node.id] = node;
         last_node_us_[node.id] = event_us;
     }
+    held_robot_.reset();
     if (map.robot && !(last_robot_ && sameEstimate(*last_robot_, *map.robot))) {
-        if (limited && node_interval_us_ > 0 && last_robot_ && event_us - last_robot_us_ < node_interval_us_) {
+        if (node_interval_us_ > 0 && last_robot_ && event_us - last_robot_us_ < node_interval_us_) {
             ++counters_.jsonl_lines_held;
-            held = true;
+            held_robot_ = map.robot;
         } else {
             append(line(robotJson(*map.robot, outputTimeOf(map))));
             last_robot_ = map.robot;
             last_robot_us_ = event_us;
         }
     }
-    // What is held back goes out at the end as of the last update, stamped with its event time,
-    // so that a replay ends with the same lines as the live run it replays.
-    if (held) {
-        held_map_ = map;
-        held_event_us_ = event_us;
-    } else if (limited) {
-        held_map_.reset();
+    // What is held back goes out with the first update after its interval, or at the end as of
+    // the last update, stamped with its event time, so that a replay ends with the same lines as
+    // the live run it replays.
+    held_nodes_.clear();
+    held_ids_.clear();
+    for (const size_t position : held) {
+        held_nodes_.push_back(map.nodes[position]);
+        held_ids_.push_back(map.nodes[position].id);
     }
+    held_time_ = outputTimeOf(map);
 }
 
 void JsonLinesWriter::finish(const MapState &map)
@@ -172,11 +176,19 @@ void JsonLinesWriter::finish(const MapState &map)
     if (period_us_ > 0 && dirty_) {
         dirty_ = false;
         writeAll(map);
-    } else if (period_us_ == 0 && held_map_) {
+    } else if (period_us_ == 0) {
         // What the rate limit held back: the last estimates must not be lost at the end.
-        const MapState held = *held_map_;
-        held_map_.reset();
-        writeChanged(held, held_event_us_, false);
+        for (const NodeEstimate &node : held_nodes_) {
+            append(line(nodeJson(node, held_time_)));
+            last_node_[node.id] = node;
+        }
+        if (held_robot_) {
+            append(line(robotJson(*held_robot_, held_time_)));
+            last_robot_ = held_robot_;
+        }
+        held_nodes_.clear();
+        held_ids_.clear();
+        held_robot_.reset();
     }
 }
 

@@ -1,8 +1,10 @@
 #include "cdro/service/map_state.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <iterator>
 #include <map>
 
 #include <nlohmann/json.hpp>
@@ -67,6 +69,60 @@ bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b)
            a.moving == b.moving && a.placed == b.placed && a.foldable == b.foldable && a.status == b.status &&
            a.reason == b.reason && a.hinge == b.hinge && sameBits(a.z_m, b.z_m) && sameBits(a.var_z_m2, b.var_z_m2) &&
            sameBits(a.cov_xz_m2, b.cov_xz_m2) && sameBits(a.cov_yz_m2, b.cov_yz_m2);
+}
+
+std::vector<size_t> changedNodes(const std::vector<NodeEstimate> &before, const std::vector<NodeEstimate> &after)
+{
+    std::vector<size_t> changed;
+    size_t old = 0;
+    for (size_t i = 0; i < after.size(); ++i) {
+        while (old < before.size() && before[old].id < after[i].id) {
+            ++old;
+        }
+        if (old == before.size() || !sameEstimate(before[old], after[i])) {
+            changed.push_back(i);
+        }
+    }
+    return changed;
+}
+
+std::vector<size_t> allNodes(const MapState &map)
+{
+    std::vector<size_t> all(map.nodes.size());
+    for (size_t i = 0; i < all.size(); ++i) {
+        all[i] = i;
+    }
+    return all;
+}
+
+std::vector<size_t> nodesToLookAt(const MapState &map, const std::vector<size_t> &changed,
+                                  const std::vector<uint16_t> &held_ids)
+{
+    if (held_ids.empty()) {
+        return changed;
+    }
+    std::vector<size_t> held;
+    held.reserve(held_ids.size());
+    for (const uint16_t id : held_ids) {
+        const auto found = std::lower_bound(map.nodes.begin(), map.nodes.end(), id,
+                                            [](const NodeEstimate &node, uint16_t key) { return node.id < key; });
+        if (found != map.nodes.end() && found->id == id) {
+            held.push_back(static_cast<size_t>(found - map.nodes.begin()));
+        }
+    }
+    std::vector<size_t> out;
+    out.reserve(changed.size() + held.size());
+    std::set_union(changed.begin(), changed.end(), held.begin(), held.end(), std::back_inserter(out));
+    return out;
+}
+
+void MapSource::updateEstimates(MapState &map, std::vector<size_t> &changed)
+{
+    MapState fresh;
+    fill(fresh);
+    changed = changedNodes(map.nodes, fresh.nodes);
+    map.nodes = std::move(fresh.nodes);
+    map.robot = std::move(fresh.robot);
 }
 
 bool sameEstimate(const RobotPose &a, const RobotPose &b)

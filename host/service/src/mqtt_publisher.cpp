@@ -357,19 +357,23 @@ void MqttPublisher::publish(const std::string &name, const std::string &payload,
     updateInterest();
 }
 
-void MqttPublisher::onUpdate(const MapState &map, int64_t event_us)
+void MqttPublisher::onUpdate(const MapState &map, const std::vector<size_t> &changed, int64_t event_us)
 {
     if (mosq_ == nullptr) {
         return;
     }
     const int64_t period_us = config_.rate_hz > 0.0 ? static_cast<int64_t>(std::llround(1e6 / config_.rate_hz)) : 0;
-    for (const NodeEstimate &node : map.nodes) {
+    const std::vector<size_t> positions = nodesToLookAt(map, changed, waiting_ids_);
+    waiting_ids_.clear();
+    for (const size_t position : positions) {
+        const NodeEstimate &node = map.nodes[position];
         auto last = last_node_.find(node.id);
         if (last != last_node_.end() && sameEstimate(last->second, node)) {
             continue;
         }
         auto due = next_due_us_.find(node.id);
         if (period_us > 0 && due != next_due_us_.end() && event_us < due->second) {
+            waiting_ids_.push_back(node.id);
             continue;
         }
         next_due_us_[node.id] = event_us + period_us;

@@ -318,9 +318,10 @@ MapState Service::currentMap() const
     return map;
 }
 
-void Service::noteUpdates(const MapState &map, int64_t event_unix_us)
+void Service::noteUpdates(const MapState &map, const std::vector<size_t> &changed, int64_t event_unix_us)
 {
-    for (const NodeEstimate &node : map.nodes) {
+    for (const size_t position : changed) {
+        const NodeEstimate &node = map.nodes[position];
         const auto it = node_updates_.find(node.id);
         if (it == node_updates_.end() || !sameEstimate(it->second.first, node)) {
             node_updates_[node.id] = {node, event_unix_us};
@@ -362,13 +363,12 @@ void Service::afterFrame(int64_t event_unix_us)
     }
     last_map_revision_ = revision;
     map_dirty_ = true;
-    MapState map;
-    hooks_.map->fill(map);
-    map.t_s = tSeconds(event_unix_us);
-    map.t_unix_s = outputTime(event_unix_us).t_unix_s;
-    noteUpdates(map, event_unix_us);
-    jsonl_.onUpdate(map, event_unix_us);
-    mqtt_.onUpdate(map, event_unix_us);
+    hooks_.map->updateEstimates(updated_map_, changed_nodes_);
+    updated_map_.t_s = tSeconds(event_unix_us);
+    updated_map_.t_unix_s = outputTime(event_unix_us).t_unix_s;
+    noteUpdates(updated_map_, changed_nodes_, event_unix_us);
+    jsonl_.onUpdate(updated_map_, changed_nodes_, event_unix_us);
+    mqtt_.onUpdate(updated_map_, changed_nodes_, event_unix_us);
 }
 
 void Service::afterBatch()
@@ -515,9 +515,9 @@ void Service::httpTick()
         return;
     }
     const MapState map = currentMap();
-    std::string map_json = mapJson(map).dump();
-    // Rates and wall time move on their own; publish when the picture (less t_s) changed.
     nlohmann::ordered_json comparable = mapJson(map);
+    std::string map_json = comparable.dump();
+    // Rates and wall time move on their own; publish when the picture (less t_s) changed.
     comparable.erase("t_s");
     comparable.erase("t_unix_s");
     comparable["health"].erase("t_s");

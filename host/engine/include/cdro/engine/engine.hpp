@@ -219,6 +219,7 @@ public:
 
 private:
     uint32_t nodeIndex(NodeId id);
+    NodeOutput outputOf(uint32_t node, const RigidTransform &transform) const; // node: map numbering
     RangeVerdict takeRange(NodeId from, NodeId to, double range_m, double t_s);
     // A node of the frame triangle moving or unplaced: another triangle (OutputFrame::ensureFrameNodes).
     void keepFrame();

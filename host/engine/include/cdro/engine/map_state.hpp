@@ -188,6 +188,10 @@ public:
         return state.node_a == center_node ? state.ring_from_a : state.ring_from_b;
     }
     uint32_t placedCount() const;
+    // Node and link indices in the order the outputs list them (nodes by id, links by (a, b)),
+    // kept as nodes and links are added, so that no output sorts the map.
+    const std::vector<uint32_t> &nodesById() const { return nodes_by_id_; }
+    const std::vector<uint32_t> &linksById() const { return links_by_id_; }
 
     std::vector<NodeState> nodes;
     std::vector<LinkState> links;
@@ -201,6 +205,8 @@ private:
     static uint32_t linkKey(NodeId a, NodeId b) { return (static_cast<uint32_t>(a) << 16) | b; }
     std::unordered_map<NodeId, uint32_t> node_index_;
     std::unordered_map<uint32_t, uint32_t> link_index_;
+    std::vector<uint32_t> nodes_by_id_;
+    std::vector<uint32_t> links_by_id_;
 };
 
 } // namespace cdro::engine

@@ -84,6 +84,9 @@ public:
     // MapSource
     uint64_t revision() const override { return movement_ != nullptr ? movement_->revision() : engine_.revision(); }
     void fill(service::MapState &map) const override;
+    // Converts only the nodes whose engine output changed since the last call (the outputs of a
+    // frame cost what it changed, not the size of the map).
+    void updateEstimates(service::MapState &map, std::vector<size_t> &changed) override;
     std::optional<service::NodeComponents> components(uint16_t id) const override;
 
     // CheckpointProvider
@@ -99,12 +102,17 @@ public:
     int64_t lastEventUnixUs() const { return last_event_unix_us_; }
 
 private:
+    std::vector<engine::NodeOutput> shownNodes() const; // the static map's nodes the outputs show, by id
+    void fillNodes(std::vector<service::NodeEstimate> &nodes, const std::vector<engine::NodeOutput> &shown) const;
+    void fillRobot(std::optional<service::RobotPose> &robot_pose) const;
+
     engine::Engine &engine_;
     engine::MovementStage *movement_ = nullptr;
     std::vector<uint16_t> moving_; // tracked in 3D
     uint64_t ranges_refused_ = 0;
     uint64_t host_events_mismatched_ = 0;
     int64_t last_event_unix_us_ = 0;
+    std::vector<engine::NodeOutput> last_shown_; // shownNodes() at the last updateEstimates
 };
 
 // The conversions, usable on their own (tests, tools).

@@ -31,6 +31,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "cdro/service/config.hpp"
 #include "cdro/service/map_state.hpp"
@@ -47,8 +48,11 @@ public:
     void open(); // "-" = stdout, "" = disabled; throws ConfigError if unwritable
     bool enabled() const { return fd_ >= 0; }
 
-    // After an update at event time event_us (map.t_s is already set).
-    void onUpdate(const MapState &map, int64_t event_us);
+    // After an update at event time event_us (map.t_s is already set): changed, the positions
+    // in map.nodes of the nodes it may have changed (MapSource::updateEstimates); the nodes held
+    // back before are looked at again. Without `changed`, every node is looked at.
+    void onUpdate(const MapState &map, const std::vector<size_t> &changed, int64_t event_us);
+    void onUpdate(const MapState &map, int64_t event_us) { onUpdate(map, allNodes(map), event_us); }
     // At the end of a run: with rate_hz > 0, the estimates updated since the last period (map);
     // with the per-node limit, what the last update held back (as of that update).
     void finish(const MapState &map);
@@ -62,7 +66,7 @@ public:
 private:
     void append(const std::string &text);
     void writeAll(const MapState &map);
-    void writeChanged(const MapState &map, int64_t event_us, bool limited);
+    void writeChanged(const MapState &map, const std::vector<size_t> &positions, int64_t event_us);
     bool writable();                              // the file is open, or could be started again after a failed rotation
     void startNewFile();                          // rotates the current file away (if open), opens a new one
     size_t wholeLinesThatFit(size_t start) const; // end of the pending lines from start that fit the file
@@ -82,8 +86,12 @@ private:
     int64_t node_interval_us_ = 0;             // 1/max_node_rate_hz; 0 = no limit
     std::map<uint16_t, int64_t> last_node_us_; // id -> event time of its last line
     int64_t last_robot_us_ = INT64_MIN;
-    std::optional<MapState> held_map_; // the last update, when it held something back
-    int64_t held_event_us_ = 0;
+    // What the last update held back (empty when it held nothing), sorted by id, as of that
+    // update: finish() writes it.
+    std::vector<NodeEstimate> held_nodes_;
+    std::vector<uint16_t> held_ids_; // their ids: the next update looks at them again
+    std::optional<RobotPose> held_robot_;
+    OutputTime held_time_;
     uint64_t file_bytes_ = 0; // bytes in the current file
     uint64_t rotate_bytes_ = 0;
     bool reopen_pending_ = false; // a rotation could not start its new file

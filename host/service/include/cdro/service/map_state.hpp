@@ -132,8 +132,17 @@ public:
     virtual ~MapSource() = default;
     // Bumped whenever an estimate changed; the outputs publish only when it moved.
     virtual uint64_t revision() const = 0;
-    // Fills nodes, robot and links (not t_s or health, which the service sets).
+    // Fills nodes, robot and links (not t_s or health, which the service sets): the whole map,
+    // for the live map and the end of a run.
     virtual void fill(MapState &map) const = 0;
+    // After each update: brings map.nodes and map.robot up to date (not links, t_s or health)
+    // and sets `changed` to the positions in map.nodes (ascending) of the nodes that are new or
+    // whose estimate may differ from the one map held; the outputs look at those alone, so that
+    // an update costs what it changed, not the size of the map. `map` is the one this source
+    // last updated, untouched since, or an empty one. A superset is allowed (the outputs compare
+    // what they last wrote); a node left out is an output missed. This default fills a whole map
+    // and compares every node (changedNodes); the engine adapter looks only at what moved.
+    virtual void updateEstimates(MapState &map, std::vector<size_t> &changed);
     // The SoG components describing node id, or nullopt if the node is unknown.
     virtual std::optional<NodeComponents> components(uint16_t id) const = 0;
 };
@@ -141,6 +150,17 @@ public:
 // Bit-for-bit equality of estimates (the outputs write a node again only when it changed).
 bool sameEstimate(const NodeEstimate &a, const NodeEstimate &b);
 bool sameEstimate(const RobotPose &a, const RobotPose &b);
+
+// The positions in `after` (sorted by id, as `before`) of the nodes that are not in `before`
+// or differ from their estimate there (sameEstimate).
+std::vector<size_t> changedNodes(const std::vector<NodeEstimate> &before, const std::vector<NodeEstimate> &after);
+// Every position of map.nodes: what an output looks at without a list of changes.
+std::vector<size_t> allNodes(const MapState &map);
+// What an output looks at after an update: the positions of the changed nodes and of the nodes
+// it held back before (held_ids, sorted), each once, ascending. A held node no longer in the
+// map is dropped.
+std::vector<size_t> nodesToLookAt(const MapState &map, const std::vector<size_t> &changed,
+                                  const std::vector<uint16_t> &held_ids);
 
 // The event time every line carries: since the run started, and since the Unix epoch. Both come
 // from the event time (the frames' receive time, on replay the capture's), never from a clock read

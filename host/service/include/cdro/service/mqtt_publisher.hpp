@@ -36,6 +36,7 @@
 #include <map>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "cdro/service/config.hpp"
 #include "cdro/service/event_loop.hpp"
@@ -68,7 +69,11 @@ public:
 
     // After an update at event time event_us: the nodes (and robot) that changed, at most
     // rate_hz per node.
-    void onUpdate(const MapState &map, int64_t event_us);
+    // changed: the positions in map.nodes of the nodes the update may have changed
+    // (MapSource::updateEstimates); the nodes waiting for their period are looked at again.
+    // Without `changed`, every node is looked at.
+    void onUpdate(const MapState &map, const std::vector<size_t> &changed, int64_t event_us);
+    void onUpdate(const MapState &map, int64_t event_us) { onUpdate(map, allNodes(map), event_us); }
     void publishHealth(const Health &health, OutputTime time);
 
     // Subscribes to topic (an exact topic, no wildcards) on every connect; handler gets each
@@ -117,6 +122,7 @@ private:
     std::map<std::string, std::string> retained_; // topic -> latest payload
     std::map<uint16_t, NodeEstimate> last_node_;  // id -> the estimate last published
     std::map<uint16_t, int64_t> next_due_us_;     // id -> event time of the next publish
+    std::vector<uint16_t> waiting_ids_;           // changed, waiting for their next publish (sorted)
     std::optional<RobotPose> last_robot_;
     std::map<std::string, MessageHandler> subscriptions_; // topic -> handler
     std::map<int, std::string> pending_subscriptions_;    // message id -> topic, until the SUBACK

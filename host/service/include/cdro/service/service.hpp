@@ -37,6 +37,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "cdro/service/capture.hpp"
 #include "cdro/service/checkpoint.hpp"
@@ -114,7 +115,7 @@ private:
 
     class ConsumerTap;
     void afterFrame(int64_t event_unix_us);
-    void noteUpdates(const MapState &map, int64_t event_unix_us);
+    void noteUpdates(const MapState &map, const std::vector<size_t> &changed, int64_t event_unix_us);
     void stampUpdates(MapState &map) const;
     void afterBatch();
     void rearmSession();
@@ -158,6 +159,10 @@ private:
     int64_t resumed_run_start_unix_us_ = 0; // the resumed run's start (us), from its checkpoint
     uint16_t host_sequence_ = 0;
     uint64_t last_map_revision_ = 0;
+    // The nodes and robot as of the last update, kept up to date by the map source update by
+    // update (MapSource::updateEstimates), with the positions the last one changed.
+    MapState updated_map_;
+    std::vector<size_t> changed_nodes_;
     bool map_dirty_ = false;
     std::string last_published_map_;
     // Per node: the estimate last seen and the event time (us since the epoch) it changed at,
