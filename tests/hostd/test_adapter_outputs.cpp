@@ -107,6 +107,10 @@ TEST(AdapterOutputs, TheStaticMapUpdatedRangeByRangeIsTheWholeMapAndASettledRang
     std::printf("static map: %zu updates, median %zu of %zu nodes named per range at the end\n", check.updates(),
                 median, check.nodes());
     EXPECT_LE(median, check.nodes() / 4);
+    // And most updates converted only what the engine named (output_changes.hpp), not the map.
+    std::printf("static map: %llu of %zu updates converted only the nodes the engine named\n",
+                static_cast<unsigned long long>(adapter.updatesOfNamedNodes()), check.updates());
+    EXPECT_GT(adapter.updatesOfNamedNodes(), check.updates() / 2);
 }
 
 TEST(AdapterOutputs, ARobotsMapUpdatedStepByStepIsTheWholeMap)

@@ -174,6 +174,7 @@ RangeVerdict Engine::takeRange(NodeId from, NodeId to, double range_m, double t_
     const uint32_t b = taken.b;
     intake_.refreshLinkRange(map_, taken.link, params_.motion.reset);
     ++revision_; // the links are part of the outputs (last range, count)
+    output_changes_.rangeTaken(a, b);
     // 2. Motion: the map is a reference only once it holds both ends.
     const NodeState &end_a = map_.nodes[a];
     const NodeState &end_b = map_.nodes[b];
@@ -371,11 +372,15 @@ void Engine::updateNode(uint32_t node, bool after_range)
     if (state.moving() || state.settling()) {
         Convergence::restart(state); // no convergence while it moves
         revision_ += changed ? 1U : 0U;
+        output_changes_.nodeUpdated(node, changed);
         return; // the neighbours do not lean on a moving node
     }
     const NodeLifecycle before = state.lifecycle;
+    const NodeDoubt doubt_before = state.doubt;
     convergence_.afterUpdate(map_, node);
-    revision_ += (changed || before != state.lifecycle) ? 1U : 0U;
+    const bool bumped = changed || before != state.lifecycle || doubt_before != state.doubt;
+    revision_ += bumped ? 1U : 0U;
+    output_changes_.nodeUpdated(node, bumped);
     if (delta.norm() > params_.refinement.relax_threshold_m) {
         enqueueNeighbours(node);
     }
@@ -525,6 +530,17 @@ std::vector<NodeOutput> Engine::estimates() const
     out.reserve(map_.nodes.size());
     for (const uint32_t index : map_.nodesById()) {
         out.push_back(outputOf(index, transform));
+    }
+    return out;
+}
+
+std::vector<NodeOutput> Engine::estimatesAt(const std::vector<uint32_t> &positions) const
+{
+    const RigidTransform transform = outputTransform();
+    std::vector<NodeOutput> out;
+    out.reserve(positions.size());
+    for (const uint32_t position : positions) {
+        out.push_back(outputOf(map_.nodesById().at(position), transform));
     }
     return out;
 }

@@ -221,13 +221,24 @@ bool sameOutput(const engine::NodeOutput &a, const engine::NodeOutput &b)
 
 } // namespace
 
-std::vector<engine::NodeOutput> EngineAdapter::shownNodes() const
+std::vector<engine::NodeOutput> EngineAdapter::shownNodes(std::vector<uint32_t> *shown_index) const
 {
-    std::vector<engine::NodeOutput> shown = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
-    // A node known only by name (a height, or a range refused) is not on the map until it has a link.
-    shown.erase(std::remove_if(shown.begin(), shown.end(),
-                               [](const engine::NodeOutput &node) { return node.link_count == 0 && !node.fixed(); }),
-                shown.end());
+    std::vector<engine::NodeOutput> all = movement_ != nullptr ? movement_->estimates() : engine_.estimates();
+    std::vector<engine::NodeOutput> shown;
+    shown.reserve(all.size());
+    if (shown_index != nullptr) {
+        shown_index->assign(all.size(), kNotShown);
+    }
+    for (size_t position = 0; position < all.size(); ++position) {
+        // A node known only by name (a height, or a range refused) is not on the map until it has a link.
+        if (all[position].link_count == 0 && !all[position].fixed()) {
+            continue;
+        }
+        if (shown_index != nullptr) {
+            (*shown_index)[position] = static_cast<uint32_t>(shown.size());
+        }
+        shown.push_back(all[position]);
+    }
     return shown;
 }
 
@@ -306,7 +317,7 @@ void EngineAdapter::fillRobot(std::optional<service::RobotPose> &robot_pose) con
 
 void EngineAdapter::fill(service::MapState &map) const
 {
-    fillNodes(map.nodes, shownNodes());
+    fillNodes(map.nodes, shownNodes(nullptr));
     map.links.clear();
     for (const engine::LinkOutput &link : engine_.links()) {
         service::LinkEstimate out;
@@ -323,11 +334,21 @@ void EngineAdapter::fill(service::MapState &map) const
 
 void EngineAdapter::updateEstimates(service::MapState &map, std::vector<size_t> &changed)
 {
-    std::vector<engine::NodeOutput> shown = shownNodes();
     fillRobot(map.robot);
     changed.clear();
-    // The common case: the same nodes as last time, and `map` holds what they were then
-    // (last_shown_ converted): convert only the nodes whose output differs.
+    // The static map alone (no robot's stage, no 3D tracks): the engine names the nodes whose
+    // outputs may have changed (output_changes.hpp), and only those are converted.
+    const bool named = movement_ == nullptr && moving_.empty();
+    if (named) {
+        const engine::OutputChanges changes = engine_.takeOutputChanges();
+        if (!changes.all && updateNamed(map, changes.positions, changed)) {
+            ++updates_of_named_nodes_;
+            return;
+        }
+    }
+    std::vector<engine::NodeOutput> shown = shownNodes(named ? &shown_index_ : nullptr);
+    // The same nodes as last time, and `map` holds what they were then (last_shown_ converted):
+    // convert only the nodes whose output differs.
     bool same_nodes = moving_.empty() && shown.size() == last_shown_.size() && map.nodes.size() == shown.size();
     for (size_t i = 0; same_nodes && i < shown.size(); ++i) {
         same_nodes = shown[i].id == last_shown_[i].id && map.nodes[i].id == shown[i].id;
@@ -346,6 +367,29 @@ void EngineAdapter::updateEstimates(service::MapState &map, std::vector<size_t> 
         map.nodes = std::move(nodes);
     }
     last_shown_ = std::move(shown);
+}
+
+bool EngineAdapter::updateNamed(service::MapState &map, const std::vector<uint32_t> &positions,
+                                std::vector<size_t> &changed)
+{
+    if (map.nodes.size() != last_shown_.size()) {
+        return false;
+    }
+    for (const uint32_t position : positions) {
+        if (position >= shown_index_.size() || shown_index_[position] == kNotShown) {
+            return false; // a node shown for the first time: the whole comparison
+        }
+    }
+    const std::vector<engine::NodeOutput> outputs = engine_.estimatesAt(positions);
+    for (size_t k = 0; k < positions.size(); ++k) {
+        const uint32_t i = shown_index_[positions[k]];
+        if (!sameOutput(outputs[k], last_shown_[i])) {
+            map.nodes[i] = estimateOf(outputs[k]);
+            last_shown_[i] = outputs[k];
+            changed.push_back(i);
+        }
+    }
+    return true;
 }
 
 std::optional<service::NodeComponents> EngineAdapter::components(uint16_t id) const

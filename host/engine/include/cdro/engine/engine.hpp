@@ -33,6 +33,7 @@
 #include "cdro/engine/map_state.hpp"
 #include "cdro/engine/motion_track_3d.hpp"
 #include "cdro/engine/motion_tracker.hpp"
+#include "cdro/engine/output_changes.hpp"
 #include "cdro/engine/output_frame.hpp"
 #include "cdro/engine/params.hpp"
 #include "cdro/engine/placement_step.hpp"
@@ -160,6 +161,11 @@ public:
     std::vector<LinkOutput> links() const;                    // by (a, b)
     std::vector<RingOutput> ringsDescribing(NodeId id) const; // SoG_ij for every neighbour i
     RigidTransform outputTransform() const { return frame_.transform(map_); }
+    // For outputs that convert only what changed (output_changes.hpp): the positions in
+    // estimates() whose outputs may have changed since the last call, or all; and the outputs at
+    // some positions of estimates(). One caller: each call starts a new interval.
+    OutputChanges takeOutputChanges() { return output_changes_.take(map_, revision_, outputTransform()); }
+    std::vector<NodeOutput> estimatesAt(const std::vector<uint32_t> &positions) const;
 
     // Decisions worth explaining (placements, solves, motion) as one-line messages, for the
     // service's debug log and for investigations. Off when empty.
@@ -264,6 +270,7 @@ private:
     uint64_t node_updates_ = 0;
     uint64_t relaxations_ = 0;
     uint64_t revision_ = 0;
+    OutputChangeLog output_changes_;
     uint64_t assessed_key_ = 0; // the structure (links, placed set) at the last assessment
     std::function<void(const std::string &)> trace_;
 };

@@ -85,7 +85,9 @@ public:
     uint64_t revision() const override { return movement_ != nullptr ? movement_->revision() : engine_.revision(); }
     void fill(service::MapState &map) const override;
     // Converts only the nodes whose engine output changed since the last call (the outputs of a
-    // frame cost what it changed, not the size of the map).
+    // frame cost what it changed, not the size of the map): of the static map, those the engine
+    // names (Engine::takeOutputChanges); with a robot's stage or 3D tracks, those whose output
+    // differs from the last.
     void updateEstimates(service::MapState &map, std::vector<size_t> &changed) override;
     std::optional<service::NodeComponents> components(uint16_t id) const override;
 
@@ -100,9 +102,15 @@ public:
     // another range count): the replay diverges from the live run there.
     uint64_t hostEventsMismatched() const { return host_events_mismatched_; }
     int64_t lastEventUnixUs() const { return last_event_unix_us_; }
+    // Updates (updateEstimates) that converted only the nodes the engine named.
+    uint64_t updatesOfNamedNodes() const { return updates_of_named_nodes_; }
 
 private:
-    std::vector<engine::NodeOutput> shownNodes() const; // the static map's nodes the outputs show, by id
+    // The static map's nodes the outputs show, by id; shown_index (if given): for each position of
+    // the engine's estimates(), its position among them, or kNotShown.
+    std::vector<engine::NodeOutput> shownNodes(std::vector<uint32_t> *shown_index) const;
+    // updateEstimates with the positions the engine named; false where it cannot (then nothing changed).
+    bool updateNamed(service::MapState &map, const std::vector<uint32_t> &positions, std::vector<size_t> &changed);
     void fillNodes(std::vector<service::NodeEstimate> &nodes, const std::vector<engine::NodeOutput> &shown) const;
     void fillRobot(std::optional<service::RobotPose> &robot_pose) const;
 
@@ -113,6 +121,9 @@ private:
     uint64_t host_events_mismatched_ = 0;
     int64_t last_event_unix_us_ = 0;
     std::vector<engine::NodeOutput> last_shown_; // shownNodes() at the last updateEstimates
+    static constexpr uint32_t kNotShown = UINT32_MAX;
+    std::vector<uint32_t> shown_index_; // estimates() position -> position in last_shown_
+    uint64_t updates_of_named_nodes_ = 0;
 };
 
 // The conversions, usable on their own (tests, tools).
