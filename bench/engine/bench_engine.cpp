@@ -17,6 +17,7 @@
 //                     [--seed S] [--draws D] [--plant-only | --networks-only] [--json] [--json-out FILE]
 //   cdro-bench-engine --one-network NODES [--seed S] [--write-csv DIR]   one draw, JSON out
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -28,6 +29,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -348,6 +350,40 @@ Json firstMapJson(const PlacementTimeline &timeline, size_t nodes, size_t final_
                 {"wall_s", event->wall_s}};
 }
 
+// The addRange calls over 1 ms, by what the engine did in them (its counters before and after),
+// the first that applies: placed a node again (found inconsistent), placed nodes, started a
+// global solve (its problem is built on this thread), or none of these.
+struct SlowCalls {
+    static constexpr double kOverS = 1e-3; // s
+    std::array<uint64_t, 4> count{};
+    std::array<double, 4> longest_s{};
+    static constexpr std::array<const char *, 4> kCauses = {"replaced", "placed", "started_solve", "other"};
+    void add(const EngineCounters &before, const EngineCounters &after, double call_s)
+    {
+        if (call_s <= kOverS) {
+            return;
+        }
+        size_t cause = 3;
+        if (after.placement.replacements != before.placement.replacements) {
+            cause = 0;
+        } else if (after.placement.placements != before.placement.placements) {
+            cause = 1;
+        } else if (after.solve.solves != before.solve.solves) {
+            cause = 2;
+        }
+        ++count[cause];
+        longest_s[cause] = std::max(longest_s[cause], call_s);
+    }
+    SlowCalls &operator+=(const SlowCalls &other)
+    {
+        for (size_t k = 0; k < count.size(); ++k) {
+            count[k] += other.count[k];
+            longest_s[k] = std::max(longest_s[k], other.longest_s[k]);
+        }
+        return *this;
+    }
+};
+
 struct Timed {
     double wall_s = 0.0;
     double cpu_s = 0.0;
@@ -357,6 +393,7 @@ struct Timed {
                                      // back to back it includes waiting for the solve's worker)
     double longest_adoption_s = 0.0; // s, with --adopt-when-done: the slowest adoption between ranges
     uint64_t adoptions = 0;          // ... and how many there were
+    std::optional<SlowCalls> slow;   // with --explain-slow-calls
     double rate() const { return wall_s > 0.0 ? static_cast<double>(ranges) / wall_s : 0.0; }
     double cpuRate() const { return cpu_s > 0.0 ? static_cast<double>(ranges) / cpu_s : 0.0; }
     Timed &operator+=(const Timed &other)
@@ -368,6 +405,9 @@ struct Timed {
         longest_call_s = std::max(longest_call_s, other.longest_call_s);
         longest_adoption_s = std::max(longest_adoption_s, other.longest_adoption_s);
         adoptions += other.adoptions;
+        if (other.slow) {
+            slow = slow ? *slow += *other.slow : *other.slow;
+        }
         return *this;
     }
 };
@@ -378,9 +418,14 @@ struct Timed {
 // `adopt_when_done` the engine adopts its solves between ranges once done (SolveAdoption::ByCaller,
 // as cdro-hostd live), each adoption timed apart from the addRange calls.
 Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *watch, uint64_t *fed,
-           double *fed_wall_s, double pace_ranges_per_s = 0.0, bool adopt_when_done = false)
+           double *fed_wall_s, double pace_ranges_per_s = 0.0, bool adopt_when_done = false,
+           bool explain_slow_calls = false)
 {
     Timed timed;
+    if (explain_slow_calls) {
+        timed.slow = SlowCalls{};
+    }
+    EngineCounters before;
     double wall0 = wallSeconds();
     const double cpu0 = cpuSeconds();
     double waited_s = 0.0;
@@ -394,9 +439,16 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
             }
             waited_s += wallSeconds() - before_s;
         }
+        if (explain_slow_calls) {
+            before = engine.counters();
+        }
         const double call0 = wallSeconds();
         const cdro::engine::RangeVerdict verdict = engine.addRange(range.from, range.to, range.range_m);
-        timed.longest_call_s = std::max(timed.longest_call_s, wallSeconds() - call0);
+        const double call_s = wallSeconds() - call0;
+        timed.longest_call_s = std::max(timed.longest_call_s, call_s);
+        if (explain_slow_calls) {
+            timed.slow->add(before, engine.counters(), call_s);
+        }
         if (adopt_when_done) {
             const double adoption0 = wallSeconds();
             if (engine.adoptFinishedSolve()) {
@@ -423,6 +475,19 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
 // cdro-hostd's offline default: enough neighbour updates for every node to move many times.
 uint64_t settleBudget(const Engine &engine) { return 200ULL * engine.map().nodes.size() + 1000ULL; }
 
+// {cause: {"calls", "longest_ms"}}, or null without --explain-slow-calls.
+Json slowJson(const std::optional<SlowCalls> &slow)
+{
+    if (!slow) {
+        return nullptr;
+    }
+    Json out = Json::object();
+    for (size_t k = 0; k < slow->count.size(); ++k) {
+        out[SlowCalls::kCauses[k]] = Json{{"calls", slow->count[k]}, {"longest_ms", 1e3 * slow->longest_s[k]}};
+    }
+    return out;
+}
+
 Json timedJson(const Timed &t)
 {
     return Json{{"ranges", t.ranges},
@@ -433,7 +498,8 @@ Json timedJson(const Timed &t)
                 {"refused", t.refused},
                 {"longest_call_ms", 1e3 * t.longest_call_s},
                 {"adoptions_between_ranges", t.adoptions},
-                {"longest_adoption_ms", 1e3 * t.longest_adoption_s}};
+                {"longest_adoption_ms", 1e3 * t.longest_adoption_s},
+                {"calls_over_1ms", slowJson(t.slow)}};
 }
 
 // ---- PLANT ----------------------------------------------------------------------------------
@@ -604,7 +670,8 @@ struct NetworkOptions {
     std::string write_csv_dir;      // with --one-network: the stream and the truth as CSV files
     double pace_ranges_per_s = 0.0; // ranges/s, fed at this rate as from a live network (0: back to back)
     double adopt_after_sweeps = cdro::engine::SolveParams{}.adopt_after_sweeps; // engine.solve's (0: in addRange)
-    bool adopt_when_done = false; // the solves adopted between ranges once done (cdro-hostd live)
+    bool adopt_when_done = false;    // the solves adopted between ranges once done (cdro-hostd live)
+    bool explain_slow_calls = false; // the addRange calls over 1 ms by what the engine did in them
 };
 
 Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
@@ -677,7 +744,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
         }
         const bool warming = sweep < options.warmup_sweeps;
         const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, options.pace_ranges_per_s,
-                                 options.adopt_when_done);
+                                 options.adopt_when_done, options.explain_slow_calls);
         if (warming) {
             warmup += timed;
             warmup_sweep_s.push_back(timed.wall_s);
@@ -1127,6 +1194,9 @@ static int runMain(int argc, char **argv)
     app.add_flag("--adopt-when-done", network.adopt_when_done,
                  "networks: adopt each global solve between ranges once its worker is done, as cdro-hostd does "
                  "live (Engine::SolveAdoption::ByCaller), never inside addRange; the adoptions are timed apart");
+    app.add_flag("--explain-slow-calls", network.explain_slow_calls,
+                 "networks: count the addRange calls over 1 ms by what the engine did in them (placed a node "
+                 "again, placed nodes, started a global solve, other), in the JSON's calls_over_1ms");
     auto *plant_flag = app.add_flag("--plant-only", plant_only, "PLANT only");
     app.add_flag("--networks-only", networks_only, "random networks only")->excludes(plant_flag);
     app.add_flag("--json", json, "print one JSON document instead of the table");
@@ -1199,6 +1269,9 @@ static int runMain(int argc, char **argv)
                                                        std::to_string(network.adopt_after_sweeps)};
                     if (network.adopt_when_done) {
                         arguments.emplace_back("--adopt-when-done");
+                    }
+                    if (network.explain_slow_calls) {
+                        arguments.emplace_back("--explain-slow-calls");
                     }
                     std::string failure;
                     Json result = spawnNetwork(arguments, &failure);
