@@ -430,6 +430,7 @@ struct MapScore {
     size_t nodes = 0; // with a surveyed position
     size_t placed = 0;
     size_t converged = 0;
+    size_t converged_over_1m = 0; // converged nodes more than 1 m off, the converged fitted on their own
     double rmse_m = std::nan(""); // m, aligned (rotation, translation, reflection), placed nodes
     double worst_m = std::nan("");
 };
@@ -439,6 +440,7 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
     MapScore score;
     score.nodes = truth_m.size();
     std::vector<cdro::engine::MapPoint> estimated;
+    std::vector<cdro::engine::MapPoint> converged;
     for (const cdro::engine::NodeOutput &node : engine.estimates()) {
         const auto known = truth_m.find(node.id);
         if (known == truth_m.end() || !node.placed()) {
@@ -448,7 +450,13 @@ MapScore scoreMap(const cdro::engine::Engine &engine, const std::map<uint16_t, c
         score.converged += node.converged() ? 1U : 0U;
         if (node.position_m.allFinite()) {
             estimated.push_back({node.id, node.position_m});
+            if (node.converged()) {
+                converged.push_back({node.id, node.position_m});
+            }
         }
+    }
+    if (converged.size() >= 3) {
+        score.converged_over_1m = cdro::engine::alignedErrors(converged, truth_m, true).countOver(1.0);
     }
     if (estimated.size() >= 2) {
         const cdro::engine::AlignedErrors aligned = cdro::engine::alignedErrors(estimated, truth_m, true);
@@ -894,9 +902,9 @@ static int runMain(int argc, char **argv)
                     static_cast<unsigned long long>(timed.adoptions()), timed.maxAdoptionUs());
         const MapScore score = scoreMap(engine, workload.truth_m);
         std::printf(
-            "map at the end        %zu of %zu nodes placed, %zu converged; aligned RMSE %.3f m (worst node %.3f "
-            "m; live, not settled)\n",
-            score.placed, score.nodes, score.converged, score.rmse_m, score.worst_m);
+            "map at the end        %zu of %zu nodes placed, %zu converged (%zu more than 1 m off); aligned RMSE "
+            "%.3f m (worst node %.3f m; live, not settled)\n",
+            score.placed, score.nodes, score.converged, score.converged_over_1m, score.rmse_m, score.worst_m);
     }
     ::close(master);
     ::close(slave);
