@@ -85,6 +85,16 @@ MapState mapWith(double x)
     return map;
 }
 
+// A publisher of the tests' broker under test/cdro/, at rate_hz messages per node (0: every change).
+MqttConfig configFor(uint16_t port, double rate_hz)
+{
+    MqttConfig config;
+    config.url = "mqtt://127.0.0.1:" + std::to_string(port);
+    config.topic_prefix = "test/cdro";
+    config.rate_hz = rate_hz;
+    return config;
+}
+
 template <typename Done> void pump(EventLoop &loop, Done done)
 {
     for (int i = 0; i < 4000 && !done(); ++i) {
@@ -100,11 +110,7 @@ TEST(Mqtt, PublishesNodesRobotHealthAndStatusRetained)
     SystemClock clock;
     EventLoop loop(clock);
     ServiceCounters counters;
-    MqttConfig config;
-    config.url = "mqtt://127.0.0.1:" + std::to_string(broker.port());
-    config.topic_prefix = "test/cdro";
-    config.rate_hz = 0;
-    MqttPublisher publisher(loop, config, counters);
+    MqttPublisher publisher(loop, configFor(broker.port(), 0.0), counters);
     publisher.start();
     pump(loop, [&] { return publisher.connected(); });
     ASSERT_TRUE(publisher.connected());
@@ -183,11 +189,8 @@ TEST(Mqtt, ANodeWaitingForItsPeriodGoesOutWithALaterUpdateThatDidNotChangeIt)
     SystemClock clock;
     EventLoop loop(clock);
     ServiceCounters counters;
-    MqttConfig config;
-    config.url = "mqtt://127.0.0.1:" + std::to_string(broker.port());
-    config.topic_prefix = "test/cdro";
-    config.rate_hz = 2.0; // a message per node per 0.5 s of event time
-    MqttPublisher publisher(loop, config, counters);
+    // A message per node per 0.5 s of event time.
+    MqttPublisher publisher(loop, configFor(broker.port(), 2.0), counters);
     publisher.start();
     pump(loop, [&] { return publisher.connected(); });
     ASSERT_TRUE(publisher.connected());

@@ -346,26 +346,13 @@ void EngineAdapter::updateEstimates(service::MapState &map, std::vector<size_t> 
             return;
         }
     }
+    // Every node converted and compared with what `map` held (after the rarer events, and always
+    // with a robot's stage or 3D tracks: small maps).
     std::vector<engine::NodeOutput> shown = shownNodes(named ? &shown_index_ : nullptr);
-    // The same nodes as last time, and `map` holds what they were then (last_shown_ converted):
-    // convert only the nodes whose output differs.
-    bool same_nodes = moving_.empty() && shown.size() == last_shown_.size() && map.nodes.size() == shown.size();
-    for (size_t i = 0; same_nodes && i < shown.size(); ++i) {
-        same_nodes = shown[i].id == last_shown_[i].id && map.nodes[i].id == shown[i].id;
-    }
-    if (same_nodes) {
-        for (size_t i = 0; i < shown.size(); ++i) {
-            if (!sameOutput(shown[i], last_shown_[i])) {
-                map.nodes[i] = estimateOf(shown[i]);
-                changed.push_back(i);
-            }
-        }
-    } else {
-        std::vector<service::NodeEstimate> nodes;
-        fillNodes(nodes, shown);
-        changed = service::changedNodes(map.nodes, nodes);
-        map.nodes = std::move(nodes);
-    }
+    std::vector<service::NodeEstimate> nodes;
+    fillNodes(nodes, shown);
+    changed = service::changedNodes(map.nodes, nodes);
+    map.nodes = std::move(nodes);
     last_shown_ = std::move(shown);
 }
 

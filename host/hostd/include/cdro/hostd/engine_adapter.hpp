@@ -86,8 +86,8 @@ public:
     void fill(service::MapState &map) const override;
     // Converts only the nodes whose engine output changed since the last call (the outputs of a
     // frame cost what it changed, not the size of the map): of the static map, those the engine
-    // names (Engine::takeOutputChanges); with a robot's stage or 3D tracks, those whose output
-    // differs from the last.
+    // names (Engine::takeOutputChanges); otherwise (a robot's stage, 3D tracks, or the engine says
+    // "all") every node is converted and compared.
     void updateEstimates(service::MapState &map, std::vector<size_t> &changed) override;
     std::optional<service::NodeComponents> components(uint16_t id) const override;
 
