@@ -1,6 +1,7 @@
 // Foldable parts of the link graph (foldable.hpp): hand-made graphs with known cuts, the
 // property that a globally rigid network has none (checked against the rigidity-matrix test of
 // support.hpp, an independent method), and the engine's outputs on a network with a hinge.
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <set>
@@ -21,6 +22,7 @@ using cdro::engine::findFoldable;
 using cdro::engine::Foldable;
 using cdro::engine::kNoHinge;
 using cdro::engine::NodeOutput;
+using cdro::engine::twoLinkCuts;
 using cdro::engine::Vector2;
 using cdro::enginetest::Random;
 using cdro::enginetest::TestNetwork;
@@ -50,6 +52,63 @@ std::set<uint32_t> marked(const Foldable &folds)
         }
     }
     return out;
+}
+
+TEST(TwoLinkCuts, TwoLinksJoiningTwoCliquesAreTheOnlyCut)
+{
+    // Two complete graphs of five, joined by two links: those two, and nothing else.
+    Edges edges;
+    addClique(edges, {0, 1, 2, 3, 4});
+    addClique(edges, {5, 6, 7, 8, 9});
+    const auto first = static_cast<uint32_t>(edges.size());
+    edges.emplace_back(1, 6);
+    edges.emplace_back(3, 9);
+    const std::vector<uint8_t> all(10, 1);
+    const std::vector<std::array<uint32_t, 2>> cuts = twoLinkCuts(10, edges, all);
+    ASSERT_EQ(cuts.size(), 1U);
+    EXPECT_EQ(cuts[0], (std::array<uint32_t, 2>{first, first + 1}));
+    // The same links listed first: the same cut, by their new indices.
+    Edges reordered = {{3, 9}, {1, 6}};
+    reordered.insert(reordered.end(), edges.begin(), edges.begin() + first);
+    EXPECT_EQ(twoLinkCuts(10, reordered, all), (std::vector<std::array<uint32_t, 2>>{{0, 1}}));
+    // A third link makes the joint rigid: no cut of two.
+    Edges three = edges;
+    three.emplace_back(2, 7);
+    EXPECT_TRUE(twoLinkCuts(10, three, all).empty());
+    // One link alone is a bridge, not a cut of two.
+    Edges bridge = edges;
+    bridge.pop_back();
+    EXPECT_TRUE(twoLinkCuts(10, bridge, all).empty());
+    // Without node 9 (inactive) the second link is gone: a bridge again.
+    std::vector<uint8_t> without_nine = all;
+    without_nine[9] = 0;
+    EXPECT_TRUE(twoLinkCuts(10, edges, without_nine).empty());
+}
+
+TEST(TwoLinkCuts, AChainOfThreeCliquesHasTwoAndARingOfCliquesNone)
+{
+    // Cliques 0-3, 4-7, 8-11 in a chain, each joint of two links.
+    Edges chain;
+    addClique(chain, {0, 1, 2, 3});
+    addClique(chain, {4, 5, 6, 7});
+    addClique(chain, {8, 9, 10, 11});
+    const auto joints = static_cast<uint32_t>(chain.size());
+    chain.emplace_back(0, 4);
+    chain.emplace_back(1, 5);
+    chain.emplace_back(6, 8);
+    chain.emplace_back(7, 9);
+    EXPECT_EQ(twoLinkCuts(12, chain, std::vector<uint8_t>(12, 1)),
+              (std::vector<std::array<uint32_t, 2>>{{joints, joints + 1}, {joints + 2, joints + 3}}));
+    // The same cliques in a ring joined by single links: any two of the three cut it, and none
+    // is listed (joints of exactly two links only).
+    Edges ring;
+    addClique(ring, {0, 1, 2, 3});
+    addClique(ring, {4, 5, 6, 7});
+    addClique(ring, {8, 9, 10, 11});
+    ring.emplace_back(0, 4);
+    ring.emplace_back(5, 8);
+    ring.emplace_back(9, 1);
+    EXPECT_TRUE(twoLinkCuts(12, ring, std::vector<uint8_t>(12, 1)).empty());
 }
 
 TEST(Foldable, ACompleteGraphAndAWheelHaveNone)

@@ -8,7 +8,9 @@
 #include <cstdio>
 #include <limits>
 #include <map>
+#include <optional>
 
+#include <Eigen/Geometry>
 #include <Eigen/LU>
 #include <gtest/gtest.h>
 
@@ -510,6 +512,121 @@ TEST(MapStitch, OneLinkLeavesThePatchesApart)
     ASSERT_TRUE(stitched.has_value());
     EXPECT_EQ(stats.filled, 1U);
     EXPECT_LT(alignedRmse(*stitched, three.exact.truth_m), 1e-6);
+}
+
+// Two wings, a 4 x 3 grid (nodes 0-11) and a 3 x 3 one (12-20) 20 m to its right, 4 m apart
+// (jittered), linked within a wing where closer than 7 m, and joined by two links, 3-15 and 7-12:
+// the second wing can swing with both links' lengths kept (a four-bar linkage), every range the
+// same. `swung`: the wing swung so that its link 3-15 points `turn_rad` further round node 3
+// (node 12 closing on the side nearer its true place), found without the engine's code;
+// nothing when link 7-12 cannot close there.
+struct SwingingWing {
+    Exact exact;
+    std::optional<MapEstimate> swung(double turn_rad) const
+    {
+        const std::vector<Vector2> &truth_m = exact.truth_m;
+        const Vector2 p15 = truth_m[3] + Eigen::Rotation2Dd(turn_rad) * (truth_m[15] - truth_m[3]);
+        const double span_m = (truth_m[12] - truth_m[15]).norm();
+        const double link_m = (truth_m[12] - truth_m[7]).norm();
+        const Vector2 apart = truth_m[7] - p15;
+        const double d = apart.norm();
+        if (d > span_m + link_m || d < std::abs(span_m - link_m)) {
+            return std::nullopt;
+        }
+        const double along = (span_m * span_m - link_m * link_m + d * d) / (2.0 * d);
+        const double across = std::sqrt(span_m * span_m - along * along);
+        const Vector2 p12 = p15 + along * apart / d + across * Vector2(-apart.y() / d, apart.x() / d);
+        const Vector2 was = truth_m[12] - truth_m[15];
+        const double rotation = std::atan2((p12 - p15).y(), (p12 - p15).x()) - std::atan2(was.y(), was.x());
+        MapEstimate out = truthEstimate(exact);
+        for (uint32_t node = 12; node < 21; ++node) {
+            out.position_m[node] = p15 + Eigen::Rotation2Dd(rotation) * (truth_m[node] - truth_m[15]);
+        }
+        return out;
+    }
+    // m, the closest pair of a node of each wing that never heard each other
+    double closestUnheardM(const MapEstimate &estimate) const
+    {
+        double closest = std::numeric_limits<double>::infinity();
+        for (uint32_t a = 0; a < 12; ++a) {
+            for (uint32_t b = 12; b < 21; ++b) {
+                if (exact.problem.unheardPair(a, b)) {
+                    closest = std::min(closest, (estimate.position_m[a] - estimate.position_m[b]).norm());
+                }
+            }
+        }
+        return closest;
+    }
+};
+
+SwingingWing swingingWing()
+{
+    SwingingWing out;
+    Exact &exact = out.exact;
+    for (int wing = 0; wing < 2; ++wing) {
+        for (int row = 0; row < 3; ++row) {
+            for (int column = 0; column < (wing == 0 ? 4 : 3); ++column) {
+                const double jitter_m = 0.37 * ((row * 3 + column) % 4); // m, no two links parallel
+                exact.truth_m.emplace_back(20.0 * wing + 4.0 * column + jitter_m, 4.0 * row - 0.5 * jitter_m);
+            }
+        }
+    }
+    const auto count = static_cast<uint32_t>(exact.truth_m.size());
+    for (uint32_t node = 0; node < count; ++node) {
+        exact.problem.ids.push_back(static_cast<NodeId>(node));
+    }
+    for (uint32_t a = 0; a < count; ++a) {
+        for (uint32_t b = a + 1; b < count; ++b) {
+            const double distance_m = (exact.truth_m[a] - exact.truth_m[b]).norm();
+            if ((a < 12) == (b < 12) && distance_m < 7.0) {
+                exact.problem.links.push_back(MapLink{a, b, distance_m});
+            }
+        }
+    }
+    for (const auto &[a, b] : {std::pair<uint32_t, uint32_t>{3, 15}, {7, 12}}) {
+        exact.problem.links.push_back(MapLink{a, b, (exact.truth_m[a] - exact.truth_m[b]).norm()});
+    }
+    exact.problem.listens.assign(count, 1);
+    exact.problem.finish();
+    return out;
+}
+
+TEST(MapHinges, AWingOnTwoLinksSwingsAwayFromTheNodesItNeverHeard)
+{
+    const SwingingWing wing = swingingWing();
+    const MapProblem &problem = wing.exact.problem;
+    const MapEstimate truth = truthEstimate(wing.exact);
+    const double truth_closest_m = wing.closestUnheardM(truth);
+    // Swung round by 50-130 degrees it lies over the first wing; who heard whom swings it back
+    // out, beyond the links' reach of every node it never heard, every range the same (exactly
+    // where out there, neither the ranges nor who heard whom can say). A reflection across
+    // the line of its hinge nodes, the step's one move for such a part before, leaves it over
+    // the first wing in these three.
+    for (const double turn_deg : {50.0, 90.0, 130.0}) {
+        SCOPED_TRACE(turn_deg);
+        const std::optional<MapEstimate> swung = wing.swung(turn_deg * 3.14159265358979 / 180.0);
+        ASSERT_TRUE(swung.has_value());
+        ASSERT_LT(largestLinkChangeM(problem, truth, *swung), 1e-9);
+        ASSERT_LT(wing.closestUnheardM(*swung), 2.5) << "the swung wing lies over the first";
+        MapEstimate estimate = *swung;
+        const HingeStats stats = placeFreeParts(problem, estimate);
+        EXPECT_EQ(stats.swinging, 1U);
+        EXPECT_GE(stats.moved, 1U);
+        EXPECT_GT(stats.gained_nats, 10.0);
+        EXPECT_LT(largestLinkChangeM(problem, *swung, estimate), 1e-9);
+        EXPECT_GT(wing.closestUnheardM(estimate), 7.0);
+        std::printf("swung %.0f degrees: closest unheard pair %.2f m, then %.2f m (the truth's %.2f m); %.2f m from "
+                    "the truth (rigid fit)\n",
+                    turn_deg, wing.closestUnheardM(*swung), wing.closestUnheardM(estimate), truth_closest_m,
+                    alignedRmse(estimate, wing.exact.truth_m));
+    }
+    // Started at the truth it may swing too, but only to a place no more crowded by nodes it never
+    // heard (here: the truth has a pair 6.9 m apart, and links 8 m long heard): the ranges and
+    // who heard whom place a wing on two links within a region, not at a point.
+    MapEstimate at_truth = truth;
+    placeFreeParts(problem, at_truth);
+    EXPECT_LT(largestLinkChangeM(problem, truth, at_truth), 1e-9);
+    EXPECT_GE(wing.closestUnheardM(at_truth), truth_closest_m);
 }
 
 TEST(GlobalSolve, AnyNumberOfThreadsGivesTheSameMapsBitForBit)

@@ -6,6 +6,7 @@
 #include "cdro/engine/foldable.hpp"
 
 #include <algorithm>
+#include <cstddef>
 
 namespace cdro::engine {
 namespace {
@@ -215,6 +216,98 @@ Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t,
         }
         inside[first] = 1;
     }
+    return out;
+}
+
+std::vector<std::array<uint32_t, 2>> twoLinkCuts(uint32_t node_count,
+                                                 const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                                                 const std::vector<uint8_t> &active)
+{
+    const std::vector<char> inside = insideOf(node_count, active);
+    // Each inside node's incident edges: (the other end, the edge's index), in the edges' order.
+    std::vector<std::vector<std::pair<uint32_t, uint32_t>>> incident(node_count);
+    for (size_t index = 0; index < edges.size(); ++index) {
+        const auto [a, b] = edges[index];
+        if (a < node_count && b < node_count && a != b && inside[a] && inside[b]) {
+            incident[a].emplace_back(b, static_cast<uint32_t>(index));
+            incident[b].emplace_back(a, static_cast<uint32_t>(index));
+        }
+    }
+    // A spanning forest (depth first, from the smallest node of each component), its nodes in
+    // the order they were reached.
+    std::vector<uint32_t> parent_edge(node_count, kNoHinge);
+    std::vector<uint32_t> parent(node_count, kNoHinge);
+    std::vector<char> seen(node_count, 0);
+    std::vector<uint32_t> order;
+    std::vector<uint32_t> stack;
+    for (uint32_t root = 0; root < node_count; ++root) {
+        if (!inside[root] || seen[root]) {
+            continue;
+        }
+        seen[root] = 1;
+        stack.push_back(root);
+        while (!stack.empty()) {
+            const uint32_t node = stack.back();
+            stack.pop_back();
+            order.push_back(node);
+            for (const auto &[next, index] : incident[node]) {
+                if (!seen[next]) {
+                    seen[next] = 1;
+                    parent[next] = node;
+                    parent_edge[next] = index;
+                    stack.push_back(next);
+                }
+            }
+        }
+    }
+    std::vector<char> in_tree(edges.size(), 0);
+    for (uint32_t node : order) {
+        if (parent_edge[node] != kNoHinge) {
+            in_tree[parent_edge[node]] = 1;
+        }
+    }
+    // Labels: splitmix64 of each non-tree edge's index; a node holds the XOR of its non-tree edges'.
+    std::vector<uint64_t> label(edges.size(), 0);
+    std::vector<uint64_t> below(node_count, 0);
+    for (size_t index = 0; index < edges.size(); ++index) {
+        const auto [a, b] = edges[index];
+        if (in_tree[index] || a >= node_count || b >= node_count || a == b || !inside[a] || !inside[b]) {
+            continue;
+        }
+        uint64_t z = static_cast<uint64_t>(index) + 0x9E3779B97F4A7C15ULL;
+        z = (z ^ (z >> 30U)) * 0xBF58476D1CE4E5B9ULL;
+        z = (z ^ (z >> 27U)) * 0x94D049BB133111EBULL;
+        label[index] = (z ^ (z >> 31U)) | 1U; // never 0: 0 marks a bridge
+        below[a] ^= label[index];
+        below[b] ^= label[index];
+    }
+    // A tree edge's label: the XOR over the subtree under it (the cycles that leave the subtree).
+    for (auto it = order.rbegin(); it != order.rend(); ++it) {
+        const uint32_t node = *it;
+        if (parent_edge[node] != kNoHinge) {
+            label[parent_edge[node]] = below[node];
+            below[parent[node]] ^= below[node];
+        }
+    }
+    std::vector<std::pair<uint64_t, uint32_t>> labelled;
+    for (size_t index = 0; index < edges.size(); ++index) {
+        if (label[index] != 0) {
+            labelled.emplace_back(label[index], static_cast<uint32_t>(index));
+        }
+    }
+    std::sort(labelled.begin(), labelled.end());
+    std::vector<std::array<uint32_t, 2>> out;
+    for (size_t first = 0; first < labelled.size();) {
+        size_t end = first + 1;
+        while (end < labelled.size() && labelled[end].first == labelled[first].first) {
+            ++end;
+        }
+        if (end - first == 2) {
+            out.push_back({labelled[first].second, labelled[first + 1].second});
+        }
+        first = end;
+    }
+    std::sort(out.begin(), out.end());
     return out;
 }
 

@@ -6,6 +6,10 @@
 // map explains its links, such a part may be on the wrong side (a unique planar map needs a
 // 3-connected graph; 3-connectivity is necessary, not sufficient). The per-node ambiguity check
 // of the engine sees a single node with a mirror position, not a group of nodes that folds.
+//
+// A part joined to the rest by two links between four distinct nodes has one degree of freedom
+// left (a four-bar linkage: the part swings with both links' lengths kept), and a part joined by
+// two links at one of its nodes turns about that node: twoLinkCuts finds those joints.
 #pragma once
 
 #include <array>
@@ -38,5 +42,17 @@ Foldable findFoldable(uint32_t node_count, const std::vector<std::pair<uint32_t,
 // ascending; the same arguments. O(V + E).
 std::vector<uint32_t> cutNodes(uint32_t node_count, const std::vector<std::pair<uint32_t, uint32_t>> &edges,
                                const std::vector<uint8_t> &active);
+
+// The pairs of edges (indices into `edges`) whose removal cuts the graph of the active nodes in
+// two, neither of them a bridge on its own: each pair once, its smaller index first, ascending.
+// Only joints of exactly two edges: where three or more edges each cut the graph with any one of
+// the others (parts joined in a ring by single links), none of their pairs is listed.
+// Deterministic; O(V + E) and a sort of the edges (each non-tree edge gets a fixed pseudo-random
+// 64-bit label, each tree edge the XOR of the labels of the cycles through it: two edges cut the
+// graph together exactly when their labels are equal, up to a collision of 64-bit labels, which
+// the caller can rule out by checking the cut).
+std::vector<std::array<uint32_t, 2>> twoLinkCuts(uint32_t node_count,
+                                                 const std::vector<std::pair<uint32_t, uint32_t>> &edges,
+                                                 const std::vector<uint8_t> &active);
 
 } // namespace cdro::engine

@@ -70,7 +70,7 @@ struct GlobalSolveCounters {
     uint32_t escapes = 0; // single nodes moved to a better local optimum
     uint32_t refine_iterations = 0;
     uint32_t offset_evaluations = 0; // maps refined searching the range offsets
-    uint32_t free_parts_moved = 0;   // free parts turned or reflected by who heard whom
+    uint32_t free_parts_moved = 0;   // free parts turned, reflected or swung by who heard whom
 
     GlobalSolveCounters &operator+=(const GlobalSolveCounters &other)
     {
