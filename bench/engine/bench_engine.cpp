@@ -47,6 +47,7 @@
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/engine.hpp"
+#include "cdro/hostd/memory.hpp"
 #include "cdro/netgen/geometric.hpp"
 #include "cdro/netgen/random.hpp"
 #include "bench_networks.hpp"
@@ -248,11 +249,10 @@ Json accuracyJson(const Accuracy &a)
                 {"worst", worst}};
 }
 
-// What the engine's state should take: every ring component (its 56-byte state, plus the
-// ring's per-component likelihood scratch and active-set index, both sized by full updates),
-// the per-ring, per-link and per-node records, adjacency, and the two id hash maps (~32 bytes
-// an entry with libstdc++'s nodes and buckets). Vectors' spare capacity and the allocator's
-// overhead are not counted; the peak RSS holds them, and the copies that re-initialization makes.
+// What the engine's state should take: every ring component (its 56-byte state), the per-ring,
+// per-link and per-node records, adjacency, and the two id hash maps (~32 bytes an entry with
+// libstdc++'s nodes and buckets). Vectors' spare capacity and the allocator's overhead are not
+// counted; the peak RSS holds them, and the copies that re-initialization makes.
 struct StateSize {
     size_t nodes = 0;
     size_t links = 0;
@@ -264,7 +264,7 @@ struct StateSize {
 StateSize stateSize(const Engine &engine)
 {
     constexpr size_t kHashEntryBytes = 32;
-    constexpr size_t kPerComponentBytes = sizeof(cdro::engine::SogComponentState) + sizeof(double) + sizeof(uint32_t);
+    constexpr size_t kPerComponentBytes = sizeof(cdro::engine::SogComponentState);
     StateSize size;
     size.nodes = engine.map().nodes.size();
     size.links = engine.map().links.size();
@@ -1312,6 +1312,7 @@ static int runMain(int argc, char **argv)
 // message and status 1, not with std::terminate's abort.
 int main(int argc, char **argv)
 {
+    cdro::hostd::returnLargeBuffersToTheSystem(); // as cdro-hostd does: the memory measured is its
     try {
         return runMain(argc, argv);
     } catch (const std::exception &error) {

@@ -60,6 +60,7 @@
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/engine.hpp"
 #include "cdro/hostd/engine_adapter.hpp"
+#include "cdro/hostd/memory.hpp"
 #include "cdro/service/log.hpp"
 #include "cdro/service/service.hpp"
 #include "bench_networks.hpp"
@@ -916,6 +917,7 @@ static int runMain(int argc, char **argv)
 // message and status 1, not with std::terminate's abort.
 int main(int argc, char **argv)
 {
+    cdro::hostd::returnLargeBuffersToTheSystem(); // as cdro-hostd does: the memory measured is its
     try {
         return runMain(argc, argv);
     } catch (const std::exception &error) {

@@ -22,6 +22,7 @@
 #include "cdro/hostd/engine_adapter.hpp"
 #include "cdro/hostd/engine_config.hpp"
 #include "cdro/hostd/known_geometry.hpp"
+#include "cdro/hostd/memory.hpp"
 #include "cdro/hostd/offline.hpp"
 #include "cdro/hostd/progress.hpp"
 #include "cdro/service/capture.hpp"
@@ -307,6 +308,7 @@ static int runMain(int argc, char **argv)
 // run with its message and status 2, not with std::terminate's abort.
 int main(int argc, char **argv)
 {
+    cdro::hostd::returnLargeBuffersToTheSystem();
     try {
         return runMain(argc, argv);
     } catch (const std::exception &error) {

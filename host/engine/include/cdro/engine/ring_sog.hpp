@@ -189,7 +189,8 @@ public:
 private:
     void refreshMoments(); // marks the cached moments stale
     void computeMoments() const;
-    void collectActive(bool full);
+    // The components an update touches (all, or the active set), into `active`.
+    void collectActive(bool full, std::vector<uint32_t> &active) const;
 
     NodeId center_ = 0;
     NodeId target_ = 0;
@@ -199,9 +200,7 @@ private:
     mutable bool moments_stale_ = true;
     mutable Vector2 first_moment_m_ = Vector2::Zero();   // sum w m (relative)
     mutable Matrix2 second_moment_m2_ = Matrix2::Zero(); // sum w (C + m m^T) (relative)
-    std::vector<double> scratch_;
-    std::vector<uint32_t> active_;
-    uint32_t update_count_ = 0; // ranges taken (decides which updates are full)
+    uint32_t update_count_ = 0;                          // ranges taken (decides which updates are full)
 };
 
 } // namespace cdro::engine
