@@ -32,7 +32,8 @@ enum class Joint : uint8_t {
 
 struct FreePart {
     Joint joint = Joint::kOneNode;
-    std::array<uint32_t, 2> hinge{kNoHinge, kNoHinge}; // kOneNode: the second kNoHinge; kTwoLinks: the links
+    std::array<uint32_t, 2> hinge{kNoHinge, kNoHinge}; // the hinge's nodes (kOneNode: the second kNoHinge)
+    std::array<uint32_t, 2> links{kNoHinge, kNoHinge}; // kTwoLinks: the two links, else kNoHinge
     std::vector<uint32_t> nodes;                       // ascending
 };
 
@@ -105,9 +106,10 @@ std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &es
     const uint32_t count = problem.nodeCount();
     const uint32_t placed = estimate.placedCount();
     std::vector<FreePart> parts;
-    auto known = [&](Joint joint, const std::array<uint32_t, 2> &hinge, const std::vector<uint32_t> &nodes) {
+    auto known = [&](const FreePart &part) {
         return std::any_of(parts.begin(), parts.end(), [&](const FreePart &other) {
-            return other.joint == joint && other.hinge == hinge && other.nodes == nodes;
+            return other.joint == part.joint && other.hinge == part.hinge && other.links == part.links &&
+                   other.nodes == part.nodes;
         });
     };
     auto consider = [&](std::vector<uint32_t> nodes) {
@@ -118,9 +120,12 @@ std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &es
         if (!hinge) {
             return;
         }
-        const Joint joint = (*hinge)[1] == kNoHinge ? Joint::kOneNode : Joint::kTwoNodes;
-        if (!known(joint, *hinge, nodes)) {
-            parts.push_back(FreePart{joint, *hinge, std::move(nodes)});
+        FreePart part{(*hinge)[1] == kNoHinge ? Joint::kOneNode : Joint::kTwoNodes,
+                      *hinge,
+                      {kNoHinge, kNoHinge},
+                      std::move(nodes)};
+        if (!known(part)) {
+            parts.push_back(std::move(part));
         }
     };
     std::vector<std::pair<uint32_t, uint32_t>> edges;
@@ -163,9 +168,12 @@ std::vector<FreePart> freeParts(const MapProblem &problem, const MapEstimate &es
         const bool anchored =
             std::any_of(nodes.begin(), nodes.end(), [&](uint32_t node) { return problem.fixed[node] != 0; });
         // Both links to one node outside: a one-node hinge, found above.
-        if (2 * nodes.size() < placed && outer_first != outer_second && !anchored &&
-            !known(Joint::kTwoLinks, cut, nodes)) {
-            parts.push_back(FreePart{Joint::kTwoLinks, cut, std::move(nodes)});
+        if (2 * nodes.size() >= placed || outer_first == outer_second || anchored) {
+            continue;
+        }
+        FreePart part{Joint::kTwoLinks, {kNoHinge, kNoHinge}, cut, std::move(nodes)};
+        if (!known(part)) {
+            parts.push_back(std::move(part));
         }
     }
     std::stable_sort(parts.begin(), parts.end(),
@@ -205,7 +213,7 @@ TwoLinkJoint jointOf(const MapProblem &problem, const MapEstimate &estimate, con
 {
     TwoLinkJoint joint;
     for (size_t k = 0; k < 2; ++k) {
-        const MapLink &link = problem.links[part.hinge[k]];
+        const MapLink &link = problem.links[part.links[k]];
         const bool a_inside = std::binary_search(part.nodes.begin(), part.nodes.end(), link.a);
         joint.inner_m[k] = estimate.position_m[a_inside ? link.a : link.b];
         joint.outer_m[k] = estimate.position_m[a_inside ? link.b : link.a];
