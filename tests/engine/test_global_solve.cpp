@@ -405,38 +405,52 @@ struct TwoWings {
     std::vector<MapEstimate> patches;
 };
 
-TwoWings twoWings(size_t bridges)
+// Two wings of 3 rows 4 m apart (jittered so that no two links are parallel), the first of
+// `first_columns` columns, the second of 3 starting `apart_m` to the right of the first's start,
+// linked within a wing where closer than `reach_m`, and joined by `joins` (node numbers: the first
+// wing's row by row, then the second's).
+Exact gridWings(int first_columns, double apart_m, double reach_m,
+                const std::vector<std::pair<uint32_t, uint32_t>> &joins)
 {
-    TwoWings out;
-    Exact &exact = out.exact;
+    Exact exact;
     for (int wing = 0; wing < 2; ++wing) {
         for (int row = 0; row < 3; ++row) {
-            for (int column = 0; column < 3; ++column) {
-                const double jitter_m = 0.37 * ((row * 3 + column) % 4); // m, no two links parallel
-                exact.truth_m.emplace_back(16.0 * wing + 4.0 * column + jitter_m, 4.0 * row - 0.5 * jitter_m);
+            for (int column = 0; column < (wing == 0 ? first_columns : 3); ++column) {
+                const double jitter_m = 0.37 * ((row * 3 + column) % 4); // m
+                exact.truth_m.emplace_back(apart_m * wing + 4.0 * column + jitter_m, 4.0 * row - 0.5 * jitter_m);
             }
         }
     }
     const auto count = static_cast<uint32_t>(exact.truth_m.size());
+    const auto first_wing = static_cast<uint32_t>(3 * first_columns);
     for (uint32_t node = 0; node < count; ++node) {
         exact.problem.ids.push_back(static_cast<NodeId>(node));
     }
     for (uint32_t a = 0; a < count; ++a) {
         for (uint32_t b = a + 1; b < count; ++b) {
             const double distance_m = (exact.truth_m[a] - exact.truth_m[b]).norm();
-            if ((a < 9) == (b < 9) && distance_m < 6.0) {
+            if ((a < first_wing) == (b < first_wing) && distance_m < reach_m) {
                 exact.problem.links.push_back(MapLink{a, b, distance_m});
             }
         }
     }
-    // The right column of the first wing (2, 5, 8) to the left column of the second (9, 12, 15).
-    const std::vector<std::pair<uint32_t, uint32_t>> joins = {{2, 12}, {5, 9}, {8, 15}};
-    for (size_t k = 0; k < bridges; ++k) {
-        const auto [a, b] = joins[k];
+    for (const auto &[a, b] : joins) {
         exact.problem.links.push_back(MapLink{a, b, (exact.truth_m[a] - exact.truth_m[b]).norm()});
     }
     exact.problem.listens.assign(count, 1);
     exact.problem.finish();
+    return exact;
+}
+
+TwoWings twoWings(size_t bridges)
+{
+    TwoWings out;
+    // The right column of the first wing (2, 5, 8) to the left column of the second (9, 12, 15).
+    std::vector<std::pair<uint32_t, uint32_t>> joins = {{2, 12}, {5, 9}, {8, 15}};
+    joins.resize(bridges);
+    out.exact = gridWings(3, 16.0, 6.0, joins);
+    const Exact &exact = out.exact;
+    const auto count = exact.problem.nodeCount();
     const double angle = 1.0; // rad
     Matrix2 turned;
     turned << std::cos(angle), std::sin(angle), std::sin(angle), -std::cos(angle); // a reflection
@@ -562,32 +576,7 @@ struct SwingingWing {
 SwingingWing swingingWing()
 {
     SwingingWing out;
-    Exact &exact = out.exact;
-    for (int wing = 0; wing < 2; ++wing) {
-        for (int row = 0; row < 3; ++row) {
-            for (int column = 0; column < (wing == 0 ? 4 : 3); ++column) {
-                const double jitter_m = 0.37 * ((row * 3 + column) % 4); // m, no two links parallel
-                exact.truth_m.emplace_back(20.0 * wing + 4.0 * column + jitter_m, 4.0 * row - 0.5 * jitter_m);
-            }
-        }
-    }
-    const auto count = static_cast<uint32_t>(exact.truth_m.size());
-    for (uint32_t node = 0; node < count; ++node) {
-        exact.problem.ids.push_back(static_cast<NodeId>(node));
-    }
-    for (uint32_t a = 0; a < count; ++a) {
-        for (uint32_t b = a + 1; b < count; ++b) {
-            const double distance_m = (exact.truth_m[a] - exact.truth_m[b]).norm();
-            if ((a < 12) == (b < 12) && distance_m < 7.0) {
-                exact.problem.links.push_back(MapLink{a, b, distance_m});
-            }
-        }
-    }
-    for (const auto &[a, b] : {std::pair<uint32_t, uint32_t>{3, 15}, {7, 12}}) {
-        exact.problem.links.push_back(MapLink{a, b, (exact.truth_m[a] - exact.truth_m[b]).norm()});
-    }
-    exact.problem.listens.assign(count, 1);
-    exact.problem.finish();
+    out.exact = gridWings(4, 20.0, 7.0, {{3, 15}, {7, 12}});
     return out;
 }
 
