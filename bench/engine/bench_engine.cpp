@@ -393,6 +393,9 @@ struct Timed {
                                      // back to back it includes waiting for the solve's worker)
     double longest_adoption_s = 0.0; // s, with --adopt-when-done: the slowest adoption between ranges
     uint64_t adoptions = 0;          // ... and how many there were
+    double most_behind_s = 0.0;      // s, with --pace: the furthest a range's processing ended behind the
+                                     // time it was due (a network's rate is kept up with while this stays
+                                     // near the longest call; it grows without bound otherwise)
     std::optional<SlowCalls> slow;   // with --explain-slow-calls
     double rate() const { return wall_s > 0.0 ? static_cast<double>(ranges) / wall_s : 0.0; }
     double cpuRate() const { return cpu_s > 0.0 ? static_cast<double>(ranges) / cpu_s : 0.0; }
@@ -405,6 +408,7 @@ struct Timed {
         longest_call_s = std::max(longest_call_s, other.longest_call_s);
         longest_adoption_s = std::max(longest_adoption_s, other.longest_adoption_s);
         adoptions += other.adoptions;
+        most_behind_s = std::max(most_behind_s, other.most_behind_s);
         if (other.slow) {
             slow = slow ? *slow += *other.slow : *other.slow;
         }
@@ -412,14 +416,20 @@ struct Timed {
     }
 };
 
+// A live network's rate: each range is due 1 / ranges_per_s after the one before, on one schedule
+// over the whole run (a sweep that ends late leaves the next one behind, as a network would).
+struct Pace {
+    double ranges_per_s = 0.0; // 0: back to back
+    double due_s = -1.0;       // s (wall clock), when the last range fed was due; < 0: none yet
+};
+
 // Feeds one pass or sweep; the watch (if any) runs between ranges. *fed counts the ranges fed
-// so far, *fed_wall_s the time spent feeding them. With `pace_ranges_per_s` > 0 the ranges come
-// at that rate, as from a live network (the time waited between them is not feeding time). With
+// so far, *fed_wall_s the time spent feeding them. With a pace the ranges come at its rate, as
+// from a live network (the time waited between them is not feeding time). With
 // `adopt_when_done` the engine adopts its solves between ranges once done (SolveAdoption::ByCaller,
 // as cdro-hostd live), each adoption timed apart from the addRange calls.
 Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *watch, uint64_t *fed,
-           double *fed_wall_s, double pace_ranges_per_s = 0.0, bool adopt_when_done = false,
-           bool explain_slow_calls = false)
+           double *fed_wall_s, Pace *pace = nullptr, bool adopt_when_done = false, bool explain_slow_calls = false)
 {
     Timed timed;
     if (explain_slow_calls) {
@@ -429,13 +439,16 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
     double wall0 = wallSeconds();
     const double cpu0 = cpuSeconds();
     double waited_s = 0.0;
-    double next_s = wall0;
+    const bool paced = pace != nullptr && pace->ranges_per_s > 0.0;
+    if (paced && pace->due_s < 0.0) {
+        pace->due_s = wall0;
+    }
     for (const Range &range : ranges) {
-        if (pace_ranges_per_s > 0.0) {
-            next_s += 1.0 / pace_ranges_per_s;
+        if (paced) {
+            pace->due_s += 1.0 / pace->ranges_per_s;
             const double before_s = wallSeconds();
-            if (next_s > before_s) {
-                std::this_thread::sleep_for(std::chrono::duration<double>(next_s - before_s));
+            if (pace->due_s > before_s) {
+                std::this_thread::sleep_for(std::chrono::duration<double>(pace->due_s - before_s));
             }
             waited_s += wallSeconds() - before_s;
         }
@@ -455,6 +468,9 @@ Timed feed(Engine &engine, const std::vector<Range> &ranges, PlacementTimeline *
                 ++timed.adoptions;
                 timed.longest_adoption_s = std::max(timed.longest_adoption_s, wallSeconds() - adoption0);
             }
+        }
+        if (paced) {
+            timed.most_behind_s = std::max(timed.most_behind_s, wallSeconds() - pace->due_s);
         }
         timed.refused += (verdict == cdro::engine::RangeVerdict::RejectedSelf ||
                           verdict == cdro::engine::RangeVerdict::RejectedValue)
@@ -499,6 +515,7 @@ Json timedJson(const Timed &t)
                 {"longest_call_ms", 1e3 * t.longest_call_s},
                 {"adoptions_between_ranges", t.adoptions},
                 {"longest_adoption_ms", 1e3 * t.longest_adoption_s},
+                {"most_behind_ms", 1e3 * t.most_behind_s},
                 {"calls_over_1ms", slowJson(t.slow)}};
 }
 
@@ -728,6 +745,7 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
     Timed steady;
     std::vector<double> sweep_rates;
     uint64_t reinit_warmup = 0;
+    Pace pace{options.pace_ranges_per_s};
     for (uint32_t sweep = 0; sweep < sweeps; ++sweep) {
         // The noisy ranges of this sweep are drawn before the clock starts.
         for (size_t i = 0; i < links; ++i) {
@@ -743,8 +761,8 @@ Json runNetwork(uint32_t nodes, uint64_t seed, const NetworkOptions &options)
             }
         }
         const bool warming = sweep < options.warmup_sweeps;
-        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, options.pace_ranges_per_s,
-                                 options.adopt_when_done, options.explain_slow_calls);
+        const Timed timed = feed(engine, sweep_ranges, &timeline, &fed, &fed_wall_s, &pace, options.adopt_when_done,
+                                 options.explain_slow_calls);
         if (warming) {
             warmup += timed;
             warmup_sweep_s.push_back(timed.wall_s);
@@ -1058,6 +1076,10 @@ void printNetworks(const Json &networks)
                     summary["base_rss_mib_median"].get<double>(), summary["rmse_m_median"].get<double>(),
                     summary["draws_rmse_over_1m"].get<int>(), summary["warmup_s_median"].get<double>(),
                     summary["longest_call_ms"].get<double>());
+        if (summary["most_behind_ms"].get<double>() > 0.0) {
+            std::printf("    paced: the furthest a range ended behind the time it was due %.1f ms\n",
+                        summary["most_behind_ms"].get<double>());
+        }
         for (const Json &n : size["draws"]) {
             if (n.contains("error")) {
                 continue;
@@ -1108,6 +1130,7 @@ Json summarizeDraws(const Json &draws)
     std::vector<double> rmse;
     std::vector<double> warmup_s;
     double longest_call_ms = 0.0;
+    double most_behind_ms = 0.0;
     int over_1m = 0;
     for (const Json &n : draws) {
         if (n.contains("error")) {
@@ -1126,6 +1149,8 @@ Json summarizeDraws(const Json &draws)
         warmup_s.push_back(n["warmup"]["wall_s"].get<double>());
         longest_call_ms = std::max({longest_call_ms, n["warmup"]["longest_call_ms"].get<double>(),
                                     n["steady"]["longest_call_ms"].get<double>()});
+        most_behind_ms = std::max(
+            {most_behind_ms, n["warmup"]["most_behind_ms"].get<double>(), n["steady"]["most_behind_ms"].get<double>()});
     }
     return Json{{"draws_ok", rates.size()},
                 {"steady_ranges_per_s_median", median(rates)},
@@ -1136,7 +1161,8 @@ Json summarizeDraws(const Json &draws)
                 {"rmse_m_median", median(rmse)},
                 {"draws_rmse_over_1m", over_1m},
                 {"warmup_s_median", median(warmup_s)},
-                {"longest_call_ms", longest_call_ms}};
+                {"longest_call_ms", longest_call_ms},
+                {"most_behind_ms", most_behind_ms}};
 }
 
 } // namespace
