@@ -21,6 +21,7 @@ import json
 import math
 import os
 import pathlib
+import shlex
 import statistics
 import subprocess
 import sys
@@ -32,6 +33,9 @@ VENV = ROOT / ".venv" / "bin"
 FAMILIES = ("random", "corridor", "wings", "walls", "biased")
 # --set SECTION.KEY=VALUE passed to every cdro-hostd run (--set on the command line).
 HOSTD_SETTINGS: list[str] = []
+# --netgen OPTIONS passed to every cdro-netgen draw: a variant of the families (fewer sweeps, more
+# NLOS links, more nodes) scored as they are.
+NETGEN_OPTIONS: list[str] = []
 BASELINES = ("mds", "lsq-huber", "lsq-drop")
 
 
@@ -70,7 +74,7 @@ def engine_run(network: pathlib.Path, name: str) -> dict:
 
 def netgen(family: str, seed: int, out: pathlib.Path, *extra) -> pathlib.Path:
     if not (out / "ranges.csv").exists():
-        run([BIN / "cdro-netgen", "--family", family, "--seed", seed, "--out", out, *extra])
+        run([BIN / "cdro-netgen", "--family", family, "--seed", seed, "--out", out, *NETGEN_OPTIONS, *extra])
     return out
 
 
@@ -177,8 +181,16 @@ def main() -> int:
     parser.add_argument("--markdown", help="also write the tables to this file")
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="an engine setting for every cdro-hostd run (repeatable), e.g. engine.solve.threads=1")
+    parser.add_argument("--netgen", default="", metavar="OPTIONS",
+                        help="cdro-netgen options for every draw, e.g. --netgen='--sweeps 4 --nlos-fraction 0.25' "
+                             "(a variant of the families; not --family, --seed, --heights, --order, --shuffle, --out, "
+                             "which the scorecard sets)")
     args = parser.parse_args()
     HOSTD_SETTINGS.extend(args.set)
+    NETGEN_OPTIONS.extend(shlex.split(args.netgen))
+    reserved = {"--family", "--seed", "--heights", "--order", "--shuffle", "--out"}
+    if reserved & {option.split("=")[0] for option in NETGEN_OPTIONS}:
+        parser.error(f"--netgen may not set {', '.join(sorted(reserved))}: the scorecard sets them")
     if "-" in args.seeds:
         first, last = (int(x) for x in args.seeds.split("-"))
         seeds = list(range(first, last + 1))

@@ -1,7 +1,10 @@
-"""scripts/scorecard.py's tables (the runs themselves are measured on purpose, never here): a family
-run in file order only (walls, the largest) has no order spread, and its tables still print."""
+"""scripts/scorecard.py's tables and options (the runs themselves are measured on purpose, never
+here): a family run in file order only (walls, the largest) has no order spread, and its tables
+still print; --netgen's options reach cdro-netgen."""
 import importlib.util
 import pathlib
+import subprocess
+import sys
 
 SCRIPT = pathlib.Path(__file__).resolve().parents[2] / "scripts" / "scorecard.py"
 
@@ -35,3 +38,21 @@ def test_a_family_in_file_order_only_says_so_instead_of_a_spread():
     per_family = scorecard.summary([random, walls]).splitlines()
     assert per_family[2].endswith("| 14 | 1 | 79 % | 50 % / 50 % |")
     assert per_family[3].endswith("| 0 | 50 % | file order only |")
+
+
+def test_the_netgen_options_reach_every_draw(tmp_path, build_dir):
+    scorecard = load_scorecard()
+    scorecard.BIN = build_dir / "bin"
+    scorecard.NETGEN_OPTIONS[:] = ["--sweeps", "3"]
+    network = scorecard.netgen("random", 5, tmp_path / "draw")
+    links = len((network / "links.csv").read_text().splitlines()) - 1
+    ranges = len((network / "ranges.csv").read_text().splitlines()) - 1
+    assert links > 0
+    assert ranges == 3 * links, "three sweeps over every link, as --netgen asked (the family's default is 20)"
+
+
+def test_netgen_options_that_the_scorecard_sets_itself_are_refused():
+    result = subprocess.run([sys.executable, str(SCRIPT), "--netgen=--seed 3", "--seeds", "1"],
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "--netgen may not set" in result.stderr
