@@ -135,6 +135,21 @@ TEST(Netgen, OptionsPinWhatTheyName)
     }
 }
 
+// --nodes is a user's option: every family draws that many nodes (at its own density: a room that
+// holds 12 by default holds 60 as a larger room), and never loops forever looking for room.
+TEST(Netgen, EveryFamilyDrawsTheNodesAskedFor)
+{
+    FamilyOptions options;
+    options.nodes = 60;
+    for (Family family : allFamilies()) {
+        SCOPED_TRACE(familyName(family));
+        const World world = makeWorld(family, 3, options);
+        // Wings share the count among their two or three wings.
+        EXPECT_GE(world.nodes.size(), 58U);
+        EXPECT_LE(world.nodes.size(), 60U);
+    }
+}
+
 TEST(Netgen, SweepsRangeEveryLinkOncePerSweep)
 {
     const World world = makeWorld(Family::Random, 4);

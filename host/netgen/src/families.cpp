@@ -508,8 +508,11 @@ World drawBiased(Random &random, const FamilyOptions &options)
 {
     World world;
     const uint32_t count = options.nodes > 0 ? options.nodes : static_cast<uint32_t>(8 + random.below(5));
-    const double width_m = random.uniform(8.0, 14.0);
-    const double depth_m = random.uniform(6.0, 10.0);
+    // A room for up to 12 nodes (the family's own counts); more nodes get a larger room at the
+    // same density, so that 1.5 m apart they always fit.
+    const double grow = std::sqrt(std::max(1.0, static_cast<double>(count) / 12.0));
+    const double width_m = grow * random.uniform(8.0, 14.0);
+    const double depth_m = grow * random.uniform(6.0, 10.0);
     while (world.nodes.size() < count) {
         const double y_m = random.uniform(0.0, depth_m); // y first: see drawRandom
         const double x_m = random.uniform(0.0, width_m);
