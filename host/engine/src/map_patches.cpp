@@ -1,6 +1,7 @@
 #include "cdro/engine/map_patches.hpp"
 
 #include <algorithm>
+#include <map>
 #include <cmath>
 #include <limits>
 
@@ -98,6 +99,9 @@ MapEstimate patchMap(const MapProblem &problem, const std::vector<uint32_t> &par
         in_part[node] = 1;
     }
     std::vector<Patch> patches;
+    // A patch is solved from its node set alone: where two centres gather the same nodes (every
+    // pair of a room ranging, a clique), the second is a copy of the first, not a second solve.
+    std::map<std::vector<uint32_t>, Patch> solved;
     for (uint32_t centre : part) {
         if (problem.node_links[centre].size() < 2) {
             continue;
@@ -132,9 +136,13 @@ MapEstimate patchMap(const MapProblem &problem, const std::vector<uint32_t> &par
             }
         }
         std::sort(nodes.begin(), nodes.end());
-        Patch patch = solvePatch(problem, nodes, likelihood);
+        auto known = solved.find(nodes);
+        if (known == solved.end()) {
+            known = solved.emplace(nodes, solvePatch(problem, nodes, likelihood)).first;
+        }
+        const Patch &patch = known->second;
         if (std::count(patch.placed.begin(), patch.placed.end(), 1) >= 3) {
-            patches.push_back(std::move(patch));
+            patches.push_back(patch);
         }
     }
     if (patches.empty()) {
