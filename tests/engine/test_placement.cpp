@@ -97,6 +97,27 @@ TEST(Placement, CollinearNeighboursLeaveTheMirrorImageAmbiguous)
     EXPECT_EQ(choosePlacement(candidates, constraints.size(), params).decision, PlacementDecision::Ambiguous);
 }
 
+// A node heard by 40 neighbours (every pair of a hall ranging) is seeded from pairs of its shortest
+// links only; even when those 16 are all on one line (their pairs give the mirror image as often
+// as the truth), the polish on every link finds the truth, and it comes first.
+TEST(Placement, ANodeWithManyNeighboursIsFoundFromItsShortestLinks)
+{
+    const Vector2 truth_m(7.0, 2.0);
+    std::vector<Vector2> anchors_m;
+    for (int i = 0; i < 16; ++i) {
+        anchors_m.emplace_back(static_cast<double>(i), 0.0); // the closest: collinear
+    }
+    for (int i = 0; i < 24; ++i) {
+        const double angle = 0.26 * static_cast<double>(i);
+        anchors_m.emplace_back(truth_m + 25.0 * Vector2(std::cos(angle), std::sin(angle)));
+    }
+    const auto constraints = exactConstraints(truth_m, anchors_m);
+    const auto candidates = candidatesFor(constraints);
+    ASSERT_GE(candidates.size(), 1U);
+    EXPECT_LT((candidates[0].position_m - truth_m).norm(), 1e-6);
+    EXPECT_EQ(choosePlacement(candidates, constraints.size(), PlacementParams{}).decision, PlacementDecision::Placed);
+}
+
 TEST(Placement, TangentCirclesGiveOneCandidateAndNoDecision)
 {
     const auto constraints = exactConstraints(Vector2(2.0, 0.0), {Vector2(0.0, 0.0), Vector2(4.0, 0.0)});

@@ -6,16 +6,34 @@
 
 namespace cdro::engine {
 
+namespace {
+constexpr size_t kSeedNeighbours = 16; // links whose pairs seed a node's candidates, at most
+} // namespace
+
 std::vector<PlacementCandidate> placementCandidates(const std::vector<RangeConstraint> &constraints,
                                                     const RangeLikelihood &likelihood, const PointSolverParams &solver,
                                                     const PlacementParams &params)
 {
     std::vector<PlacementCandidate> solutions;
-    const size_t count = constraints.size();
+    // The seeds come from pairs of the kSeedNeighbours shortest links (the likeliest in line of
+    // sight; every link where there are no more), each polished on all of them: a node with k
+    // neighbours would otherwise be tried from k(k - 1) / 2 pairs, each polish O(k), and in a
+    // room where every pair of 40 nodes ranges that is most of the map's time (docs/bench.md).
+    std::vector<size_t> seeding(constraints.size());
+    for (size_t i = 0; i < seeding.size(); ++i) {
+        seeding[i] = i;
+    }
+    if (seeding.size() > kSeedNeighbours) {
+        std::stable_sort(seeding.begin(), seeding.end(),
+                         [&](size_t x, size_t y) { return constraints[x].range_m < constraints[y].range_m; });
+        seeding.resize(kSeedNeighbours);
+        std::sort(seeding.begin(), seeding.end());
+    }
+    const size_t count = seeding.size();
     for (size_t first = 0; first < count; ++first) {
         for (size_t second = first + 1; second < count; ++second) {
-            const RangeConstraint &a = constraints[first];
-            const RangeConstraint &b = constraints[second];
+            const RangeConstraint &a = constraints[seeding[first]];
+            const RangeConstraint &b = constraints[seeding[second]];
             const Vector2 baseline = b.anchor_m - a.anchor_m;
             const double length = baseline.norm();
             if (length < params.min_baseline_m) {
