@@ -104,6 +104,7 @@ TEST(Placement, ANodeWithManyNeighboursIsFoundFromItsShortestLinks)
 {
     const Vector2 truth_m(7.0, 2.0);
     std::vector<Vector2> anchors_m;
+    anchors_m.reserve(40);
     for (int i = 0; i < 16; ++i) {
         anchors_m.emplace_back(static_cast<double>(i), 0.0); // the closest: collinear
     }
