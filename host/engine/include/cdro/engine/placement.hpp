@@ -6,7 +6,8 @@
 // does: p0 = (0, 0), p1 = (r01, 0), p2 on the +y side.
 //
 // Every further node is placed from the placed nodes it ranged to: each pair of them with a
-// usable baseline gives the two circle intersections (eq. 4, the sign chosen by the others),
+// usable baseline gives the two circle intersections (eq. 4, the sign chosen by the others; of a
+// node with more than 16 placed neighbours, the pairs of its 16 shortest links only),
 // every intersection is polished by robust Gauss-Newton against all placed neighbours
 // (point_solver.hpp), and the distinct local optima are the candidates. A node is placed
 // only when the decision is clear: the best candidate's cost beats every distinct rival by
