@@ -1,9 +1,9 @@
 #include "cdro/engine/map_patches.hpp"
 
 #include <algorithm>
-#include <map>
 #include <cmath>
 #include <limits>
+#include <map>
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/map_growth.hpp"
