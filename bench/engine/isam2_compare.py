@@ -163,6 +163,15 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def write_json(report: dict, path: str) -> None:
+    """A report as indented JSON: to stdout for '-', else into the file `path`."""
+    text = json.dumps(report, indent=2)
+    if path == "-":
+        print(text)
+    else:
+        pathlib.Path(path).write_text(text + "\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -301,11 +310,7 @@ def main(argv: list[str] | None = None) -> int:
             "isam2": configurations,
             "engine": engine_plant,
         }
-        text = json.dumps(report, indent=2)
-        if args.json == "-":
-            print(text)
-        else:
-            pathlib.Path(args.json).write_text(text + "\n")
+        write_json(report, args.json)
     return 0
 
 

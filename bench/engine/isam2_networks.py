@@ -74,7 +74,7 @@ from cdro_tools.evaluation.inputs import read_truth
 HERE = pathlib.Path(__file__).resolve().parent
 REPO_ROOT = HERE.parents[1]
 sys.path.insert(0, str(HERE))
-from isam2_compare import cpu_model, noise_model, run_isam2  # noqa: E402
+from isam2_compare import cpu_model, noise_model, run_isam2, write_json  # noqa: E402
 
 
 class KeepingGtsam:
@@ -559,11 +559,7 @@ def write_report(args, machine: dict, results: list[dict], command: list[str] | 
         "settings": {key: value for key, value in vars(args).items() if key not in ("json", "tables_from")},
         "sizes": results,
     }
-    text = json.dumps(report, indent=2)
-    if args.json == "-":
-        print(text)
-    else:
-        pathlib.Path(args.json).write_text(text + "\n")
+    write_json(report, args.json)
 
 
 if __name__ == "__main__":
