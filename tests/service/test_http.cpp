@@ -181,7 +181,12 @@ public:
         ::inet_pton(AF_INET, "127.0.0.1", &server.sin_addr);
         connected_ = ::connect(fd_, reinterpret_cast<sockaddr *>(&server), sizeof server) == 0;
     }
-    ~RawClient() { ::close(fd_); }
+    ~RawClient()
+    {
+        if (fd_ >= 0) {
+            ::close(fd_);
+        }
+    }
     RawClient(const RawClient &) = delete;
     RawClient &operator=(const RawClient &) = delete;
     bool connected() const { return connected_; }
@@ -217,6 +222,20 @@ public:
         }
     }
     bool timedOut() const { return timed_out_; }
+    // Waits up to timeout_ms for the first bytes; true if some came.
+    bool awaitBytes(int timeout_ms)
+    {
+        pollfd p{fd_, POLLIN, 0};
+        return ::poll(&p, 1, timeout_ms) > 0;
+    }
+    // Closes with a reset (no FIN, no lingering): the server's next send on it fails at once.
+    void reset()
+    {
+        const linger abort{1, 0};
+        ::setsockopt(fd_, SOL_SOCKET, SO_LINGER, &abort, sizeof abort);
+        ::close(fd_);
+        fd_ = -1;
+    }
 
 private:
     int fd_ = -1;
@@ -406,4 +425,38 @@ TEST_F(HttpTest, ManyEventStreamsAreCappedAndTheRestStillAnswered)
     RawClient check(server->port());
     check.send("GET /api/health HTTP/1.1\r\n\r\n");
     EXPECT_EQ(statusLine(check.receive(10000)), "HTTP/1.1 200 OK");
+}
+
+// A map going out to the event streams while their clients reset them: each failed send closes
+// its stream in the middle of the pass over all of them, and the pass must carry on safely (under
+// AddressSanitizer a pass that walked a closed stream's entry stops the test; without it the
+// service died of SIGSEGV once in CI, closing 600 connections at once).
+TEST_F(HttpTest, StreamsResetWhileAMapGoesOutAreClosedAndTheOthersServed)
+{
+    HttpConfig config;
+    config.port = 0;
+    config.max_event_clients = 48;
+    MapSnapshotStore streams_store;
+    HttpServer busy(loop, config, streams_store, nullptr);
+    busy.start();
+    streams_store.publish(mapText(40), R"({"type":"health","link":"connected"})");
+    for (int round = 0; round < 30; ++round) {
+        std::vector<std::unique_ptr<RawClient>> streams;
+        for (uint32_t i = 0; i < config.max_event_clients; ++i) {
+            const std::string source = "127.0.4." + std::to_string(1 + i);
+            streams.push_back(std::make_unique<RawClient>(busy.port(), source.c_str()));
+            streams.back()->send("GET /api/events HTTP/1.1\r\n\r\n");
+        }
+        for (auto &stream : streams) {
+            ASSERT_TRUE(stream->awaitBytes(10000)) << "round " << round; // the stream is open
+        }
+        streams_store.publish(mapText(40 + round), R"({"type":"health","link":"connected"})");
+        for (auto &stream : streams) {
+            stream->reset();
+        }
+    }
+    RawClient check(busy.port());
+    check.send("GET /api/health HTTP/1.1\r\n\r\n");
+    EXPECT_EQ(statusLine(check.receive(10000)), "HTTP/1.1 200 OK");
+    busy.stop();
 }

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <map>
 #include <optional>
+#include <vector>
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -241,9 +242,12 @@ public:
     void wake()
     {
         loop_.post([this] {
-            for (auto &entry : connections_) {
-                if (entry.second.state == State::Streaming) {
-                    pump(entry.second);
+            // A send that fails closes its stream: the pass goes by descriptor, never by an
+            // iterator into the map it may erase from.
+            for (const int fd : openDescriptors()) {
+                const auto it = connections_.find(fd);
+                if (it != connections_.end() && it->second.state == State::Streaming) {
+                    pump(it->second);
                 }
             }
         });
@@ -285,6 +289,16 @@ private:
     };
 
     int64_t now() const { return owner_.clock_.monotonicUs(); }
+
+    std::vector<int> openDescriptors() const
+    {
+        std::vector<int> fds;
+        fds.reserve(connections_.size());
+        for (const auto &entry : connections_) {
+            fds.push_back(entry.first);
+        }
+        return fds;
+    }
 
     void acceptSome()
     {
@@ -434,6 +448,7 @@ private:
     // False if the connection was closed.
     bool readSome(Connection &c)
     {
+        const int fd = c.fd; // c is gone once the connection closes
         char buffer[kReadChunk];
         for (;;) {
             const ssize_t n = ::recv(c.fd, buffer, sizeof buffer, 0);
@@ -452,7 +467,7 @@ private:
                 const size_t room = owner_.limits_.max_head_bytes + 4 - c.in.size();
                 c.in.append(buffer, std::min(static_cast<size_t>(n), room));
                 if (!onHeadBytes(c)) {
-                    return connections_.count(c.fd) != 0;
+                    return connections_.count(fd) != 0;
                 }
                 break;
             }
@@ -734,8 +749,9 @@ private:
     // Event streams: the newest map, once the previous one is out (a slow reader skips maps).
     void pump(Connection &c)
     {
+        const int fd = c.fd; // c is gone once the connection closes
         writeSome(c);
-        if (connections_.count(c.fd) == 0 || c.state != State::Streaming || c.out_offset < c.out.size()) {
+        if (connections_.count(fd) == 0 || c.state != State::Streaming || c.out_offset < c.out.size()) {
             return;
         }
         const MapSnapshotStore::Snapshot snapshot = owner_.store_.latest();
@@ -789,12 +805,7 @@ private:
         const int64_t t = now();
         const int64_t stall_us = secondsToUs(owner_.limits_.write_stall_s);
         const int64_t keepalive_us = secondsToUs(owner_.limits_.keepalive_s);
-        std::vector<int> fds;
-        fds.reserve(connections_.size());
-        for (const auto &entry : connections_) {
-            fds.push_back(entry.first);
-        }
-        for (const int fd : fds) {
+        for (const int fd : openDescriptors()) {
             const auto it = connections_.find(fd);
             if (it == connections_.end()) {
                 continue;
