@@ -4,12 +4,22 @@
 #include <cmath>
 
 #include "cdro/engine/placement.hpp"
+#include "cdro/engine/global_solve.hpp"
+#include "cdro/engine/second_place.hpp"
 
 namespace cdro::engine {
 
 namespace {
 constexpr double kReliabilityMargin = 2.5;
 constexpr double kConvergedRegionChiSquare = 5.991; // the 95 % point of chi-square, 2 degrees of freedom
+// A node's second place with its neighbours following it (second_place.hpp) is looked for from
+// every distinct candidate that costs less than this more than its place with them held (freed,
+// they took 1.1-3.3 nats off that difference on the variants' two nodes called converged
+// 1.3-1.4 m off: docs/results.md, "Variants nobody had run") ...
+constexpr double kNeighbourhoodWindowNats = 8.0;
+// ... and is a rival when it costs less than this more than the node's place, freed the same way:
+// the gap by which the global solve calls a whole map a rival.
+const double kNeighbourhoodGapNats = GlobalSolveParams{}.rival_gap_nats;
 } // namespace
 
 double regionSemiAxisM(const Matrix2 &covariance_m2)
@@ -127,6 +137,7 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
     }
     const Foldable folds = findFoldable(count, edges, estimate.placed, anchored);
     const double reliable = params_.reliable_m;
+    std::vector<uint8_t> movable; // filled when first needed
     for (uint32_t node = 0; node < count; ++node) {
         if (estimate.placed[node] == 0 || !nodes[node].free) {
             continue;
@@ -150,12 +161,36 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
             if (constraints.size() >= 3) {
                 const Vector2 &position_m = estimate.position_m[node];
                 const double here = robustCost(constraints, position_m, likelihood_, solver_.range_sigma_m);
-                for (const PlacementCandidate &candidate :
-                     placementCandidates(constraints, likelihood_, solver_, placement_)) {
+                const std::vector<PlacementCandidate> candidates =
+                    placementCandidates(constraints, likelihood_, solver_, placement_);
+                for (const PlacementCandidate &candidate : candidates) {
                     if ((candidate.position_m - position_m).norm() > placement_.distinct_m &&
                         candidate.cost < here + placement_.ambiguity_gap_nats / 4.0) {
                         doubt = NodeDoubt::Ambiguous;
                         break;
+                    }
+                }
+                // The same with its free neighbours following it (second_place.hpp): a rival map of
+                // the neighbourhood, judged by the gap the global solve judges rival maps by.
+                for (const PlacementCandidate &candidate : candidates) {
+                    if (doubt != NodeDoubt::None) {
+                        break;
+                    }
+                    if ((candidate.position_m - position_m).norm() <= placement_.distinct_m ||
+                        candidate.cost >= here + kNeighbourhoodWindowNats) {
+                        continue;
+                    }
+                    if (movable.empty()) {
+                        movable.assign(count, 0);
+                        for (uint32_t n = 0; n < count; ++n) {
+                            movable[n] = estimate.placed[n] != 0 && nodes[n].free ? 1 : 0;
+                        }
+                    }
+                    const SecondPlace second =
+                        secondPlaceWithNeighbours(problem, estimate, movable, node, candidate.position_m, likelihood_);
+                    if ((second.there_m - position_m).norm() > placement_.distinct_m &&
+                        second.cost_there_nats < second.cost_here_nats + kNeighbourhoodGapNats) {
+                        doubt = NodeDoubt::Ambiguous;
                     }
                 }
             }

@@ -4,8 +4,9 @@
 // is converged only when, besides, nothing says otherwise (NodeDoubt):
 //   too few links  fewer than three placed, still neighbours;
 //   ambiguous      a distinct position explains its links about as well (a mirror image across
-//                  nearly collinear neighbours), or a rival map of the global solve places it a
-//                  metre or more away;
+//                  nearly collinear neighbours), its neighbours held or following it
+//                  (second_place.hpp), or a rival map of the global solve places it a metre or
+//                  more away;
 //   foldable       its part hangs on one or two nodes (foldable.hpp) and can fold about them
 //                  without changing a range;
 //   flexible       outside the part of the map joined by links that others check, or one error
