@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
-#include "cdro/engine/placement.hpp"
 #include "cdro/engine/global_solve.hpp"
+#include "cdro/engine/placement.hpp"
 #include "cdro/engine/second_place.hpp"
 
 namespace cdro::engine {
