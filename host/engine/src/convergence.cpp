@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <optional>
 
 #include "cdro/engine/global_solve.hpp"
 #include "cdro/engine/placement.hpp"
@@ -172,6 +173,7 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
                 }
                 // The same with its free neighbours following it (second_place.hpp): a rival map of
                 // the neighbourhood, judged by the gap the global solve judges rival maps by.
+                std::optional<NodeNeighbourhood> neighbourhood; // built when first needed
                 for (const PlacementCandidate &candidate : candidates) {
                     if (doubt != NodeDoubt::None) {
                         break;
@@ -186,10 +188,12 @@ StructureVerdict StructureCheck::run(const MapProblem &problem, const MapEstimat
                             movable[n] = estimate.placed[n] != 0 && nodes[n].free ? 1 : 0;
                         }
                     }
-                    const SecondPlace second =
-                        secondPlaceWithNeighbours(problem, estimate, movable, node, candidate.position_m, likelihood_);
+                    if (!neighbourhood) {
+                        neighbourhood.emplace(problem, estimate, movable, node, likelihood_);
+                    }
+                    const SecondPlace second = neighbourhood->from(candidate.position_m);
                     if ((second.there_m - position_m).norm() > placement_.distinct_m &&
-                        second.cost_there_nats < second.cost_here_nats + kNeighbourhoodGapNats) {
+                        second.cost_nats < neighbourhood->costHereNats() + kNeighbourhoodGapNats) {
                         doubt = NodeDoubt::Ambiguous;
                     }
                 }

@@ -2,17 +2,25 @@
 
 #include <algorithm>
 
+#include "cdro/engine/map_patches.hpp"
 #include "cdro/engine/map_refine.hpp"
 
 namespace cdro::engine {
 
 namespace {
-constexpr uint32_t kNotInNeighbourhood = UINT32_MAX;
+// One stage at the nominal noise: each start stays in its own basin.
+MapRefineParams localRefine()
+{
+    MapRefineParams refine;
+    refine.stages = {RefineStage{}};
+    return refine;
+}
 } // namespace
 
-SecondPlace secondPlaceWithNeighbours(const MapProblem &problem, const MapEstimate &estimate,
-                                      const std::vector<uint8_t> &movable, uint32_t node, const Vector2 &start_m,
-                                      const RangeLikelihood &likelihood)
+NodeNeighbourhood::NodeNeighbourhood(const MapProblem &problem, const MapEstimate &estimate,
+                                     const std::vector<uint8_t> &movable, uint32_t node,
+                                     const RangeLikelihood &likelihood)
+    : likelihood_(likelihood)
 {
     // The moving part: the node and its movable neighbours; the held part: their other placed
     // neighbours.
@@ -32,47 +40,32 @@ SecondPlace secondPlaceWithNeighbours(const MapProblem &problem, const MapEstima
     }
     std::sort(members.begin(), members.end());
     members.erase(std::unique(members.begin(), members.end()), members.end());
-    std::vector<uint32_t> local(problem.nodeCount(), kNotInNeighbourhood);
-    MapProblem part;
-    part.sigma_m = problem.sigma_m;
-    part.unheard_radius_m = problem.unheard_radius_m;
-    part.unheard_cost_nats = problem.unheard_cost_nats;
+    std::sort(moving.begin(), moving.end());
+    // The links between two held nodes cost the same from either start.
+    part_ = subProblem(problem, members);
+    start_ = MapEstimate::unplaced(part_.nodeCount());
     for (uint32_t i = 0; i < members.size(); ++i) {
-        local[members[i]] = i;
-        part.ids.push_back(problem.ids[members[i]]);
-        part.listens.push_back(members[i] < problem.listens.size() ? problem.listens[members[i]] : 0);
-    }
-    std::vector<uint8_t> is_moving(problem.nodeCount(), 0);
-    for (const uint32_t m : moving) {
-        is_moving[m] = 1;
-    }
-    for (const MapLink &link : problem.links) {
-        if (local[link.a] != kNotInNeighbourhood && local[link.b] != kNotInNeighbourhood &&
-            (is_moving[link.a] != 0 || is_moving[link.b] != 0)) {
-            part.links.push_back({local[link.a], local[link.b], link.range_m});
+        start_.placed[i] = 1;
+        start_.position_m[i] = estimate.position_m[members[i]];
+        if (members[i] == node) {
+            node_ = i;
+        }
+        if (!std::binary_search(moving.begin(), moving.end(), members[i])) {
+            part_.fixed[i] = 1;
+            part_.fixed_position_m[i] = estimate.position_m[members[i]];
         }
     }
-    part.finish();
-    MapEstimate here = MapEstimate::unplaced(part.nodeCount());
-    for (uint32_t i = 0; i < members.size(); ++i) {
-        here.placed[i] = 1;
-        here.position_m[i] = estimate.position_m[members[i]];
-        if (is_moving[members[i]] == 0) {
-            part.fixed[i] = 1;
-            part.fixed_position_m[i] = estimate.position_m[members[i]];
-        }
-    }
-    MapEstimate there = here;
-    there.position_m[local[node]] = start_m;
-    MapRefineParams refine;
-    refine.stages = {RefineStage{}};
-    SecondPlace out;
-    refineMap(part, here, likelihood, refine);
-    refineMap(part, there, likelihood, refine);
-    out.cost_here_nats = mapCost(part, here, likelihood);
-    out.cost_there_nats = mapCost(part, there, likelihood);
-    out.there_m = there.position_m[local[node]];
-    return out;
+    MapEstimate here = start_;
+    refineMap(part_, here, likelihood_, localRefine());
+    cost_here_nats_ = mapCost(part_, here, likelihood_);
+}
+
+SecondPlace NodeNeighbourhood::from(const Vector2 &start_m) const
+{
+    MapEstimate there = start_;
+    there.position_m[node_] = start_m;
+    refineMap(part_, there, likelihood_, localRefine());
+    return {mapCost(part_, there, likelihood_), there.position_m[node_]};
 }
 
 } // namespace cdro::engine

@@ -7,7 +7,7 @@
 // place on the truth's side then costs a few nats more only because the neighbours stay bent
 // (a wings draw at 20 % NLOS: 3.6 nats, 1.27 m off, called converged). Here the node starts at
 // the distinct position and its free neighbours are refined with it, their own other neighbours
-// held; the node's current place is refined the same way, and the two costs compared.
+// held; the node's current place is refined the same way (once per node), and the costs compared.
 #pragma once
 
 #include <cstdint>
@@ -20,15 +20,28 @@
 namespace cdro::engine {
 
 struct SecondPlace {
-    double cost_here_nats = 0.0;       // the neighbourhood's cost, refined from the node's place
-    double cost_there_nats = 0.0;      // the same from the other start
-    Vector2 there_m = Vector2::Zero(); // where the node ended from the other start
+    double cost_nats = 0.0;            // the neighbourhood's cost, refined from the other start
+    Vector2 there_m = Vector2::Zero(); // where the node ended from it
 };
 
-// `movable[n]` != 0: a node that may follow (free and placed). The neighbourhood is `node` and its
-// movable neighbours; every other placed neighbour of theirs is held.
-SecondPlace secondPlaceWithNeighbours(const MapProblem &problem, const MapEstimate &estimate,
-                                      const std::vector<uint8_t> &movable, uint32_t node, const Vector2 &start_m,
-                                      const RangeLikelihood &likelihood);
+class NodeNeighbourhood {
+public:
+    // `movable[n]` != 0: a node that may follow (free and placed). The neighbourhood is `node` and
+    // its movable neighbours; every other placed neighbour of theirs is held. Refines it from the
+    // map as it is.
+    NodeNeighbourhood(const MapProblem &problem, const MapEstimate &estimate, const std::vector<uint8_t> &movable,
+                      uint32_t node, const RangeLikelihood &likelihood);
+
+    double costHereNats() const { return cost_here_nats_; } // refined from the node's place
+    // The same refined with the node started at `start_m`.
+    SecondPlace from(const Vector2 &start_m) const;
+
+private:
+    MapProblem part_;   // the problem restricted to the neighbourhood, the held nodes fixed
+    MapEstimate start_; // the map's positions, renumbered
+    uint32_t node_ = 0; // the node's number in part_
+    const RangeLikelihood &likelihood_;
+    double cost_here_nats_ = 0.0;
+};
 
 } // namespace cdro::engine
