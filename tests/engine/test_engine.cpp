@@ -7,17 +7,24 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <limits>
 #include <map>
 #include <optional>
 #include <set>
+#include <sstream>
 #include <stdexcept>
+#include <string>
 #include <thread>
 #include <utility>
 
 #include <gtest/gtest.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 #include "cdro/engine/engine.hpp"
+#include "cdro/engine/worker_priority.hpp"
 #include "support.hpp"
 
 namespace cdro::enginetest {
@@ -333,6 +340,92 @@ TEST(Engine, ASolveTheCallerAdoptsWhenItsWorkerIsDoneIsReplayedAtTheSamePlaces)
     const engine::EngineCounters counters_live = live.counters();
     const engine::EngineCounters counters_replayed = replayed.counters();
     EXPECT_EQ(std::memcmp(&counters_live, &counters_replayed, sizeof(engine::EngineCounters)), 0);
+}
+
+// The nice values of this process's threads other than the caller, from /proc (Linux).
+std::vector<int> otherThreadsNice()
+{
+    std::vector<int> nice;
+    const std::string own = std::to_string(static_cast<long>(syscall(SYS_gettid)));
+    for (const auto &task : std::filesystem::directory_iterator("/proc/self/task")) {
+        if (task.path().filename().string() == own) {
+            continue;
+        }
+        std::ifstream stat(task.path() / "stat");
+        std::string line;
+        if (!std::getline(stat, line) || line.rfind(')') == std::string::npos) {
+            continue; // the thread ended meanwhile
+        }
+        // After the name in parentheses: state, then fields 4.. ; nice is field 19 (man 5 proc).
+        std::istringstream fields(line.substr(line.rfind(')') + 1));
+        std::string field;
+        for (int index = 3; index <= 19 && fields >> field; ++index) {
+            if (index == 19) {
+                nice.push_back(std::stoi(field));
+            }
+        }
+    }
+    return nice;
+}
+
+// A thread that lowered its priority starts threads at the same priority (the solve's helpers, which
+// the worker starts, run behind the ranges too), and the thread that started it keeps its own.
+TEST(Engine, AWorkerThatLowersItsPriorityLowersItsHelpersToo)
+{
+    const int caller_nice = engine::thisThreadsNice();
+    int worker_nice = caller_nice;
+    int helper_nice = caller_nice;
+    bool lowered = false;
+    std::thread worker([&]() {
+        lowered = engine::lowerThisThreadsPriority();
+        worker_nice = engine::thisThreadsNice();
+        std::thread helper([&]() { helper_nice = engine::thisThreadsNice(); });
+        helper.join();
+    });
+    worker.join();
+    ASSERT_TRUE(lowered);
+    EXPECT_EQ(worker_nice, std::min(caller_nice + engine::kWorkerNiceSteps, 19));
+    EXPECT_EQ(helper_nice, worker_nice);
+    EXPECT_EQ(engine::thisThreadsNice(), caller_nice);
+}
+
+// The global solve's worker runs below the thread that feeds the ranges (worker_priority.hpp): a
+// range that arrives while a solve runs takes a core at once. Seen from outside, in /proc, while
+// solves are pending; the feeding thread's own priority is left as it was.
+TEST(Engine, TheGlobalSolvesWorkerRunsBelowTheThreadThatFeedsTheRanges)
+{
+    const uint64_t seed = testSeed(3502);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 16, 7.0, true);
+    const std::vector<TestRange> ranges = noisyRanges(network, random, 12);
+    engine::EngineParams params;
+    params.solve.adopt_after_sweeps = 0.25; // the default: the solve on the worker thread
+    Engine engine(params);
+    engine.setSolveAdoption(Engine::SolveAdoption::ByCaller);
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        engine.setHeight(network.ids[i], network.height_m[i]);
+    }
+    const int feeding_nice = engine::thisThreadsNice();
+    const int worker_nice = std::min(feeding_nice + engine::kWorkerNiceSteps, 19);
+    uint32_t looks_while_pending = 0;
+    uint32_t workers_seen_lowered = 0;
+    for (const TestRange &range : ranges) {
+        engine.addRange(range.from, range.to, range.range_m);
+        if (!engine.solvePending()) {
+            continue;
+        }
+        ++looks_while_pending;
+        for (int nice : otherThreadsNice()) {
+            EXPECT_TRUE(nice == worker_nice || nice == feeding_nice) << nice;
+            workers_seen_lowered += nice == worker_nice ? 1U : 0U;
+        }
+        engine.adoptFinishedSolve();
+    }
+    std::printf("%u looks while a solve was pending, the worker seen at nice %d %u times\n", looks_while_pending,
+                worker_nice, workers_seen_lowered);
+    EXPECT_GT(workers_seen_lowered, 0U);
+    EXPECT_EQ(engine::thisThreadsNice(), feeding_nice);
 }
 
 // The steady state costs no global solve: once the links are known and a solve has seen their

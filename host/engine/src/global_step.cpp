@@ -9,6 +9,7 @@
 
 #include "cdro/engine/alignment.hpp"
 #include "cdro/engine/map_refine.hpp"
+#include "cdro/engine/worker_priority.hpp"
 
 namespace cdro::engine {
 
@@ -331,6 +332,9 @@ void GlobalStep::start(const MapState &map, uint64_t ranges_taken, bool settling
     job->result =
         std::async(background ? std::launch::async : std::launch::deferred, [owned, likelihood, solve, min_gain_nats,
                                                                              model_error, check]() {
+            if (owned->background) {
+                lowerThisThreadsPriority(); // the ranges first (worker_priority.hpp)
+            }
             return solveAndAssess(*owned, likelihood, solve, min_gain_nats, model_error, check);
         }).share();
     pending_ = std::move(job);

@@ -19,7 +19,8 @@
 // thread, from a copy of the problem as the map stood when it was due, its map adopted that many
 // sweeps of the network later (that many ranges taken per link at the start), at that range
 // exactly, waiting for the worker if it is not done: the estimates depend on the range stream
-// only, never on the thread's timing; with 0, in the caller's thread, adopted at once. settle()'s
+// only, never on the thread's timing (the worker runs at a lower priority than the thread feeding
+// the ranges, worker_priority.hpp); with 0, in the caller's thread, adopted at once. settle()'s
 // solve always runs in the caller's thread.
 // Adoption: the solve's best map, seen from the current frame (a
 // rigid fit on the nodes both place), unless the filter's own map, refined, explains the links
