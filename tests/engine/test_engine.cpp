@@ -114,9 +114,10 @@ TEST_P(NoiseFreeRecovery, RecoversTheTruthUpToARigidTransform)
     EXPECT_EQ(error.nodes, c.nodes);
     EXPECT_EQ(error.placed, c.nodes);
     EXPECT_EQ(error.converged + doubted, c.nodes);
-    // Sparse networks (degree 6) have nodes on three links that one error could move, or whose
-    // 95 % region under 0.1 m of noise reaches the metre: flexible (11 of 40 in seed 1000).
-    EXPECT_LE(doubted * 3, c.nodes) << "more than a third of the nodes in doubt";
+    // Sparse networks (degree 6) have nodes that one link error too small to be noticed under
+    // 0.1 m of noise could move beyond the metre, or whose 95 % region reaches it: flexible (20 of
+    // 40 in seed 1000, the sparsest case here; 0-2 of 20 at degree 10).
+    EXPECT_LE(doubted * 2, c.nodes) << "more than half of the nodes in doubt";
     EXPECT_LT(error.rmse_m, 0.01);
     EXPECT_EQ(engine.counters().intake.ranges_received, ranges.size());
     EXPECT_EQ(engine.counters().intake.rejected_self + engine.counters().intake.rejected_value, 0U);
@@ -310,7 +311,8 @@ TEST(Engine, ASolveTheCallerAdoptsWhenItsWorkerIsDoneIsReplayedAtTheSamePlaces)
             continue;
         }
         if (adopted_after.size() == 1 && busy_until == 0) {
-            busy_until = i + 2 * live.map().links.size(); // two sweeps without a look
+            busy_until = i + 2 * network.links.size(); // two sweeps without a look (all links: the
+            // map may not have heard them all yet)
         }
         if (i < busy_until) {
             continue;

@@ -77,14 +77,16 @@ def test_that_the_golden_file_holds_every_plant_node_placed_and_converged_unless
     # map (engine.convergence.common_excess_m: walls make links read long) takes their 95 % region
     # (not only their 2-sigma ellipse: 6, 20, 24, 31, 37) beyond the metre; node
     # 32's links to the converged nodes all leave it nearly the same way, so they do not hold it
-    # across that direction (convergence.hpp: the undoubted nodes must hold each other).
+    # across that direction (convergence.hpp: the undoubted nodes must hold each other); nodes 3
+    # and 9 are flexible since one link error too small to be noticed may move a node no more than
+    # the metre (Baarda's reliability; before, 2.5 m): they, or the nodes holding them, do not pass.
     lines = GOLDEN.read_text().splitlines()
     assert lines[0] == "id,x,y,var_x,cov_xy,var_y,converged,status,reason"
     rows = [line.split(",") for line in lines[1:]]
     assert len(rows) == 28
     assert all(len(row) == 9 and row[1] != "" for row in rows)
     not_converged = {int(row[0]): row[7:] for row in rows if row[6] != "1"}
-    assert sorted(not_converged) == [1, 2, 4, 6, 7, 8, 10, 14, 16, 20, 22, 23, 24, 25, 29, 31, 32, 33, 34, 35, 36, 37]
+    assert sorted(not_converged) == [1, 2, 3, 4, 6, 7, 8, 9, 10, 14, 16, 20, 22, 23, 24, 25, 29, 31, 32, 33, 34, 35, 36, 37]
     assert all(status == ["placed", "flexible"] for status in not_converged.values())
     assert all(row[7:] == ["converged", ""] for row in rows if row[6] == "1")
     assert [int(row[0]) for row in rows] == sorted(int(row[0]) for row in rows)
