@@ -276,8 +276,9 @@ TEST(Convergence, NoNodeIsConvergedWhereItsNeighboursCouldFollowItToASecondPlace
 // wall 0.64-0.69 m long (`cdro-netgen --family wings --seed 45`, docs/results.md, "Seeds nobody had
 // run"): each wing is mapped within 3 cm, but where wing 0 stands against wing 1 only the four
 // links say, one redundant, and the two long ones turn it: eight of its nodes were called
-// converged, up to 1.48 m off, though one link error too small to be noticed could move them
-// 1.5-2.3 m (Baarda's reliability): under the 2.5 m the check allowed, beyond the metre promised.
+// converged, up to 1.48 m off, though one link error too small to be noticed could move the far
+// ones 1.5-2.3 m (Baarda's reliability): under the 2.5 m the check allowed, beyond the metre
+// promised.
 TEST(Convergence, NoNodeIsConvergedThatOneUnnoticedLinkErrorCouldMoveBeyondTheMetre)
 {
     CDRO_SKIP_WHEN_SANITIZED(); // 61 nodes, 492 links

@@ -619,9 +619,10 @@ TEST(MovementStage, BeforeTheRobotMovesItsOutputIsDeadReckoningOrItsStageOneEsti
 
 TEST(MovementStage, AStandingRobotWhoseStageOnePositionIsAmbiguousHasNoPositionYet)
 {
-    // Fixture: six nodes that all range each other (fewer, and one link error too small to be
-    // noticed could move them beyond the metre: none converged); the robot (standing) ranges two
-    // of them, so its mirror image across their line fits as well, until it ranges a third.
+    // Fixture: six nodes that all range each other (with four, one link error too small to be
+    // noticed could move them beyond the metre, and too few are converged for the robot to lean
+    // on); the robot (standing) ranges two of them, so its mirror image across their line fits as
+    // well, until it ranges a third.
     const std::vector<Vector2> truth_m = {{0.0, 0.0}, {10.0, 0.0}, {10.0, 8.0}, {0.0, 8.0}, {-3.0, 4.0}, {13.0, 4.0}};
     const Vector2 robot_m(3.0, 3.0);
     const NodeId robot_id = 100;
