@@ -86,7 +86,8 @@ def test_that_the_golden_file_holds_every_plant_node_placed_and_converged_unless
     assert len(rows) == 28
     assert all(len(row) == 9 and row[1] != "" for row in rows)
     not_converged = {int(row[0]): row[7:] for row in rows if row[6] != "1"}
-    assert sorted(not_converged) == [1, 2, 3, 4, 6, 7, 8, 9, 10, 14, 16, 20, 22, 23, 24, 25, 29, 31, 32, 33, 34, 35, 36, 37]
+    assert sorted(not_converged) == [1, 2, 3, 4, 6, 7, 8, 9, 10, 14, 16, 20, 22, 23, 24, 25, 29, 31, 32, 33, 34, 35,
+                                     36, 37]
     assert all(status == ["placed", "flexible"] for status in not_converged.values())
     assert all(row[7:] == ["converged", ""] for row in rows if row[6] == "1")
     assert [int(row[0]) for row in rows] == sorted(int(row[0]) for row in rows)
