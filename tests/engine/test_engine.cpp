@@ -276,6 +276,16 @@ TEST(Engine, TheWorkerThreadsSolveIsAdoptedAtTheSameRangeWhateverItsTiming)
     EXPECT_EQ(std::memcmp(&counters_a, &counters_b, sizeof(engine::EngineCounters)), 0);
 }
 
+// An engine fed as cdro-hostd feeds it live: the worker's solves adopted by the caller between
+// ranges, the network's heights told.
+void adoptedByTheCaller(Engine &engine, const TestNetwork &network)
+{
+    engine.setSolveAdoption(Engine::SolveAdoption::ByCaller);
+    for (size_t i = 0; i < network.ids.size(); ++i) {
+        engine.setHeight(network.ids[i], network.height_m[i]);
+    }
+}
+
 // Live, no range waits for the global solve: with SolveAdoption::ByCaller addRange never adopts a
 // solve of the worker thread, however long it has been pending (a caller busy for two sweeps finds
 // it still pending), and the caller adopts it between ranges once the worker is done, where the
@@ -294,10 +304,7 @@ TEST(Engine, ASolveTheCallerAdoptsWhenItsWorkerIsDoneIsReplayedAtTheSamePlaces)
     Engine live(params);
     Engine replayed(params);
     for (Engine *engine : {&live, &replayed}) {
-        engine->setSolveAdoption(Engine::SolveAdoption::ByCaller);
-        for (size_t i = 0; i < network.ids.size(); ++i) {
-            engine->setHeight(network.ids[i], network.height_m[i]);
-        }
+        adoptedByTheCaller(*engine, network);
     }
     std::vector<size_t> adopted_after; // range index after which the live caller adopted
     size_t busy_until = 0;             // the caller does not look before this range
@@ -404,10 +411,7 @@ TEST(Engine, TheGlobalSolvesWorkerRunsBelowTheThreadThatFeedsTheRanges)
     engine::EngineParams params;
     params.solve.adopt_after_sweeps = 0.25; // the default: the solve on the worker thread
     Engine engine(params);
-    engine.setSolveAdoption(Engine::SolveAdoption::ByCaller);
-    for (size_t i = 0; i < network.ids.size(); ++i) {
-        engine.setHeight(network.ids[i], network.height_m[i]);
-    }
+    adoptedByTheCaller(engine, network);
     const int feeding_nice = engine::thisThreadsNice();
     const int worker_nice = std::min(feeding_nice + engine::kWorkerNiceSteps, 19);
     uint32_t looks_while_pending = 0;
