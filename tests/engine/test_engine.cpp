@@ -473,6 +473,38 @@ TEST(Engine, TheSteadyStateRunsNoGlobalSolveUntilTheRangesChange)
     EXPECT_GT(engine.counters().solve.solve_refreshes, 0U);
 }
 
+TEST(Engine, NoRangePaysForMoreThanOnePlacementAndItsShareOfTheSettling)
+{
+    // While a map forms, placing a node and settling its neighbourhood (settle_per_placed
+    // neighbour updates) is the range path's largest piece of work, and a placement makes its
+    // neighbours placeable: in one range a cascade of them and their settling was the slowest
+    // addRange calls at 300 nodes (docs/bench.md). Counted, not timed: no range places more than
+    // one node (the frame's three at once) or updates more than relax_per_range +
+    // settle_per_range neighbours.
+    const uint64_t seed = testSeed(3611);
+    SCOPED_TRACE(seedTrace(seed));
+    Random random(seed);
+    const TestNetwork network = randomNetwork(random, 40, 8.0, false);
+    EngineParams params;
+    params.solve.enabled = false; // the global solve places nodes in bulk, off the range path
+    Engine engine(params);
+    const std::vector<TestRange> ranges = roundRobin(network, random, 3, 0.1);
+    uint64_t most_placed = 0;
+    uint64_t most_relaxed = 0;
+    for (const TestRange &range : ranges) {
+        const engine::EngineCounters before = engine.counters();
+        engine.addRange(range.from, range.to, range.range_m);
+        const engine::EngineCounters after = engine.counters();
+        const uint64_t placed = after.placement.placements - before.placement.placements;
+        if (before.placement.placements != 0) {
+            most_placed = std::max(most_placed, placed);
+        }
+        most_relaxed = std::max(most_relaxed, after.relaxations - before.relaxations);
+    }
+    EXPECT_EQ(most_placed, 1U);
+    EXPECT_LE(most_relaxed, params.refinement.relax_per_range + params.refinement.settle_per_range);
+}
+
 // ---- (c) verdicts and counters ---------------------------------------------------------------
 
 bool sameLinks(const std::vector<engine::LinkOutput> &a, const std::vector<engine::LinkOutput> &b)

@@ -68,6 +68,7 @@ engine::EngineParams unusual()
     p.refinement.relax_per_range = 4;
     p.refinement.relax_threshold_m = 2e-3;
     p.refinement.settle_per_placed = 11;
+    p.refinement.settle_per_range = 3;
     p.refinement.inconsistent_residual_m = 1.75;
     p.refinement.inconsistent_fraction = 0.6;
     p.refinement.max_placements = 6;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <utility>
 
 namespace cdro::engine {
 
@@ -206,16 +207,16 @@ RangeVerdict Engine::takeRange(NodeId from, NodeId to, double range_m, double t_
     }
     // 4. Placement.
     if (placement_.anyPending()) {
-        runPlacement();
+        runPlacement(Settling::OverRanges);
     }
     if (!map_.nodes[a].placed() || !map_.nodes[b].placed()) {
         placement_.countWaitingRange(map_, a);
         placement_.countWaitingRange(map_, b);
         if (placement_.anyPending()) {
-            runPlacement();
+            runPlacement(Settling::OverRanges);
         }
         ++ranges_stored_;
-        relax(params_.refinement.relax_per_range);
+        relaxAfterRange();
         return RangeVerdict::Stored;
     }
     ++ranges_used_;
@@ -230,29 +231,43 @@ RangeVerdict Engine::takeRange(NodeId from, NodeId to, double range_m, double t_
     updateNode(a, true);
     updateNode(b, true);
     // 7. Neighbours.
-    relax(params_.refinement.relax_per_range);
+    relaxAfterRange();
     return RangeVerdict::Used;
 }
 
-void Engine::runPlacement()
+void Engine::relaxAfterRange()
 {
-    if (placing_) {
-        return; // re-entered from the relaxation below: the outer loop sees the pending nodes
+    const uint64_t owed = std::min<uint64_t>(settle_owed_, params_.refinement.settle_per_range);
+    const uint64_t done = relax(params_.refinement.relax_per_range + owed, Settling::OverRanges);
+    const uint64_t paid = done - std::min<uint64_t>(done, params_.refinement.relax_per_range);
+    settle_owed_ = relax_queue_.empty() ? 0 : settle_owed_ - std::min(settle_owed_, paid);
+}
+
+void Engine::runPlacement(Settling settling)
+{
+    // A placed node's neighbourhood agrees with it before the next placement leans on it; on the
+    // range path that settling is spread over the ranges that follow (no range pays for more
+    // than `settle_per_range` of it), and the next placement waits until it is done.
+    if (placing_ || (settling == Settling::OverRanges && settle_owed_ > 0)) {
+        return; // re-entered from a relaxation: the outer loop sees the pending nodes
     }
     placing_ = true;
+    relax(std::exchange(settle_owed_, 0), settling);
     if (!frame_.applied()) {
         frame_.apply(map_);
         ++revision_;
     }
-    const std::vector<uint32_t> placed = placement_.run(map_, frame_held_, frame_, trace_);
+    // One node a range on the range path: each placement leans on the one before it settled.
+    const uint64_t most = settling == Settling::AtOnce ? UINT64_MAX : 1;
+    const std::vector<uint32_t> placed = placement_.run(map_, frame_held_, frame_, trace_, most);
     adoptPlaced(placed);
-    if (!placed.empty()) {
-        // Let the new part of the map and its surroundings agree before the next range.
-        relax(placed.size() * params_.refinement.settle_per_placed);
+    settle_owed_ = placed.size() * params_.refinement.settle_per_placed;
+    if (settling == Settling::AtOnce) {
+        relax(std::exchange(settle_owed_, 0), settling);
     }
     placing_ = false;
-    if (!placed.empty() && placement_.anyPending()) {
-        runPlacement(); // nodes unplaced during that relaxation
+    if (settling == Settling::AtOnce && !placed.empty() && placement_.anyPending()) {
+        runPlacement(settling); // nodes unplaced during that relaxation
     }
 }
 
@@ -425,18 +440,20 @@ void Engine::enqueueNeighbours(uint32_t node)
     }
 }
 
-void Engine::relax(uint64_t budget)
+uint64_t Engine::relax(uint64_t budget, Settling settling)
 {
-    for (uint64_t done = 0; done < budget && !relax_queue_.empty(); ++done) {
+    uint64_t done = 0;
+    for (; done < budget && !relax_queue_.empty(); ++done) {
         const uint32_t node = relax_queue_.front();
         relax_queue_.pop_front();
         in_relax_queue_[node] = 0;
         ++relaxations_;
         updateNode(node);
-        if (placement_.anyPending()) {
-            runPlacement(); // a node found inconsistent was unplaced: place it again
+        if (settling == Settling::AtOnce && placement_.anyPending()) {
+            runPlacement(settling); // a node found inconsistent was unplaced: place it again
         }
     }
+    return done; // on the range path a node unplaced here is placed again at the next range
 }
 
 void Engine::assess()
@@ -470,10 +487,11 @@ uint64_t Engine::settle(uint64_t max_updates)
         startGlobalSolve(true);
         adoptGlobalSolve();
     }
+    relax(std::exchange(settle_owed_, 0), Settling::AtOnce);
     if (placement_.anyPending()) {
-        runPlacement();
+        runPlacement(Settling::AtOnce);
     }
-    relax(max_updates);
+    relax(max_updates, Settling::AtOnce);
     assessed_key_ = 0;
     assess();
     // A quiet map is the evidence eq. 16's average waits for: nodes still catching up with a
@@ -699,6 +717,7 @@ void Engine::restore(const RestoredState &restored)
     map_ = std::move(map);
     in_relax_queue_.assign(map_.nodes.size(), 0);
     relax_queue_.clear();
+    settle_owed_ = 0;
     placement_.resize(map_.nodes.size());
     for (uint32_t node = 0; node < map_.nodes.size(); ++node) {
         placement_.markPending(map_, node);

@@ -131,7 +131,7 @@ bool PlacementStep::placeByHandedness(MapState &map, const std::vector<uint32_t>
 }
 
 std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, const OutputFrame &frame,
-                                         const std::function<void(const std::string &)> &trace)
+                                         const std::function<void(const std::string &)> &trace, uint64_t most)
 {
     std::vector<uint32_t> placed_now;
     any_pending_ = false;
@@ -156,15 +156,21 @@ std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, const O
             return placed_now;
         }
     }
+    const uint64_t first = counters_.placements; // the frame's three placed above count as one
+    auto full = [&] { return counters_.placements - first >= std::max<uint64_t>(most, 1); };
     std::vector<uint32_t> ambiguous;
     for (;;) {
         // Decisive placements first, repeated while they make progress.
         bool progress = true;
-        while (progress) {
+        while (progress && !full()) {
             progress = false;
             ambiguous.clear();
             for (uint32_t node = 0; node < map.nodes.size(); ++node) {
                 NodeState &state = map.nodes[node];
+                if (full()) {
+                    any_pending_ = true; // the rest waits for the next run
+                    break;
+                }
                 if (state.placed() || pending_[node] == 0) {
                     continue;
                 }
@@ -197,7 +203,7 @@ std::vector<uint32_t> PlacementStep::run(MapState &map, bool frame_held, const O
                 }
             }
         }
-        if (!ambiguous.empty() && frame.fixedFrameNodes() == 2 && map.placedCount() == 2 &&
+        if (!full() && !ambiguous.empty() && frame.fixedFrameNodes() == 2 && map.placedCount() == 2 &&
             placeByHandedness(map, ambiguous, trace)) {
             continue;
         }

@@ -92,6 +92,7 @@ const std::vector<Key<engine::EngineParams>> &engineKeys()
         CDRO_COUNT("refinement", "relax_per_range", 0, 100000, refinement.relax_per_range),
         CDRO_REAL("refinement", "relax_threshold_m", 0.0, kHuge, refinement.relax_threshold_m),
         CDRO_COUNT("refinement", "settle_per_placed", 0, 100000, refinement.settle_per_placed),
+        CDRO_COUNT("refinement", "settle_per_range", 1, 100000, refinement.settle_per_range),
         CDRO_REAL("refinement", "inconsistent_residual_m", 0.0, kHuge, refinement.inconsistent_residual_m),
         CDRO_REAL("refinement", "inconsistent_fraction", 0.0, 1.0, refinement.inconsistent_fraction),
         CDRO_COUNT("refinement", "max_placements", 1, 1000, refinement.max_placements),

@@ -229,7 +229,10 @@ private:
     RangeVerdict takeRange(NodeId from, NodeId to, double range_m, double t_s);
     // A node of the frame triangle moving or unplaced: another triangle (OutputFrame::ensureFrameNodes).
     void keepFrame();
-    void runPlacement();
+    // Whether the neighbour updates a placement is owed are paid at once (settle()) or over the
+    // ranges that follow, `settle_per_range` a range, the next placement waiting for them.
+    enum class Settling : uint8_t { OverRanges, AtOnce };
+    void runPlacement(Settling settling);
     void adoptPlaced(const std::vector<uint32_t> &nodes);
     void startGlobalSolve(bool settling);
     void adoptGlobalSolve();
@@ -237,7 +240,8 @@ private:
     void unplace(uint32_t node);
     void enqueueNeighbours(uint32_t node);
     void enqueue(uint32_t node);
-    void relax(uint64_t budget);
+    uint64_t relax(uint64_t budget, Settling settling); // returns the updates done
+    void relaxAfterRange();
     void assess();
     RangeVerdict addFlightRange(NodeId from, NodeId to, double range_m, double t_s);
     // The 3D tracks' anchors: the fixed nodes of known height (id, x, y, z in m).
@@ -264,6 +268,7 @@ private:
     std::deque<uint32_t> relax_queue_;
     std::vector<uint8_t> in_relax_queue_;
     bool placing_ = false;
+    uint64_t settle_owed_ = 0; // neighbour updates the last placement is still owed
     bool frame_held_ = false;
     uint64_t ranges_used_ = 0;
     uint64_t ranges_stored_ = 0;

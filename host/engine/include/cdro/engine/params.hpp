@@ -47,7 +47,9 @@ struct RefinementParams {
     double switch_gap_nats = 2.0;         // nats, it must explain the links this much better
     uint32_t relax_per_range = 8;         // neighbour updates after each range (bounded work)
     double relax_threshold_m = 3e-3;      // m, a node that moved more than this updates its neighbours
-    uint32_t settle_per_placed = 20;      // neighbour updates per node placed, right after placing
+    uint32_t settle_per_placed = 20;      // neighbour updates per node placed, before the next placement
+    uint32_t settle_per_range = 4;        // of those, paid after each range (more waits for the next
+                                          // range; settle() pays them all at once)
     double inconsistent_residual_m = 1.5; // m, a link residual beyond this (and 4 range sigmas) is inconsistent
     double inconsistent_fraction = 0.5;   // more than this share of a node's links (and >= 2)
                                           // inconsistent: the node is placed again

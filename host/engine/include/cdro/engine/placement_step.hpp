@@ -36,9 +36,10 @@ public:
     bool anyPending() const { return any_pending_; }
     // Places what can be placed now; returns the nodes placed, in order. `frame_held`: no frame
     // triangle (the movement stage's own frame: only fixed or pinned nodes start the map); the
-    // frame triangle is taken among the nodes `frame` allows.
+    // frame triangle is taken among the nodes `frame` allows. At most `most` nodes are placed
+    // (the frame's three count as one); the others stay pending for the next run.
     std::vector<uint32_t> run(MapState &map, bool frame_held, const OutputFrame &frame,
-                              const std::function<void(const std::string &)> &trace);
+                              const std::function<void(const std::string &)> &trace, uint64_t most = UINT64_MAX);
     // A node placed at position_m (also by others: the global solve).
     void place(MapState &map, uint32_t node, const Vector2 &position_m, const Matrix2 &covariance_m2);
     // A placed node found inconsistent with its links goes back to waiting.
