@@ -249,10 +249,10 @@ void Engine::runPlacement(Settling settling)
     // range path that settling is spread over the ranges that follow (no range pays for more
     // than `settle_per_range` of it), and the next placement waits until it is done.
     if (placing_ || (settling == Settling::OverRanges && settle_owed_ > 0)) {
-        return; // re-entered from a relaxation: the outer loop sees the pending nodes
+        return; // re-entered from a relaxation (the outer loop sees the pending nodes), or owed
     }
     placing_ = true;
-    relax(std::exchange(settle_owed_, 0), settling);
+    relax(std::exchange(settle_owed_, 0), settling); // settle(): what the range path still owes
     if (!frame_.applied()) {
         frame_.apply(map_);
         ++revision_;
